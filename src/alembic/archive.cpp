@@ -1,0 +1,272 @@
+// Opening an archive: the root group, archive metadata, time samplings, the indexed-metadata
+// table and the object hierarchy with every property header.
+#include <algorithm>
+#include <cstdlib>
+#include <limits>
+
+#include <fmt/format.h>
+
+#include "alembic/archive_data.hpp"
+
+namespace pstream::alembic {
+namespace {
+
+using detail::ArchiveData;
+using detail::ObjectNode;
+using detail::PropertyNode;
+
+// Root group children.
+enum RootChild : std::uint64_t { kFileVersion = 0, kLibraryVersion, kTopObject, kMetadata, kTimeSamplings, kIndexedMetadata };
+constexpr std::uint64_t kRootChildren = 6;
+constexpr std::size_t kObjectHashBytes = 32;  // object headers end with two 16-byte hashes
+constexpr std::uint8_t kMetadataInline = 0xff;
+
+std::uint32_t read_u32_block(const ArchiveData& a, ogawa::Data data, std::string_view what) {
+  ogawa::Reader in(a.file, data);
+  const std::uint32_t v = in.u32(what);
+  return v;
+}
+
+std::vector<TimeSampling> read_time_samplings(const ogawa::File& file, ogawa::Data data) {
+  std::vector<TimeSampling> out;
+  ogawa::Reader in(file, data);
+  while (!in.done()) {
+    TimeSampling ts;
+    ts.max_num_samples = in.u32("time sampling max sample count");
+    ts.time_per_cycle = in.f64("time sampling time per cycle");
+    const std::uint64_t at = in.offset();
+    const std::uint32_t n = in.u32("time sampling stored time count");
+    if (n == 0) file.fail(at, "time sampling stores no times (expected at least one)");
+    if (static_cast<std::uint64_t>(n) * 8 > in.remaining()) {
+      file.fail(at, fmt::format("time sampling claims {} stored times but only {} bytes remain", n, in.remaining()));
+    }
+    ts.stored_times.clear();
+    ts.stored_times.reserve(n);
+    for (std::uint32_t i = 0; i < n; ++i) ts.stored_times.push_back(in.f64("time sampling stored time"));
+    if (ts.time_per_cycle == TimeSampling::kAcyclicTimePerCycle) {
+      ts.type = TimeSamplingType::Acyclic;
+      ts.samples_per_cycle = TimeSampling::kAcyclicSamplesPerCycle;
+    } else {
+      if (!(ts.time_per_cycle > 0.0) || !std::isfinite(ts.time_per_cycle)) {
+        file.fail(at - 8, fmt::format("time sampling has time per cycle {}, expected a positive number", ts.time_per_cycle));
+      }
+      ts.type = n == 1 ? TimeSamplingType::Uniform : TimeSamplingType::Cyclic;
+      ts.samples_per_cycle = n;
+    }
+    out.push_back(std::move(ts));
+  }
+  if (out.empty()) out.emplace_back();  // the default identity sampling always exists
+  return out;
+}
+
+std::vector<MetaData> read_indexed_metadata(const ogawa::File& file, ogawa::Data data) {
+  std::vector<MetaData> out(1);  // entry 0 is the empty metadata
+  ogawa::Reader in(file, data);
+  while (!in.done()) {
+    const std::uint8_t size = in.u8("indexed metadata size");
+    out.push_back(MetaData::parse(in.str(size, "indexed metadata string")));
+  }
+  return out;
+}
+
+void read_object(const ArchiveData& a, ObjectNode& object, ogawa::Group group, std::unordered_set<std::uint64_t>& visited,
+                 int depth) {
+  const ogawa::File& file = a.file;
+  if (depth > detail::kMaxHierarchyDepth) {
+    file.fail(group.offset, fmt::format("objects nest deeper than {} levels", detail::kMaxHierarchyDepth));
+  }
+  if (group.offset != 0 && !visited.insert(group.offset).second) {
+    file.fail(group.offset, fmt::format("object group of '{}' is reached twice: the hierarchy has a cycle or a "
+                                        "corrupted offset", object.full_name));
+  }
+  object.properties = std::make_unique<PropertyNode>();
+  object.properties->header.kind = PropertyKind::Compound;
+  if (group.count == 0) return;
+  object.properties->group = file.child_group(group, 0);
+  detail::read_compound(a, *object.properties, visited, 0);
+  if (group.count == 1) return;
+
+  // The last child packs the child objects' headers, followed by hashes.
+  const ogawa::Data headers = file.child_data(group, group.count - 1);
+  const std::uint64_t child_count = group.count - 2;
+  if (headers.size > kObjectHashBytes) {
+    ogawa::Reader in(file, {headers.offset, headers.size - kObjectHashBytes});
+    while (!in.done()) {
+      if (object.children.size() >= child_count) {
+        file.fail(in.offset(), fmt::format("object '{}' has {} child groups but its headers describe more",
+                                           object.full_name, child_count));
+      }
+      auto child = std::make_unique<ObjectNode>();
+      const std::uint32_t name_size = in.u32("object name size");
+      child->name = std::string(in.str(name_size, "object name"));
+      child->full_name = object.parent == nullptr ? std::string() : object.full_name;
+      child->full_name.append("/").append(child->name);
+      const std::uint64_t md_at = in.offset();
+      const std::uint8_t md_index = in.u8("object metadata index");
+      if (md_index == kMetadataInline) {
+        const std::uint32_t md_size = in.u32("object metadata size");
+        child->metadata = MetaData::parse(in.str(md_size, "object metadata"));
+      } else if (md_index < a.indexed_metadata.size()) {
+        child->metadata = a.indexed_metadata[md_index];
+      } else {
+        file.fail(md_at, fmt::format("object '{}' refers to metadata entry {} but the archive has {}", child->full_name,
+                                     md_index, a.indexed_metadata.size()));
+      }
+      child->parent = &object;
+      object.children.push_back(std::move(child));
+    }
+  }
+  if (object.children.size() != child_count) {
+    file.fail(headers.offset, fmt::format("object '{}' has {} child groups but its headers describe {}", object.full_name,
+                                          child_count, object.children.size()));
+  }
+  for (std::size_t i = 0; i < object.children.size(); ++i) {
+    read_object(a, *object.children[i], file.child_group(group, i + 1), visited, depth + 1);
+  }
+}
+
+std::unique_ptr<ArchiveData> parse(std::unique_ptr<ArchiveData> a) {
+  const ogawa::File& file = a->file;
+  const ogawa::Group root = file.root();
+  if (root.count < kRootChildren) {
+    file.fail(root.offset, fmt::format("root group has {} children, an Alembic archive has at least {}", root.count,
+                                       kRootChildren));
+  }
+  a->ogawa_version = read_u32_block(*a, file.child_data(root, kFileVersion), "Ogawa file version");
+  a->archive_version = read_u32_block(*a, file.child_data(root, kLibraryVersion), "Alembic library version");
+  const ogawa::Data md = file.child_data(root, kMetadata);
+  a->metadata = MetaData::parse(std::string_view(reinterpret_cast<const char*>(file.payload(md).data()), md.size));
+  a->time_samplings = read_time_samplings(file, file.child_data(root, kTimeSamplings));
+  a->indexed_metadata = read_indexed_metadata(file, file.child_data(root, kIndexedMetadata));
+
+  a->top = std::make_unique<ObjectNode>();
+  a->top->name.assign("ABC");
+  a->top->full_name.assign(1, '/');
+
+  std::unordered_set<std::uint64_t> visited;
+  read_object(*a, *a->top, file.child_group(root, kTopObject), visited, 0);
+  return a;
+}
+
+void collect(const detail::ArchiveData* a, const ObjectNode& node, std::vector<Object>& out, auto make) {
+  for (const auto& child : node.children) {
+    out.push_back(make(a, child.get()));
+    collect(a, *child, out, make);
+  }
+}
+
+}  // namespace
+
+// ---- Archive --------------------------------------------------------------------------------
+
+Archive::Archive(std::unique_ptr<detail::ArchiveData> data) : d_(std::move(data)) {}
+Archive::Archive(Archive&&) noexcept = default;
+Archive& Archive::operator=(Archive&&) noexcept = default;
+Archive::~Archive() = default;
+
+Archive Archive::open(const std::filesystem::path& path) {
+  MappedFile mapping = MappedFile::open(path);
+  const auto bytes = mapping.bytes();
+  return Archive(parse(std::make_unique<ArchiveData>(std::move(mapping), bytes, path.string())));
+}
+
+Archive Archive::from_memory(std::span<const std::byte> bytes, std::string name) {
+  return Archive(parse(std::make_unique<ArchiveData>(MappedFile(), bytes, std::move(name))));
+}
+
+const std::string& Archive::name() const { return d_->file.name(); }
+std::uint64_t Archive::file_size() const { return d_->file.size(); }
+std::span<const std::byte> Archive::bytes() const { return d_->file.bytes(); }
+std::uint32_t Archive::ogawa_file_version() const { return d_->ogawa_version; }
+std::uint32_t Archive::archive_version() const { return d_->archive_version; }
+const MetaData& Archive::metadata() const { return d_->metadata; }
+const std::vector<TimeSampling>& Archive::time_samplings() const { return d_->time_samplings; }
+
+const TimeSampling& Archive::time_sampling(std::uint32_t index) const {
+  if (index >= d_->time_samplings.size()) {
+    throw Error(fmt::format("{}: time sampling {} requested, the archive has {}", name(), index, d_->time_samplings.size()));
+  }
+  return d_->time_samplings[index];
+}
+
+ArchiveInfo Archive::info() const {
+  ArchiveInfo info;
+  info.app_name = d_->metadata.get("_ai_Application");
+  info.alembic_version_string = d_->metadata.get("_ai_AlembicVersion");
+  info.alembic_api_version = d_->archive_version;
+  info.date_written = d_->metadata.get("_ai_DateWritten");
+  info.user_description = d_->metadata.get("_ai_Description");
+  const std::string fps = d_->metadata.get("_ai_DCC_FPS");
+  info.dcc_fps = fps.empty() ? 0.0 : std::strtod(fps.c_str(), nullptr);
+  return info;
+}
+
+std::pair<double, double> Archive::start_end_time() const {
+  double start = std::numeric_limits<double>::max();
+  double end = -std::numeric_limits<double>::max();
+  for (std::size_t i = 0; i < d_->time_samplings.size(); ++i) {
+    const TimeSampling& ts = d_->time_samplings[i];
+    // The default sampling with a single sample only holds constant values: it says nothing
+    // about the animation's range.
+    if (ts.max_num_samples == 0 || (i == 0 && ts.max_num_samples == 1)) continue;
+    start = std::min(start, ts.sample_time(0));
+    end = std::max(end, ts.sample_time(ts.max_num_samples - 1));
+  }
+  if (start > end) return {0.0, 0.0};
+  return {start, end};
+}
+
+Object Archive::top() const { return Object(d_.get(), d_->top.get()); }
+
+std::optional<Object> Archive::find(std::string_view full_name) const {
+  if (full_name == "/") return top();
+  for (const Object& o : objects()) {
+    if (o.full_name() == full_name) return o;
+  }
+  return std::nullopt;
+}
+
+std::vector<Object> Archive::objects() const {
+  std::vector<Object> out;
+  collect(d_.get(), *d_->top, out, [](const ArchiveData* a, const ObjectNode* n) { return Object(a, n); });
+  return out;
+}
+
+// ---- Object ---------------------------------------------------------------------------------
+
+const std::string& Object::name() const { return node_->name; }
+const std::string& Object::full_name() const { return node_->full_name; }
+const MetaData& Object::metadata() const { return node_->metadata; }
+std::size_t Object::child_count() const { return node_->children.size(); }
+Object Object::child(std::size_t i) const { return Object(archive_, node_->children.at(i).get()); }
+Property Object::properties() const { return Property(archive_, node_->properties.get()); }
+
+std::optional<Object> Object::parent() const {
+  if (node_->parent == nullptr) return std::nullopt;
+  return Object(archive_, node_->parent);
+}
+
+// ---- Property -------------------------------------------------------------------------------
+
+const PropertyHeader& Property::header() const { return node_->header; }
+const TimeSampling& Property::time_sampling() const { return archive_->time_samplings[node_->header.time_sampling_index]; }
+std::size_t Property::child_count() const { return node_->children.size(); }
+Property Property::child(std::size_t i) const { return Property(archive_, node_->children.at(i).get()); }
+
+std::optional<Property> Property::find(std::string_view name) const {
+  for (const auto& c : node_->children) {
+    if (c->header.name == name) return Property(archive_, c.get());
+  }
+  return std::nullopt;
+}
+
+std::string_view property_kind_name(PropertyKind kind) {
+  switch (kind) {
+    case PropertyKind::Compound: return "compound";
+    case PropertyKind::Scalar: return "scalar";
+    case PropertyKind::Array: return "array";
+  }
+  return "?";
+}
+
+}  // namespace pstream::alembic
