@@ -66,7 +66,7 @@ void print_points(const Object& o) {
   fmt::print("    particles per sample: min {} / avg {:.1f} / max {}\n", lo, n ? double(total) / n : 0.0, hi);
   fmt::print("    attributes:\n");
   fmt::print("      {:<14} {:<11} {:<8}\n", "P", "float32x3", "varying");
-  if (n > 0 && !points.ids(0).empty()) fmt::print("      {:<14} {:<11} {:<8}\n", ".pointIds", "uint64", "varying");
+  if (points.has_ids()) fmt::print("      {:<14} {:<11} {:<8}\n", ".pointIds", "uint64", "varying");
   if (points.has_velocities()) fmt::print("      {:<14} {:<11} {:<8}\n", ".velocities", "float32x3", "varying");
   if (points.widths()) print_param(*points.widths());
   for (const GeomParam& p : points.arb_geom_params()) print_param(p);

@@ -290,6 +290,7 @@ class Points {
 
   std::uint64_t count(std::uint32_t sample) const;  // particles in a sample
   SampleView positions(std::uint32_t sample) const;  // float32 x3
+  bool has_ids() const { return ids_.valid(); }
   SampleView ids(std::uint32_t sample) const;        // uint64 (may be empty)
   bool has_velocities() const { return velocities_.valid(); }
   SampleView velocities(std::uint32_t sample) const;  // nearest to the sample's time

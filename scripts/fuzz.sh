@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Bounded libFuzzer run of every reader of untrusted bytes, seeded with the test fixtures.
+#   FUZZ_SECONDS (default 30) per target.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seconds=${FUZZ_SECONDS:-30}
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+
+run_target() {  # name, seed files...
+  local name=$1; shift
+  local corpus="$work/$name"
+  mkdir -p "$corpus"
+  cp "$@" "$corpus/"
+  echo "fuzz: $name for ${seconds}s from $# seeds"
+  # Crash reproducers land in the work directory; libFuzzer exits non-zero on any finding.
+  if ! "build-fuzz/tests/fuzz/$name" "$corpus" -max_total_time="$seconds" -max_len=1048576 -timeout=10 \
+      -rss_limit_mb=2048 -artifact_prefix="$work/" -print_final_stats=1 >"$work/$name.log" 2>&1; then
+    tail -n 60 "$work/$name.log"
+    mkdir -p fuzz-findings && cp "$work"/crash-* "$work"/timeout-* "$work"/oom-* fuzz-findings/ 2>/dev/null || true
+    echo "fuzz: $name FAILED (reproducers in fuzz-findings/)"
+    return 1
+  fi
+  grep -E "stat::number_of_executed_units|stat::peak_rss_mb" "$work/$name.log" | sed 's/^/  /'
+}
+
+seeds=$(find tests/data/alembic -name '*.abc' -size -1024k | sort)
+# shellcheck disable=SC2086
+run_target fuzz_alembic $seeds
