@@ -12,6 +12,17 @@ struct InfoOptions {
 };
 int info_alembic(const InfoOptions& options);
 
+struct InfoPstreamOptions {
+  std::string file;
+  bool json = false;
+  bool frames = false;  // with json: per-frame sums
+};
+int info_pstream(const InfoPstreamOptions& options);
+int verify_pstream(const std::string& file, bool json);
+
+// True when the file starts with the .pstream magic.
+bool is_pstream_file(const std::string& file);
+
 struct BenchReadOptions {
   std::string file;
   std::string object;  // empty: the points object with the most data
@@ -19,5 +30,24 @@ struct BenchReadOptions {
   bool json = false;
 };
 int bench_read(const BenchReadOptions& options);
+
+// `pstream cook`: options as typed on the command line, converted by run_cook.
+struct CookCli {
+  std::string input, output, object, scale_from = "widths", color_from = "auto", attributes, chunk_size = "2MiB",
+                                     codec = "raw", frames;
+  bool merge = false, no_xforms = false, interpolate = false, drop_invalid = false, quiet = false, json = false;
+  double fps = 0.0;
+  std::uint64_t max_particles = 64ull << 20;
+  unsigned threads = 0;
+  std::string command_line;
+};
+int run_cook(const CookCli& cli);
+
+struct BenchCookOptions {
+  std::string file;
+  int repetitions = 5;
+  bool json = false;
+};
+int bench_cook(const BenchCookOptions& options);
 
 }  // namespace pstream::app

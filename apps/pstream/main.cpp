@@ -8,25 +8,84 @@
 #include "commands.hpp"
 #include "particlestream/error.hpp"
 
+namespace {
+
+std::string join_args(int argc, char** argv) {
+  std::string s = "pstream";
+  for (int i = 1; i < argc; ++i) s += std::string(" ") + argv[i];
+  return s;
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   using namespace pstream::app;
   CLI::App app{
       "pstream — play back pre-simulated particle caches in real time.\n\n"
-      "Examples:\n"
-      "  pstream info sim.abc            summary of an Alembic point cache\n"
-      "  pstream info sim.abc --json     every value, in the alembic-fixture-expected/1 schema\n"
-      "  pstream bench read sim.abc      cost of reading every frame vs. a plain memcpy",
+      "Typical use:\n"
+      "  pstream info sim.abc                        what is in an Alembic point cache\n"
+      "  pstream cook sim.abc -o sim.pstream         cook it into fixed-size chunks for streaming\n"
+      "  pstream info sim.pstream                    what the cooked clip holds\n"
+      "  pstream verify sim.pstream                  check every checksum and index entry\n"
+      "  pstream bench read|cook FILE                measure a stage against a baseline",
       "pstream"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "pstream 0.1.0");
 
-  InfoOptions info;
-  auto* info_cmd = app.add_subcommand("info", "Describe a file: time samplings, objects, particle counts, attributes");
-  info_cmd->add_option("file", info.file, "An Alembic (.abc, Ogawa) file")->required()->check(CLI::ExistingFile);
-  info_cmd->add_flag("--json", info.json,
-                     "Print a JSON document in the alembic-fixture-expected/1 schema (see docs/alembic.md), "
-                     "comparable value by value with the official Alembic library's answers");
+  // info -------------------------------------------------------------------------------------
+  std::string info_file;
+  bool info_json = false, info_frames = false;
+  auto* info_cmd = app.add_subcommand("info", "Describe an Alembic (.abc) or cooked (.pstream) file");
+  info_cmd->add_option("file", info_file, "An Alembic (Ogawa) or .pstream file")->required()->check(CLI::ExistingFile);
+  info_cmd->add_flag("--json", info_json,
+                     "Print JSON. For Alembic: the alembic-fixture-expected/1 schema (docs/alembic.md), comparable "
+                     "value by value with the official library. For .pstream: header, layout and chunk summary");
+  info_cmd->add_flag("--frames", info_frames, "With --json on a .pstream: per-frame count and float64 sums of x, y, z, scale");
 
+  // cook -------------------------------------------------------------------------------------
+  CookCli cook;
+  cook.command_line = join_args(argc, argv);
+  auto* cook_cmd = app.add_subcommand(
+      "cook", "Cook an Alembic point cache or a numbered PLY sequence into a .pstream\n\n"
+              "Examples:\n"
+              "  pstream cook splash.abc -o splash.pstream\n"
+              "  pstream cook fx.abc --object /fx/sparks -o sparks.pstream --codec zstd:5\n"
+              "  pstream cook fx.abc --merge --fps 60 --interpolate -o fx.pstream\n"
+              "  pstream cook render/frame.0001.ply --fps 24 -o smoke.pstream");
+  cook_cmd->add_option("input", cook.input, "Alembic file, or any file of a PLY sequence (frame.0001.ply)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  cook_cmd->add_option("-o,--output", cook.output, "The .pstream to write (written to a temporary file, renamed on success)")
+      ->required();
+  cook_cmd->add_option("--object", cook.object, "Full name of the points object (or a PolyMesh, cooked as its vertices)");
+  cook_cmd->add_flag("--merge", cook.merge, "Cook every points object into one stream, each with its own transform");
+  cook_cmd->add_flag("--no-xforms", cook.no_xforms, "Keep positions in object space (default: bake the world transform)");
+  cook_cmd->add_option("--fps", cook.fps, "Output frame rate (default: the source's; PLY: 24)")->check(CLI::PositiveNumber);
+  cook_cmd->add_flag("--interpolate", cook.interpolate,
+                     "Between source samples, blend particles matched by id (default: take the nearest sample)");
+  cook_cmd->add_option("--scale-from", cook.scale_from,
+                       "widths (a width is a diameter; the record stores the radius), constant:X, or attr:NAME")
+      ->capture_default_str();
+  cook_cmd->add_option("--color-from", cook.color_from, "Cd, none, or auto (Cd when the source has it)")->capture_default_str();
+  cook_cmd->add_option("--attributes", cook.attributes,
+                       "Extra record attributes, comma separated: velocity, id (uint64), id32, or any float attribute");
+  cook_cmd->add_option("--chunk-size", cook.chunk_size, "Chunk size, a power of two from 64KiB to 64MiB")->capture_default_str();
+  cook_cmd->add_option("--codec", cook.codec, "raw, lz4[:HC level], zstd[:level]")->capture_default_str();
+  cook_cmd->add_option("--frames", cook.frames, "Output frames A:B (from A up to but not including B)");
+  cook_cmd->add_flag("--drop-invalid", cook.drop_invalid, "Drop particles with NaN or infinite positions instead of failing");
+  cook_cmd->add_option("--max-particles", cook.max_particles, "Largest particle count a frame may have")->capture_default_str();
+  cook_cmd->add_option("--threads", cook.threads, "Chunk encoding threads (default: one per core)");
+  cook_cmd->add_flag("-q,--quiet", cook.quiet, "No progress bar or summary");
+  cook_cmd->add_flag("--json", cook.json, "Print the cook report as JSON");
+
+  // verify -----------------------------------------------------------------------------------
+  std::string verify_file;
+  bool verify_json = false;
+  auto* verify_cmd = app.add_subcommand("verify", "Check every checksum and index entry of a .pstream (exit code 0 only if all is right)");
+  verify_cmd->add_option("file", verify_file, "A .pstream file")->required()->check(CLI::ExistingFile);
+  verify_cmd->add_flag("--json", verify_json, "Print the result as JSON");
+
+  // bench ------------------------------------------------------------------------------------
   auto* bench_cmd = app.add_subcommand("bench", "Measure a stage against a baseline run side by side");
   bench_cmd->require_subcommand(1);
   BenchReadOptions bench_read_opts;
@@ -37,11 +96,24 @@ int main(int argc, char** argv) {
   read_cmd->add_option("--repetitions", bench_read_opts.repetitions, "Passes over all frames; medians are reported")
       ->check(CLI::Range(1, 10000));
   read_cmd->add_flag("--json", bench_read_opts.json, R"(Print {"read_ms":…, "memcpy_ms":…, "ratio":…})");
+  BenchCookOptions bench_cook_opts;
+  auto* bench_cook_cmd = bench_cmd->add_subcommand(
+      "cook", "Cook with the raw codec, compared with plainly reading the source and writing as many bytes");
+  bench_cook_cmd->add_option("file", bench_cook_opts.file, "An Alembic file")->required()->check(CLI::ExistingFile);
+  bench_cook_cmd->add_option("--repetitions", bench_cook_opts.repetitions, "Runs of each; medians are reported")
+      ->check(CLI::Range(1, 1000));
+  bench_cook_cmd->add_flag("--json", bench_cook_opts.json, R"(Print {"cook_mb_s":…, "baseline_mb_s":…, "ratio":…})");
 
   CLI11_PARSE(app, argc, argv);
   try {
-    if (info_cmd->parsed()) return info_alembic(info);
+    if (info_cmd->parsed()) {
+      if (is_pstream_file(info_file)) return info_pstream({info_file, info_json, info_frames});
+      return info_alembic({info_file, info_json});
+    }
+    if (cook_cmd->parsed()) return run_cook(cook);
+    if (verify_cmd->parsed()) return verify_pstream(verify_file, verify_json);
     if (read_cmd->parsed()) return bench_read(bench_read_opts);
+    if (bench_cook_cmd->parsed()) return bench_cook(bench_cook_opts);
   } catch (const pstream::Error& e) {
     fmt::print(stderr, "pstream: error: {}\n", e.what());
     return 1;

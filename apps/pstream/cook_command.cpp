@@ -1,0 +1,118 @@
+// `pstream cook IN -o OUT.pstream`: option parsing and the report printed at the end.
+#include <charconv>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "commands.hpp"
+#include "particlestream/cook.hpp"
+#include "progress.hpp"
+
+namespace pstream::app {
+namespace {
+
+std::uint64_t parse_size(const std::string& text) {
+  std::uint64_t value = 0;
+  const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  const std::string unit(ptr, text.data() + text.size());
+  if (ec != std::errc() || value == 0) throw Error(fmt::format("--chunk-size '{}': expected a size such as 2MiB", text));
+  if (unit.empty() || unit == "B") return value;
+  if (unit == "K" || unit == "KiB" || unit == "k") return value << 10;
+  if (unit == "M" || unit == "MiB") return value << 20;
+  throw Error(fmt::format("--chunk-size '{}': unknown unit '{}' (B, KiB, MiB)", text, unit));
+}
+
+void parse_codec(const std::string& text, cook::Options& o) {
+  const auto colon = text.find(':');
+  const std::string name = text.substr(0, colon);
+  if (name == "raw") o.codec = format::Codec::Raw;
+  else if (name == "lz4") o.codec = format::Codec::Lz4;
+  else if (name == "zstd") o.codec = format::Codec::Zstd;
+  else throw Error(fmt::format("--codec '{}': expected raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL", text));
+  if (colon != std::string::npos) {
+    const std::string level = text.substr(colon + 1);
+    const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.codec_level);
+    if (ec != std::errc() || ptr != level.data() + level.size() || o.codec_level < 0 || o.codec_level > 22) {
+      throw Error(fmt::format("--codec '{}': level must be 0..22", text));
+    }
+  }
+}
+
+void parse_scale(const std::string& text, cook::Options& o) {
+  if (text == "widths") {
+    o.scale_from = cook::ScaleFrom::Widths;
+  } else if (text.rfind("constant:", 0) == 0) {
+    o.scale_from = cook::ScaleFrom::Constant;
+    o.scale_constant = std::stof(text.substr(9));
+    if (!(o.scale_constant > 0)) throw Error("--scale-from constant:X needs X > 0");
+  } else if (text.rfind("attr:", 0) == 0) {
+    o.scale_from = cook::ScaleFrom::Attribute;
+    o.scale_attribute = text.substr(5);
+  } else {
+    throw Error(fmt::format("--scale-from '{}': expected widths, constant:X or attr:NAME", text));
+  }
+}
+
+void parse_frames(const std::string& text, cook::Options& o) {
+  const auto colon = text.find(':');
+  if (colon == std::string::npos) throw Error(fmt::format("--frames '{}': expected A:B", text));
+  const std::string a = text.substr(0, colon), b = text.substr(colon + 1);
+  o.frame_begin = a.empty() ? 0 : std::stoll(a);
+  o.frame_end = b.empty() ? -1 : std::stoll(b);
+}
+
+}  // namespace
+
+int run_cook(const CookCli& cli) {
+  cook::Options o;
+  o.input = cli.input;
+  o.output = cli.output;
+  o.object = cli.object;
+  o.merge = cli.merge;
+  o.bake_xforms = !cli.no_xforms;
+  o.fps = cli.fps;
+  o.interpolate = cli.interpolate;
+  parse_scale(cli.scale_from, o);
+  o.color_from = cli.color_from;
+  for (std::size_t start = 0; start < cli.attributes.size();) {
+    const auto comma = cli.attributes.find(',', start);
+    const std::string name = cli.attributes.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    if (!name.empty()) o.attributes.push_back(name);
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  o.chunk_size = parse_size(cli.chunk_size);
+  parse_codec(cli.codec, o);
+  if (!cli.frames.empty()) parse_frames(cli.frames, o);
+  o.drop_invalid = cli.drop_invalid;
+  o.max_particles = cli.max_particles;
+  o.threads = cli.threads;
+  o.command_line = cli.command_line;
+
+  ProgressBar bar("cook", !cli.quiet && !cli.json);
+  const cook::Report r = cook::cook(o, [&](const cook::Progress& p) {
+    bar.update(p.frames_done, p.frame_count, fmt::format("frames, {:.1f} MiB written", p.bytes_out / 1048576.0));
+  });
+  const double ratio = r.file_bytes ? double(r.stream_bytes) / double(r.file_bytes) : 0.0;
+  if (cli.json) {
+    nlohmann::ordered_json j{{"output", cli.output},   {"object", r.object},           {"frames", r.frames},
+                             {"chunks", r.chunks},     {"particles", r.particles},     {"dropped_invalid", r.dropped_invalid},
+                             {"input_bytes", r.input_bytes}, {"stream_bytes", r.stream_bytes}, {"file_bytes", r.file_bytes},
+                             {"compression_ratio", ratio},   {"seconds", r.seconds}};
+    fmt::print("{}\n", j.dump());
+    return 0;
+  }
+  if (!cli.quiet) {
+    if (r.default_scale > 0) {
+      fmt::print(stderr, "note: the source has no widths; every particle got scale {:g} (choose with --scale-from)\n",
+                 r.default_scale);
+    }
+    if (r.dropped_invalid) fmt::print(stderr, "note: dropped {} particles with NaN or infinite positions\n", r.dropped_invalid);
+    fmt::print("{} -> {}: {} frames, {} particles, {} chunks, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} s\n",
+               r.object, cli.output, r.frames, r.particles, r.chunks, r.file_bytes / 1048576.0, ratio,
+               r.stream_bytes / 1048576.0, r.seconds);
+  }
+  return 0;
+}
+
+}  // namespace pstream::app

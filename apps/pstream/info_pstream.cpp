@@ -1,0 +1,144 @@
+// `pstream info FILE.pstream` and `pstream verify FILE.pstream`.
+#include <cstring>
+#include <fstream>
+#include <map>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "commands.hpp"
+#include "particlestream/format.hpp"
+
+namespace pstream::app {
+namespace {
+
+using namespace pstream::format;
+using json = nlohmann::ordered_json;
+
+json layout_json(const Metadata& m) {
+  json out = json::array();
+  for (const Attribute& a : m.layout) {
+    out.push_back({{"name", a.name}, {"type", attribute_type_name(a.type)}, {"components", a.components}, {"offset", a.offset}});
+  }
+  return out;
+}
+
+std::uint64_t stored_bytes(const Metadata& m) {
+  std::uint64_t s = 0;
+  for (const ChunkEntry& c : m.chunks) s += c.stored_size;
+  return s;
+}
+
+json bounds_json(const std::array<float, 6>& b) {
+  return json{{"min", {b[0], b[1], b[2]}}, {"max", {b[3], b[4], b[5]}}};
+}
+
+}  // namespace
+
+bool is_pstream_file(const std::string& file) {
+  std::ifstream in(file, std::ios::binary);
+  char magic[8] = {};
+  in.read(magic, 8);
+  return in.gcount() == 8 && std::memcmp(magic, "PSTREAM\0", 8) == 0;
+}
+
+int info_pstream(const InfoPstreamOptions& options) {
+  const Reader reader = Reader::open(options.file);
+  const Metadata& m = reader.metadata();
+  std::map<std::string, std::uint64_t> codecs;
+  for (const ChunkEntry& c : m.chunks) ++codecs[std::string(codec_name(c.codec))];
+  const std::uint64_t stored = stored_bytes(m);
+  const double ratio = stored ? double(m.stream_size()) / double(stored) : 1.0;
+  if (options.json) {
+    json j{{"format", "pstream"},
+           {"file", options.file},
+           {"version", m.version},
+           {"flags", {{"xforms_baked", (m.flags & kFlagXformsBaked) != 0}, {"interpolated", (m.flags & kFlagInterpolated) != 0}}},
+           {"source", {{"file", m.source_file}, {"object", m.source_object}}},
+           {"cooked_with", m.cooked_with},
+           {"fps", m.fps},
+           {"time_of_frame0", m.time_of_frame0},
+           {"frame_count", m.frame_count()},
+           {"particles", {{"min", m.min_count}, {"avg", m.avg_count}, {"max", m.max_count}}},
+           {"bounds", bounds_json(m.bounds)},
+           {"record_size", m.record_size},
+           {"layout", layout_json(m)},
+           {"chunk_size", m.chunk_size},
+           {"chunk_count", m.chunk_count()},
+           {"particles_per_chunk", m.particles_per_chunk()},
+           {"stream_bytes", m.stream_size()},
+           {"stored_bytes", stored},
+           {"file_bytes", reader.file_size()},
+           {"compression_ratio", ratio},
+           {"codecs", codecs}};
+    if (options.frames) {
+      json frames = json::array();
+      std::vector<std::byte> buffer(m.max_count * m.record_size), scratch(m.chunk_size);
+      for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+        reader.read_frame(f, buffer, scratch);
+        double sum[4] = {0, 0, 0, 0};
+        for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
+          float rec[4];
+          std::memcpy(rec, buffer.data() + i * m.record_size, 16);
+          for (int c = 0; c < 4; ++c) sum[c] += rec[c];
+        }
+        frames.push_back({{"index", f}, {"time", m.frames[f].time}, {"count", m.frames[f].count}, {"sum", sum}});
+      }
+      j["frames"] = frames;
+    }
+    fmt::print("{}\n", j.dump(1));
+    return 0;
+  }
+  fmt::print("{}: ParticleStream clip (format version {}), {:.1f} MiB\n", options.file, m.version, reader.file_size() / 1048576.0);
+  fmt::print("  source        {} {}\n", m.source_file, m.source_object);
+  if (!m.cooked_with.empty()) fmt::print("  cooked with   {}\n", m.cooked_with);
+  fmt::print("  frames        {} at {:.6g} fps, from {:.6g} s{}{}\n", m.frame_count(), m.fps, m.time_of_frame0,
+             m.flags & kFlagXformsBaked ? ", world space" : ", object space",
+             m.flags & kFlagInterpolated ? ", interpolated" : "");
+  fmt::print("  particles     min {} / avg {:.1f} / max {} per frame\n", m.min_count, m.avg_count, m.max_count);
+  fmt::print("  bounds        ({:.4g}, {:.4g}, {:.4g}) .. ({:.4g}, {:.4g}, {:.4g})\n", m.bounds[0], m.bounds[1], m.bounds[2],
+             m.bounds[3], m.bounds[4], m.bounds[5]);
+  fmt::print("  record        {} bytes:", m.record_size);
+  for (const Attribute& a : m.layout) {
+    fmt::print(" {}({}{})@{}", a.name, attribute_type_name(a.type), a.components > 1 ? fmt::format("x{}", a.components) : "",
+               a.offset);
+  }
+  fmt::print("\n  chunks        {} of {} KiB ({:.0f} particles each)", m.chunk_count(), m.chunk_size >> 10, m.particles_per_chunk());
+  for (const auto& [name, n] : codecs) fmt::print(", {} {}", n, name);
+  fmt::print("\n  size          {:.1f} MiB of records stored in {:.1f} MiB: compression {:.2f}x\n", m.stream_size() / 1048576.0,
+             stored / 1048576.0, ratio);
+  return 0;
+}
+
+int verify_pstream(const std::string& file, bool as_json) {
+  std::vector<std::string> errors;
+  std::uint64_t chunks = 0, frames = 0;
+  try {
+    const Reader reader = Reader::open(file);  // header, tables, frame index, chunk bounds
+    const Metadata& m = reader.metadata();
+    frames = m.frame_count();
+    std::vector<std::byte> scratch(m.chunk_size);
+    for (std::uint64_t c = 0; c < m.chunk_count(); ++c) {
+      try {
+        reader.read_chunk(c, scratch);  // checksum and decode
+        ++chunks;
+      } catch (const Error& e) {
+        errors.push_back(e.what());
+      }
+    }
+  } catch (const Error& e) {
+    errors.push_back(e.what());
+  }
+  if (as_json) {
+    fmt::print("{}\n", json{{"file", file}, {"ok", errors.empty()}, {"chunks_verified", chunks}, {"frames", frames},
+                            {"errors", errors}}.dump());
+  } else if (errors.empty()) {
+    fmt::print("{}: OK — {} frames, {} chunks, every checksum and index entry verified\n", file, frames, chunks);
+  } else {
+    for (const auto& e : errors) fmt::print(stderr, "{}\n", e);
+    fmt::print(stderr, "{}: FAILED — {} problem(s)\n", file, errors.size());
+  }
+  return errors.empty() ? 0 : 1;
+}
+
+}  // namespace pstream::app

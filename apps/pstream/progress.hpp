@@ -1,0 +1,46 @@
+// A progress bar on a terminal, plain lines every 10 % otherwise (logs, CI).
+#pragma once
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdint>
+#include <cstdio>
+#include <string>
+
+#include <fmt/format.h>
+
+namespace pstream::app {
+
+class ProgressBar {
+ public:
+  explicit ProgressBar(std::string label, bool enabled = true)
+      : label_(std::move(label)), enabled_(enabled), tty_(::isatty(STDERR_FILENO) != 0) {}
+
+  void update(std::uint64_t done, std::uint64_t total, const std::string& detail = {}) {
+    if (!enabled_ || total == 0) return;
+    const int percent = static_cast<int>(100 * done / total);
+    if (tty_) {
+      const auto now = std::chrono::steady_clock::now();
+      if (done != total && now - last_ < std::chrono::milliseconds(50)) return;
+      last_ = now;
+      constexpr int width = 30;
+      const int filled = static_cast<int>(width * done / total);
+      fmt::print(stderr, "\r{} [{}{}] {:3d}% {}/{} {}\x1b[K", label_, std::string(filled, '#'), std::string(width - filled, '.'),
+                 percent, done, total, detail);
+      if (done == total) fmt::print(stderr, "\n");
+    } else if (percent / 10 != last_decile_ || done == total) {
+      last_decile_ = percent / 10;
+      fmt::print(stderr, "{}: {}% ({}/{}) {}\n", label_, percent, done, total, detail);
+    }
+    std::fflush(stderr);
+  }
+
+ private:
+  std::string label_;
+  bool enabled_, tty_;
+  int last_decile_ = -1;
+  std::chrono::steady_clock::time_point last_{};
+};
+
+}  // namespace pstream::app

@@ -1,0 +1,59 @@
+// Cooking: an Alembic point cache or a PLY sequence -> a .pstream of fixed-size chunks.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "particlestream/format.hpp"
+
+namespace pstream::cook {
+
+enum class ScaleFrom { Widths, Constant, Attribute };
+
+struct Options {
+  std::filesystem::path input;   // .abc, or one file of a numbered PLY sequence (frame.0001.ply)
+  std::filesystem::path output;  // .pstream
+  std::string object;            // full name of the object to cook; empty: the only points object
+  bool merge = false;            // cook every points object into one stream
+  bool bake_xforms = true;       // apply the object's world transform to positions
+  double fps = 0.0;              // output frame rate; 0: the source's
+  bool interpolate = false;      // blend between samples (needs stable ids) instead of nearest
+  ScaleFrom scale_from = ScaleFrom::Widths;
+  float scale_constant = 0.0f;
+  std::string scale_attribute;
+  std::string color_from = "auto";     // "Cd", "none", or "auto" (Cd when present)
+  std::vector<std::string> attributes;  // "velocity", "id", "id32", or a float attribute name
+  std::uint64_t chunk_size = format::kDefaultChunkSize;
+  format::Codec codec = format::Codec::Raw;
+  int codec_level = 0;  // zstd level (default 3 when 0), lz4: 0 fast, > 0 HC
+  std::int64_t frame_begin = 0, frame_end = -1;  // output frames [begin, end); -1: to the end
+  bool drop_invalid = false;                     // drop NaN/Inf positions instead of failing
+  std::uint64_t max_particles = 64ull << 20;     // per frame
+  unsigned threads = 0;                          // chunk encoders; 0: one per core
+  std::string command_line;                      // recorded in the file
+};
+
+struct Progress {
+  std::uint64_t frames_done = 0, frame_count = 0;
+  std::uint64_t bytes_out = 0;
+};
+
+struct Report {
+  std::uint64_t frames = 0, chunks = 0, particles = 0, dropped_invalid = 0;
+  std::uint64_t input_bytes = 0, stream_bytes = 0, file_bytes = 0;
+  double seconds = 0.0;
+  double default_scale = 0.0;  // set when the source had no widths and a default scale was used
+  std::string object;
+};
+
+// Cooks `options.input` into `options.output`. Throws pstream::Error naming the input, the
+// frame and what was wrong; the output is only created when everything succeeded.
+Report cook(const Options& options, const std::function<void(const Progress&)>& progress = {});
+
+// Scale stored in a record for an Alembic width (a diameter): the radius.
+inline float scale_from_width(float width) { return width * 0.5f; }
+
+}  // namespace pstream::cook

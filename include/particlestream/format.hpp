@@ -1,0 +1,179 @@
+// The .pstream file: a cooked particle clip cut into fixed-size chunks that decode alone.
+// docs/format.md is the normative description; this header mirrors it.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "particlestream/error.hpp"
+
+namespace pstream::format {
+
+inline constexpr std::uint32_t kVersion = 1;
+inline constexpr std::size_t kHeaderSize = 160;
+inline constexpr std::uint64_t kMinChunkSize = 64ull << 10;
+inline constexpr std::uint64_t kMaxChunkSize = 64ull << 20;
+inline constexpr std::uint64_t kDefaultChunkSize = 2ull << 20;
+inline constexpr std::uint32_t kMaxAttributes = 64;
+inline constexpr std::size_t kAttributeNameSize = 32;
+inline constexpr std::uint64_t kChunkAlignment = 64;
+
+inline constexpr std::uint64_t kFlagXformsBaked = 1u << 0;   // positions are in the source's world space
+inline constexpr std::uint64_t kFlagInterpolated = 1u << 1;  // frames between samples were blended, not picked
+
+enum class AttributeType : std::uint8_t { Float32 = 0, Unorm8 = 1, Uint32 = 2, Uint64 = 3 };
+std::string_view attribute_type_name(AttributeType type);
+std::size_t attribute_type_size(AttributeType type);
+
+struct Attribute {
+  std::string name;  // "position", "scale", "color", "velocity", "id" or a source attribute
+  AttributeType type = AttributeType::Float32;
+  std::uint8_t components = 1;
+  std::uint32_t offset = 0;  // within the record
+  std::size_t size() const { return attribute_type_size(type) * components; }
+};
+
+enum class Codec : std::uint16_t { Raw = 0, Lz4 = 1, Zstd = 2 };
+std::string_view codec_name(Codec codec);
+
+struct ChunkEntry {
+  std::uint64_t file_offset = 0;
+  std::uint64_t stored_size = 0;
+  std::uint64_t checksum = 0;  // XXH3-64 of the stored bytes
+  Codec codec = Codec::Raw;
+  std::uint32_t codec_param = 0;  // zstd: level; lz4: 0 fast, > 0 HC level
+};
+
+struct FrameEntry {
+  std::uint64_t count = 0;        // particles
+  std::uint64_t byte_offset = 0;  // in the logical record stream
+  double time = 0.0;              // seconds
+  std::array<float, 6> bounds{};  // min xyz, max xyz of the positions (empty frame: +inf/-inf)
+};
+
+struct Metadata {
+  std::uint32_t version = kVersion;
+  std::uint64_t flags = 0;
+  double fps = 24.0;
+  double time_of_frame0 = 0.0;
+  std::uint64_t chunk_size = kDefaultChunkSize;
+  std::uint32_t record_size = 16;
+  std::uint64_t min_count = 0, max_count = 0;
+  double avg_count = 0.0;
+  std::array<float, 6> bounds{};
+  std::string source_file, source_object, cooked_with;
+  std::vector<Attribute> layout;
+  std::vector<FrameEntry> frames;
+  std::vector<ChunkEntry> chunks;
+
+  std::uint64_t frame_count() const { return frames.size(); }
+  std::uint64_t chunk_count() const { return chunks.size(); }
+  std::uint64_t stream_size() const;  // bytes of the logical record stream
+  std::uint64_t chunk_raw_size(std::uint64_t chunk) const;
+  double particles_per_chunk() const { return double(chunk_size) / record_size; }
+  const Attribute* find(std::string_view name) const;
+};
+
+// The default record: position float32x3 at 0, scale float32 at 12.
+std::vector<Attribute> default_layout();
+// Appends an attribute at the end of the record (4-byte aligned); returns the new record size.
+std::uint32_t append_attribute(std::vector<Attribute>& layout, std::string name, AttributeType type,
+                               std::uint8_t components);
+std::uint32_t record_size_of(const std::vector<Attribute>& layout);
+
+// ---- Chunks -----------------------------------------------------------------------------------
+
+struct EncodedChunk {
+  std::vector<std::byte> stored;
+  Codec codec = Codec::Raw;
+  std::uint32_t codec_param = 0;
+  std::uint64_t checksum = 0;
+};
+EncodedChunk encode_chunk(std::span<const std::byte> raw, Codec codec, int level);
+// Checks the checksum, then decodes into `out`, which must be exactly the chunk's raw size.
+// `where` names the file and chunk in errors.
+void decode_chunk(const ChunkEntry& entry, std::span<const std::byte> stored, std::span<std::byte> out,
+                  std::string_view where);
+std::uint64_t checksum(std::span<const std::byte> bytes);
+
+// ---- Reading ----------------------------------------------------------------------------------
+
+class Reader {
+ public:
+  // Opens and validates header and tables (every size, count, offset and checksum);
+  // throws pstream::Error naming the file, the field and its value.
+  static Reader open(const std::filesystem::path& path);
+  static Reader from_memory(std::span<const std::byte> bytes, std::string name);
+  Reader(Reader&&) noexcept;
+  Reader& operator=(Reader&&) noexcept;
+  ~Reader();
+
+  const Metadata& metadata() const;
+  const std::string& name() const;
+  std::uint64_t file_size() const;
+  std::span<const std::byte> stored_chunk(std::uint64_t chunk) const;
+  void read_chunk(std::uint64_t chunk, std::span<std::byte> out) const;  // out: the chunk's raw size
+  // The frame's records into `out` (count * record_size bytes); `scratch` must hold one chunk.
+  void read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const;
+
+ private:
+  struct Impl;
+  explicit Reader(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// The fixed-size header, validated; `meta` holds its fields, the tables are still to be read.
+struct Header {
+  Metadata meta;
+  std::uint64_t frame_count = 0, chunk_count = 0, stream_size = 0, attribute_count = 0;
+  std::uint64_t tables_offset = 0, tables_size = 0, tables_checksum = 0, file_size = 0;
+};
+// Parsing in two steps, for readers that fetch the header and then the tables (streaming IO).
+// Every size, count, offset and checksum is validated; errors name the file, field and value.
+Header parse_header(std::span<const std::byte> first_bytes, std::uint64_t file_size, std::string_view name);
+Metadata parse_tables(const Header& header, std::span<const std::byte> tables, std::string_view name);
+// Both steps over a whole file in memory.
+Metadata parse_metadata(std::span<const std::byte> file, std::string_view name);
+
+// ---- Writing ----------------------------------------------------------------------------------
+
+// Writes a .pstream in one pass — header placeholder, chunks, then the tables — to a temporary
+// file beside `path`, renamed over `path` only by commit(): a failed or interrupted write never
+// leaves a half-written file at `path`.
+class Writer {
+ public:
+  // `meta` gives layout, record size, chunk size, fps and names; frames and chunks are appended.
+  Writer(std::filesystem::path path, Metadata meta);
+  ~Writer();
+  Writer(const Writer&) = delete;
+  Writer& operator=(const Writer&) = delete;
+  void append_frame(std::uint64_t count, double time, const std::array<float, 6>& bounds);
+  void append_chunk(const EncodedChunk& chunk);  // in order
+  void append_chunk(std::span<const std::byte> stored, Codec codec, std::uint32_t codec_param, std::uint64_t checksum);
+  const Metadata& metadata() const { return meta_; }
+  // Checks that the chunks cover the frames, fills in counts and bounds, writes the tables and
+  // the header, syncs and renames. Returns the file size.
+  std::uint64_t commit();
+
+ private:
+  void write_at(std::uint64_t offset, std::span<const std::byte> bytes);
+  std::filesystem::path path_, temp_path_;
+  Metadata meta_;
+  std::FILE* file_ = nullptr;
+  std::uint64_t position_ = 0;  // where the next chunk goes
+  bool committed_ = false;
+};
+
+std::vector<std::byte> serialize_tables(const Metadata& meta);
+std::vector<std::byte> serialize_header(const Metadata& meta, std::uint64_t tables_offset,
+                                       std::span<const std::byte> tables);
+
+}  // namespace pstream::format

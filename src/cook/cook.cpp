@@ -1,0 +1,336 @@
+// The cook driver: resample the source to fixed frames, pack records, cut the record stream
+// into chunks, encode chunks in parallel, write them in order.
+#include <algorithm>
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "cook/source.hpp"
+#include "particlestream/cook.hpp"
+
+namespace pstream::cook {
+namespace {
+
+using format::Attribute;
+using format::AttributeType;
+
+constexpr float kDefaultScale = 0.01f;
+
+struct Plan {
+  Request request;
+  std::vector<Attribute> layout;
+  std::uint32_t record_size = 16;
+  const Attribute* color = nullptr;
+  const Attribute* velocity = nullptr;
+  const Attribute* id = nullptr;
+  std::vector<const Attribute*> floats;
+};
+
+Plan make_plan(const Options& options, const Source& source, Report& report) {
+  Plan plan;
+  Request& r = plan.request;
+  r.bake_xforms = options.bake_xforms;
+  r.interpolate = options.interpolate;
+  r.scale_from = options.scale_from;
+  r.scale_constant = options.scale_constant;
+  r.scale_attribute = options.scale_attribute;
+  if (r.scale_from == ScaleFrom::Widths && !source.has_widths()) {
+    r.scale_from = ScaleFrom::Constant;  // nothing to take it from: a small default, reported
+    r.scale_constant = kDefaultScale;
+    report.default_scale = kDefaultScale;
+  }
+  if (r.scale_from == ScaleFrom::Attribute && source.float_components(r.scale_attribute) != 1) {
+    throw Error(fmt::format("{}: no one-component float attribute '{}' to take the scale from", source.name(),
+                            r.scale_attribute));
+  }
+  plan.layout = format::default_layout();
+  if (options.color_from == "Cd" && !source.has_color()) {
+    throw Error(fmt::format("{}: --color-from Cd, but the source has no Cd colours", source.name()));
+  }
+  if (options.color_from != "Cd" && options.color_from != "none" && options.color_from != "auto") {
+    throw Error(fmt::format("--color-from must be Cd, none or auto, not '{}'", options.color_from));
+  }
+  r.color = options.color_from == "Cd" || (options.color_from == "auto" && source.has_color());
+  if (r.color) format::append_attribute(plan.layout, "color", AttributeType::Unorm8, 4);
+  for (const std::string& a : options.attributes) {
+    if (a == "velocity") {
+      if (!source.has_velocity()) throw Error(fmt::format("{}: --attributes velocity, but the source has none", source.name()));
+      r.velocity = true;
+      format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
+    } else if (a == "id" || a == "id32") {
+      if (!source.has_ids()) throw Error(fmt::format("{}: --attributes {}, but the source has no ids", source.name(), a));
+      r.id = true;
+      format::append_attribute(plan.layout, "id", a == "id" ? AttributeType::Uint64 : AttributeType::Uint32, 1);
+    } else {
+      const std::uint32_t components = source.float_components(a);
+      if (components == 0) throw Error(fmt::format("{}: --attributes {}: the source has no such attribute", source.name(), a));
+      r.floats.push_back(a);
+      format::append_attribute(plan.layout, a, AttributeType::Float32, static_cast<std::uint8_t>(components));
+    }
+  }
+  plan.record_size = format::record_size_of(plan.layout);
+  for (const Attribute& a : plan.layout) {
+    if (a.name == "color") plan.color = &a;
+    else if (a.name == "velocity") plan.velocity = &a;
+    else if (a.name == "id") plan.id = &a;
+    else if (a.name != "position" && a.name != "scale") plan.floats.push_back(&a);
+  }
+  return plan;
+}
+
+// Bounds of the finite positions, and how many are not finite (one pass over the frame).
+struct Scan {
+  std::array<float, 6> bounds;
+  std::uint64_t invalid = 0, first_invalid = 0;
+};
+
+Scan scan(const ParticleFrame& f) {
+  constexpr float inf = std::numeric_limits<float>::infinity();
+  Scan s{{inf, inf, inf, -inf, -inf, -inf}};
+  for (std::uint64_t i = 0; i < f.count; ++i) {
+    const float* p = &f.position[i * 3];
+    if (!(std::abs(p[0]) <= std::numeric_limits<float>::max() && std::abs(p[1]) <= std::numeric_limits<float>::max() &&
+          std::abs(p[2]) <= std::numeric_limits<float>::max())) {
+      if (s.invalid++ == 0) s.first_invalid = i;
+      continue;
+    }
+    for (int c = 0; c < 3; ++c) {
+      s.bounds[c] = std::min(s.bounds[c], p[c]);
+      s.bounds[c + 3] = std::max(s.bounds[c + 3], p[c]);
+    }
+  }
+  return s;
+}
+
+// Removes particles whose position is not finite, or fails naming the frame.
+std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan, const Options& options,
+                           std::uint64_t frame, const std::string& source) {
+  const std::uint64_t bad = scan.invalid, first_bad = scan.first_invalid;
+  if (bad == 0) return 0;
+  if (!options.drop_invalid) {
+    throw Error(fmt::format("{}: frame {}: {} particles have NaN or infinite positions (the first is particle {}); "
+                            "--drop-invalid drops them", source, frame, bad, first_bad));
+  }
+  std::uint64_t kept = 0;
+  for (std::uint64_t i = 0; i < f.count; ++i) {
+    const float* p = &f.position[i * 3];
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
+    const auto move = [&](auto& v, std::size_t k) {
+      if (v.size() >= f.count * k) std::copy_n(v.begin() + static_cast<std::ptrdiff_t>(i * k), k, v.begin() + static_cast<std::ptrdiff_t>(kept * k));
+    };
+    move(f.position, 3);
+    move(f.scale, 1);
+    if (plan.request.color) move(f.color, 4);
+    if (plan.request.velocity) move(f.velocity, 3);
+    if (plan.request.id) move(f.id, 1);
+    for (std::size_t e = 0; e < f.extra.size(); ++e) move(f.extra[e], plan.floats[e]->components);
+    ++kept;
+  }
+  f.count = kept;
+  return bad;
+}
+
+// Cuts the logical record stream into chunk-sized buffers as records are written into it.
+class ChunkCutter {
+ public:
+  ChunkCutter(std::size_t chunk_size, std::function<void(std::span<const std::byte>)> emit)
+      : chunk_(chunk_size), emit_(std::move(emit)) {}
+  // Room for a whole record at the write position, or nullptr when it would straddle a border.
+  std::byte* reserve(std::size_t n) {
+    if (chunk_.size() - fill_ < n) return nullptr;
+    std::byte* p = chunk_.data() + fill_;
+    advance(n);
+    return p;
+  }
+  void write(const std::byte* data, std::size_t n) {
+    while (n > 0) {
+      const std::size_t take = std::min(n, chunk_.size() - fill_);
+      std::memcpy(chunk_.data() + fill_, data, take);
+      data += take;
+      n -= take;
+      advance(take);
+    }
+  }
+  void finish() {
+    if (fill_ > 0) emit_(std::span(chunk_.data(), fill_));
+    fill_ = 0;
+  }
+
+ private:
+  void advance(std::size_t n) {
+    fill_ += n;
+    if (fill_ == chunk_.size()) finish();
+  }
+  std::vector<std::byte> chunk_;
+  std::size_t fill_ = 0;
+  std::function<void(std::span<const std::byte>)> emit_;
+};
+
+void pack_record(const ParticleFrame& f, const Plan& plan, std::uint64_t i, std::byte* dst) {
+  std::memcpy(dst, &f.position[i * 3], 12);
+  std::memcpy(dst + 12, &f.scale[i], 4);
+  if (plan.color) std::memcpy(dst + plan.color->offset, &f.color[i * 4], 4);
+  if (plan.velocity) std::memcpy(dst + plan.velocity->offset, &f.velocity[i * 3], 12);
+  if (plan.id) {
+    if (plan.id->type == AttributeType::Uint64) {
+      std::memcpy(dst + plan.id->offset, &f.id[i], 8);
+    } else {
+      const auto id32 = static_cast<std::uint32_t>(f.id[i]);
+      std::memcpy(dst + plan.id->offset, &id32, 4);
+    }
+  }
+  for (std::size_t e = 0; e < plan.floats.size(); ++e) {
+    const std::size_t k = plan.floats[e]->components;
+    std::memcpy(dst + plan.floats[e]->offset, &f.extra[e][i * k], k * 4);
+  }
+}
+
+// Every attribute size is a multiple of 4 and records are packed without gaps, so every byte of a
+// record is written and the output is deterministic.
+void pack(const ParticleFrame& f, const Plan& plan, ChunkCutter& out) {
+  std::vector<std::byte> straddling(plan.record_size);
+  if (plan.layout.size() == 2) {  // the default [x y z scale] record: no per-attribute work
+    for (std::uint64_t i = 0; i < f.count; ++i) {
+      const float record[4] = {f.position[i * 3], f.position[i * 3 + 1], f.position[i * 3 + 2], f.scale[i]};
+      if (std::byte* dst = out.reserve(sizeof record)) {
+        std::memcpy(dst, record, sizeof record);
+      } else {
+        out.write(reinterpret_cast<const std::byte*>(record), sizeof record);
+      }
+    }
+    return;
+  }
+  for (std::uint64_t i = 0; i < f.count; ++i) {
+    if (std::byte* dst = out.reserve(plan.record_size)) {
+      pack_record(f, plan, i, dst);
+    } else {
+      pack_record(f, plan, i, straddling.data());
+      out.write(straddling.data(), straddling.size());
+    }
+  }
+}
+
+// Encodes chunks on `threads` workers; results keep their order.
+std::vector<format::EncodedChunk> encode_all(const std::vector<std::vector<std::byte>>& raws, const Options& options,
+                                             unsigned threads) {
+  std::vector<format::EncodedChunk> out(raws.size());
+  const int level = options.codec == format::Codec::Zstd && options.codec_level == 0 ? 3 : options.codec_level;
+  if (threads <= 1 || raws.size() <= 1) {
+    for (std::size_t i = 0; i < raws.size(); ++i) out[i] = format::encode_chunk(raws[i], options.codec, level);
+    return out;
+  }
+  std::vector<std::jthread> pool;
+  std::vector<std::exception_ptr> errors(threads);
+  for (unsigned t = 0; t < threads; ++t) {
+    pool.emplace_back([&, t] {
+      try {
+        for (std::size_t i = t; i < raws.size(); i += threads) out[i] = format::encode_chunk(raws[i], options.codec, level);
+      } catch (...) {
+        errors[t] = std::current_exception();
+      }
+    });
+  }
+  pool.clear();
+  for (auto& e : errors) {
+    if (e) std::rethrow_exception(e);
+  }
+  return out;
+}
+
+bool is_ply(const std::filesystem::path& p) {
+  std::string ext = p.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  return ext == ".ply";
+}
+
+}  // namespace
+
+Report cook(const Options& options, const std::function<void(const Progress&)>& progress) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (!std::has_single_bit(options.chunk_size) || options.chunk_size < format::kMinChunkSize ||
+      options.chunk_size > format::kMaxChunkSize) {
+    throw Error(fmt::format("--chunk-size {} must be a power of two from 64 KiB to 64 MiB", options.chunk_size));
+  }
+  const std::unique_ptr<Source> source = is_ply(options.input) ? open_ply_sequence(options) : open_alembic(options);
+  Report report;
+  report.object = source->object();
+  const Plan plan = make_plan(options, *source, report);
+
+  const double fps = options.fps > 0 ? options.fps : source->default_fps();
+  const double start = source->start_time(), end = source->end_time();
+  const auto total_frames = static_cast<std::int64_t>(std::floor((end - start) * fps + 1e-6)) + 1;
+  const std::int64_t first = options.frame_begin;
+  const std::int64_t last = options.frame_end < 0 ? total_frames : std::min(options.frame_end, total_frames);
+  if (first < 0 || first >= last) {
+    throw Error(fmt::format("{}: --frames {}:{} selects no frames (the clip has {} frames at {} fps)", source->name(), first,
+                            options.frame_end, total_frames, fps));
+  }
+
+  format::Metadata meta;
+  meta.flags = (options.bake_xforms ? format::kFlagXformsBaked : 0) | (options.interpolate ? format::kFlagInterpolated : 0);
+  meta.fps = fps;
+  meta.time_of_frame0 = start + static_cast<double>(first) / fps;
+  meta.chunk_size = options.chunk_size;
+  meta.layout = plan.layout;
+  meta.source_file = std::filesystem::path(source->name()).filename().string();
+  meta.source_object = source->object();
+  meta.cooked_with = options.command_line;
+  format::Writer writer(options.output, meta);
+
+  const unsigned threads = options.threads ? options.threads : std::max(1u, std::thread::hardware_concurrency());
+  const std::size_t batch_chunks = std::max<std::size_t>(2, threads * 2);
+  std::vector<std::vector<std::byte>> batch;  // raw chunks waiting to be encoded together
+  Progress state;
+  state.frame_count = static_cast<std::uint64_t>(last - first);
+  const auto encode_batch = [&] {
+    for (const auto& c : encode_all(batch, options, threads)) {
+      writer.append_chunk(c);
+      state.bytes_out += c.stored.size();
+    }
+    batch.clear();
+  };
+  ChunkCutter cutter(options.chunk_size, [&](std::span<const std::byte> raw) {
+    ++report.chunks;
+    if (options.codec == format::Codec::Raw) {  // nothing to encode: straight from the chunk buffer
+      writer.append_chunk(raw, format::Codec::Raw, 0, format::checksum(raw));
+      state.bytes_out += raw.size();
+      return;
+    }
+    batch.emplace_back(raw.begin(), raw.end());
+    if (batch.size() >= batch_chunks) encode_batch();
+  });
+
+  ParticleFrame frame;
+  for (std::int64_t k = first; k < last; ++k) {
+    const double time = start + static_cast<double>(k) / fps;
+    const auto index = static_cast<std::uint64_t>(k - first);
+    frame.clear(plan.request.floats.size());
+    source->read(time, plan.request, frame);
+    const Scan found = scan(frame);
+    report.dropped_invalid += drop_invalid(frame, found, plan, options, index, source->name());
+    if (frame.count > options.max_particles) {
+      throw Error(fmt::format("{}: frame {} has {} particles, more than --max-particles {}", source->name(), index,
+                              frame.count, options.max_particles));
+    }
+    writer.append_frame(frame.count, time, found.bounds);
+    pack(frame, plan, cutter);
+    report.particles += frame.count;
+    state.frames_done = index + 1;
+    if (progress) progress(state);
+  }
+  cutter.finish();
+  encode_batch();
+  report.frames = state.frame_count;
+  report.stream_bytes = writer.metadata().stream_size();
+  report.input_bytes = source->input_bytes();
+  report.file_bytes = writer.commit();
+  report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return report;
+}
+
+}  // namespace pstream::cook

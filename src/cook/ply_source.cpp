@@ -1,0 +1,308 @@
+// Particles from a numbered PLY sequence (frame.0001.ply, frame.0002.ply, ...), ascii or
+// binary little-endian, as Houdini and Blender users export when they have no Alembic.
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include "base/mapped_file.hpp"
+#include "cook/source.hpp"
+
+namespace pstream::cook {
+namespace {
+
+enum class PlyType { Int8, Uint8, Int16, Uint16, Int32, Uint32, Float32, Float64 };
+
+struct PlyProperty {
+  std::string name;
+  PlyType type;
+  std::size_t offset = 0;  // within a binary vertex
+};
+
+struct PlyHeader {
+  bool binary = false;
+  std::uint64_t vertex_count = 0;
+  std::vector<PlyProperty> properties;
+  std::size_t vertex_size = 0;
+  std::size_t data_offset = 0;
+  bool has_elements_before_vertex = false;
+};
+
+std::size_t type_size(PlyType t) {
+  static constexpr std::size_t sizes[] = {1, 1, 2, 2, 4, 4, 4, 8};
+  return sizes[static_cast<int>(t)];
+}
+
+bool parse_type(const std::string& s, PlyType& t) {
+  static const std::map<std::string, PlyType> types = {
+      {"char", PlyType::Int8},    {"int8", PlyType::Int8},     {"uchar", PlyType::Uint8},    {"uint8", PlyType::Uint8},
+      {"short", PlyType::Int16},  {"int16", PlyType::Int16},   {"ushort", PlyType::Uint16},  {"uint16", PlyType::Uint16},
+      {"int", PlyType::Int32},    {"int32", PlyType::Int32},   {"uint", PlyType::Uint32},    {"uint32", PlyType::Uint32},
+      {"float", PlyType::Float32}, {"float32", PlyType::Float32}, {"double", PlyType::Float64}, {"float64", PlyType::Float64}};
+  const auto it = types.find(s);
+  if (it == types.end()) return false;
+  t = it->second;
+  return true;
+}
+
+PlyHeader parse_header(std::string_view text, const std::string& file) {
+  PlyHeader h;
+  const auto end = text.find("end_header");
+  if (text.substr(0, 3) != "ply" || end == std::string_view::npos) {
+    throw Error(fmt::format("{}: not a PLY file (expected 'ply' ... 'end_header')", file));
+  }
+  std::istringstream lines{std::string(text.substr(0, end))};
+  std::string line, element;
+  bool vertex_seen = false;
+  while (std::getline(lines, line)) {
+    std::istringstream words(line);
+    std::string key;
+    words >> key;
+    if (key == "format") {
+      std::string f;
+      words >> f;
+      if (f == "binary_little_endian") {
+        h.binary = true;
+      } else if (f != "ascii") {
+        throw Error(fmt::format("{}: PLY format '{}' is not supported (ascii or binary_little_endian)", file, f));
+      }
+    } else if (key == "element") {
+      words >> element;
+      if (element == "vertex") {
+        words >> h.vertex_count;
+        vertex_seen = true;
+      } else if (!vertex_seen) {
+        h.has_elements_before_vertex = true;
+      }
+    } else if (key == "property" && element == "vertex") {
+      std::string type, name;
+      words >> type >> name;
+      PlyProperty p{name, PlyType::Float32, h.vertex_size};
+      if (type == "list" || !parse_type(type, p.type)) {
+        throw Error(fmt::format("{}: vertex property '{}' has unsupported type '{}'", file, name, type));
+      }
+      h.vertex_size += type_size(p.type);
+      h.properties.push_back(p);
+    }
+  }
+  if (!vertex_seen) throw Error(fmt::format("{}: the PLY file has no vertex element", file));
+  if (h.has_elements_before_vertex) throw Error(fmt::format("{}: elements before 'vertex' are not supported", file));
+  std::size_t data = end + std::strlen("end_header");
+  if (data < text.size() && text[data] == '\r') ++data;
+  if (data < text.size() && text[data] == '\n') ++data;
+  h.data_offset = data;
+  return h;
+}
+
+double load_binary(const std::byte* p, PlyType t) {
+  switch (t) {
+    case PlyType::Int8: { std::int8_t v; std::memcpy(&v, p, 1); return v; }
+    case PlyType::Uint8: { std::uint8_t v; std::memcpy(&v, p, 1); return v; }
+    case PlyType::Int16: { std::int16_t v; std::memcpy(&v, p, 2); return v; }
+    case PlyType::Uint16: { std::uint16_t v; std::memcpy(&v, p, 2); return v; }
+    case PlyType::Int32: { std::int32_t v; std::memcpy(&v, p, 4); return v; }
+    case PlyType::Uint32: { std::uint32_t v; std::memcpy(&v, p, 4); return v; }
+    case PlyType::Float32: { float v; std::memcpy(&v, p, 4); return v; }
+    case PlyType::Float64: { double v; std::memcpy(&v, p, 8); return v; }
+  }
+  return 0;
+}
+
+struct SequenceFile {
+  std::int64_t number;
+  std::filesystem::path path;
+};
+
+// The numbered files of the sequence `example` belongs to, sorted, with no gaps.
+std::vector<SequenceFile> find_sequence(const std::filesystem::path& example) {
+  const std::string name = example.filename().string();
+  const auto dot = name.rfind('.');
+  std::size_t digits_end = dot == std::string::npos ? name.size() : dot;
+  std::size_t digits_begin = digits_end;
+  while (digits_begin > 0 && std::isdigit(static_cast<unsigned char>(name[digits_begin - 1]))) --digits_begin;
+  const std::string prefix = name.substr(0, digits_begin), suffix = name.substr(digits_end);
+  const auto dir = example.has_parent_path() ? example.parent_path() : std::filesystem::path(".");
+  std::vector<SequenceFile> files;
+  if (digits_begin == digits_end) {
+    files.push_back({0, example});
+    return files;
+  }
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    const std::string n = entry.path().filename().string();
+    if (n.size() <= prefix.size() + suffix.size() || n.compare(0, prefix.size(), prefix) != 0 ||
+        n.compare(n.size() - suffix.size(), suffix.size(), suffix) != 0) {
+      continue;
+    }
+    const std::string mid = n.substr(prefix.size(), n.size() - prefix.size() - suffix.size());
+    if (!std::all_of(mid.begin(), mid.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); })) continue;
+    files.push_back({std::stoll(mid), entry.path()});
+  }
+  std::sort(files.begin(), files.end(), [](const auto& a, const auto& b) { return a.number < b.number; });
+  for (std::size_t i = 1; i < files.size(); ++i) {
+    if (files[i].number == files[i - 1].number) {
+      throw Error(fmt::format("{} and {} have the same frame number", files[i - 1].path.string(), files[i].path.string()));
+    }
+    if (files[i].number != files[i - 1].number + 1) {
+      throw Error(fmt::format("PLY sequence {}{}{}: frame {} is missing (between {} and {})", prefix,
+                              std::string(digits_end - digits_begin, '#'), suffix, files[i - 1].number + 1,
+                              files[i - 1].path.filename().string(), files[i].path.filename().string()));
+    }
+  }
+  return files;
+}
+
+class PlySource final : public Source {
+ public:
+  explicit PlySource(const Options& options) : files_(find_sequence(options.input)) {
+    fps_ = options.fps > 0 ? options.fps : 24.0;
+    const MappedFile first = MappedFile::open(files_.front().path);
+    const auto text = std::string_view(reinterpret_cast<const char*>(first.bytes().data()), first.bytes().size());
+    header_ = parse_header(text, files_.front().path.string());
+    for (const auto& p : header_.properties) names_.push_back(p.name);
+    for (const char* axis : {"x", "y", "z"}) {
+      if (find(axis) < 0) throw Error(fmt::format("{}: no '{}' vertex property", files_.front().path.string(), axis));
+    }
+    for (const auto& f : files_) bytes_ += std::filesystem::file_size(f.path);
+  }
+
+  std::string name() const override { return files_.front().path.string(); }
+  std::string object() const override { return "vertex"; }
+  double default_fps() const override { return fps_; }
+  double start_time() const override { return static_cast<double>(files_.front().number) / fps_; }
+  double end_time() const override { return static_cast<double>(files_.back().number) / fps_; }
+  std::uint64_t input_bytes() const override { return bytes_; }
+  bool has_widths() const override { return find("pscale") >= 0 || find("scale") >= 0 || find("width") >= 0; }
+  bool has_color() const override { return (find("red") >= 0 && find("green") >= 0 && find("blue") >= 0); }
+  bool has_velocity() const override { return find("vx") >= 0 && find("vy") >= 0 && find("vz") >= 0; }
+  bool has_ids() const override { return find("id") >= 0; }
+  std::uint32_t float_components(const std::string& name) const override { return find(name) >= 0 ? 1 : 0; }
+
+  void read(double time, const Request& request, ParticleFrame& out) override {
+    const double rel = std::round(time * fps_) - static_cast<double>(files_.front().number);
+    const auto index = static_cast<std::size_t>(std::clamp(rel, 0.0, static_cast<double>(files_.size() - 1)));
+    const std::string file = files_[index].path.string();
+    const MappedFile mapping = MappedFile::open(files_[index].path);
+    const auto text = std::string_view(reinterpret_cast<const char*>(mapping.bytes().data()), mapping.bytes().size());
+    const PlyHeader h = parse_header(text, file);
+    std::vector<std::string> names;
+    for (const auto& p : h.properties) names.push_back(p.name);
+    if (names != names_ || h.binary != header_.binary) {
+      throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file, fmt::join(names, " "),
+                              fmt::join(names_, " ")));
+    }
+    const std::uint64_t n = h.vertex_count;
+    std::vector<double> values(n * h.properties.size());
+    if (h.binary) {
+      if (n > (mapping.bytes().size() - h.data_offset) / std::max<std::size_t>(h.vertex_size, 1)) {
+        throw Error(fmt::format("{}: {} vertices of {} bytes do not fit in the file (truncated)", file, n, h.vertex_size));
+      }
+      const std::byte* p = mapping.bytes().data() + h.data_offset;
+      for (std::uint64_t i = 0; i < n; ++i, p += h.vertex_size) {
+        for (std::size_t k = 0; k < h.properties.size(); ++k) {
+          values[i * h.properties.size() + k] = load_binary(p + h.properties[k].offset, h.properties[k].type);
+        }
+      }
+    } else {
+      const char* c = text.data() + h.data_offset;
+      const char* end = text.data() + text.size();
+      for (std::uint64_t i = 0; i < values.size(); ++i) {
+        while (c < end && std::isspace(static_cast<unsigned char>(*c))) ++c;
+        const auto r = std::from_chars(c, end, values[i]);
+        if (r.ec != std::errc()) {
+          throw Error(fmt::format("{}: vertex {}: expected {} numbers per line", file, i / h.properties.size(),
+                                  h.properties.size()));
+        }
+        c = r.ptr;
+      }
+    }
+    const std::size_t stride = h.properties.size();
+    const auto column = [&](int k, std::uint64_t i) { return values[i * stride + static_cast<std::size_t>(k)]; };
+    const std::uint64_t base = out.count;
+    out.count += n;
+    ensure_size(out.position, out.count * 3);
+    const int x = find("x"), y = find("y"), z = find("z");
+    for (std::uint64_t i = 0; i < n; ++i) {
+      out.position[(base + i) * 3] = static_cast<float>(column(x, i));
+      out.position[(base + i) * 3 + 1] = static_cast<float>(column(y, i));
+      out.position[(base + i) * 3 + 2] = static_cast<float>(column(z, i));
+    }
+    ensure_size(out.scale, out.count);
+    std::fill(out.scale.begin() + static_cast<std::ptrdiff_t>(base), out.scale.begin() + static_cast<std::ptrdiff_t>(out.count),
+              request.scale_constant);
+    if (request.scale_from != ScaleFrom::Constant) {
+      int k = -1;
+      bool diameter = false;
+      if (request.scale_from == ScaleFrom::Attribute) {
+        k = find(request.scale_attribute);
+      } else if ((k = find("pscale")) < 0 && (k = find("scale")) < 0) {
+        k = find("width");
+        diameter = true;
+      }
+      if (k < 0) throw Error(fmt::format("{}: no vertex property to take the scale from", file));
+      for (std::uint64_t i = 0; i < n; ++i) {
+        const auto s = static_cast<float>(column(k, i));
+        out.scale[base + i] = diameter ? scale_from_width(s) : s;
+      }
+    }
+    if (request.color) {
+      const int r = find("red"), g = find("green"), b = find("blue"), a = find("alpha");
+      const bool bytes = h.properties[static_cast<std::size_t>(r)].type == PlyType::Uint8;
+      const auto unorm = [bytes](double v) {
+        const double scaled = bytes ? v : v * 255.0;
+        return static_cast<std::uint8_t>(std::clamp(std::lround(scaled), 0L, 255L));
+      };
+      ensure_size(out.color, out.count * 4);
+      for (std::uint64_t i = 0; i < n; ++i) {
+        std::uint8_t* dst = &out.color[(base + i) * 4];
+        dst[0] = unorm(column(r, i));
+        dst[1] = unorm(column(g, i));
+        dst[2] = unorm(column(b, i));
+        dst[3] = a >= 0 ? unorm(column(a, i)) : 255;
+      }
+    }
+    if (request.velocity) {
+      const int vx = find("vx"), vy = find("vy"), vz = find("vz");
+      ensure_size(out.velocity, out.count * 3);
+      for (std::uint64_t i = 0; i < n; ++i) {
+        out.velocity[(base + i) * 3] = static_cast<float>(column(vx, i));
+        out.velocity[(base + i) * 3 + 1] = static_cast<float>(column(vy, i));
+        out.velocity[(base + i) * 3 + 2] = static_cast<float>(column(vz, i));
+      }
+    }
+    if (request.id) {
+      const int id = find("id");
+      ensure_size(out.id, out.count);
+      for (std::uint64_t i = 0; i < n; ++i) out.id[base + i] = static_cast<std::uint64_t>(column(id, i));
+    }
+    for (std::size_t e = 0; e < request.floats.size(); ++e) {
+      const int k = find(request.floats[e]);
+      ensure_size(out.extra[e], out.count);
+      for (std::uint64_t i = 0; i < n; ++i) out.extra[e][base + i] = static_cast<float>(column(k, i));
+    }
+  }
+
+ private:
+  int find(std::string_view name) const {
+    for (std::size_t i = 0; i < names_.size(); ++i) {
+      if (names_[i] == name) return static_cast<int>(i);
+    }
+    return -1;
+  }
+
+  std::vector<SequenceFile> files_;
+  PlyHeader header_;
+  std::vector<std::string> names_;
+  double fps_ = 24.0;
+  std::uint64_t bytes_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<Source> open_ply_sequence(const Options& options) { return std::make_unique<PlySource>(options); }
+
+}  // namespace pstream::cook

@@ -1,0 +1,67 @@
+// What the cooker reads particles from: an Alembic archive or a PLY sequence.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "particlestream/cook.hpp"
+
+namespace pstream::cook {
+
+// One frame of particles, structure of arrays; only the requested arrays are filled. Arrays keep
+// their size across frames (no re-zeroing each frame): only the first `count` entries are valid.
+struct ParticleFrame {
+  std::uint64_t count = 0;
+  std::vector<float> position;       // 3 per particle
+  std::vector<float> scale;          // 1 per particle
+  std::vector<std::uint8_t> color;   // RGBA8, 4 per particle
+  std::vector<float> velocity;       // 3 per particle
+  std::vector<std::uint64_t> id;     // 1 per particle
+  std::vector<std::vector<float>> extra;  // one array per requested float attribute
+  void clear(std::size_t extra_count) {
+    count = 0;
+    extra.resize(extra_count);
+  }
+};
+
+// Grows `v` to at least `n` elements; never shrinks (see ParticleFrame).
+template <class T>
+void ensure_size(std::vector<T>& v, std::size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
+struct Request {
+  bool color = false, velocity = false, id = false;
+  std::vector<std::string> floats;  // names of float attributes, in record order
+  ScaleFrom scale_from = ScaleFrom::Widths;
+  float scale_constant = 0.0f;
+  std::string scale_attribute;
+  bool bake_xforms = true;
+  bool interpolate = false;
+};
+
+class Source {
+ public:
+  virtual ~Source() = default;
+  virtual std::string name() const = 0;     // file and object, for messages and the header
+  virtual std::string object() const = 0;   // what was cooked
+  virtual double default_fps() const = 0;
+  virtual double start_time() const = 0;
+  virtual double end_time() const = 0;
+  virtual std::uint64_t input_bytes() const = 0;
+  virtual bool has_widths() const = 0;
+  virtual bool has_color() const = 0;
+  virtual bool has_velocity() const = 0;
+  virtual bool has_ids() const = 0;
+  // Components of a float attribute, 0 when the source has none by that name.
+  virtual std::uint32_t float_components(const std::string& name) const = 0;
+  // Appends the particles at `time` to `out` (nearest sample, or blended when interpolating).
+  virtual void read(double time, const Request& request, ParticleFrame& out) = 0;
+};
+
+std::unique_ptr<Source> open_alembic(const Options& options);
+std::unique_ptr<Source> open_ply_sequence(const Options& options);
+
+}  // namespace pstream::cook

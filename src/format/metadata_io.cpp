@@ -1,0 +1,314 @@
+// Header and tables of a .pstream: serialisation and validated parsing (docs/format.md).
+#include <bit>
+#include <cmath>
+#include <cstring>
+
+#include <fmt/format.h>
+
+#include "particlestream/format.hpp"
+
+namespace pstream::format {
+namespace {
+
+constexpr char kMagic[8] = {'P', 'S', 'T', 'R', 'E', 'A', 'M', '\0'};
+constexpr std::size_t kAttributeEntrySize = 40;
+constexpr std::size_t kFrameEntrySize = 48;
+constexpr std::size_t kChunkEntrySize = 32;
+constexpr std::size_t kHeaderChecksumAt = 152;
+
+class Out {
+ public:
+  explicit Out(std::vector<std::byte>& buf) : buf_(buf) {}
+  template <class T>
+  void put(T v) {
+    bytes(&v, sizeof(T));
+  }
+  void bytes(const void* p, std::size_t n) {
+    const std::size_t at = buf_.size();
+    buf_.resize(at + n);
+    if (n != 0) std::memcpy(buf_.data() + at, p, n);
+  }
+  void str(const std::string& s) {
+    put(static_cast<std::uint32_t>(s.size()));
+    bytes(s.data(), s.size());
+  }
+
+ private:
+  std::vector<std::byte>& buf_;
+};
+
+class In {
+ public:
+  In(std::span<const std::byte> bytes, std::uint64_t base, std::string_view name)
+      : bytes_(bytes), base_(base), name_(name) {}
+  template <class T>
+  T get(std::string_view field) {
+    need(sizeof(T), field);
+    T v;
+    std::memcpy(&v, bytes_.data() + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  std::string str(std::string_view field) {
+    const auto n = get<std::uint32_t>(field);
+    need(n, field);
+    std::string s(reinterpret_cast<const char*>(bytes_.data() + pos_), n);
+    pos_ += n;
+    return s;
+  }
+  void skip(std::size_t n, std::string_view field) {
+    need(n, field);
+    pos_ += n;
+  }
+  std::uint64_t offset() const { return base_ + pos_; }
+  std::size_t pos() const { return pos_; }
+  [[noreturn]] void fail(std::string_view what) const {
+    throw Error(fmt::format("{}: at offset {}: {}", name_, offset(), what));
+  }
+
+ private:
+  void need(std::size_t n, std::string_view field) const {
+    if (bytes_.size() - pos_ < n) {
+      fail(fmt::format("{} needs {} bytes but the tables end after {} (truncated or corrupted)", field, n,
+                       bytes_.size() - pos_));
+    }
+  }
+  std::span<const std::byte> bytes_;
+  std::uint64_t base_;
+  std::size_t pos_ = 0;
+  std::string_view name_;
+};
+
+std::vector<std::byte> tables_bytes(const Metadata& m) {
+  std::vector<std::byte> t;
+  Out out(t);
+  out.str(m.source_file);
+  out.str(m.source_object);
+  out.str(m.cooked_with);
+  for (const Attribute& a : m.layout) {
+    char name[kAttributeNameSize] = {};
+    std::memcpy(name, a.name.data(), std::min(a.name.size(), kAttributeNameSize - 1));
+    out.bytes(name, sizeof name);
+    out.put(static_cast<std::uint8_t>(a.type));
+    out.put(a.components);
+    out.put(std::uint16_t{0});
+    out.put(a.offset);
+  }
+  for (const FrameEntry& f : m.frames) {
+    out.put(f.count);
+    out.put(f.byte_offset);
+    out.put(f.time);
+    for (float b : f.bounds) out.put(b);
+  }
+  for (const ChunkEntry& c : m.chunks) {
+    out.put(c.file_offset);
+    out.put(c.stored_size);
+    out.put(c.checksum);
+    out.put(static_cast<std::uint16_t>(c.codec));
+    out.put(std::uint16_t{0});
+    out.put(c.codec_param);
+  }
+  return t;
+}
+
+}  // namespace
+
+std::vector<std::byte> serialize_tables(const Metadata& m) { return tables_bytes(m); }
+
+std::vector<std::byte> serialize_header(const Metadata& m, std::uint64_t tables_offset, std::span<const std::byte> tables) {
+  std::vector<std::byte> h;
+  Out out(h);
+  out.bytes(kMagic, sizeof kMagic);
+  out.put(m.version);
+  out.put(static_cast<std::uint32_t>(kHeaderSize));
+  out.put(m.flags);
+  out.put(m.fps);
+  out.put(m.time_of_frame0);
+  out.put(m.frame_count());
+  out.put(m.chunk_size);
+  out.put(m.chunk_count());
+  out.put(m.stream_size());
+  out.put(m.record_size);
+  out.put(static_cast<std::uint32_t>(m.layout.size()));
+  out.put(m.min_count);
+  out.put(m.max_count);
+  out.put(m.avg_count);
+  for (float b : m.bounds) out.put(b);
+  out.put(tables_offset);
+  out.put(static_cast<std::uint64_t>(tables.size()));
+  out.put(checksum(tables));
+  out.put(checksum(std::span(h).first(kHeaderChecksumAt)));
+  return h;
+}
+
+Metadata parse_metadata(std::span<const std::byte> bytes, std::string_view name) {
+  const Header header = parse_header(bytes, bytes.size(), name);
+  if (header.tables_offset + header.tables_size > bytes.size()) {
+    throw Error(fmt::format("{}: truncated: the tables lie at bytes {}..{} but the file has {} bytes", name,
+                            header.tables_offset, header.tables_offset + header.tables_size, bytes.size()));
+  }
+  return parse_tables(header, bytes.subspan(header.tables_offset, header.tables_size), name);
+}
+
+Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, std::string_view name) {
+  if (bytes.empty()) throw Error(fmt::format("{}: empty file (expected a .pstream)", name));
+  if (bytes.size() < sizeof kMagic || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0) {
+    throw Error(fmt::format("{}: at offset 0: not a .pstream file (expected the magic \"PSTREAM\\0\")", name));
+  }
+  if (bytes.size() < kHeaderSize) {
+    throw Error(fmt::format("{}: truncated: {} bytes, the header alone has {}", name, bytes.size(), kHeaderSize));
+  }
+  In h(bytes.first(kHeaderSize), 0, name);
+  h.skip(sizeof kMagic, "magic");
+  Header header;
+  header.file_size = file_size;
+  Metadata& m = header.meta;
+  m.version = h.get<std::uint32_t>("version");
+  if (m.version != kVersion) h.fail(fmt::format("unsupported format version {} (this build reads version {})", m.version, kVersion));
+  const auto header_size = h.get<std::uint32_t>("header_size");
+  if (header_size != kHeaderSize) h.fail(fmt::format("header_size is {}, expected {}", header_size, kHeaderSize));
+  std::uint64_t stored_header_sum = 0;
+  std::memcpy(&stored_header_sum, bytes.data() + kHeaderChecksumAt, 8);
+  if (checksum(bytes.first(kHeaderChecksumAt)) != stored_header_sum) {
+    throw Error(fmt::format("{}: at offset {}: header checksum mismatch (the header is corrupted)", name, kHeaderChecksumAt));
+  }
+  m.flags = h.get<std::uint64_t>("flags");
+  m.fps = h.get<double>("fps");
+  if (!(m.fps > 0.0) || !std::isfinite(m.fps)) h.fail(fmt::format("fps is {}, expected a positive number", m.fps));
+  m.time_of_frame0 = h.get<double>("time_of_frame0");
+  header.frame_count = h.get<std::uint64_t>("frame_count");
+  m.chunk_size = h.get<std::uint64_t>("chunk_size");
+  if (!std::has_single_bit(m.chunk_size) || m.chunk_size < kMinChunkSize || m.chunk_size > kMaxChunkSize) {
+    h.fail(fmt::format("chunk_size is {}, expected a power of two from {} to {}", m.chunk_size, kMinChunkSize, kMaxChunkSize));
+  }
+  header.chunk_count = h.get<std::uint64_t>("chunk_count");
+  header.stream_size = h.get<std::uint64_t>("stream_size");
+  m.record_size = h.get<std::uint32_t>("record_size");
+  if (m.record_size < 16 || m.record_size % 4 != 0 || m.record_size > 4096) {
+    h.fail(fmt::format("record_size is {}, expected a multiple of 4 from 16 to 4096", m.record_size));
+  }
+  header.attribute_count = h.get<std::uint32_t>("attribute_count");
+  if (header.attribute_count < 2 || header.attribute_count > kMaxAttributes) {
+    h.fail(fmt::format("attribute_count is {}, expected 2 to {}", header.attribute_count, kMaxAttributes));
+  }
+  m.min_count = h.get<std::uint64_t>("min_count");
+  m.max_count = h.get<std::uint64_t>("max_count");
+  m.avg_count = h.get<double>("avg_count");
+  for (float& b : m.bounds) b = h.get<float>("bounds");
+  header.tables_offset = h.get<std::uint64_t>("tables_offset");
+  header.tables_size = h.get<std::uint64_t>("tables_size");
+  header.tables_checksum = h.get<std::uint64_t>("tables_checksum");
+  if (header.tables_offset < kHeaderSize || header.tables_offset > file_size ||
+      header.tables_size > file_size - header.tables_offset) {
+    h.fail(fmt::format("the tables at bytes {}..{} lie outside the file of {} bytes (truncated or corrupted)",
+                       header.tables_offset, header.tables_offset + header.tables_size, file_size));
+  }
+  return header;
+}
+
+Metadata parse_tables(const Header& header, std::span<const std::byte> tables, std::string_view name) {
+  Metadata m = header.meta;
+  const std::uint64_t frame_count = header.frame_count, chunk_count = header.chunk_count;
+  const std::uint64_t stream_size = header.stream_size, attribute_count = header.attribute_count;
+  const std::uint64_t tables_size = tables.size();
+  if (tables_size != header.tables_size) {
+    throw Error(fmt::format("{}: {} table bytes given, the header says {}", name, tables_size, header.tables_size));
+  }
+  // Counts must fit in the tables before anything is allocated for them.
+  const std::uint64_t fixed = attribute_count * kAttributeEntrySize;
+  if (frame_count > tables_size / kFrameEntrySize || chunk_count > tables_size / kChunkEntrySize ||
+      fixed + frame_count * kFrameEntrySize + chunk_count * kChunkEntrySize > tables_size) {
+    throw Error(fmt::format("{}: tables of {} bytes cannot hold {} attributes, {} frames and {} chunks (corrupted counts)",
+                            name, tables_size, attribute_count, frame_count, chunk_count));
+  }
+  if (checksum(tables) != header.tables_checksum) {
+    throw Error(fmt::format("{}: at offset {}: tables checksum mismatch (the frame index or chunk table is corrupted)",
+                            name, header.tables_offset));
+  }
+
+  In t(tables, header.tables_offset, name);
+  m.source_file = t.str("source file name");
+  m.source_object = t.str("source object name");
+  m.cooked_with = t.str("cook command");
+  for (std::uint32_t i = 0; i < attribute_count; ++i) {
+    Attribute a;
+    char raw_name[kAttributeNameSize];
+    for (char& c : raw_name) c = static_cast<char>(t.get<std::uint8_t>("attribute name"));
+    a.name.assign(raw_name, strnlen(raw_name, kAttributeNameSize));
+    const auto type = t.get<std::uint8_t>("attribute type");
+    if (type > static_cast<std::uint8_t>(AttributeType::Uint64)) t.fail(fmt::format("attribute {} has unknown type {}", i, type));
+    a.type = static_cast<AttributeType>(type);
+    a.components = t.get<std::uint8_t>("attribute components");
+    t.skip(2, "attribute reserved");
+    a.offset = t.get<std::uint32_t>("attribute offset");
+    if (a.components == 0 || a.components > 16 || a.offset % 4 != 0 || a.offset + a.size() > m.record_size) {
+      t.fail(fmt::format("attribute '{}' ({} x {} at offset {}) does not fit a {}-byte record", a.name, a.components,
+                         attribute_type_name(a.type), a.offset, m.record_size));
+    }
+    m.layout.push_back(std::move(a));
+  }
+  const auto& L = m.layout;
+  if (L[0].name != "position" || L[0].type != AttributeType::Float32 || L[0].components != 3 || L[0].offset != 0 ||
+      L[1].name != "scale" || L[1].type != AttributeType::Float32 || L[1].components != 1 || L[1].offset != 12) {
+    t.fail("the record layout must start with position float32x3 at 0 and scale float32 at 12");
+  }
+  std::uint64_t expected_offset = 0, min_count = UINT64_MAX, max_count = 0;
+  for (std::uint64_t i = 0; i < frame_count; ++i) {
+    FrameEntry f;
+    f.count = t.get<std::uint64_t>("frame count");
+    f.byte_offset = t.get<std::uint64_t>("frame byte_offset");
+    f.time = t.get<double>("frame time");
+    for (float& b : f.bounds) b = t.get<float>("frame bounds");
+    if (f.byte_offset != expected_offset) {
+      t.fail(fmt::format("frame {} starts at byte {} of the record stream, expected {} (frame index inconsistent)", i,
+                         f.byte_offset, expected_offset));
+    }
+    if (f.count > stream_size / m.record_size) {
+      t.fail(fmt::format("frame {} claims {} particles, more than the whole stream holds", i, f.count));
+    }
+    expected_offset += f.count * m.record_size;
+    min_count = std::min(min_count, f.count);
+    max_count = std::max(max_count, f.count);
+    m.frames.push_back(f);
+  }
+  if (expected_offset != stream_size) {
+    throw Error(fmt::format("{}: the frame index covers {} bytes but stream_size is {} (frame index inconsistent)", name,
+                            expected_offset, stream_size));
+  }
+  if (frame_count > 0 && (min_count != m.min_count || max_count != m.max_count)) {
+    throw Error(fmt::format("{}: header says {}..{} particles per frame, the frame index says {}..{}", name, m.min_count,
+                            m.max_count, min_count, max_count));
+  }
+  const std::uint64_t expected_chunks = (stream_size + m.chunk_size - 1) / m.chunk_size;
+  if (chunk_count != expected_chunks) {
+    throw Error(fmt::format("{}: chunk_count is {}, but {} bytes in {}-byte chunks need {}", name, chunk_count, stream_size,
+                            m.chunk_size, expected_chunks));
+  }
+  const std::uint64_t payload_start = kHeaderSize, payload_end = header.tables_offset;
+  for (std::uint64_t i = 0; i < chunk_count; ++i) {
+    ChunkEntry c;
+    const std::uint64_t at = t.offset();
+    c.file_offset = t.get<std::uint64_t>("chunk file_offset");
+    c.stored_size = t.get<std::uint64_t>("chunk stored_size");
+    c.checksum = t.get<std::uint64_t>("chunk checksum");
+    const auto codec = t.get<std::uint16_t>("chunk codec");
+    t.skip(2, "chunk reserved");
+    c.codec_param = t.get<std::uint32_t>("chunk codec_param");
+    if (codec > static_cast<std::uint16_t>(Codec::Zstd)) {
+      throw Error(fmt::format("{}: at offset {}: chunk {} has unknown codec {}", name, at, i, codec));
+    }
+    c.codec = static_cast<Codec>(codec);
+    if (c.file_offset < payload_start || c.file_offset > payload_end || c.stored_size > payload_end - c.file_offset) {
+      throw Error(fmt::format("{}: at offset {}: chunk {} lies at bytes {}..{} but the payload is {}..{} (chunk table "
+                              "points past the end or into the tables)", name, at, i, c.file_offset,
+                              c.file_offset + c.stored_size, payload_start, payload_end));
+    }
+    m.chunks.push_back(c);
+  }
+  if (t.pos() != tables.size()) {
+    throw Error(fmt::format("{}: the tables hold {} bytes beyond their last entry", name, tables.size() - t.pos()));
+  }
+  return m;
+}
+
+}  // namespace pstream::format
