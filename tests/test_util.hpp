@@ -1,6 +1,7 @@
 #pragma once
 
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -10,7 +11,7 @@ namespace pstream::test {
 
 inline std::string data_path(const std::string& relative) { return std::string(PSTREAM_TEST_DATA) + "/" + relative; }
 
-inline std::string read_text(const std::string& path) {
+inline std::string read_text(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   std::stringstream ss;
   ss << in.rdbuf();

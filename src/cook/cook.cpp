@@ -141,19 +141,22 @@ class ChunkCutter {
   ChunkCutter(std::size_t chunk_size, std::function<void(std::span<const std::byte>)> emit)
       : chunk_(chunk_size), emit_(std::move(emit)) {}
   // Room for a whole record at the write position, or nullptr when it would straddle a border.
+  // A full chunk is emitted only when more bytes come, so reserved room is never emitted unwritten.
   std::byte* reserve(std::size_t n) {
+    if (fill_ == chunk_.size()) finish();
     if (chunk_.size() - fill_ < n) return nullptr;
     std::byte* p = chunk_.data() + fill_;
-    advance(n);
+    fill_ += n;
     return p;
   }
   void write(const std::byte* data, std::size_t n) {
     while (n > 0) {
+      if (fill_ == chunk_.size()) finish();
       const std::size_t take = std::min(n, chunk_.size() - fill_);
       std::memcpy(chunk_.data() + fill_, data, take);
       data += take;
       n -= take;
-      advance(take);
+      fill_ += take;
     }
   }
   void finish() {
@@ -162,10 +165,6 @@ class ChunkCutter {
   }
 
  private:
-  void advance(std::size_t n) {
-    fill_ += n;
-    if (fill_ == chunk_.size()) finish();
-  }
   std::vector<std::byte> chunk_;
   std::size_t fill_ = 0;
   std::function<void(std::span<const std::byte>)> emit_;

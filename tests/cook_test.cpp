@@ -1,0 +1,379 @@
+// Cooking real files: every frame of every fixture must come back exactly as the source holds it
+// (positions, scale = width / 2), whatever the codec and however frames straddle chunks.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include <fmt/format.h>
+
+#include "particlestream/alembic.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using namespace pstream;
+namespace fs = std::filesystem;
+
+fs::path temp_dir() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  fs::path dir = fs::temp_directory_path() / "pstream-tests" / (std::string(info->test_suite_name()) + "." + info->name());
+  for (char& c : const_cast<std::string&>(dir.native())) {
+    if (c == '<' || c == '>' || c == '"') c = '_';
+  }
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+struct Expected {
+  std::vector<float> records;  // x y z scale per particle
+};
+
+// What a frame must hold, computed from the Alembic reader independently of the cooker:
+// positions times the parent world matrix (in double, as Imath does), scale = width / 2.
+std::vector<float> expected_frame(const alembic::Archive& a, const std::vector<std::string>& objects, std::uint32_t sample,
+                                  float default_scale) {
+  std::vector<float> out;
+  for (const std::string& name : objects) {
+    const alembic::Object o = *a.find(name);
+    std::vector<float> P, widths;
+    std::uint64_t n = 0;
+    double time = 0;
+    if (alembic::Points::matches(o)) {
+      const alembic::Points points(o);
+      time = points.sample_time(sample);
+      n = points.count(sample);
+      P.resize(n * 3);
+      points.read_positions(sample, P);
+      if (points.widths()) {
+        widths.resize(n);
+        const auto w = points.widths()->values().sample_at(time).first;
+        for (std::uint64_t i = 0; i < n; ++i) widths[i] = static_cast<float>(w.value_f64(w.size() == 1 ? 0 : i));
+      }
+    } else {
+      const alembic::PolyMesh mesh(o);
+      time = mesh.time_sampling().sample_time(sample);
+      const auto v = mesh.positions(sample);
+      n = v.size();
+      P.resize(n * 3);
+      v.copy_raw(std::as_writable_bytes(std::span(P)));
+    }
+    const alembic::Matrix44 m = alembic::parent_world_matrix(o, time);
+    const double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
+                       m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    const bool identity = m == alembic::identity_matrix();
+    for (std::uint64_t i = 0; i < n; ++i) {
+      const double x = P[i * 3], y = P[i * 3 + 1], z = P[i * 3 + 2];
+      for (int c = 0; c < 3; ++c) {
+        // Without a transform the stored floats pass through untouched (-0.0 stays -0.0).
+        out.push_back(identity ? P[i * 3 + c] : static_cast<float>(x * m[0][c] + y * m[1][c] + z * m[2][c] + m[3][c]));
+      }
+      float s = widths.empty() ? default_scale : widths[i] * 0.5f;
+      if (!identity && !widths.empty()) s = static_cast<float>(s * std::cbrt(std::abs(det)));
+      out.push_back(s);
+    }
+  }
+  return out;
+}
+
+struct Case {
+  const char* file;
+  std::vector<std::string> objects;
+  std::uint32_t samples;
+};
+
+const Case kCases[] = {
+    {"points_constant", {"/fluid"}, 48},
+    {"points_varying", {"/particles"}, 60},
+    {"points_xform", {"/rig/scaler/particles"}, 24},
+    {"points_multi", {"/emitterA/splash"}, 24},
+    {"points_empty_frames", {"/sparse_emitter"}, 24},
+    {"points_large", {"/big_cloud"}, 20},
+    {"points_widths_constant", {"/dust"}, 12},
+    {"mesh_vertices", {"/grid"}, 24},
+};
+
+class CookFixture : public ::testing::TestWithParam<std::tuple<Case, format::Codec>> {};
+
+TEST_P(CookFixture, EveryFrameEqualsTheSource) {
+  const auto& [c, codec] = GetParam();
+  const fs::path dir = temp_dir();
+  cook::Options o;
+  o.input = test::data_path(std::string("alembic/") + c.file + ".abc");
+  o.output = dir / "out.pstream";
+  o.object = c.objects.front();
+  o.chunk_size = format::kMinChunkSize;  // many chunks, frames straddling their borders
+  o.codec = codec;
+  o.threads = 2;
+  const cook::Report report = cook::cook(o);
+  ASSERT_EQ(report.frames, c.samples);
+
+  const alembic::Archive archive = alembic::Archive::open(o.input);
+  const format::Reader reader = format::Reader::open(o.output);
+  const format::Metadata& m = reader.metadata();
+  ASSERT_EQ(m.frame_count(), c.samples);
+  // Colour is added when the source has Cd: 20-byte records also straddle chunk borders.
+  ASSERT_EQ(m.record_size, m.find("color") ? 20u : 16u);
+  const std::uint32_t rs = m.record_size;
+  std::vector<std::byte> buffer(std::max<std::uint64_t>(m.max_count, 1) * rs), scratch(m.chunk_size);
+  std::uint64_t straddling = 0;
+  for (std::uint32_t f = 0; f < c.samples; ++f) {
+    const std::vector<float> expected = expected_frame(archive, c.objects, f, static_cast<float>(report.default_scale));
+    ASSERT_EQ(m.frames[f].count * 4, expected.size()) << "frame " << f;
+    reader.read_frame(f, buffer, scratch);
+    for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
+      ASSERT_EQ(std::memcmp(buffer.data() + i * rs, &expected[i * 4], 16), 0) << c.file << " frame " << f << " particle " << i;
+    }
+    const auto& e = m.frames[f];
+    if (e.count && e.byte_offset / m.chunk_size != (e.byte_offset + e.count * rs - 1) / m.chunk_size) ++straddling;
+  }
+  if (m.stream_size() > 2 * m.chunk_size) {
+    EXPECT_GT(straddling, 0u) << "no frame crosses a chunk border";
+  }
+}
+
+std::string case_name(const ::testing::TestParamInfo<std::tuple<Case, format::Codec>>& info) {
+  return std::string(std::get<0>(info.param).file) + "_" + std::string(format::codec_name(std::get<1>(info.param)));
+}
+
+INSTANTIATE_TEST_SUITE_P(Cook, CookFixture,
+                         ::testing::Combine(::testing::ValuesIn(kCases),
+                                            ::testing::Values(format::Codec::Raw, format::Codec::Lz4, format::Codec::Zstd)),
+                         case_name);
+
+TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
+  const fs::path dir = temp_dir();
+  cook::Options o;
+  o.input = test::data_path("alembic/points_multi.abc");
+  o.output = dir / "merged.pstream";
+  o.merge = true;
+  o.fps = 24;
+  cook::cook(o);
+  const alembic::Archive archive = alembic::Archive::open(o.input);
+  const format::Reader reader = format::Reader::open(o.output);
+  const auto& m = reader.metadata();
+  ASSERT_EQ(m.frame_count(), 24u);
+  std::vector<std::byte> buffer(m.max_count * 16), scratch(m.chunk_size);
+  // Output frame k is at 1/48 + k/24 s: splash sample k and foam's nearest sample 2k+1.
+  const alembic::Points splash(*archive.find("/emitterA/splash")), foam(*archive.find("/emitterB/foam"));
+  for (std::uint32_t k = 0; k < 24; ++k) {
+    reader.read_frame(k, buffer, scratch);
+    const double t = m.frames[k].time;
+    const auto a = splash.time_sampling().near_index(t, 24).first, b = foam.time_sampling().near_index(t, 48).first;
+    ASSERT_EQ(m.frames[k].count, splash.count(static_cast<std::uint32_t>(a)) + foam.count(static_cast<std::uint32_t>(b)));
+    float first_foam[4];
+    std::memcpy(first_foam, buffer.data() + splash.count(static_cast<std::uint32_t>(a)) * 16, 16);
+    std::vector<float> P(foam.count(static_cast<std::uint32_t>(b)) * 3);
+    foam.read_positions(static_cast<std::uint32_t>(b), P);
+    EXPECT_EQ(first_foam[0], static_cast<float>(double(P[0]) + 2.0)) << "foam is translated by /emitterB";
+  }
+}
+
+TEST(Cook, AttributesColourVelocityIdAndFloats) {
+  const fs::path dir = temp_dir();
+  cook::Options o;
+  o.input = test::data_path("alembic/points_varying.abc");
+  o.output = dir / "attrs.pstream";
+  o.attributes = {"velocity", "id", "age"};
+  o.codec = format::Codec::Zstd;
+  cook::cook(o);
+  const format::Reader reader = format::Reader::open(o.output);
+  const auto& m = reader.metadata();
+  ASSERT_EQ(m.record_size, 44u);
+  const auto *color = m.find("color"), *velocity = m.find("velocity"), *id = m.find("id"), *age = m.find("age");
+  ASSERT_TRUE(color && velocity && id && age);
+  const alembic::Archive archive = alembic::Archive::open(o.input);
+  const alembic::Points points(*archive.find("/particles"));
+  std::vector<std::byte> buffer(m.max_count * m.record_size), scratch(m.chunk_size);
+  for (std::uint32_t f : {5u, 20u, 59u}) {
+    reader.read_frame(f, buffer, scratch);
+    const std::uint64_t n = points.count(f);
+    std::vector<float> v(n * 3), cd(n * 3), ages(n);
+    std::vector<std::uint64_t> ids(n);
+    points.read_velocities(f, v);
+    points.read_ids(f, ids);
+    points.read_param("Cd", f, cd);
+    points.read_param("age", f, ages);
+    for (std::uint64_t i = 0; i < n; ++i) {
+      const std::byte* r = buffer.data() + i * m.record_size;
+      float vel[3], a;
+      std::uint64_t pid;
+      std::uint8_t rgba[4];
+      std::memcpy(vel, r + velocity->offset, 12);
+      std::memcpy(&pid, r + id->offset, 8);
+      std::memcpy(&a, r + age->offset, 4);
+      std::memcpy(rgba, r + color->offset, 4);
+      ASSERT_EQ(std::memcmp(vel, &v[i * 3], 12), 0) << "frame " << f << " particle " << i;
+      ASSERT_EQ(pid, ids[i]);
+      ASSERT_EQ(a, ages[i]);
+      for (int c = 0; c < 3; ++c) ASSERT_EQ(rgba[c], std::lround(std::clamp(cd[i * 3 + c], 0.0f, 1.0f) * 255.0f));
+      ASSERT_EQ(rgba[3], 255);
+    }
+  }
+}
+
+TEST(Cook, InterpolationBlendsParticlesMatchedById) {
+  const fs::path dir = temp_dir();
+  cook::Options o;
+  o.input = test::data_path("alembic/points_constant.abc");
+  o.output = dir / "interp.pstream";
+  o.fps = 48;
+  o.interpolate = true;
+  cook::cook(o);
+  const format::Reader reader = format::Reader::open(o.output);
+  const auto& m = reader.metadata();
+  EXPECT_TRUE(m.flags & format::kFlagInterpolated);
+  ASSERT_EQ(m.frame_count(), 95u);  // 48 samples at 24 fps span 47/24 s
+  const alembic::Archive archive = alembic::Archive::open(o.input);
+  const alembic::Points points(*archive.find("/fluid"));
+  std::vector<float> a(3000), b(3000), rec(4000);
+  std::vector<std::byte> scratch(m.chunk_size);
+  points.read_positions(3, a);
+  points.read_positions(4, b);
+  reader.read_frame(7, std::as_writable_bytes(std::span(rec)), scratch);  // half-way between samples 3 and 4
+  const double w = (m.frames[7].time - points.sample_time(3)) / (points.sample_time(4) - points.sample_time(3));
+  EXPECT_NEAR(w, 0.5, 1e-9);
+  for (int i = 0; i < 1000; ++i) {
+    for (int c = 0; c < 3; ++c) {
+      const float x = a[i * 3 + c], y = b[i * 3 + c];
+      ASSERT_EQ(rec[i * 4 + c], static_cast<float>(x + (y - x) * w)) << i;
+    }
+  }
+}
+
+TEST(Cook, SameInputSameBytes) {
+  const fs::path dir = temp_dir();
+  cook::Options o;
+  o.input = test::data_path("alembic/points_varying.abc");
+  o.codec = format::Codec::Zstd;
+  o.chunk_size = format::kMinChunkSize;
+  o.attributes = {"velocity", "id"};
+  o.threads = 2;
+  o.output = dir / "a.pstream";
+  cook::cook(o);
+  o.output = dir / "b.pstream";
+  o.threads = 1;
+  cook::cook(o);
+  EXPECT_EQ(test::read_text(dir / "a.pstream"), test::read_text(dir / "b.pstream"));
+  EXPECT_GT(fs::file_size(dir / "a.pstream"), 1000u);
+}
+
+// ---- Bad input --------------------------------------------------------------------------------
+
+std::string cook_error(cook::Options o) {
+  try {
+    cook::cook(o);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+void expect_cook_error(const cook::Options& o, const std::string& fragment) {
+  const std::string message = cook_error(o);
+  EXPECT_NE(message.find(fragment), std::string::npos) << "message: " << message;
+  EXPECT_FALSE(fs::exists(o.output)) << "a failed cook left " << o.output;
+  for (const auto& entry : fs::directory_iterator(o.output.parent_path())) {
+    EXPECT_EQ(entry.path().string().find(".tmp-"), std::string::npos) << "temporary file left: " << entry.path();
+  }
+}
+
+TEST(CookBadInput, MissingObjectNoPointsZeroFramesTooMany) {
+  const fs::path dir = temp_dir();
+  cook::Options o;
+  o.output = dir / "out.pstream";
+  o.input = test::data_path("alembic/points_constant.abc");
+  o.object = "/nope";
+  expect_cook_error(o, "no object '/nope'");
+  o.object.clear();
+  o.input = test::data_path("alembic/mesh_vertices.abc");
+  expect_cook_error(o, "holds no points objects");
+  o.input = test::data_path("alembic/points_multi.abc");
+  expect_cook_error(o, "--merge");
+  o.input = test::data_path("alembic/points_constant.abc");
+  o.frame_begin = 5;
+  o.frame_end = 5;
+  expect_cook_error(o, "selects no frames");
+  o.frame_begin = 0;
+  o.frame_end = -1;
+  o.max_particles = 999;
+  expect_cook_error(o, "frame 0 has 1000 particles, more than --max-particles 999");
+  o.max_particles = 1000;
+  o.chunk_size = 1000;
+  expect_cook_error(o, "power of two");
+  o.chunk_size = format::kMinChunkSize;
+  o.attributes = {"velocity"};
+  expect_cook_error(o, "velocity, but the source has none");
+}
+
+void write_ply(const fs::path& path, const std::vector<std::array<float, 4>>& points, bool binary) {
+  std::ofstream out(path, std::ios::binary);
+  out << "ply\nformat " << (binary ? "binary_little_endian" : "ascii") << " 1.0\nelement vertex " << points.size()
+      << "\nproperty float x\nproperty float y\nproperty float z\nproperty float pscale\nend_header\n";
+  for (const auto& p : points) {
+    if (binary) {
+      out.write(reinterpret_cast<const char*>(p.data()), 16);
+    } else {
+      out << p[0] << " " << p[1] << " " << p[2] << " " << p[3] << "\n";
+    }
+  }
+}
+
+TEST(CookPly, AsciiAndBinarySequencesCookExactly) {
+  for (bool binary : {false, true}) {
+    const fs::path dir = temp_dir();
+    for (int f = 1; f <= 3; ++f) {
+      std::vector<std::array<float, 4>> pts;
+      for (int i = 0; i < 10 * f; ++i) pts.push_back({0.5f * i, 0.25f * f, -1.0f * i, 0.125f});
+      write_ply(dir / fmt::format("frame.{:04d}.ply", f), pts, binary);
+    }
+    cook::Options o;
+    o.input = dir / "frame.0001.ply";
+    o.output = dir / "ply.pstream";
+    cook::cook(o);
+    const format::Reader reader = format::Reader::open(o.output);
+    ASSERT_EQ(reader.metadata().frame_count(), 3u);
+    std::vector<float> rec(30 * 4);
+    std::vector<std::byte> scratch(reader.metadata().chunk_size);
+    reader.read_frame(2, std::as_writable_bytes(std::span(rec)), scratch);
+    EXPECT_EQ(reader.metadata().frames[2].count, 30u);
+    EXPECT_EQ(rec[4 * 7 + 0], 3.5f);
+    EXPECT_EQ(rec[4 * 7 + 1], 0.75f);
+    EXPECT_EQ(rec[4 * 7 + 2], -7.0f);
+    EXPECT_EQ(rec[4 * 7 + 3], 0.125f);  // pscale is already a radius
+  }
+}
+
+TEST(CookPly, GapsMismatchesAndNaN) {
+  const fs::path dir = temp_dir();
+  write_ply(dir / "a.0001.ply", {{0, 0, 0, 1}}, false);
+  write_ply(dir / "a.0003.ply", {{0, 0, 0, 1}}, false);
+  cook::Options o;
+  o.input = dir / "a.0001.ply";
+  o.output = dir / "out.pstream";
+  expect_cook_error(o, "frame 2 is missing");
+
+  write_ply(dir / "b.0001.ply", {{0, 0, 0, 1}}, false);
+  {
+    std::ofstream out(dir / "b.0002.ply");
+    out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n";
+  }
+  o.input = dir / "b.0001.ply";
+  expect_cook_error(o, "differ from the first file's");
+
+  const float nan = std::nanf("");
+  write_ply(dir / "c.0001.ply", {{0, 0, 0, 1}, {nan, 0, 0, 1}, {1, 1, 1, 1}, {0, INFINITY, 0, 1}}, true);
+  o.input = dir / "c.0001.ply";
+  expect_cook_error(o, "frame 0: 2 particles have NaN or infinite positions (the first is particle 1)");
+  o.drop_invalid = true;
+  const cook::Report r = cook::cook(o);
+  EXPECT_EQ(r.dropped_invalid, 2u);
+  EXPECT_EQ(format::Reader::open(o.output).metadata().frames[0].count, 2u);
+}
+
+}  // namespace
