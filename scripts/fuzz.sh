@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Bounded libFuzzer run of every reader of untrusted bytes, seeded with the test fixtures.
 #   FUZZ_SECONDS (default 30) per target.
+# Expects `scripts/build.sh fuzz` to have built build-fuzz/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-seconds=${FUZZ_SECONDS:-30}
+seconds=${FUZZ_SECONDS:-25}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 
@@ -27,3 +28,15 @@ run_target() {  # name, seed files...
 seeds=$(find tests/data/alembic -name '*.abc' -size -1024k | sort)
 # shellcheck disable=SC2086
 run_target fuzz_alembic $seeds
+
+# .pstream seeds: small fixtures cooked with each codec and the smallest chunks.
+mkdir -p "$work/pstream-seeds"
+for codec in raw lz4 zstd; do
+  for fixture in points_widths_constant points_empty_frames; do
+    build-fuzz/apps/pstream/pstream cook -q "tests/data/alembic/$fixture.abc" --chunk-size 64KiB --codec $codec \
+      --attributes velocity,id -o "$work/pstream-seeds/$fixture-$codec.pstream" 2>/dev/null ||
+      build-fuzz/apps/pstream/pstream cook -q "tests/data/alembic/$fixture.abc" --chunk-size 64KiB --codec $codec \
+        -o "$work/pstream-seeds/$fixture-$codec.pstream"
+  done
+done
+run_target fuzz_pstream "$work"/pstream-seeds/*.pstream

@@ -121,7 +121,8 @@ class Reader {
   std::uint64_t file_size() const;
   std::span<const std::byte> stored_chunk(std::uint64_t chunk) const;
   void read_chunk(std::uint64_t chunk, std::span<std::byte> out) const;  // out: the chunk's raw size
-  // The frame's records into `out` (count * record_size bytes); `scratch` must hold one chunk.
+  // The frame's records into `out` (count * record_size bytes); `scratch` must hold the raw
+  // size of each chunk the frame touches (chunk_size, or less for the last chunk).
   void read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const;
 
  private:
