@@ -29,7 +29,8 @@ class ProgressBar {
       fmt::print(stderr, "\r{} [{}{}] {:3d}% {}/{} {}\x1b[K", label_, std::string(filled, '#'), std::string(width - filled, '.'),
                  percent, done, total, detail);
       if (done == total) fmt::print(stderr, "\n");
-    } else if (percent / 10 != last_decile_ || done == total) {
+    } else if (std::chrono::steady_clock::now() - start_ > std::chrono::seconds(1) &&
+               (percent / 10 != last_decile_ || done == total)) {  // short jobs print nothing
       last_decile_ = percent / 10;
       fmt::print(stderr, "{}: {}% ({}/{}) {}\n", label_, percent, done, total, detail);
     }
@@ -41,6 +42,7 @@ class ProgressBar {
   bool enabled_, tty_;
   int last_decile_ = -1;
   std::chrono::steady_clock::time_point last_{};
+  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
 };
 
 }  // namespace pstream::app
