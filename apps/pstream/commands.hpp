@@ -50,4 +50,12 @@ struct BenchCookOptions {
 };
 int bench_cook(const BenchCookOptions& options);
 
+struct BenchSortOptions {
+  std::size_t n = 0;  // 0: the whole table (1k .. 4M, three inputs)
+  int repetitions = 7;
+  bool json = false;
+  std::string svg, markdown;  // optional plot and table files
+};
+int bench_sort(const BenchSortOptions& options);
+
 }  // namespace pstream::app

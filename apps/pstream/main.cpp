@@ -104,6 +104,17 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 1000));
   bench_cook_cmd->add_flag("--json", bench_cook_opts.json, R"(Print {"cook_mb_s":…, "baseline_mb_s":…, "ratio":…})");
 
+  BenchSortOptions bench_sort_opts;
+  auto* bench_sort_cmd = bench_cmd->add_subcommand(
+      "sort", "Compare depth sorts (bubble, comb, insertion, merge, quick, std::sort, std::stable_sort, vqsort, ours)\n"
+              "on random, nearly sorted and reversed depths, N = 1k .. 4M");
+  bench_sort_cmd->add_option("--n", bench_sort_opts.n, "One size only, random input (prints ours_ms, vqsort_ms, ...)");
+  bench_sort_cmd->add_option("--repetitions", bench_sort_opts.repetitions, "Runs of each; medians are reported")
+      ->check(CLI::Range(1, 1000));
+  bench_sort_cmd->add_option("--svg", bench_sort_opts.svg, "Write a log-log plot of the random-input timings");
+  bench_sort_cmd->add_option("--markdown", bench_sort_opts.markdown, "Write the table as Markdown");
+  bench_sort_cmd->add_flag("--json", bench_sort_opts.json, "Print JSON");
+
   CLI11_PARSE(app, argc, argv);
   try {
     if (info_cmd->parsed()) {
@@ -114,6 +125,7 @@ int main(int argc, char** argv) {
     if (verify_cmd->parsed()) return verify_pstream(verify_file, verify_json);
     if (read_cmd->parsed()) return bench_read(bench_read_opts);
     if (bench_cook_cmd->parsed()) return bench_cook(bench_cook_opts);
+    if (bench_sort_cmd->parsed()) return bench_sort(bench_sort_opts);
   } catch (const pstream::Error& e) {
     fmt::print(stderr, "pstream: error: {}\n", e.what());
     return 1;

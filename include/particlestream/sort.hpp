@@ -12,6 +12,11 @@
 
 namespace pstream::sort {
 
+namespace detail {
+template <int kDigits, int kBits>
+struct Histogram;
+}
+
 enum class SortMode { None, BackToFront, FrontToBack };
 
 // A float mapped to an unsigned integer with the same order (-inf < ... < -0 < +0 < ... < +inf).
@@ -33,7 +38,7 @@ DepthAxis depth_axis(const std::array<float, 16>& view_world);
 void compute_depths(const std::byte* records, std::size_t count, std::size_t stride, const DepthAxis& axis, float* out);
 
 // Stable LSD radix sort of 64-bit items by their upper 32 bits (a key) — key-index pairs packed
-// as key << 32 | index. 11-bit digits, three passes, all histograms in one read, passes whose
+// as key << 32 | index. 8-bit digits, four passes, all histograms in one read, passes whose
 // digit is the same for every item skipped. The last pass writes only the indices (low 32 bits)
 // to `indices_out`. `items` and `scratch` hold n items each; both are clobbered.
 void radix_sort_pairs(std::uint64_t* items, std::uint64_t* scratch, std::size_t n, std::uint32_t* indices_out);
@@ -75,6 +80,8 @@ class DepthSorter {
   std::unique_ptr<float[]> depths_;
   std::unique_ptr<std::uint64_t[]> items_, scratch_;
   std::unique_ptr<std::uint32_t[]> indices_;
+  std::unique_ptr<detail::Histogram<4, 8>> hist_;
+  std::unique_ptr<detail::Histogram<2, 8>> hist16_;
   std::size_t last_count_ = 0;
   std::unique_ptr<Helper> helper_;
 };

@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "particlestream/sort.hpp"
+#include "radix.hpp"
 
 namespace pstream::sort {
 namespace {
@@ -21,12 +22,13 @@ inline std::uint64_t item_for(float depth, std::uint32_t index, SortMode mode) {
 
 inline std::uint64_t item16_for(float depth, std::uint32_t index, SortMode mode, float near, float scale) {
   const float t = std::clamp((depth - near) * scale, 0.0f, 1.0f);
-  auto q = static_cast<std::uint32_t>(std::lround(t * 65535.0f));
+  auto q = static_cast<std::uint32_t>(t * 65535.0f + 0.5f);
   if (mode == SortMode::BackToFront) q = 65535u - q;
   return static_cast<std::uint64_t>(q) << 32 | index;
 }
 
-constexpr int kBits = 11;
+constexpr int kBits = 8;
+constexpr int kDigits = 4;
 constexpr std::uint32_t kBuckets = 1u << kBits, kMask = kBuckets - 1;
 
 }  // namespace
@@ -89,7 +91,9 @@ DepthSorter::DepthSorter(std::size_t max_count, SorterOptions options)
       depths_(new float[std::max<std::size_t>(max_count, 1)]),
       items_(new std::uint64_t[std::max<std::size_t>(max_count, 1)]),
       scratch_(new std::uint64_t[std::max<std::size_t>(max_count, 1)]),
-      indices_(new std::uint32_t[std::max<std::size_t>(max_count, 1)]) {
+      indices_(new std::uint32_t[std::max<std::size_t>(max_count, 1)]),
+      hist_(std::make_unique<detail::Histogram<4, 8>>()),
+      hist16_(std::make_unique<detail::Histogram<2, 8>>()) {
   if (max_count > 0xFFFFFFFFull) throw std::length_error("DepthSorter: at most 2^32 - 1 particles");
   if (options_.threads >= 2) helper_ = std::make_unique<Helper>();
 }
@@ -108,25 +112,34 @@ std::span<const std::uint32_t> DepthSorter::sort_depths(std::span<const float> d
                                                         std::array<float, 2> near_far) {
   const std::size_t n = depths.size();
   if (n > capacity_) throw std::length_error("DepthSorter::sort_depths: more particles than the capacity");
-  if (depths.data() != depths_.get()) std::copy(depths.begin(), depths.end(), depths_.get());
-  last_count_ = n;
+  last_count_ = depths.data() == depths_.get() ? n : 0;  // depths() reports only what sort() computed
   std::uint32_t* out = indices_.get();
   if (mode == SortMode::None) {  // additive blending: any order, so the stored one
     for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<std::uint32_t>(i);
     return {out, n};
   }
   std::uint64_t* items = items_.get();
-  const float* d = depths_.get();
+  const float* d = depths.data();
   if (options_.quantize16) {
     const float range = near_far[1] - near_far[0];
     const float scale = range > 0 ? 1.0f / range : 0.0f;
-    for (std::size_t i = 0; i < n; ++i) items[i] = item16_for(d[i], static_cast<std::uint32_t>(i), mode, near_far[0], scale);
-    radix_sort_pairs16(items, scratch_.get(), n, out);
+    auto& h = *hist16_;
+    h.clear();
+    for (std::size_t i = 0; i < n; ++i) {
+      items[i] = item16_for(d[i], static_cast<std::uint32_t>(i), mode, near_far[0], scale);
+      h.add(static_cast<std::uint32_t>(items[i] >> 32));
+    }
+    detail::radix_scatter(items, scratch_.get(), n, h, out);
     return {out, n};
   }
   if (!helper_ || n < (1u << 16)) {  // small frames: a second thread costs more than it saves
-    for (std::size_t i = 0; i < n; ++i) items[i] = item_for(d[i], static_cast<std::uint32_t>(i), mode);
-    radix_sort_pairs(items, scratch_.get(), n, out);
+    auto& h = *hist_;
+    h.clear();
+    for (std::size_t i = 0; i < n; ++i) {  // building the pairs and counting every digit: one pass
+      items[i] = item_for(d[i], static_cast<std::uint32_t>(i), mode);
+      h.add(static_cast<std::uint32_t>(items[i] >> 32));
+    }
+    detail::radix_scatter(items, scratch_.get(), n, h, out);
     return {out, n};
   }
 
@@ -140,7 +153,7 @@ std::span<const std::uint32_t> DepthSorter::sort_depths(std::span<const float> d
     for (std::size_t i = begin; i < end; ++i) items[i] = item_for(d[i], static_cast<std::uint32_t>(i), mode);
     std::uint64_t* src = items;
     std::uint64_t* dst = scratch;
-    for (int digit = 0; digit < 3; ++digit) {
+    for (int digit = 0; digit < kDigits; ++digit) {
       const int shift = 32 + digit * kBits;
       std::uint32_t* h = shared_hist[t];
       std::fill(h, h + kBuckets, 0u);
@@ -152,7 +165,7 @@ std::span<const std::uint32_t> DepthSorter::sort_depths(std::span<const float> d
         offset[b] = sum + (t == 1 ? shared_hist[0][b] : 0u);
         sum += shared_hist[0][b] + shared_hist[1][b];
       }
-      if (digit == 2) {
+      if (digit == kDigits - 1) {
         for (std::size_t i = begin; i < end; ++i) out[offset[(src[i] >> shift) & kMask]++] = static_cast<std::uint32_t>(src[i]);
       } else {
         for (std::size_t i = begin; i < end; ++i) dst[offset[(src[i] >> shift) & kMask]++] = src[i];
