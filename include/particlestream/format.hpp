@@ -104,6 +104,22 @@ void decode_chunk(const ChunkEntry& entry, std::span<const std::byte> stored, st
                   std::string_view where);
 std::uint64_t checksum(std::span<const std::byte> bytes);
 
+// A reusable decoder that owns its codec state, so decoding allocates nothing (for the streaming
+// runtime, whose playback must not allocate). decode() throws pstream::Error naming `file` and
+// `chunk` on a checksum or codec failure; only that error path allocates.
+class ChunkDecoder {
+ public:
+  ChunkDecoder();
+  ~ChunkDecoder();
+  ChunkDecoder(const ChunkDecoder&) = delete;
+  ChunkDecoder& operator=(const ChunkDecoder&) = delete;
+  void decode(const ChunkEntry& entry, std::span<const std::byte> stored, std::span<std::byte> out,
+              std::string_view file, std::uint64_t chunk);
+
+ private:
+  void* zstd_ = nullptr;  // ZSTD_DCtx
+};
+
 // ---- Reading ----------------------------------------------------------------------------------
 
 class Reader {

@@ -1,0 +1,177 @@
+// Playing back a .pstream with fixed memory: a ring of chunk-sized cache slots, fed by IO workers
+// (at most a set number of loads in flight), advanced once per host frame by update(dt), handing
+// out the current frame as spans into the cache. After open, playback allocates nothing, and the
+// caller's thread never waits on disk (unless blocking mode is asked for, for offline rendering).
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <span>
+#include <thread>
+#include <string>
+#include <vector>
+
+#include "particlestream/format.hpp"
+
+namespace pstream::stream {
+
+// ---- IO ------------------------------------------------------------------------------------
+
+// Where chunk bytes come from. read() runs on an IO worker thread; it must fill `out` from
+// `offset` completely or throw pstream::Error. Implementations for tests inject latency,
+// bandwidth limits and failures; later ones may use io_uring or HTTP.
+class IoBackend {
+ public:
+  virtual ~IoBackend() = default;
+  virtual void read(std::uint64_t offset, std::span<std::byte> out) = 0;
+  virtual std::uint64_t size() const = 0;
+  virtual const std::string& name() const = 0;
+};
+
+// pread() on a file descriptor.
+std::unique_ptr<IoBackend> open_file(const std::filesystem::path& path);
+
+class IoScheduler;
+struct LoadRequest;
+
+// IO worker threads shared by streams: at most `workers` loads in flight across all of them
+// (one per device, as in the seed design).
+class IoScheduler {
+ public:
+  explicit IoScheduler(unsigned workers = 1);
+  ~IoScheduler();
+  IoScheduler(const IoScheduler&) = delete;
+  IoScheduler& operator=(const IoScheduler&) = delete;
+  static std::shared_ptr<IoScheduler> shared_default();
+
+  // Streams reserve queue room for their own loads at open (so submitting never allocates).
+  void reserve(std::size_t requests);
+  void release(std::size_t requests);
+  void submit(LoadRequest* request);
+  unsigned workers() const { return static_cast<unsigned>(threads_.size()); }
+
+ private:
+  void run();
+  struct Queue;
+  std::unique_ptr<Queue> queue_;
+  std::vector<std::thread> threads_;
+};
+
+// Memory that several streams' caches must fit in together.
+class MemoryBudget {
+ public:
+  explicit MemoryBudget(std::uint64_t bytes) : total_(bytes) {}
+  std::uint64_t total() const { return total_; }
+  std::uint64_t used() const { return used_.load(); }
+  bool try_reserve(std::uint64_t bytes);
+  void release(std::uint64_t bytes) { used_.fetch_sub(bytes); }
+
+ private:
+  std::uint64_t total_;
+  std::atomic<std::uint64_t> used_{0};
+};
+
+// ---- Cache sizing ----------------------------------------------------------------------------
+
+// s = ceil(t * fps * T / p) slots: t seconds held, T the largest frame, p particles per chunk;
+// clamped to [2, chunk_count], and never fewer than a largest frame's chunks plus one (so the
+// next chunk can load while a frame is held).
+std::size_t cache_slots(const format::Metadata& meta, double seconds);
+
+// ---- The stream ----------------------------------------------------------------------------
+
+enum class SlotState : std::uint8_t { Empty, Loading, Ready };
+enum class PlayState : std::uint8_t { Stopped, Playing, Paused, Error };
+
+struct StreamOptions {
+  double cache_seconds = 1.0;
+  std::size_t min_slots = 0;              // tests: force a tiny cache (still at least what a frame needs)
+  std::size_t max_slots = 0;              // tests: 0 = no cap beyond chunk_count
+  unsigned max_loads_in_flight = 1;
+  bool blocking = false;                   // update() waits for data instead of stalling
+  std::shared_ptr<IoScheduler> scheduler;  // default: a process-wide one with one worker
+  std::shared_ptr<MemoryBudget> budget;    // optional: the cache must fit in it
+  std::unique_ptr<IoBackend> io;           // default: pread on the file
+};
+
+struct FrameView {
+  std::uint64_t frame = 0;      // index in the clip
+  std::uint64_t count = 0;      // particles
+  double time = 0.0;            // the frame's time, seconds
+  std::span<const std::byte> first, second;  // the records; second is non-empty across the ring's wrap
+  bool valid = false;           // false until the first frame is ready
+  std::uint64_t bytes() const { return first.size() + second.size(); }
+};
+
+struct SlotInfo {
+  SlotState state = SlotState::Empty;
+  std::int64_t chunk = -1;
+};
+
+struct DebugInfo {
+  std::span<const SlotInfo> slots;  // one per cache slot, in ring order
+  std::size_t read_slot = 0;        // the slot holding the current frame's first record
+  std::uint64_t read_offset = 0;    // byte offset of the current frame in the record stream
+  std::uint32_t loads_in_flight = 0;
+  std::uint64_t loads_done = 0, bytes_read = 0, stalls = 0;
+  double io_ms = 0.0, decode_ms = 0.0;  // totals on the IO workers
+  std::uint64_t cache_bytes = 0;
+  bool seeking = false;
+};
+
+class ParticleStream {
+ public:
+  // Opens and validates the file, sizes the cache and allocates it (one allocation), reserves IO
+  // queue room, and starts loading the first chunks. Throws pstream::Error with a clear message
+  // for a file that is not a .pstream, or a cache that does not fit the memory budget.
+  static std::unique_ptr<ParticleStream> open(const std::filesystem::path& path, StreamOptions options = {});
+  ~ParticleStream();
+  void close();  // waits for the load in flight; safe after an error and twice
+
+  // Playback. Time only advances through update(dt), with the host's clock.
+  void play();
+  void pause();
+  void stop();                   // pause and go back to the start of the range
+  void seek(double time);        // the frame nearest `time` becomes current once its chunks are in
+  void set_loop(bool loop);
+  void set_speed(double speed);  // 0, fractional, > 1 (frames are skipped, never chunks)
+  void set_range(double start, double end);
+  void update(double dt);
+
+  PlayState state() const { return state_; }
+  const std::string& error() const { return error_; }  // set in the Error state
+  double time() const { return time_; }
+  bool seeking() const { return seeking_; }
+  const format::Metadata& metadata() const { return meta_; }
+  std::span<const format::Attribute> layout() const { return meta_.layout; }
+
+  // The current frame: zero-copy spans into the cache, valid until the next update().
+  FrameView frame() const;
+  // Copies the current frame's records into `out` (a mapped GPU buffer, say); returns bytes.
+  std::size_t copy_frame(std::span<std::byte> out) const;
+
+  // The object -> world transform (column-major 4x4), kept for the renderer.
+  void set_world_transform(const std::array<float, 16>& m) { world_ = m; }
+  const std::array<float, 16>& world_transform() const { return world_; }
+
+  DebugInfo debug() const;
+
+ private:
+  ParticleStream() = default;
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  format::Metadata meta_;
+  PlayState state_ = PlayState::Stopped;
+  std::string error_;
+  double time_ = 0.0;
+  bool seeking_ = false;
+  std::array<float, 16> world_{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  friend struct LoadRequest;
+};
+
+}  // namespace pstream::stream

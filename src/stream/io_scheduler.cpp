@@ -1,0 +1,105 @@
+#include <condition_variable>
+#include <mutex>
+
+#include "particlestream/stream.hpp"
+#include "stream/load_request.hpp"
+
+namespace pstream::stream {
+
+void LoadRequest::execute() {
+  using Clock = std::chrono::steady_clock;
+  try {
+    const auto t0 = Clock::now();
+    const bool raw = entry.codec == format::Codec::Raw;
+    // Raw chunks are read straight into their slot: the bytes move once, disk to cache.
+    const std::span<std::byte> target = raw ? destination : staging.first(entry.stored_size);
+    io->read(entry.file_offset, target);
+    const auto t1 = Clock::now();
+    if (raw) {
+      if (format::checksum(target) != entry.checksum) {
+        decoder->decode(entry, target, destination, io->name(), chunk);  // raises the checksum error
+      }
+    } else {
+      decoder->decode(entry, target, destination, io->name(), chunk);
+    }
+    io_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(t1 - t0).count();
+    decode_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t1).count();
+    status.store(Done, std::memory_order_release);
+  } catch (const std::exception& e) {
+    error = e.what();
+    status.store(Failed, std::memory_order_release);
+  }
+  status.notify_all();
+}
+
+struct IoScheduler::Queue {
+  std::mutex mutex;
+  std::condition_variable wake;
+  std::vector<LoadRequest*> ring;  // fixed capacity, grown only by reserve()
+  std::size_t head = 0, count = 0, reserved = 0;
+  bool stop = false;
+};
+
+IoScheduler::IoScheduler(unsigned workers) : queue_(std::make_unique<Queue>()) {
+  for (unsigned i = 0; i < std::max(workers, 1u); ++i) threads_.emplace_back([this] { run(); });
+}
+
+IoScheduler::~IoScheduler() {
+  {
+    std::lock_guard lock(queue_->mutex);
+    queue_->stop = true;
+  }
+  queue_->wake.notify_all();
+  for (auto& t : threads_) t.join();
+}
+
+std::shared_ptr<IoScheduler> IoScheduler::shared_default() {
+  static const std::shared_ptr<IoScheduler> scheduler = std::make_shared<IoScheduler>(1);
+  return scheduler;
+}
+
+void IoScheduler::reserve(std::size_t requests) {
+  std::lock_guard lock(queue_->mutex);
+  Queue& q = *queue_;
+  q.reserved += requests;
+  if (q.ring.size() < q.reserved) {  // re-pack the ring into a larger one (at open only)
+    std::vector<LoadRequest*> bigger(q.reserved);
+    for (std::size_t i = 0; i < q.count; ++i) bigger[i] = q.ring[(q.head + i) % q.ring.size()];
+    q.ring = std::move(bigger);
+    q.head = 0;
+  }
+}
+
+void IoScheduler::release(std::size_t requests) {
+  std::lock_guard lock(queue_->mutex);
+  queue_->reserved -= requests;
+}
+
+void IoScheduler::submit(LoadRequest* request) {
+  request->status.store(LoadRequest::Pending, std::memory_order_relaxed);
+  {
+    std::lock_guard lock(queue_->mutex);
+    Queue& q = *queue_;
+    q.ring[(q.head + q.count) % q.ring.size()] = request;  // room was reserved at open
+    ++q.count;
+  }
+  queue_->wake.notify_one();
+}
+
+void IoScheduler::run() {
+  Queue& q = *queue_;
+  for (;;) {
+    LoadRequest* r = nullptr;
+    {
+      std::unique_lock lock(q.mutex);
+      q.wake.wait(lock, [&] { return q.stop || q.count > 0; });
+      if (q.count == 0) return;  // stopping, and nothing left to do
+      r = q.ring[q.head];
+      q.head = (q.head + 1) % q.ring.size();
+      --q.count;
+    }
+    r->execute();
+  }
+}
+
+}  // namespace pstream::stream

@@ -1,0 +1,34 @@
+// One chunk load, handed from a stream to an IO worker. The stream owns a fixed set of these
+// (one per allowed load in flight), so submitting a load allocates nothing.
+#pragma once
+
+#include <atomic>
+#include <string>
+
+#include "particlestream/stream.hpp"
+
+namespace pstream::stream {
+
+struct LoadRequest {
+  enum Status : int { Idle = 0, Pending = 1, Done = 2, Failed = 3 };
+
+  // Set by the stream before submit().
+  IoBackend* io = nullptr;
+  format::ChunkDecoder* decoder = nullptr;
+  format::ChunkEntry entry;
+  std::uint64_t chunk = 0;
+  std::span<std::byte> destination;  // the slot, exactly the chunk's raw size
+  std::span<std::byte> staging;      // compressed bytes land here first
+  std::size_t slot = 0;
+  std::uint64_t seq = 0;
+  bool discard = false;  // a seek made this load useless; its slot frees on completion
+
+  // Set by the worker.
+  std::atomic<int> status{Idle};
+  std::string error;  // only on failure
+  std::int64_t io_ns = 0, decode_ns = 0;
+
+  void execute();  // on an IO worker: read, verify, decode; never throws
+};
+
+}  // namespace pstream::stream

@@ -1,0 +1,429 @@
+// The streaming runtime on real cooked files: every frame it hands out equals a direct decode,
+// whatever the cache size, codec, speed, looping or seeking; playback allocates nothing; IO
+// starvation shows as stalls and recovers; faults end in a clean error state.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "alloc_counter.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+#include "particlestream/stream.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using namespace pstream;
+namespace fs = std::filesystem;
+
+fs::path test_dir() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  std::string name = std::string(info->test_suite_name()) + "." + info->name();
+  for (char& c : name) {
+    if (c == '/') c = '_';
+  }
+  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / name;
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::Codec codec,
+                      std::vector<std::string> attributes = {}, const std::string& object = {}) {
+  cook::Options o;
+  o.object = object;
+  o.input = test::data_path("alembic/" + fixture + ".abc");
+  o.output = dir / (fixture + "-" + std::string(format::codec_name(codec)) + ".pstream");
+  o.chunk_size = format::kMinChunkSize;
+  o.codec = codec;
+  o.attributes = std::move(attributes);
+  cook::cook(o);
+  return o.output;
+}
+
+// A synthetic clip: frame f holds `count(f)` records whose floats encode (f, i).
+fs::path synthetic_clip(const fs::path& dir, std::uint64_t frames, double fps, const std::function<std::uint64_t(std::uint64_t)>& count,
+                        std::uint64_t chunk_size = format::kMinChunkSize) {
+  format::Metadata meta;
+  meta.fps = fps;
+  meta.chunk_size = chunk_size;
+  meta.layout = format::default_layout();
+  const fs::path path = dir / "synthetic.pstream";
+  format::Writer writer(path, meta);
+  std::vector<std::byte> stream;
+  for (std::uint64_t f = 0; f < frames; ++f) {
+    const std::uint64_t n = count(f);
+    writer.append_frame(n, double(f) / fps, {0, 0, 0, 1, 1, 1});
+    for (std::uint64_t i = 0; i < n; ++i) {
+      const float r[4] = {float(f), float(i), float(f * 1000 + i), 0.5f};
+      const auto* b = reinterpret_cast<const std::byte*>(r);
+      stream.insert(stream.end(), b, b + 16);
+    }
+  }
+  for (std::size_t at = 0; at < stream.size(); at += chunk_size) {
+    const std::span<const std::byte> raw(stream.data() + at, std::min<std::size_t>(chunk_size, stream.size() - at));
+    writer.append_chunk(raw, format::Codec::Raw, 0, format::checksum(raw));
+  }
+  writer.commit();
+  return path;
+}
+
+// Frames decoded directly, the reference the stream must match.
+struct Reference {
+  explicit Reference(const fs::path& path) : reader(format::Reader::open(path)) {
+    const auto& m = reader.metadata();
+    std::vector<std::byte> scratch(m.chunk_size);
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+      frames.emplace_back(m.frames[f].count * m.record_size);
+      reader.read_frame(f, frames.back(), scratch);
+    }
+  }
+  format::Reader reader;
+  std::vector<std::vector<std::byte>> frames;
+};
+
+::testing::AssertionResult frame_matches(const stream::ParticleStream& s, const Reference& ref, std::uint64_t expected_frame) {
+  const stream::FrameView v = s.frame();
+  if (!v.valid) return ::testing::AssertionFailure() << "no frame";
+  if (v.frame != expected_frame) return ::testing::AssertionFailure() << "frame " << v.frame << ", expected " << expected_frame;
+  const auto& want = ref.frames[expected_frame];
+  if (v.bytes() != want.size()) return ::testing::AssertionFailure() << v.bytes() << " bytes, expected " << want.size();
+  if (std::memcmp(v.first.data(), want.data(), v.first.size()) != 0 ||
+      (!v.second.empty() && std::memcmp(v.second.data(), want.data() + v.first.size(), v.second.size()) != 0)) {
+    return ::testing::AssertionFailure() << "frame " << expected_frame << " bytes differ";
+  }
+  std::vector<std::byte> copy(v.bytes());
+  s.copy_frame(copy);
+  if (copy != want) return ::testing::AssertionFailure() << "copy_frame differs for frame " << expected_frame;
+  return ::testing::AssertionSuccess();
+}
+
+stream::StreamOptions tiny_cache(bool blocking = true) {
+  stream::StreamOptions o;
+  o.max_slots = 2;  // raised to what a largest frame needs
+  o.blocking = blocking;
+  return o;
+}
+
+TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
+  const fs::path dir = test_dir();
+  const std::vector<fs::path> files = {
+      cook_fixture(dir, "points_constant", format::Codec::Raw),
+      cook_fixture(dir, "points_varying", format::Codec::Lz4, {"velocity", "id"}),  // 40-byte records
+      cook_fixture(dir, "points_empty_frames", format::Codec::Zstd),
+      cook_fixture(dir, "points_large", format::Codec::Zstd),
+      cook_fixture(dir, "points_xform", format::Codec::Raw),
+      cook_fixture(dir, "mesh_vertices", format::Codec::Lz4, {}, "/grid")};
+  std::uint64_t wraps = 0;
+  for (const fs::path& file : files) {
+    SCOPED_TRACE(file.filename().string());
+    const Reference ref(file);
+    const auto& m = ref.reader.metadata();
+    auto s = stream::ParticleStream::open(file, tiny_cache());
+    EXPECT_EQ(s->debug().slots.size(), stream::cache_slots(m, 0.0));
+    s->play();
+    s->update(0);
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+      if (f > 0) s->update(1.0 / m.fps);
+      ASSERT_TRUE(frame_matches(*s, ref, f));
+      wraps += !s->frame().second.empty();
+    }
+    s->update(1.0 / m.fps);  // past the end: not looping, so it pauses on the last frame
+    EXPECT_EQ(s->state(), stream::PlayState::Paused);
+    ASSERT_TRUE(frame_matches(*s, ref, m.frame_count() - 1));
+  }
+  EXPECT_GT(wraps, 0u) << "no frame crossed the ring's wrap";
+}
+
+TEST(Stream, LoopingAndSpeed) {
+  const fs::path dir = test_dir();
+  const fs::path file = cook_fixture(dir, "points_varying", format::Codec::Raw);
+  const Reference ref(file);
+  const auto& m = ref.reader.metadata();
+  const std::uint64_t n = m.frame_count();
+  {
+    auto s = stream::ParticleStream::open(file, tiny_cache());
+    s->set_loop(true);
+    s->play();
+    s->update(0);
+    for (std::uint64_t k = 0; k < n * 5 / 2; ++k) {
+      if (k > 0) s->update(1.0 / m.fps);
+      ASSERT_TRUE(frame_matches(*s, ref, k % n)) << "step " << k;
+    }
+  }
+  {
+    auto s = stream::ParticleStream::open(file, tiny_cache());
+    s->set_loop(true);
+    s->set_speed(2.5);
+    s->play();
+    s->update(0);
+    for (std::uint64_t k = 1; k < 100; ++k) {
+      s->update(1.0 / m.fps);
+      // 2.5 frames a step: every other step lands half-way between frames, where rounding of
+      // the accumulated time may go either way.
+      const double t = std::fmod(2.5 * double(k), double(n));
+      const auto lo = static_cast<std::uint64_t>(std::floor(t + 1e-6)) % n, hi = static_cast<std::uint64_t>(std::ceil(t - 1e-6)) % n;
+      const auto shown = s->frame().frame;
+      ASSERT_TRUE(shown == lo || shown == hi) << "step " << k << " shows " << shown;
+      ASSERT_TRUE(frame_matches(*s, ref, shown)) << "step " << k;
+    }
+  }
+}
+
+TEST(Stream, TwoHundredRandomSeeks) {
+  const fs::path dir = test_dir();
+  const fs::path file = cook_fixture(dir, "points_large", format::Codec::Lz4);
+  const Reference ref(file);
+  const auto& m = ref.reader.metadata();
+  auto s = stream::ParticleStream::open(file, tiny_cache());
+  std::mt19937 rng(42);
+  std::uniform_int_distribution<std::uint64_t> pick(0, m.frame_count() - 1);
+  for (int i = 0; i < 200; ++i) {
+    const std::uint64_t f = pick(rng);
+    s->seek(m.frames[f].time + (i % 3 - 1) * 0.2 / m.fps);  // a little off the frame time: nearest
+    EXPECT_TRUE(s->seeking());
+    s->update(0);
+    EXPECT_FALSE(s->seeking());
+    ASSERT_TRUE(frame_matches(*s, ref, f)) << "seek " << i;
+  }
+}
+
+TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
+  const fs::path dir = test_dir();
+  const fs::path file = cook_fixture(dir, "points_varying", format::Codec::Zstd, {"velocity"});
+  const Reference ref(file);
+  const auto& m = ref.reader.metadata();
+  std::vector<std::byte> gpu_buffer(m.max_count * m.record_size);
+  for (bool blocking : {false, true}) {
+    auto s = stream::ParticleStream::open(file, tiny_cache(blocking));
+    std::vector<std::uint64_t> shown;
+    shown.reserve(1000);
+    const std::uint64_t before = test::allocation_count();
+    s->play();
+    for (int step = 0; step < 400 && s->state() == stream::PlayState::Playing; ++step) {
+      s->update(1.0 / m.fps / 4);  // host frames at 4x the clip's rate
+      const auto v = s->frame();
+      if (v.valid) {
+        s->copy_frame(gpu_buffer);
+        shown.push_back(v.frame);
+      }
+      if (!blocking) std::this_thread::sleep_for(std::chrono::microseconds(500));
+    }
+    const std::uint64_t after = test::allocation_count();
+    EXPECT_EQ(after, before) << "blocking=" << blocking << ": playback allocated " << (after - before) << " times";
+    ASSERT_FALSE(shown.empty());
+    EXPECT_EQ(shown.back(), m.frame_count() - 1);
+    EXPECT_TRUE(std::is_sorted(shown.begin(), shown.end()));
+  }
+}
+
+// IO that delivers at most `bytes_per_second` (0: unlimited), adjustable while streaming.
+class ThrottledIo final : public stream::IoBackend {
+ public:
+  ThrottledIo(std::unique_ptr<stream::IoBackend> inner, std::shared_ptr<std::atomic<double>> rate)
+      : inner_(std::move(inner)), rate_(std::move(rate)) {}
+  void read(std::uint64_t offset, std::span<std::byte> out) override {
+    const auto t0 = std::chrono::steady_clock::now();
+    inner_->read(offset, out);
+    const double rate = rate_->load();
+    if (rate > 0) std::this_thread::sleep_until(t0 + std::chrono::duration<double>(double(out.size()) / rate));
+  }
+  std::uint64_t size() const override { return inner_->size(); }
+  const std::string& name() const override { return inner_->name(); }
+
+ private:
+  std::unique_ptr<stream::IoBackend> inner_;
+  std::shared_ptr<std::atomic<double>> rate_;
+};
+
+TEST(Stream, ExactBandwidthNoStallsHalfBandwidthStallsAndRecovers) {
+  const fs::path dir = test_dir();
+  const double fps = 30;
+  const fs::path file = synthetic_clip(dir, 150, fps, [](std::uint64_t) { return 8192; });  // 128 KiB a frame
+  const auto m = format::Reader::open(file).metadata();
+  const double needed = double(m.stream_size()) / (double(m.frame_count()) / fps);  // bytes per second
+  auto rate = std::make_shared<std::atomic<double>>(0.0);
+  stream::StreamOptions o;
+  o.cache_seconds = 0.5;  // half a second of lead
+  o.io = std::make_unique<ThrottledIo>(stream::open_file(file), rate);
+  o.scheduler = std::make_shared<stream::IoScheduler>(1);
+  auto s = stream::ParticleStream::open(file, std::move(o));
+  // Prime: fill the cache (1 s of frames) at full speed.
+  while (s->debug().loads_done < s->debug().slots.size()) {
+    s->update(0);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  const auto play_for = [&](double seconds) {
+    const auto start = std::chrono::steady_clock::now();
+    auto last = start;
+    while (std::chrono::steady_clock::now() - start < std::chrono::duration<double>(seconds) &&
+           s->state() == stream::PlayState::Playing) {
+      std::this_thread::sleep_for(std::chrono::duration<double>(1.0 / 120));  // a 120 Hz host
+      const auto now = std::chrono::steady_clock::now();
+      s->update(std::chrono::duration<double>(now - last).count());
+      last = now;
+    }
+  };
+  rate->store(needed * 1.02);  // what real time needs (2% for sleep granularity)
+  s->play();
+  play_for(1.5);
+  EXPECT_EQ(s->debug().stalls, 0u) << "at the needed bandwidth";
+  rate->store(needed * 0.5);
+  play_for(1.5);
+  const std::uint64_t starved = s->debug().stalls;
+  EXPECT_GT(starved, 0u) << "at half the bandwidth";
+  rate->store(0.0);  // bandwidth returns
+  play_for(0.3);  // catch up
+  const std::uint64_t caught_up = s->debug().stalls;
+  play_for(0.6);
+  EXPECT_EQ(s->debug().stalls, caught_up) << "no new stalls once the bandwidth is back";
+  EXPECT_EQ(s->state(), stream::PlayState::Playing);
+}
+
+// IO that fails, or serves another file's bytes (the file replaced while streaming), from a chunk on.
+class FaultyIo final : public stream::IoBackend {
+ public:
+  enum class Fault { ReadError, Replaced };
+  FaultyIo(std::unique_ptr<stream::IoBackend> inner, std::uint64_t from_offset, std::uint64_t to_offset, Fault fault)
+      : inner_(std::move(inner)), from_(from_offset), to_(to_offset), fault_(fault) {}
+  void read(std::uint64_t offset, std::span<std::byte> out) override {
+    inner_->read(offset, out);
+    if (offset < from_ || offset >= to_) return;  // chunks from one on; header and tables stay intact
+    if (fault_ == Fault::ReadError) throw Error(fmt::format("{}: injected read error at offset {}", name(), offset));
+    for (auto& b : out) b = ~b;  // other bytes at the same place
+  }
+  std::uint64_t size() const override { return inner_->size(); }
+  const std::string& name() const override { return inner_->name(); }
+
+ private:
+  std::unique_ptr<stream::IoBackend> inner_;
+  std::uint64_t from_, to_;
+  Fault fault_;
+};
+
+void play_until_error(stream::ParticleStream& s) {
+  s.play();
+  for (int i = 0; i < 500 && s.state() != stream::PlayState::Error && s.state() != stream::PlayState::Paused; ++i) {
+    s.update(1.0 / 24);
+  }
+}
+
+TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
+  const fs::path dir = test_dir();
+  const fs::path file = cook_fixture(dir, "points_constant", format::Codec::Raw);
+  const auto m = format::Reader::open(file).metadata();
+  const std::uint64_t chunk5 = m.chunks[5].file_offset;
+  {  // a flipped byte on disk
+    const fs::path bad = dir / "flipped.pstream";
+    fs::copy_file(file, bad);
+    std::fstream f(bad, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekg(static_cast<std::streamoff>(chunk5 + 100));
+    const char old = static_cast<char>(f.get());
+    f.seekp(static_cast<std::streamoff>(chunk5 + 100));
+    f.put(static_cast<char>(old ^ 0x40));  // a flip, whatever the byte was
+    f.close();
+    ASSERT_NE(test::read_text(bad), test::read_text(file));
+    auto s = stream::ParticleStream::open(bad, tiny_cache(true));  // blocking: every chunk is read
+    play_until_error(*s);
+    ASSERT_EQ(s->state(), stream::PlayState::Error);
+    EXPECT_NE(s->error().find("chunk 5"), std::string::npos) << s->error();
+    EXPECT_NE(s->error().find("checksum mismatch"), std::string::npos) << s->error();
+    EXPECT_FALSE(s->frame().valid);
+    s->update(0.1);  // the host keeps running
+    s->close();
+    s->close();
+  }
+  for (auto fault : {FaultyIo::Fault::ReadError, FaultyIo::Fault::Replaced}) {
+    stream::StreamOptions o = tiny_cache(true);
+    o.io = std::make_unique<FaultyIo>(stream::open_file(file), chunk5, m.chunks.back().file_offset + 1, fault);
+    auto s = stream::ParticleStream::open(file, std::move(o));
+    play_until_error(*s);
+    ASSERT_EQ(s->state(), stream::PlayState::Error);
+    EXPECT_NE(s->error().find(fault == FaultyIo::Fault::ReadError ? "injected read error" : "chunk 5"), std::string::npos)
+        << s->error();
+    s->close();
+  }
+  {  // truncated, and not a .pstream at all: refused at open
+    const fs::path cut = dir / "cut.pstream";
+    fs::copy_file(file, cut);
+    fs::resize_file(cut, fs::file_size(cut) / 2);
+    EXPECT_THROW(stream::ParticleStream::open(cut), Error);
+    try {
+      stream::ParticleStream::open(test::data_path("alembic/points_constant.abc"));
+      FAIL();
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("not a .pstream file"), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(Stream, CacheSizingAndSharedMemoryBudget) {
+  const fs::path dir = test_dir();
+  const fs::path file = synthetic_clip(dir, 240, 60, [](std::uint64_t f) { return 4000 + f * 10; });  // T = 6390
+  const auto m = format::Reader::open(file).metadata();
+  // s = ceil(t * fps * T / p) with p = 65536 / 16 = 4096 particles per chunk.
+  EXPECT_EQ(stream::cache_slots(m, 1.0), static_cast<std::size_t>(std::ceil(1.0 * 60 * 6390 / 4096.0)));
+  EXPECT_EQ(stream::cache_slots(m, 0.5), static_cast<std::size_t>(std::ceil(0.5 * 60 * 6390 / 4096.0)));
+  EXPECT_EQ(stream::cache_slots(m, 0.0), 4u);       // a largest frame (2 chunks + 1 start offset) plus one
+  EXPECT_EQ(stream::cache_slots(m, 1e6), m.chunk_count());  // never more than the clip
+  const std::uint64_t one = stream::cache_slots(m, 1.0) * m.chunk_size;
+  auto budget = std::make_shared<stream::MemoryBudget>(one + one / 2);
+  stream::StreamOptions a;
+  a.budget = budget;
+  auto first = stream::ParticleStream::open(file, std::move(a));
+  EXPECT_EQ(budget->used(), one);
+  EXPECT_EQ(first->debug().cache_bytes, one);
+  stream::StreamOptions b;
+  b.budget = budget;
+  try {
+    stream::ParticleStream::open(file, std::move(b));
+    FAIL() << "second cache fitted a budget too small for it";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("does not fit the memory budget"), std::string::npos) << e.what();
+  }
+  first.reset();
+  EXPECT_EQ(budget->used(), 0u);
+  stream::StreamOptions c;
+  c.budget = budget;
+  EXPECT_NO_THROW(stream::ParticleStream::open(file, std::move(c)));
+}
+
+TEST(Stream, DebugInfoWorldTransformRangeAndStop) {
+  const fs::path dir = test_dir();
+  const fs::path file = synthetic_clip(dir, 100, 25, [](std::uint64_t) { return 3000; });
+  auto s = stream::ParticleStream::open(file, tiny_cache());
+  const auto d0 = s->debug();
+  EXPECT_EQ(d0.slots.size(), stream::cache_slots(s->metadata(), 0.0));
+  EXPECT_EQ(d0.cache_bytes, d0.slots.size() * s->metadata().chunk_size);
+  s->set_world_transform({2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0, 1, 2, 3, 1});
+  EXPECT_EQ(s->world_transform()[12], 1.0f);
+  s->set_range(s->metadata().frames[40].time, s->metadata().frames[49].time);
+  s->set_loop(true);
+  s->play();
+  s->update(0);
+  for (int k = 0; k < 25; ++k) {
+    const auto v = s->frame();
+    ASSERT_TRUE(v.valid);
+    EXPECT_EQ(v.frame, 40u + k % 10) << k;
+    float rec[4];
+    std::memcpy(rec, v.first.data(), 16);
+    EXPECT_EQ(rec[0], float(v.frame));  // the synthetic record encodes its frame
+    s->update(1.0 / 25);
+  }
+  const auto d = s->debug();
+  EXPECT_GT(d.loads_done, 0u);
+  EXPECT_EQ(d.slots[d.read_slot].state, stream::SlotState::Ready);
+  s->stop();
+  s->update(0);
+  EXPECT_EQ(s->state(), stream::PlayState::Stopped);
+  EXPECT_EQ(s->frame().frame, 40u);
+}
+
+}  // namespace
