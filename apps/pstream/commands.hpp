@@ -58,4 +58,12 @@ struct BenchSortOptions {
 };
 int bench_sort(const BenchSortOptions& options);
 
+struct BenchStreamOptions {
+  std::string file;  // empty: generate a clip in a temporary folder
+  std::uint64_t particles = 1u << 20, frames = 60;
+  double fps = 30.0, cache_seconds = 0.5, laps = 2.0;
+  bool json = false;
+};
+int bench_stream(const BenchStreamOptions& options);
+
 }  // namespace pstream::app

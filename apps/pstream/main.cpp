@@ -115,6 +115,20 @@ int main(int argc, char** argv) {
   bench_sort_cmd->add_option("--markdown", bench_sort_opts.markdown, "Write the table as Markdown");
   bench_sort_cmd->add_flag("--json", bench_sort_opts.json, "Print JSON");
 
+  BenchStreamOptions bench_stream_opts;
+  auto* bench_stream_cmd = bench_cmd->add_subcommand(
+      "stream", "Per-frame cost of update() + copying the frame out, against memcpy of the same bytes, in real time");
+  bench_stream_cmd->add_option("file", bench_stream_opts.file,
+                               "A .pstream (default: generate 1M particles x 60 frames in a temporary folder)");
+  bench_stream_cmd->add_option("--particles", bench_stream_opts.particles, "Particles per generated frame")->capture_default_str();
+  bench_stream_cmd->add_option("--frames", bench_stream_opts.frames, "Generated frames")->capture_default_str();
+  bench_stream_cmd->add_option("--fps", bench_stream_opts.fps, "Generated frame rate")->capture_default_str();
+  bench_stream_cmd->add_option("--cache-seconds", bench_stream_opts.cache_seconds, "Seconds of frames the cache holds")
+      ->capture_default_str();
+  bench_stream_cmd->add_option("--laps", bench_stream_opts.laps, "Times through the clip")->capture_default_str();
+  bench_stream_cmd->add_flag("--json", bench_stream_opts.json,
+                             R"(Print {"frame_ms_median":…, "memcpy_ms_median":…, "ratio":…, "stalls":…})");
+
   CLI11_PARSE(app, argc, argv);
   try {
     if (info_cmd->parsed()) {
@@ -126,6 +140,7 @@ int main(int argc, char** argv) {
     if (read_cmd->parsed()) return bench_read(bench_read_opts);
     if (bench_cook_cmd->parsed()) return bench_cook(bench_cook_opts);
     if (bench_sort_cmd->parsed()) return bench_sort(bench_sort_opts);
+    if (bench_stream_cmd->parsed()) return bench_stream(bench_stream_opts);
   } catch (const pstream::Error& e) {
     fmt::print(stderr, "pstream: error: {}\n", e.what());
     return 1;

@@ -99,6 +99,7 @@ void IoScheduler::run() {
       --q.count;
     }
     r->execute();
+    if (r->on_done != nullptr) r->on_done(r->owner, r);  // must be the last use of r here
   }
 }
 

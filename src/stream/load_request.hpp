@@ -23,6 +23,11 @@ struct LoadRequest {
   std::uint64_t seq = 0;
   bool discard = false;  // a seek made this load useless; its slot frees on completion
 
+  // Called by the worker right after execute(): the stream marks the slot and chains its next
+  // load without waiting for the host's next update().
+  void (*on_done)(void* owner, LoadRequest* request) = nullptr;
+  void* owner = nullptr;
+
   // Set by the worker.
   std::atomic<int> status{Idle};
   std::string error;  // only on failure

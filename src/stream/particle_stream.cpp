@@ -5,9 +5,16 @@
 // and lives in slot (slot_base + k - seq_base) mod s. The slots holding sequence numbers
 // [oldest, next) are Loading or Ready; all others are Empty. Because consecutive chunks sit in
 // consecutive slots, a frame is contiguous in the cache except across the ring's wrap.
+//
+// Threads: update() (the host's thread) and the IO worker's completion callback share the slot
+// states and the load queue under one mutex, held for a few hundred nanoseconds. The callback
+// marks a finished slot Ready and chains the next load, so loading never waits for the host's
+// next frame; update() releases consumed slots and moves the current frame.
 #include <algorithm>
 #include <cmath>
+#include <condition_variable>
 #include <cstring>
+#include <mutex>
 #include <new>
 
 #include <fmt/format.h>
@@ -24,6 +31,16 @@ struct AlignedDelete {
   void operator()(std::byte* p) const { ::operator delete[](p, std::align_val_t(kCacheAlignment)); }
 };
 
+std::uint64_t first_chunk(const format::Metadata& m, std::uint64_t frame) {
+  return std::min(m.frames[frame].byte_offset / m.chunk_size, m.chunk_count() ? m.chunk_count() - 1 : 0);
+}
+
+std::uint64_t last_chunk(const format::Metadata& m, std::uint64_t frame) {
+  const auto& f = m.frames[frame];
+  if (f.count == 0) return first_chunk(m, frame);
+  return (f.byte_offset + f.count * m.record_size - 1) / m.chunk_size;
+}
+
 }  // namespace
 
 std::size_t cache_slots(const format::Metadata& m, double seconds) {
@@ -39,6 +56,7 @@ std::size_t cache_slots(const format::Metadata& m, double seconds) {
 }
 
 struct ParticleStream::Impl {
+  const format::Metadata* meta = nullptr;
   std::unique_ptr<IoBackend> io;
   std::shared_ptr<IoScheduler> scheduler;
   std::shared_ptr<MemoryBudget> budget;
@@ -48,32 +66,98 @@ struct ParticleStream::Impl {
   std::unique_ptr<std::byte[], AlignedDelete> cache;
   std::size_t slot_count = 0;
   std::uint64_t chunk_size = 0, cache_bytes = 0;
-  std::vector<SlotInfo> slots;
-  std::vector<std::uint64_t> slot_seq;
 
   std::vector<LoadRequest> requests;
   std::vector<std::unique_ptr<format::ChunkDecoder>> decoders;
   std::unique_ptr<std::byte[]> staging;  // one max-stored-size region per request
   std::uint64_t staging_each = 0;
-  std::uint32_t in_flight = 0;
 
-  // Playback range in frames and the chunks covering it.
+  // Playback range in frames and the chunks covering it (host thread only).
   std::uint64_t frame_begin = 0, frame_end = 0, c0 = 0, c1 = 0;
-  bool loop = false, playing = false;
+  bool playing = false;
   double speed = 1.0;
-  // Sequence bookkeeping.
-  std::uint64_t seq_base = 0, slot_base = 0, oldest = 0, next = 0;
-  std::uint64_t lap = 0;  // of the current playback time
-  // The current (last complete) frame.
+  std::uint64_t lap = 0;
   bool current_valid = false;
   std::uint64_t current_frame = 0, current_lap = 0;
-  // Statistics.
+
+  // Shared with the IO worker, under `mutex`.
+  mutable std::mutex mutex;
+  std::condition_variable loaded;  // a load finished (blocking mode, close)
+  std::vector<SlotInfo> slots;
+  mutable std::vector<SlotInfo> slots_snapshot;  // what debug() hands out
+  bool loop = false;
+  std::uint64_t seq_base = 0, slot_base = 0, oldest = 0, next = 0;
+  std::uint32_t in_flight = 0;
+  bool closing = false, failed = false;
+  std::string failure;
   std::uint64_t loads_done = 0, bytes_read = 0, stalls = 0;
   std::int64_t io_ns = 0, decode_ns = 0;
   bool closed = false;
 
   std::uint64_t range_chunks() const { return c1 - c0 + 1; }
   std::size_t slot_of(std::uint64_t seq) const { return (slot_base + (seq - seq_base)) % slot_count; }
+
+  // Starts loads in playback order into Empty slots, up to the allowed number in flight.
+  void issue_locked() {
+    if (closing || failed) return;
+    const std::uint64_t N = range_chunks();
+    while (in_flight < requests.size() && next - oldest < slot_count) {
+      if (!loop && next >= N) return;  // never past the last chunk unless looping
+      const std::size_t slot = slot_of(next);
+      if (slots[slot].state != SlotState::Empty) return;  // still busy with a discarded load
+      LoadRequest* r = nullptr;
+      for (LoadRequest& candidate : requests) {
+        if (candidate.status.load(std::memory_order_relaxed) == LoadRequest::Idle) {
+          r = &candidate;
+          break;
+        }
+      }
+      if (r == nullptr) return;
+      const std::uint64_t chunk = c0 + next % N;
+      const std::size_t index = static_cast<std::size_t>(r - requests.data());
+      r->io = io.get();
+      r->decoder = decoders[index].get();
+      r->entry = meta->chunks[chunk];
+      r->chunk = chunk;
+      r->destination = {cache.get() + slot * chunk_size, meta->chunk_raw_size(chunk)};
+      r->staging = {staging.get() + index * staging_each, staging_each};
+      r->slot = slot;
+      r->seq = next;
+      r->discard = false;
+      r->on_done = &Impl::on_done;
+      r->owner = this;
+      slots[slot] = SlotInfo{SlotState::Loading, static_cast<std::int64_t>(chunk)};
+      ++next;
+      ++in_flight;
+      scheduler->submit(r);
+    }
+  }
+
+  // On the IO worker, after a load: Loading -> Ready (or Empty, or the stream fails), then the
+  // next load.
+  static void on_done(void* owner, LoadRequest* r) {
+    Impl& d = *static_cast<Impl*>(owner);
+    std::lock_guard lock(d.mutex);
+    const int st = r->status.load(std::memory_order_acquire);
+    --d.in_flight;
+    if (st == LoadRequest::Failed && !r->discard) {
+      d.failed = true;
+      d.failure = r->error;
+      d.slots[r->slot] = SlotInfo{};
+    } else if (r->discard || r->seq < d.oldest) {  // made useless by a seek or a jump ahead
+      d.slots[r->slot] = SlotInfo{};
+    } else {
+      d.slots[r->slot].state = SlotState::Ready;
+      ++d.loads_done;
+      d.bytes_read += r->entry.stored_size;
+      d.io_ns += r->io_ns;
+      d.decode_ns += r->decode_ns;
+    }
+    r->discard = false;
+    r->status.store(LoadRequest::Idle, std::memory_order_release);
+    d.issue_locked();
+    d.loaded.notify_all();
+  }
 };
 
 std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path& path, StreamOptions options) {
@@ -90,6 +174,7 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->io->read(header.tables_offset, tables);
   s->meta_ = format::parse_tables(header, tables, impl->name);
   const format::Metadata& m = s->meta_;
+  impl->meta = &s->meta_;
 
   impl->blocking = options.blocking;
   impl->scheduler = options.scheduler ? options.scheduler : IoScheduler::shared_default();
@@ -112,7 +197,7 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->cache.reset(static_cast<std::byte*>(::operator new[](std::max<std::uint64_t>(impl->cache_bytes, 1),
                                                              std::align_val_t(kCacheAlignment))));
   impl->slots.assign(slots, SlotInfo{});
-  impl->slot_seq.assign(slots, 0);
+  impl->slots_snapshot.assign(slots, SlotInfo{});
   const unsigned loads = std::max(1u, options.max_loads_in_flight);
   impl->requests = std::vector<LoadRequest>(loads);
   for (unsigned i = 0; i < loads; ++i) impl->decoders.push_back(std::make_unique<format::ChunkDecoder>());
@@ -134,31 +219,16 @@ ParticleStream::~ParticleStream() { close(); }
 
 void ParticleStream::close() {
   if (!impl_ || impl_->closed) return;
-  for (LoadRequest& r : impl_->requests) {
-    int st = r.status.load(std::memory_order_acquire);
-    while (st == LoadRequest::Pending) {  // a worker may still be writing into the cache
-      r.status.wait(st);
-      st = r.status.load(std::memory_order_acquire);
-    }
+  Impl& d = *impl_;
+  {
+    std::unique_lock lock(d.mutex);
+    d.closing = true;  // no new loads; wait for those in flight, which write into the cache
+    d.loaded.wait(lock, [&] { return d.in_flight == 0; });
   }
-  impl_->scheduler->release(impl_->requests.size());
-  if (impl_->budget) impl_->budget->release(impl_->cache_bytes);
-  impl_->closed = true;
+  d.scheduler->release(d.requests.size());
+  if (d.budget) d.budget->release(d.cache_bytes);
+  d.closed = true;
 }
-
-namespace {
-
-std::uint64_t first_chunk(const format::Metadata& m, std::uint64_t frame) {
-  return std::min(m.frames[frame].byte_offset / m.chunk_size, m.chunk_count() ? m.chunk_count() - 1 : 0);
-}
-
-std::uint64_t last_chunk(const format::Metadata& m, std::uint64_t frame) {
-  const auto& f = m.frames[frame];
-  if (f.count == 0) return first_chunk(m, frame);
-  return (f.byte_offset + f.count * m.record_size - 1) / m.chunk_size;
-}
-
-}  // namespace
 
 void ParticleStream::play() {
   if (state_ == PlayState::Error) return;
@@ -180,9 +250,13 @@ void ParticleStream::stop() {
 }
 
 void ParticleStream::set_loop(bool loop) {
-  impl_->loop = loop;
+  {
+    std::lock_guard lock(impl_->mutex);
+    impl_->loop = loop;
+  }
   if (!loop && impl_->lap > 0) seek(time_);  // renumber the chunk sequence from lap 0
 }
+
 void ParticleStream::set_speed(double speed) { impl_->speed = std::max(0.0, speed); }
 
 void ParticleStream::set_range(double start, double end) {
@@ -192,10 +266,13 @@ void ParticleStream::set_range(double start, double end) {
     const double f = std::round((t - meta_.time_of_frame0) * meta_.fps);
     return static_cast<std::uint64_t>(std::clamp(f, 0.0, double(meta_.frame_count() - 1)));
   };
-  d.frame_begin = to_frame(std::min(start, end));
-  d.frame_end = to_frame(std::max(start, end));
-  d.c0 = first_chunk(meta_, d.frame_begin);
-  d.c1 = std::max(d.c0, last_chunk(meta_, d.frame_end));
+  {
+    std::lock_guard lock(d.mutex);  // the IO worker reads c0/c1 when it chains loads
+    d.frame_begin = to_frame(std::min(start, end));
+    d.frame_end = to_frame(std::max(start, end));
+    d.c0 = first_chunk(meta_, d.frame_begin);
+    d.c1 = std::max(d.c0, last_chunk(meta_, d.frame_end));
+  }
   seek(std::clamp(time_, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time));
 }
 
@@ -207,23 +284,21 @@ void ParticleStream::seek(double time) {
   }
   time_ = std::clamp(time, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time);
   d.lap = 0;
-  // Drop the cache. Loads not yet polled (in flight or just finished) free their slots when
-  // update() sees them complete.
-  for (LoadRequest& r : d.requests) {
-    if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) r.discard = true;
-  }
-  for (std::size_t i = 0; i < d.slot_count; ++i) {
-    if (d.slots[i].state == SlotState::Ready) d.slots[i] = SlotInfo{};
-  }
   const std::uint64_t frame = static_cast<std::uint64_t>(std::clamp(
       std::round((time_ - meta_.time_of_frame0) * meta_.fps), double(d.frame_begin), double(d.frame_end)));
-  const std::uint64_t seq = first_chunk(meta_, frame) - d.c0;
-  // Restart the ring after the slot of any load still in flight, so it is reused last.
+  std::lock_guard lock(d.mutex);
+  // Drop the cache. Loads still in flight free their slots when they complete.
   std::size_t after = 0;
-  for (const LoadRequest& r : d.requests) {
-    if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) after = (r.slot + 1) % d.slot_count;
+  for (LoadRequest& r : d.requests) {
+    if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) {
+      r.discard = true;
+      after = (r.slot + 1) % d.slot_count;  // restart the ring after it, so it is reused last
+    }
   }
-  d.seq_base = d.oldest = d.next = seq;
+  for (SlotInfo& slot : d.slots) {
+    if (slot.state == SlotState::Ready) slot = SlotInfo{};
+  }
+  d.seq_base = d.oldest = d.next = first_chunk(meta_, frame) - d.c0;
   d.slot_base = after;
   seeking_ = true;
   d.current_valid = false;
@@ -233,8 +308,12 @@ void ParticleStream::update(double dt) {
   if (!impl_ || impl_->closed || state_ == PlayState::Error) return;
   Impl& d = *impl_;
   const format::Metadata& m = meta_;
+  if (m.frame_count() == 0 || m.chunk_count() == 0) {  // nothing to load: every frame is empty
+    seeking_ = false;
+    d.current_valid = m.frame_count() > 0;
+    return;
+  }
   const std::uint64_t N = d.range_chunks();
-
   const auto frame_of = [&](double t) {
     return static_cast<std::uint64_t>(std::clamp(std::round((t - m.time_of_frame0) * m.fps), double(d.frame_begin),
                                                  double(d.frame_end)));
@@ -242,41 +321,8 @@ void ParticleStream::update(double dt) {
   const auto seq_range = [&](std::uint64_t lap, std::uint64_t frame) {
     return std::pair{lap * N + (first_chunk(m, frame) - d.c0), lap * N + (last_chunk(m, frame) - d.c0)};
   };
-  // 1. Completions: Loading slots whose IO finished become Ready (or the stream fails).
-  const auto poll = [&] {
-    for (LoadRequest& r : d.requests) {
-      const int st = r.status.load(std::memory_order_acquire);
-      if (st != LoadRequest::Done && st != LoadRequest::Failed) continue;
-      r.status.store(LoadRequest::Idle, std::memory_order_relaxed);
-      --d.in_flight;
-      if (st == LoadRequest::Failed && !r.discard) {
-        state_ = PlayState::Error;
-        d.playing = false;
-        error_ = r.error;
-        return false;
-      }
-      if (r.discard || r.seq < d.oldest) {  // made useless by a seek or a jump ahead
-        d.slots[r.slot] = SlotInfo{};
-      } else {
-        d.slots[r.slot].state = SlotState::Ready;
-        ++d.loads_done;
-        d.bytes_read += r.entry.stored_size;
-        d.io_ns += r.io_ns;
-        d.decode_ns += r.decode_ns;
-      }
-      r.discard = false;
-    }
-    return true;
-  };
-  if (m.frame_count() == 0 || m.chunk_count() == 0) {  // nothing to load: every frame is empty
-    seeking_ = false;
-    d.current_valid = m.frame_count() > 0;
-    d.current_frame = m.frame_count() ? frame_of(time_) : 0;
-    return;
-  }
-  if (!poll()) return;
 
-  // 2. Advance time on the host's clock.
+  // 1. Advance time on the host's clock.
   if (d.playing && dt > 0.0) {
     time_ += dt * d.speed;
     const double start = m.frames[d.frame_begin].time, end = m.frames[d.frame_end].time;
@@ -297,6 +343,14 @@ void ParticleStream::update(double dt) {
   const std::uint64_t target = frame_of(time_);
   const auto [need_first, need_last] = seq_range(d.lap, target);
 
+  std::unique_lock lock(d.mutex);
+  if (d.failed) {
+    state_ = PlayState::Error;
+    error_ = d.failure;
+    d.playing = false;
+    d.current_valid = false;
+    return;
+  }
   const auto ready = [&] {
     if (m.frames[target].count == 0) return true;
     if (need_first < d.oldest || need_last >= d.next) return false;
@@ -305,17 +359,9 @@ void ParticleStream::update(double dt) {
     }
     return true;
   };
-  // 3. Release what playback has passed; skip chunks no shown frame needs.
-  const auto release_before = [&](std::uint64_t seq) {
-    while (d.oldest < seq && d.oldest < d.next) {
-      SlotInfo& slot = d.slots[d.slot_of(d.oldest)];
-      if (slot.state == SlotState::Ready) slot = SlotInfo{};  // a Loading one frees on completion
-      ++d.oldest;
-    }
-    if (d.next < seq) d.oldest = d.next = seq;
-  };
-  // The current frame is handed out until a newer one is complete, so its chunks stay held —
-  // unless it and the target cannot both fit in the ring (a long stall): then it is dropped.
+  // 2. Release what playback has passed. The current frame is handed out until a newer one is
+  // complete, so its chunks stay held — unless it and the target cannot both fit in the ring
+  // (a long stall): then it is dropped. Chunks no shown frame needs are skipped.
   std::uint64_t hold_from = need_first;
   if (d.current_valid) {
     const std::uint64_t current_first = seq_range(d.current_lap, d.current_frame).first;
@@ -325,56 +371,25 @@ void ParticleStream::update(double dt) {
       hold_from = std::min(current_first, need_first);
     }
   }
-  release_before(hold_from);
-  // 4. Issue loads in playback order into Empty slots, up to the allowed number in flight.
-  const auto issue = [&] {
-    const unsigned max_loads = static_cast<unsigned>(d.requests.size());
-    while (d.in_flight < max_loads && d.next - d.oldest < d.slot_count) {
-      if (!d.loop && d.next >= N) break;  // never past the last chunk unless looping
-      const std::size_t slot = d.slot_of(d.next);
-      if (d.slots[slot].state != SlotState::Empty) break;  // still busy with a discarded load
-      LoadRequest* r = nullptr;
-      for (LoadRequest& candidate : d.requests) {
-        if (candidate.status.load(std::memory_order_relaxed) == LoadRequest::Idle) {
-          r = &candidate;
-          break;
-        }
-      }
-      if (r == nullptr) break;
-      const std::uint64_t chunk = d.c0 + d.next % N;
-      const std::size_t index = static_cast<std::size_t>(r - d.requests.data());
-      r->io = d.io.get();
-      r->decoder = d.decoders[index].get();
-      r->entry = m.chunks[chunk];
-      r->chunk = chunk;
-      r->destination = {d.cache.get() + slot * d.chunk_size, m.chunk_raw_size(chunk)};
-      r->staging = {d.staging.get() + index * d.staging_each, d.staging_each};
-      r->slot = slot;
-      r->seq = d.next;
-      r->discard = false;
-      d.slots[slot] = SlotInfo{SlotState::Loading, static_cast<std::int64_t>(chunk)};
-      d.slot_seq[slot] = d.next;
-      ++d.next;
-      ++d.in_flight;
-      d.scheduler->submit(r);
-    }
-  };
-  issue();
-
-  // 5. Blocking mode (offline rendering): wait for the frame instead of stalling.
+  while (d.oldest < hold_from && d.oldest < d.next) {
+    SlotInfo& slot = d.slots[d.slot_of(d.oldest)];
+    if (slot.state == SlotState::Ready) slot = SlotInfo{};  // a Loading one frees on completion
+    ++d.oldest;
+  }
+  if (d.next < hold_from) d.oldest = d.next = hold_from;
+  // 3. Keep the IO worker busy (it also chains loads by itself as each one completes).
+  d.issue_locked();
+  // 4. Blocking mode (offline rendering): wait for the frame instead of stalling.
   if (d.blocking) {
-    while (!ready()) {
-      LoadRequest* waiting = nullptr;
-      for (LoadRequest& r : d.requests) {
-        if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) waiting = &r;
-      }
-      if (waiting == nullptr) break;  // nothing in flight and nothing issuable: cannot happen
-      waiting->status.wait(LoadRequest::Pending);  // returns at once if it already finished
-      if (!poll()) return;
-      issue();
+    d.loaded.wait(lock, [&] { return d.failed || ready() || (d.in_flight == 0 && (d.issue_locked(), d.in_flight == 0)); });
+    if (d.failed) {
+      state_ = PlayState::Error;
+      error_ = d.failure;
+      d.playing = false;
+      d.current_valid = false;
+      return;
     }
   }
-
   if (ready()) {
     d.current_valid = true;
     d.current_frame = target;
@@ -396,6 +411,7 @@ FrameView ParticleStream::frame() const {
   v.time = f.time;
   v.valid = true;
   if (f.count == 0) return v;
+  // The slots of the current frame are Ready and held: only the host thread releases them.
   const std::uint64_t seq = d.current_lap * d.range_chunks() + (first_chunk(m, d.current_frame) - d.c0);
   const std::size_t slot = d.slot_of(seq);
   const std::uint64_t within = f.byte_offset - first_chunk(m, d.current_frame) * m.chunk_size;
@@ -420,7 +436,9 @@ std::size_t ParticleStream::copy_frame(std::span<std::byte> out) const {
 DebugInfo ParticleStream::debug() const {
   const Impl& d = *impl_;
   DebugInfo info;
-  info.slots = d.slots;
+  std::lock_guard lock(d.mutex);
+  std::copy(d.slots.begin(), d.slots.end(), d.slots_snapshot.begin());
+  info.slots = d.slots_snapshot;
   info.loads_in_flight = d.in_flight;
   info.loads_done = d.loads_done;
   info.bytes_read = d.bytes_read;
