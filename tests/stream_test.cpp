@@ -372,7 +372,12 @@ TEST(Stream, CacheSizingAndSharedMemoryBudget) {
   // s = ceil(t * fps * T / p) with p = 65536 / 16 = 4096 particles per chunk.
   EXPECT_EQ(stream::cache_slots(m, 1.0), static_cast<std::size_t>(std::ceil(1.0 * 60 * 6390 / 4096.0)));
   EXPECT_EQ(stream::cache_slots(m, 0.5), static_cast<std::size_t>(std::ceil(0.5 * 60 * 6390 / 4096.0)));
-  EXPECT_EQ(stream::cache_slots(m, 0.0), 4u);       // a largest frame (2 chunks + 1 start offset) plus one
+  std::uint64_t span = 0;  // the most chunks one frame touches
+  for (const auto& f : m.frames) {
+    span = std::max(span, (f.byte_offset + f.count * 16 - 1) / m.chunk_size - f.byte_offset / m.chunk_size + 1);
+  }
+  EXPECT_EQ(span, 3u);
+  EXPECT_EQ(stream::cache_slots(m, 0.0), span);
   EXPECT_EQ(stream::cache_slots(m, 1e6), m.chunk_count());  // never more than the clip
   const std::uint64_t one = stream::cache_slots(m, 1.0) * m.chunk_size;
   auto budget = std::make_shared<stream::MemoryBudget>(one + one / 2);
@@ -394,6 +399,35 @@ TEST(Stream, CacheSizingAndSharedMemoryBudget) {
   stream::StreamOptions c;
   c.budget = budget;
   EXPECT_NO_THROW(stream::ParticleStream::open(file, std::move(c)));
+}
+
+TEST(Stream, SmallestCacheIsTwoSlots) {
+  const fs::path dir = test_dir();
+  const fs::path file = cook_fixture(dir, "points_constant", format::Codec::Raw);  // 16 KB frames, 64 KiB chunks
+  auto s = stream::ParticleStream::open(file, tiny_cache());
+  EXPECT_EQ(s->debug().slots.size(), 2u);
+}
+
+TEST(Stream, StreamsShareOneScheduler) {
+  const fs::path dir = test_dir();
+  const fs::path a_file = cook_fixture(dir, "points_varying", format::Codec::Lz4);
+  const fs::path b_file = cook_fixture(dir, "points_large", format::Codec::Raw);
+  const Reference a_ref(a_file), b_ref(b_file);
+  auto scheduler = std::make_shared<stream::IoScheduler>(1);  // one load in flight across both
+  stream::StreamOptions ao = tiny_cache(), bo = tiny_cache();
+  ao.scheduler = bo.scheduler = scheduler;
+  auto a = stream::ParticleStream::open(a_file, std::move(ao));
+  auto b = stream::ParticleStream::open(b_file, std::move(bo));
+  a->play();
+  b->play();
+  a->update(0);
+  b->update(0);
+  for (std::uint64_t f = 1; f < 20; ++f) {
+    a->update(1.0 / 30);
+    b->update(1.0 / 24);
+    ASSERT_TRUE(frame_matches(*a, a_ref, f));
+    ASSERT_TRUE(frame_matches(*b, b_ref, f));
+  }
 }
 
 TEST(Stream, DebugInfoWorldTransformRangeAndStop) {

@@ -79,8 +79,7 @@ class MemoryBudget {
 // ---- Cache sizing ----------------------------------------------------------------------------
 
 // s = ceil(t * fps * T / p) slots: t seconds held, T the largest frame, p particles per chunk;
-// clamped to [2, chunk_count], and never fewer than a largest frame's chunks plus one (so the
-// next chunk can load while a frame is held).
+// clamped to [2, chunk_count], and never fewer than the most chunks one frame spans.
 std::size_t cache_slots(const format::Metadata& meta, double seconds);
 
 // ---- The stream ----------------------------------------------------------------------------

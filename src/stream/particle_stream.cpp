@@ -46,12 +46,12 @@ std::uint64_t last_chunk(const format::Metadata& m, std::uint64_t frame) {
 std::size_t cache_slots(const format::Metadata& m, double seconds) {
   if (m.chunk_count() == 0) return 0;
   const double wanted = std::ceil(seconds * m.fps * double(m.max_count) / m.particles_per_chunk());
-  // A largest frame may start anywhere in a chunk: it spans up to ceil(bytes / chunk) + 1 chunks.
-  const std::uint64_t frame_bytes = m.max_count * m.record_size;
-  const std::uint64_t frame_chunks = (frame_bytes + m.chunk_size - 1) / m.chunk_size + 1;
+  // Every frame must fit: the most chunks any one frame spans, read from the frame index.
+  std::uint64_t frame_chunks = 1;
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) frame_chunks = std::max(frame_chunks, last_chunk(m, f) - first_chunk(m, f) + 1);
   std::uint64_t s = std::max<std::uint64_t>(2, static_cast<std::uint64_t>(std::max(wanted, 0.0)));
   s = std::min<std::uint64_t>(s, m.chunk_count());
-  s = std::max<std::uint64_t>(s, std::min<std::uint64_t>(frame_chunks + 1, m.chunk_count()));
+  s = std::max<std::uint64_t>(s, frame_chunks);
   return static_cast<std::size_t>(s);
 }
 
