@@ -30,10 +30,10 @@ struct CommandResult {
   std::string output;  // stdout and stderr together
 };
 
-// Runs the pstream command-line tool with `args` (already shell-quoted).
-inline CommandResult run_cli(const std::string& args) {
+// Runs a shell command line, capturing stdout and stderr.
+inline CommandResult run_cli_raw(const std::string& command) {
   CommandResult r;
-  const std::string cmd = std::string(PSTREAM_CLI) + " " + args + " 2>&1";
+  const std::string cmd = command + " 2>&1";
   FILE* pipe = popen(cmd.c_str(), "r");
   if (pipe == nullptr) return r;
   char buf[65536];
@@ -43,5 +43,8 @@ inline CommandResult run_cli(const std::string& args) {
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
 }
+
+// Runs the pstream command-line tool with `args` (already shell-quoted).
+inline CommandResult run_cli(const std::string& args) { return run_cli_raw(std::string(PSTREAM_CLI) + " " + args); }
 
 }  // namespace pstream::test

@@ -66,4 +66,19 @@ struct BenchStreamOptions {
 };
 int bench_stream(const BenchStreamOptions& options);
 
+struct RenderCli {
+  std::string file, out = "frames", frames, size = "1280x720", camera = "auto", video, blend = "alpha", sort = "back",
+                    texture;
+  double fps = 0.0;
+  float size_multiplier = 1.0f;
+  bool quiet = false;
+};
+int run_render(const RenderCli& cli);
+
+struct BenchRenderOptions {
+  int repetitions = 3;
+  bool json = false;
+};
+int bench_render(const BenchRenderOptions& options);
+
 }  // namespace pstream::app

@@ -1,0 +1,146 @@
+// `pstream render FILE.pstream --out DIR`: headless rendering of a clip to PNG frames (and an MP4
+// through ffmpeg): stream (blocking, no frame skipped) -> sort back to front -> draw.
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "commands.hpp"
+#include "particlestream/render.hpp"
+#include "particlestream/sort.hpp"
+#include "particlestream/stream.hpp"
+#include "progress.hpp"
+
+namespace pstream::app {
+namespace {
+
+render::Vec3 parse_vec3(const std::string& text) {
+  render::Vec3 v{};
+  std::istringstream in(text);
+  char comma = 0;
+  if (!(in >> v[0] >> comma >> v[1] >> comma >> v[2])) throw Error(fmt::format("'{}': expected x,y,z", text));
+  return v;
+}
+
+bool have_program(const std::string& name) {
+  const char* path = std::getenv("PATH");
+  std::istringstream dirs(path ? path : "");
+  for (std::string dir; std::getline(dirs, dir, ':');) {
+    if (!dir.empty() && ::access((std::filesystem::path(dir) / name).c_str(), X_OK) == 0) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+render::Camera camera_for(const std::string& spec, const format::Metadata& m) {
+  if (spec.empty() || spec == "auto") {
+    return render::Camera::framing({m.bounds[0], m.bounds[1], m.bounds[2]}, {m.bounds[3], m.bounds[4], m.bounds[5]});
+  }
+  const auto colon = spec.find(':');
+  if (colon == std::string::npos) throw Error(fmt::format("--camera '{}': expected auto or x,y,z:tx,ty,tz", spec));
+  render::Camera c;
+  c.eye = parse_vec3(spec.substr(0, colon));
+  c.target = parse_vec3(spec.substr(colon + 1));
+  const float dx = c.eye[0] - c.target[0], dy = c.eye[1] - c.target[1], dz = c.eye[2] - c.target[2];
+  const float distance = std::sqrt(dx * dx + dy * dy + dz * dz);
+  c.near = std::max(0.001f, distance * 0.001f);
+  c.far = distance * 100.0f + 100.0f;
+  return c;
+}
+
+void parse_size(const std::string& text, int& width, int& height) {
+  if (std::sscanf(text.c_str(), "%dx%d", &width, &height) != 2 || width <= 0 || height <= 0) {
+    throw Error(fmt::format("--size '{}': expected WIDTHxHEIGHT, e.g. 1280x720", text));
+  }
+}
+
+int run_render(const RenderCli& cli) {
+  int width = 0, height = 0;
+  parse_size(cli.size, width, height);
+  stream::StreamOptions options;
+  options.blocking = true;  // offline: wait for every frame instead of skipping
+  auto clip = stream::ParticleStream::open(cli.file, std::move(options));
+  const format::Metadata& m = clip->metadata();
+  if (m.frame_count() == 0) throw Error(fmt::format("{}: the clip has no frames", cli.file));
+  std::int64_t first = 0, last = std::int64_t(m.frame_count());
+  if (!cli.frames.empty()) {
+    const auto colon = cli.frames.find(':');
+    if (colon == std::string::npos) throw Error(fmt::format("--frames '{}': expected A:B", cli.frames));
+    if (colon > 0) first = std::stoll(cli.frames.substr(0, colon));
+    if (colon + 1 < cli.frames.size()) last = std::min<std::int64_t>(last, std::stoll(cli.frames.substr(colon + 1)));
+  }
+  if (first < 0 || first >= last) throw Error(fmt::format("--frames {}: selects no frames of {}", cli.frames, m.frame_count()));
+  const double fps = cli.fps > 0 ? cli.fps : m.fps;
+  const double t0 = m.frames[std::size_t(first)].time, t1 = m.frames[std::size_t(last - 1)].time;
+  const auto outputs = static_cast<std::uint64_t>(std::floor((t1 - t0) * fps + 1e-6)) + 1;
+
+  std::filesystem::create_directories(cli.out);
+  render::HeadlessContext context(width, height);
+  render::RendererOptions ro;
+  ro.max_bytes_per_frame = std::max<std::uint64_t>(m.max_count * m.record_size, 4096);
+  render::Renderer renderer(ro);
+  const render::Camera camera = camera_for(cli.camera, m);
+  const render::BlendMode blend = render::parse_blend(cli.blend);
+  sort::DepthSorter sorter(m.max_count);
+  std::vector<std::byte> contiguous(m.max_count * m.record_size);  // for sorting a frame split by the ring's wrap
+  const format::Attribute* color = m.find("color");
+  const bool sorted = blend == render::BlendMode::Alpha && cli.sort != "none";
+
+  clip->seek(t0);
+  clip->play();
+  clip->update(0);
+  ProgressBar bar("render", !cli.quiet);
+  for (std::uint64_t k = 0; k < outputs; ++k) {
+    if (k > 0) clip->update(1.0 / fps);
+    if (clip->state() == stream::PlayState::Error) throw Error(clip->error());
+    const stream::FrameView f = clip->frame();
+    render::ParticleBatch batch;
+    batch.first = f.first;
+    batch.second = f.second;
+    batch.count = f.count;
+    batch.record_size = m.record_size;
+    batch.color_offset = color ? std::int32_t(color->offset) : -1;
+    batch.world = clip->world_transform();
+    batch.blend = blend;
+    batch.size_multiplier = cli.size_multiplier;
+    batch.texture = cli.texture;
+    if (sorted && f.count > 0) {
+      const std::byte* records = f.first.data();
+      if (!f.second.empty()) {
+        clip->copy_frame(contiguous);
+        records = contiguous.data();
+      }
+      batch.order = sorter.sort(records, f.count, m.record_size, render::multiply(camera.view(), batch.world),
+                                cli.sort == "front" ? sort::SortMode::FrontToBack : sort::SortMode::BackToFront);
+    }
+    context.bind();
+    renderer.begin_frame(width, height, camera, {0.02f, 0.025f, 0.035f, 1.0f});
+    renderer.draw(batch);
+    renderer.end_frame();
+    render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", k), width, height, context.read_rgba());
+    bar.update(k + 1, outputs, fmt::format("frames ({}x{})", width, height));
+  }
+  if (!cli.quiet) fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
+  if (!cli.video.empty()) {
+    if (!have_program("ffmpeg")) {
+      fmt::print(stderr, "note: --video needs the ffmpeg program, which is not installed (apt-get install ffmpeg; "
+                         "scripts/install-deps.sh installs it). The PNG frames are written.\n");
+      return 0;
+    }
+    const std::string command = fmt::format(
+        "ffmpeg -y -loglevel error -framerate {} -i '{}/frame_%05d.png' -c:v libx264 -pix_fmt yuv420p "
+        "-vf 'pad=ceil(iw/2)*2:ceil(ih/2)*2' '{}'", fps, cli.out, cli.video);
+    if (std::system(command.c_str()) != 0) throw Error(fmt::format("ffmpeg failed to write {}", cli.video));
+    if (!cli.quiet) fmt::print("video -> {}\n", cli.video);
+  }
+  return 0;
+}
+
+}  // namespace pstream::app

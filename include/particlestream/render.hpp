@@ -1,0 +1,99 @@
+// Drawing particle frames: camera-facing instanced quads pulled straight from the frame's records
+// (OpenGL 4.5 core through libepoxy), in a window or headless (EGL without a display).
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "particlestream/error.hpp"
+
+namespace pstream::render {
+
+using Mat4 = std::array<float, 16>;  // column-major, as OpenGL takes it
+using Vec3 = std::array<float, 3>;
+
+Mat4 identity();
+Mat4 multiply(const Mat4& a, const Mat4& b);  // a * b
+Mat4 translation(const Vec3& t);
+Mat4 look_at(const Vec3& eye, const Vec3& target, const Vec3& up);
+Mat4 perspective(float fov_y_degrees, float aspect, float near, float far);
+
+struct Camera {
+  Vec3 eye{0, 0, 5}, target{0, 0, 0}, up{0, 1, 0};
+  float fov_y_degrees = 45.0f, near = 0.01f, far = 1000.0f;
+  Mat4 view() const { return look_at(eye, target, up); }
+  Mat4 projection(float aspect) const { return perspective(fov_y_degrees, aspect, near, far); }
+  // A camera that frames the box [lo, hi] from a three-quarter view above the front.
+  static Camera framing(const Vec3& lo, const Vec3& hi);
+};
+
+enum class BlendMode { Alpha, Additive, AlphaTest };
+BlendMode parse_blend(const std::string& name);  // "alpha", "additive", "alphatest"
+
+// One stream's frame, as the stream hands it out.
+struct ParticleBatch {
+  std::span<const std::byte> first, second;  // the records (second: across the cache ring's wrap)
+  std::uint64_t count = 0;
+  std::uint32_t record_size = 16;
+  std::int32_t color_offset = -1;              // an RGBA8 attribute in the record, or -1
+  Mat4 world = identity();                     // object -> world
+  std::span<const std::uint32_t> order;        // draw order (back to front); empty: stored order
+  BlendMode blend = BlendMode::Alpha;
+  std::array<float, 4> color{0.45f, 0.65f, 0.95f, 0.9f};  // when the record has no colour
+  float size_multiplier = 1.0f;
+  std::string texture;  // optional sprite image (PNG); empty: the soft round sprite
+};
+
+struct RendererOptions {
+  std::uint64_t max_bytes_per_frame = 64ull << 20;  // records and indices of all batches of a frame
+  int buffering = 3;                                // frames in flight in the persistent buffers
+  Vec3 light_direction{-0.4f, 0.8f, 0.45f};         // world space, towards the light
+  bool points = false;                              // draw GL points instead of quads (benchmark)
+};
+
+// Needs a current OpenGL 4.5 core context. Throws pstream::Error naming what is missing.
+class Renderer {
+ public:
+  explicit Renderer(RendererOptions options = {});
+  ~Renderer();
+  Renderer(const Renderer&) = delete;
+  Renderer& operator=(const Renderer&) = delete;
+
+  void begin_frame(int width, int height, const Camera& camera, const std::array<float, 4>& background);
+  void draw(const ParticleBatch& batch);
+  void end_frame();  // fences this frame's buffer region
+  static std::string gl_renderer();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// An offscreen OpenGL 4.5 context and framebuffer: EGL's device platform (GPU machines) or
+// Mesa's surfaceless platform, no display needed.
+class HeadlessContext {
+ public:
+  HeadlessContext(int width, int height);
+  ~HeadlessContext();
+  HeadlessContext(const HeadlessContext&) = delete;
+  HeadlessContext& operator=(const HeadlessContext&) = delete;
+  int width() const { return width_; }
+  int height() const { return height_; }
+  void bind();                              // makes the context current and binds the framebuffer
+  std::vector<std::uint8_t> read_rgba();    // top row first
+ private:
+  int width_, height_;
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+void write_png(const std::filesystem::path& path, int width, int height, std::span<const std::uint8_t> rgba);
+std::vector<std::uint8_t> read_png(const std::filesystem::path& path, int& width, int& height);
+
+}  // namespace pstream::render

@@ -1,0 +1,82 @@
+#include <cmath>
+#include <numbers>
+
+#include <fmt/format.h>
+
+#include "particlestream/render.hpp"
+
+namespace pstream::render {
+namespace {
+
+Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+Vec3 cross(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+float dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+Vec3 normalize(const Vec3& v) {
+  const float l = std::sqrt(dot(v, v));
+  return l > 0 ? Vec3{v[0] / l, v[1] / l, v[2] / l} : v;
+}
+
+}  // namespace
+
+Mat4 identity() { return {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}; }
+
+Mat4 multiply(const Mat4& a, const Mat4& b) {
+  Mat4 r{};
+  for (int c = 0; c < 4; ++c) {
+    for (int row = 0; row < 4; ++row) {
+      float s = 0;
+      for (int k = 0; k < 4; ++k) s += a[k * 4 + row] * b[c * 4 + k];
+      r[c * 4 + row] = s;
+    }
+  }
+  return r;
+}
+
+Mat4 translation(const Vec3& t) {
+  Mat4 m = identity();
+  m[12] = t[0], m[13] = t[1], m[14] = t[2];
+  return m;
+}
+
+Mat4 look_at(const Vec3& eye, const Vec3& target, const Vec3& up) {
+  const Vec3 f = normalize(sub(target, eye));
+  Vec3 s = normalize(cross(f, up));
+  if (dot(s, s) == 0) s = {1, 0, 0};  // looking straight along `up`
+  const Vec3 u = cross(s, f);
+  return {s[0], u[0], -f[0], 0, s[1], u[1], -f[1], 0, s[2], u[2], -f[2], 0, -dot(s, eye), -dot(u, eye), dot(f, eye), 1};
+}
+
+Mat4 perspective(float fov_y_degrees, float aspect, float near, float far) {
+  const float f = 1.0f / std::tan(fov_y_degrees * std::numbers::pi_v<float> / 360.0f);
+  Mat4 m{};
+  m[0] = f / aspect;
+  m[5] = f;
+  m[10] = (far + near) / (near - far);
+  m[11] = -1;
+  m[14] = 2 * far * near / (near - far);
+  return m;
+}
+
+Camera Camera::framing(const Vec3& lo, const Vec3& hi) {
+  Camera c;
+  c.target = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
+  const Vec3 half = sub(hi, c.target);
+  const float radius = std::max(std::sqrt(dot(half, half)), 1e-3f);
+  const float distance = radius / std::sin(c.fov_y_degrees * std::numbers::pi_v<float> / 360.0f) * 1.05f;
+  const Vec3 dir = normalize({0.55f, 0.4f, 1.0f});
+  c.eye = {c.target[0] + dir[0] * distance, c.target[1] + dir[1] * distance, c.target[2] + dir[2] * distance};
+  c.near = std::max(distance - radius * 2, distance * 0.01f);
+  c.far = distance + radius * 2;
+  return c;
+}
+
+BlendMode parse_blend(const std::string& name) {
+  if (name == "alpha") return BlendMode::Alpha;
+  if (name == "additive") return BlendMode::Additive;
+  if (name == "alphatest") return BlendMode::AlphaTest;
+  throw Error(fmt::format("blend mode '{}': expected alpha, additive or alphatest", name));
+}
+
+}  // namespace pstream::render

@@ -1,0 +1,307 @@
+// Instanced camera-facing quads with vertex pulling: the vertex shader fetches each particle's
+// record from a shader storage buffer, in the sort module's order. Records are copied once per
+// frame into a persistently mapped, multi-buffered buffer guarded by fences.
+#include <epoxy/gl.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include <fmt/format.h>
+
+#include "particlestream/render.hpp"
+
+namespace pstream::render {
+namespace {
+
+constexpr const char* kVertexShader = R"(#version 450 core
+layout(std430, binding = 0) readonly buffer Records { uint words[]; };
+layout(std430, binding = 1) readonly buffer Order { uint order[]; };
+uniform mat4 u_model_view;
+uniform mat4 u_projection;
+uniform uint u_stride_words;
+uniform int u_color_word;
+uniform vec4 u_color;
+uniform float u_size;
+uniform bool u_use_order;
+uniform bool u_points;
+uniform float u_viewport_height;
+out vec2 v_corner;
+out vec4 v_color;
+void main() {
+  uint index = u_use_order ? order[gl_InstanceID] : uint(gl_InstanceID);
+  uint w = index * u_stride_words;
+  vec3 p = vec3(uintBitsToFloat(words[w]), uintBitsToFloat(words[w + 1u]), uintBitsToFloat(words[w + 2u]));
+  float scale = uintBitsToFloat(words[w + 3u]) * u_size * length(u_model_view[0].xyz);
+  v_color = u_color_word >= 0 ? unpackUnorm4x8(words[w + uint(u_color_word)]) : u_color;
+  vec4 view = u_model_view * vec4(p, 1.0);
+  if (u_points) {
+    gl_Position = u_projection * view;
+    gl_PointSize = max(1.0, u_projection[1][1] * scale * u_viewport_height / max(-view.z, 1e-4));
+    v_corner = vec2(0.0);
+    return;
+  }
+  // Corners of a triangle strip: (-1,-1) (1,-1) (-1,1) (1,1).
+  v_corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
+  view.xy += v_corner * scale;  // scale is a radius in world units
+  gl_Position = u_projection * view;
+}
+)";
+
+constexpr const char* kFragmentShader = R"(#version 450 core
+in vec2 v_corner;
+in vec4 v_color;
+uniform int u_mode;          // 0 alpha (premultiplied), 1 additive, 2 alpha-tested
+uniform bool u_points;
+uniform bool u_textured;
+uniform sampler2D u_sprite;
+uniform vec3 u_light;        // view space, towards the light
+out vec4 o_color;
+void main() {
+  vec2 c = u_points ? gl_PointCoord * 2.0 - 1.0 : v_corner;
+  float r2 = dot(c, c);
+  if (r2 > 1.0) discard;
+  // A sphere's normal under the sprite, lit by one directional light. Self-shadowing (a later
+  // issue) multiplies `light` by its visibility term here.
+  vec3 n = vec3(c.x, -c.y * (u_points ? 1.0 : -1.0), sqrt(1.0 - r2));
+  float light = 0.35 + 0.65 * max(dot(n, u_light), 0.0);
+  vec4 base = v_color;
+  float coverage = 1.0 - smoothstep(0.55, 1.0, sqrt(r2));  // a soft round sprite
+  if (u_textured) {
+    vec4 t = texture(u_sprite, c * 0.5 + 0.5);
+    base *= t;
+    coverage = 1.0;
+  }
+  if (u_mode == 2) {
+    if (base.a < 0.5) discard;
+    o_color = vec4(base.rgb * light, 1.0);
+    return;
+  }
+  float a = base.a * coverage;
+  o_color = vec4(base.rgb * light * a, a);
+}
+)";
+
+GLuint compile(GLenum type, const char* source) {
+  const GLuint s = glCreateShader(type);
+  glShaderSource(s, 1, &source, nullptr);
+  glCompileShader(s);
+  GLint ok = 0;
+  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
+  if (!ok) {
+    char log[2048];
+    glGetShaderInfoLog(s, sizeof log, nullptr, log);
+    throw Error(fmt::format("shader compilation failed: {}", log));
+  }
+  return s;
+}
+
+std::uint64_t align_up(std::uint64_t v, std::uint64_t a) { return (v + a - 1) / a * a; }
+
+}  // namespace
+
+struct Renderer::Impl {
+  RendererOptions options;
+  GLuint program = 0, vao = 0, records = 0, order = 0, sprite = 0;
+  std::string sprite_path;
+  std::byte* records_map = nullptr;
+  std::uint32_t* order_map = nullptr;
+  std::uint64_t region_bytes = 0, order_region = 0;  // per frame in flight
+  std::vector<GLsync> fences;
+  int region = 0;
+  std::uint64_t records_used = 0, order_used = 0;
+  Mat4 view = identity(), projection = identity();
+  int viewport_height = 1;
+  GLint ssbo_alignment = 256;
+  GLint u_model_view = -1, u_projection = -1, u_stride = -1, u_color_word = -1, u_color = -1, u_size = -1,
+        u_use_order = -1, u_points = -1, u_viewport_height = -1, u_mode = -1, u_light = -1, u_textured = -1;
+};
+
+std::string Renderer::gl_renderer() {
+  const auto* r = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+  return r ? r : "unknown";
+}
+
+Renderer::Renderer(RendererOptions options) : impl_(std::make_unique<Impl>()) {
+  Impl& d = *impl_;
+  d.options = options;
+  if (epoxy_gl_version() < 45 || !epoxy_is_desktop_gl()) {
+    throw Error(fmt::format("OpenGL 4.5 core is required; this context offers {} {}.{} ({}). Use `pstream render` for "
+                            "headless rendering, or update the graphics driver", epoxy_is_desktop_gl() ? "OpenGL" : "OpenGL ES",
+                            epoxy_gl_version() / 10, epoxy_gl_version() % 10, gl_renderer()));
+  }
+  const GLuint vs = compile(GL_VERTEX_SHADER, kVertexShader), fs = compile(GL_FRAGMENT_SHADER, kFragmentShader);
+  d.program = glCreateProgram();
+  glAttachShader(d.program, vs);
+  glAttachShader(d.program, fs);
+  glLinkProgram(d.program);
+  glDeleteShader(vs);
+  glDeleteShader(fs);
+  GLint ok = 0;
+  glGetProgramiv(d.program, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    char log[2048];
+    glGetProgramInfoLog(d.program, sizeof log, nullptr, log);
+    throw Error(fmt::format("shader link failed: {}", log));
+  }
+  const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
+  d.u_model_view = loc("u_model_view");
+  d.u_projection = loc("u_projection");
+  d.u_stride = loc("u_stride_words");
+  d.u_color_word = loc("u_color_word");
+  d.u_color = loc("u_color");
+  d.u_size = loc("u_size");
+  d.u_use_order = loc("u_use_order");
+  d.u_points = loc("u_points");
+  d.u_viewport_height = loc("u_viewport_height");
+  d.u_mode = loc("u_mode");
+  d.u_light = loc("u_light");
+  d.u_textured = loc("u_textured");
+  glCreateVertexArrays(1, &d.vao);
+  glGetIntegerv(GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT, &d.ssbo_alignment);
+
+  // Persistent, coherent mappings: one region per frame in flight, written by the CPU while the
+  // GPU reads the others.
+  const int n = std::max(1, options.buffering);
+  d.region_bytes = align_up(options.max_bytes_per_frame, 4096);
+  d.order_region = align_up(options.max_bytes_per_frame / 4, 4096);
+  const GLbitfield flags = GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
+  glCreateBuffers(1, &d.records);
+  glNamedBufferStorage(d.records, GLsizeiptr(d.region_bytes * n), nullptr, flags);
+  d.records_map = static_cast<std::byte*>(glMapNamedBufferRange(d.records, 0, GLsizeiptr(d.region_bytes * n), flags));
+  glCreateBuffers(1, &d.order);
+  glNamedBufferStorage(d.order, GLsizeiptr(d.order_region * n), nullptr, flags);
+  d.order_map = static_cast<std::uint32_t*>(glMapNamedBufferRange(d.order, 0, GLsizeiptr(d.order_region * n), flags));
+  if (d.records_map == nullptr || d.order_map == nullptr) throw Error("cannot map the particle buffers persistently");
+  d.fences.assign(std::size_t(n), nullptr);
+}
+
+Renderer::~Renderer() {
+  Impl& d = *impl_;
+  for (GLsync f : d.fences) {
+    if (f) glDeleteSync(f);
+  }
+  glUnmapNamedBuffer(d.records);
+  glUnmapNamedBuffer(d.order);
+  glDeleteBuffers(1, &d.records);
+  glDeleteBuffers(1, &d.order);
+  if (d.sprite) glDeleteTextures(1, &d.sprite);
+  glDeleteVertexArrays(1, &d.vao);
+  glDeleteProgram(d.program);
+}
+
+void Renderer::begin_frame(int width, int height, const Camera& camera, const std::array<float, 4>& background) {
+  Impl& d = *impl_;
+  d.region = (d.region + 1) % int(d.fences.size());
+  if (GLsync f = d.fences[std::size_t(d.region)]) {  // the GPU may still read this region
+    glClientWaitSync(f, GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(5'000'000'000));
+    glDeleteSync(f);
+    d.fences[std::size_t(d.region)] = nullptr;
+  }
+  d.records_used = d.order_used = 0;
+  d.view = camera.view();
+  d.projection = camera.projection(float(width) / float(std::max(height, 1)));
+  d.viewport_height = height;
+  glViewport(0, 0, width, height);
+  glClearColor(background[0], background[1], background[2], background[3]);
+  glDepthMask(GL_TRUE);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+}
+
+void Renderer::draw(const ParticleBatch& b) {
+  Impl& d = *impl_;
+  if (b.count == 0) return;
+  const std::uint64_t bytes = b.first.size() + b.second.size();
+  if (bytes != b.count * b.record_size || b.record_size % 4 != 0) {
+    throw Error(fmt::format("particle batch: {} bytes for {} records of {} bytes", bytes, b.count, b.record_size));
+  }
+  const std::uint64_t at = align_up(d.records_used, std::uint64_t(d.ssbo_alignment));
+  const std::uint64_t order_at = align_up(d.order_used, std::uint64_t(d.ssbo_alignment));
+  if (at + bytes > d.region_bytes || order_at + b.order.size_bytes() > d.order_region) {
+    throw Error(fmt::format("a frame of {:.1f} MiB exceeds the renderer's {:.1f} MiB per frame (RendererOptions)",
+                            (at + bytes) / 1048576.0, d.region_bytes / 1048576.0));
+  }
+  // The frame's records move once: from the stream's cache into the mapped GPU buffer.
+  std::byte* dst = d.records_map + std::uint64_t(d.region) * d.region_bytes + at;
+  std::memcpy(dst, b.first.data(), b.first.size());
+  if (!b.second.empty()) std::memcpy(dst + b.first.size(), b.second.data(), b.second.size());
+  glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 0, d.records, GLintptr(std::uint64_t(d.region) * d.region_bytes + at), GLsizeiptr(bytes));
+  const bool ordered = !b.order.empty() && b.blend != BlendMode::Additive;
+  if (ordered) {
+    std::memcpy(reinterpret_cast<std::byte*>(d.order_map) + std::uint64_t(d.region) * d.order_region + order_at, b.order.data(),
+                b.order.size_bytes());
+    glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order, GLintptr(std::uint64_t(d.region) * d.order_region + order_at),
+                      GLsizeiptr(b.order.size_bytes()));
+    d.order_used = order_at + b.order.size_bytes();
+  } else {
+    glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order, 0, 4);
+  }
+  d.records_used = at + bytes;
+
+  if (!b.texture.empty() && b.texture != d.sprite_path) {  // an artist's sprite, loaded once
+    int w = 0, h = 0;
+    const auto pixels = read_png(b.texture, w, h);
+    if (d.sprite) glDeleteTextures(1, &d.sprite);
+    glCreateTextures(GL_TEXTURE_2D, 1, &d.sprite);
+    glTextureStorage2D(d.sprite, 1, GL_RGBA8, w, h);
+    glTextureSubImage2D(d.sprite, 0, 0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, pixels.data());
+    glTextureParameteri(d.sprite, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    d.sprite_path = b.texture;
+  }
+
+  const Mat4 model_view = multiply(d.view, b.world);
+  // The light in view space (a direction: no translation).
+  const Vec3& l = d.options.light_direction;
+  Vec3 lv{d.view[0] * l[0] + d.view[4] * l[1] + d.view[8] * l[2], d.view[1] * l[0] + d.view[5] * l[1] + d.view[9] * l[2],
+          d.view[2] * l[0] + d.view[6] * l[1] + d.view[10] * l[2]};
+  const float len = std::sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]);
+  for (float& c : lv) c /= len > 0 ? len : 1.0f;
+
+  glUseProgram(d.program);
+  glBindVertexArray(d.vao);
+  glUniformMatrix4fv(d.u_model_view, 1, GL_FALSE, model_view.data());
+  glUniformMatrix4fv(d.u_projection, 1, GL_FALSE, d.projection.data());
+  glUniform1ui(d.u_stride, b.record_size / 4);
+  glUniform1i(d.u_color_word, b.color_offset >= 0 ? b.color_offset / 4 : -1);
+  glUniform4fv(d.u_color, 1, b.color.data());
+  glUniform1f(d.u_size, b.size_multiplier);
+  glUniform1i(d.u_use_order, ordered ? 1 : 0);
+  glUniform1i(d.u_points, d.options.points ? 1 : 0);
+  glUniform1f(d.u_viewport_height, float(d.viewport_height));
+  glUniform3fv(d.u_light, 1, lv.data());
+  glUniform1i(d.u_textured, b.texture.empty() ? 0 : 1);
+  if (d.sprite) glBindTextureUnit(0, d.sprite);
+  switch (b.blend) {
+    case BlendMode::Alpha:  // premultiplied, drawn back to front, no depth writes
+      glEnable(GL_BLEND);
+      glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+      glDisable(GL_DEPTH_TEST);
+      glUniform1i(d.u_mode, 0);
+      break;
+    case BlendMode::Additive:  // order-independent
+      glEnable(GL_BLEND);
+      glBlendFunc(GL_ONE, GL_ONE);
+      glDisable(GL_DEPTH_TEST);
+      glUniform1i(d.u_mode, 1);
+      break;
+    case BlendMode::AlphaTest:  // opaque cut-outs with the depth buffer
+      glDisable(GL_BLEND);
+      glEnable(GL_DEPTH_TEST);
+      glDepthMask(GL_TRUE);
+      glUniform1i(d.u_mode, 2);
+      break;
+  }
+  if (d.options.points) {
+    glEnable(GL_PROGRAM_POINT_SIZE);
+    glDrawArraysInstanced(GL_POINTS, 0, 1, GLsizei(b.count));
+  } else {
+    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(b.count));
+  }
+}
+
+void Renderer::end_frame() {
+  Impl& d = *impl_;
+  d.fences[std::size_t(d.region)] = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
+}
+
+}  // namespace pstream::render
