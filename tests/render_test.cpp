@@ -152,4 +152,36 @@ TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
   EXPECT_EQ(probe.output, "12\n");
 }
 
+TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
+  if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
+  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "viewer";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  cook::Options o;
+  o.input = test::data_path("alembic/points_large.abc");
+  o.output = dir / "large.pstream";
+  o.chunk_size = 64 << 10;
+  cook::cook(o);
+  const fs::path shot = dir / "shot.png";
+  const auto r = test::run_cli_raw("xvfb-run -a -s '-screen 0 800x600x24' " + std::string(PSTREAM_CLI) + " play '" +
+                                   o.output.string() + "' --width 800 --height 600 --frames-to-run 20 --screenshot '" +
+                                   shot.string() + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  int w = 0, h = 0;
+  const auto img = read_png(shot, w, h);
+  ASSERT_EQ(w, 800);
+  ASSERT_EQ(h, 600);
+  std::size_t title = 0, particles = 0;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const std::uint8_t* p = &img[(std::size_t(y) * w + x) * 4];
+      // ImGui's dark style: the active title bar is (41, 74, 122).
+      if (y < 40 && x < 480 && std::abs(p[0] - 41) < 14 && std::abs(p[1] - 74) < 14 && std::abs(p[2] - 122) < 16) ++title;
+      if (x > 480 && p[0] + p[1] + p[2] > 90) ++particles;  // lit pixels right of the panel
+    }
+  }
+  EXPECT_GT(title, 2000u) << "no ImGui panel in the screenshot";
+  EXPECT_GT(particles, 500u) << "no particles in the screenshot";
+}
+
 }  // namespace

@@ -3,6 +3,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 namespace pstream::app {
 
@@ -74,6 +75,14 @@ struct RenderCli {
   bool quiet = false;
 };
 int run_render(const RenderCli& cli);
+
+struct ViewerCli {
+  std::vector<std::string> files;
+  int width = 1280, height = 720;
+  int frames_to_run = 0;  // > 0: quit after that many frames (scripted runs, tests)
+  std::string screenshot;  // with frames_to_run: save the last frame (PNG)
+};
+int run_viewer(const ViewerCli& cli);
 
 struct BenchRenderOptions {
   int repetitions = 3;

@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
       "  pstream cook sim.abc -o sim.pstream         cook it into fixed-size chunks for streaming\n"
       "  pstream info sim.pstream                    what the cooked clip holds\n"
       "  pstream verify sim.pstream                  check every checksum and index entry\n"
+      "  pstream play sim.pstream                    watch it in a window, with the chunk cache view\n"
       "  pstream render sim.pstream --out frames     headless PNG frames (and --video out.mp4)\n"
       "  pstream bench read|cook FILE                measure a stage against a baseline",
       "pstream"};
@@ -150,6 +151,17 @@ int main(int argc, char** argv) {
   render_cmd->add_option("--texture", render_cli.texture, "A sprite image (PNG) instead of the soft round sprite");
   render_cmd->add_flag("-q,--quiet", render_cli.quiet, "No progress or summary");
 
+  ViewerCli viewer;
+  auto* play_cmd = app.add_subcommand(
+      "play", "Open a window and play .pstream files: orbit camera, playback controls, statistics, chunk cache view\n\n"
+              "Keys: space play/pause, left/right step a frame, F frame the clip, Esc quit.\n"
+              "Mouse: left drag orbits, right drag pans, wheel zooms.");
+  play_cmd->add_option("files", viewer.files, "One or more .pstream files")->required()->check(CLI::ExistingFile);
+  play_cmd->add_option("--width", viewer.width, "Window width")->capture_default_str();
+  play_cmd->add_option("--height", viewer.height, "Window height")->capture_default_str();
+  play_cmd->add_option("--frames-to-run", viewer.frames_to_run, "Quit after N frames (scripted runs)");
+  play_cmd->add_option("--screenshot", viewer.screenshot, "With --frames-to-run: save the last frame as PNG");
+
   BenchRenderOptions bench_render_opts;
   auto* bench_render_cmd = bench_cmd->add_subcommand(
       "render", "Per-frame cost of 100k and 1M particles at 1280x720: instanced quads vs points, with GL_RENDERER");
@@ -169,6 +181,7 @@ int main(int argc, char** argv) {
     if (bench_sort_cmd->parsed()) return bench_sort(bench_sort_opts);
     if (bench_stream_cmd->parsed()) return bench_stream(bench_stream_opts);
     if (render_cmd->parsed()) return run_render(render_cli);
+    if (play_cmd->parsed()) return run_viewer(viewer);
     if (bench_render_cmd->parsed()) return bench_render(bench_render_opts);
   } catch (const pstream::Error& e) {
     fmt::print(stderr, "pstream: error: {}\n", e.what());

@@ -1,0 +1,330 @@
+// `pstream play FILE.pstream [more]`: a GLFW window with an orbit camera and a Dear ImGui panel —
+// playback controls, statistics per stage, and the chunk cache view of each stream.
+#include <epoxy/gl.h>
+// GLFW after epoxy, which provides the GL declarations.
+#include <GLFW/glfw3.h>
+#include <imgui.h>
+#include <imgui_impl_glfw.h>
+#include <imgui_impl_opengl3.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+
+#include <fmt/format.h>
+
+#include "commands.hpp"
+#include "particlestream/render.hpp"
+#include "particlestream/sort.hpp"
+#include "particlestream/stream.hpp"
+
+namespace pstream::app {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+struct Orbit {
+  render::Vec3 target{0, 0, 0};
+  float yaw = 0.5f, pitch = 0.35f, distance = 5.0f;
+  render::Camera camera() const {
+    render::Camera c;
+    c.target = target;
+    c.eye = {target[0] + distance * std::cos(pitch) * std::sin(yaw), target[1] + distance * std::sin(pitch),
+             target[2] + distance * std::cos(pitch) * std::cos(yaw)};
+    c.near = distance * 0.01f;
+    c.far = distance * 100.0f;
+    return c;
+  }
+  void frame(const format::Metadata& m) {
+    target = {(m.bounds[0] + m.bounds[3]) / 2, (m.bounds[1] + m.bounds[4]) / 2, (m.bounds[2] + m.bounds[5]) / 2};
+    const float dx = m.bounds[3] - m.bounds[0], dy = m.bounds[4] - m.bounds[1], dz = m.bounds[5] - m.bounds[2];
+    const float radius = std::max(0.5f * std::sqrt(dx * dx + dy * dy + dz * dz), 1e-3f);
+    distance = radius / std::sin(22.5f * std::numbers::pi_v<float> / 180.0f) * 1.05f;
+  }
+};
+
+struct Playing {
+  std::string file;
+  std::unique_ptr<stream::ParticleStream> clip;
+  std::unique_ptr<sort::DepthSorter> sorter;
+  std::vector<std::byte> contiguous;
+  const format::Attribute* color = nullptr;
+};
+
+struct Ui {
+  Orbit orbit;
+  bool dragging_left = false, dragging_right = false;
+  double last_x = 0, last_y = 0;
+  float speed = 1.0f, size = 1.0f;
+  bool loop = true;
+  int sort_mode = 1;   // none, back to front, front to back
+  int blend = 0;       // alpha, additive, alpha test
+  float background[3] = {0.02f, 0.025f, 0.035f};
+  std::vector<Playing>* streams = nullptr;
+};
+
+void step_frames(std::vector<Playing>& streams, int delta) {
+  for (auto& s : streams) {
+    const auto& m = s.clip->metadata();
+    if (m.frame_count() == 0) continue;
+    const auto f = static_cast<std::int64_t>(s.clip->frame().frame) + delta;
+    const auto clamped = static_cast<std::uint64_t>(std::clamp<std::int64_t>(f, 0, std::int64_t(m.frame_count()) - 1));
+    s.clip->pause();
+    s.clip->seek(m.frames[clamped].time);
+  }
+}
+
+void on_key(GLFWwindow* window, int key, int, int action, int) {
+  if (ImGui::GetIO().WantCaptureKeyboard || action == GLFW_RELEASE) return;
+  auto& ui = *static_cast<Ui*>(glfwGetWindowUserPointer(window));
+  auto& streams = *ui.streams;
+  if (key == GLFW_KEY_SPACE) {
+    for (auto& s : streams) {
+      s.clip->state() == stream::PlayState::Playing ? s.clip->pause() : s.clip->play();
+    }
+  } else if (key == GLFW_KEY_RIGHT) {
+    step_frames(streams, 1);
+  } else if (key == GLFW_KEY_LEFT) {
+    step_frames(streams, -1);
+  } else if (key == GLFW_KEY_F && !streams.empty()) {
+    ui.orbit.frame(streams.front().clip->metadata());
+  } else if (key == GLFW_KEY_ESCAPE) {
+    glfwSetWindowShouldClose(window, GLFW_TRUE);
+  }
+}
+
+void cache_view(const stream::ParticleStream& clip) {
+  const stream::DebugInfo d = clip.debug();
+  const float block = 14.0f, gap = 2.0f;
+  const int per_row = std::max(1, int((ImGui::GetContentRegionAvail().x + gap) / (block + gap)));
+  ImDrawList* draw = ImGui::GetWindowDrawList();
+  const ImVec2 origin = ImGui::GetCursorScreenPos();
+  for (std::size_t i = 0; i < d.slots.size(); ++i) {
+    const float x = origin.x + float(int(i) % per_row) * (block + gap), y = origin.y + float(int(i) / per_row) * (block + gap);
+    const ImU32 colour = d.slots[i].state == stream::SlotState::Ready     ? IM_COL32(70, 190, 90, 255)
+                         : d.slots[i].state == stream::SlotState::Loading ? IM_COL32(230, 180, 40, 255)
+                                                                          : IM_COL32(70, 70, 80, 255);
+    draw->AddRectFilled({x, y}, {x + block, y + block}, colour, 2.0f);
+    if (i == d.read_slot && clip.frame().valid) draw->AddRect({x - 1, y - 1}, {x + block + 1, y + block + 1}, IM_COL32_WHITE, 2, 0, 2);
+    if (ImGui::IsMouseHoveringRect({x, y}, {x + block, y + block})) {
+      ImGui::SetTooltip("slot %zu: chunk %lld, %s", i, static_cast<long long>(d.slots[i].chunk),
+                        d.slots[i].state == stream::SlotState::Ready ? "Ready" : d.slots[i].state == stream::SlotState::Loading ? "Loading" : "Empty");
+    }
+  }
+  const int rows = (int(d.slots.size()) + per_row - 1) / per_row;
+  ImGui::Dummy({1, float(rows) * (block + gap)});
+  ImGui::TextWrapped("%zu slots, %.1f MiB | loads %llu, in flight %u | read %.1f MiB, IO %.0f ms, decode %.0f ms | stalls %llu",
+              d.slots.size(), d.cache_bytes / 1048576.0, static_cast<unsigned long long>(d.loads_done), d.loads_in_flight,
+              d.bytes_read / 1048576.0, d.io_ms, d.decode_ms, static_cast<unsigned long long>(d.stalls));
+  ImGui::TextColored({0.45f, 0.75f, 0.5f, 1}, "Ready");
+  ImGui::SameLine();
+  ImGui::TextColored({0.9f, 0.7f, 0.15f, 1}, "Loading");
+  ImGui::SameLine();
+  ImGui::TextColored({0.5f, 0.5f, 0.55f, 1}, "Empty");
+  ImGui::SameLine();
+  ImGui::TextUnformatted("(white outline: the current frame)");
+}
+
+}  // namespace
+
+int run_viewer(const ViewerCli& cli) {
+  glfwSetErrorCallback([](int, const char*) {});
+  if (!glfwInit()) {
+    throw Error("no display to open a window on (is DISPLAY set?). `pstream render FILE --out DIR` renders headless");
+  }
+  struct Terminate {
+    ~Terminate() { glfwTerminate(); }
+  } terminate;
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 4);
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 5);
+  glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
+  glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
+  GLFWwindow* window = glfwCreateWindow(cli.width, cli.height, "ParticleStream", nullptr, nullptr);
+  if (window == nullptr) {
+    throw Error("could not create an OpenGL 4.5 core window: the driver or display lacks OpenGL 4.5. "
+                "`pstream render FILE --out DIR` renders headless instead");
+  }
+  glfwMakeContextCurrent(window);
+  glfwSwapInterval(cli.frames_to_run > 0 ? 0 : 1);
+
+  std::vector<Playing> streams;
+  for (const auto& file : cli.files) {
+    Playing p;
+    p.file = file;
+    p.clip = stream::ParticleStream::open(file);
+    const auto& m = p.clip->metadata();
+    p.sorter = std::make_unique<sort::DepthSorter>(m.max_count);
+    p.contiguous.resize(m.max_count * m.record_size);
+    p.color = m.find("color");
+    p.clip->set_loop(true);
+    p.clip->play();
+    streams.push_back(std::move(p));
+  }
+  std::uint64_t total_max = 0;
+  for (auto& s : streams) total_max += s.clip->metadata().max_count * s.clip->metadata().record_size;
+  render::RendererOptions ro;
+  ro.max_bytes_per_frame = std::max<std::uint64_t>(total_max, 4096);
+  auto renderer = std::make_unique<render::Renderer>(ro);  // destroyed before its context (below)
+
+  Ui ui;
+  ui.streams = &streams;
+  if (!streams.empty()) ui.orbit.frame(streams.front().clip->metadata());
+  glfwSetWindowUserPointer(window, &ui);
+  IMGUI_CHECKVERSION();
+  ImGui::CreateContext();
+  ImGui::GetIO().IniFilename = nullptr;
+  ImGui::StyleColorsDark();
+  ImGui_ImplGlfw_InitForOpenGL(window, true);
+  ImGui_ImplOpenGL3_Init("#version 450");
+  glfwSetKeyCallback(window, on_key);  // after ImGui's, which it chains
+
+  double last = glfwGetTime();
+  double stream_ms = 0, sort_ms = 0, draw_ms = 0;
+  int frame_number = 0;
+  while (!glfwWindowShouldClose(window)) {
+    glfwPollEvents();
+    const double now = glfwGetTime();
+    const double dt = cli.frames_to_run > 0 ? 1.0 / 30.0 : now - last;  // scripted runs step evenly
+    last = now;
+
+    // Camera: left drag orbits, right drag pans, the wheel zooms.
+    ImGuiIO& io = ImGui::GetIO();
+    if (!io.WantCaptureMouse) {
+      double x, y;
+      glfwGetCursorPos(window, &x, &y);
+      const bool left = glfwGetMouseButton(window, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS;
+      const bool right = glfwGetMouseButton(window, GLFW_MOUSE_BUTTON_RIGHT) == GLFW_PRESS;
+      if (left && ui.dragging_left) {
+        ui.orbit.yaw -= float(x - ui.last_x) * 0.005f;
+        ui.orbit.pitch = std::clamp(ui.orbit.pitch + float(y - ui.last_y) * 0.005f, -1.5f, 1.5f);
+      }
+      if (right && ui.dragging_right) {
+        const render::Camera c = ui.orbit.camera();
+        const render::Mat4 v = c.view();
+        const float k = ui.orbit.distance * 0.0015f;
+        for (int i = 0; i < 3; ++i) ui.orbit.target[i] += (-float(x - ui.last_x) * v[i * 4] + float(y - ui.last_y) * v[i * 4 + 1]) * k;
+      }
+      ui.dragging_left = left;
+      ui.dragging_right = right;
+      ui.last_x = x;
+      ui.last_y = y;
+      if (io.MouseWheel != 0) ui.orbit.distance *= std::pow(0.9f, io.MouseWheel);
+    }
+
+    int width = 0, height = 0;
+    glfwGetFramebufferSize(window, &width, &height);
+    const render::Camera camera = ui.orbit.camera();
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    renderer->begin_frame(width, height, camera, {ui.background[0], ui.background[1], ui.background[2], 1});
+    std::uint64_t drawn = 0;
+    double t_stream = 0, t_sort = 0, t_draw = 0;
+    for (auto& s : streams) {
+      auto t0 = Clock::now();
+      s.clip->set_speed(ui.speed);
+      s.clip->update(dt);
+      const stream::FrameView f = s.clip->frame();
+      auto t1 = Clock::now();
+      render::ParticleBatch b;
+      b.first = f.first;
+      b.second = f.second;
+      b.count = f.count;
+      b.record_size = s.clip->metadata().record_size;
+      b.color_offset = s.color ? std::int32_t(s.color->offset) : -1;
+      b.world = s.clip->world_transform();
+      b.blend = ui.blend == 0 ? render::BlendMode::Alpha : ui.blend == 1 ? render::BlendMode::Additive : render::BlendMode::AlphaTest;
+      b.size_multiplier = ui.size;
+      if (ui.sort_mode != 0 && f.count > 0 && b.blend == render::BlendMode::Alpha) {
+        const std::byte* records = f.first.data();
+        if (!f.second.empty()) {
+          s.clip->copy_frame(s.contiguous);
+          records = s.contiguous.data();
+        }
+        b.order = s.sorter->sort(records, f.count, b.record_size, render::multiply(camera.view(), b.world),
+                                 ui.sort_mode == 1 ? sort::SortMode::BackToFront : sort::SortMode::FrontToBack);
+      }
+      auto t2 = Clock::now();
+      renderer->draw(b);
+      auto t3 = Clock::now();
+      drawn += f.count;
+      t_stream += std::chrono::duration<double, std::milli>(t1 - t0).count();
+      t_sort += std::chrono::duration<double, std::milli>(t2 - t1).count();
+      t_draw += std::chrono::duration<double, std::milli>(t3 - t2).count();
+    }
+    renderer->end_frame();
+    stream_ms = stream_ms * 0.9 + t_stream * 0.1;
+    sort_ms = sort_ms * 0.9 + t_sort * 0.1;
+    draw_ms = draw_ms * 0.9 + t_draw * 0.1;
+
+    ImGui_ImplOpenGL3_NewFrame();
+    ImGui_ImplGlfw_NewFrame();
+    ImGui::NewFrame();
+    ImGui::SetNextWindowPos({10, 10}, ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowSize({460, 0}, ImGuiCond_FirstUseEver);
+    ImGui::Begin("ParticleStream");
+    if (ImGui::Button("Play")) for (auto& s : streams) s.clip->play();
+    ImGui::SameLine();
+    if (ImGui::Button("Pause")) for (auto& s : streams) s.clip->pause();
+    ImGui::SameLine();
+    if (ImGui::Button("Stop")) for (auto& s : streams) s.clip->stop();
+    ImGui::SameLine();
+    if (ImGui::Checkbox("Loop", &ui.loop)) for (auto& s : streams) s.clip->set_loop(ui.loop);
+    if (!streams.empty()) {
+      auto& first = *streams.front().clip;
+      const auto& m = first.metadata();
+      float t = float(first.time());
+      const float t0 = m.frame_count() ? float(m.frames.front().time) : 0, t1 = m.frame_count() ? float(m.frames.back().time) : 0;
+      if (ImGui::SliderFloat("Time", &t, t0, t1, "%.3f s")) for (auto& s : streams) s.clip->seek(t);
+    }
+    ImGui::SliderFloat("Speed", &ui.speed, 0.0f, 4.0f, "%.2fx");
+    ImGui::SliderFloat("Particle size", &ui.size, 0.1f, 5.0f, "%.2fx");
+    ImGui::Combo("Sort", &ui.sort_mode, "None\0Back to front\0Front to back\0");
+    ImGui::Combo("Blend", &ui.blend, "Alpha\0Additive\0Alpha test\0");
+    ImGui::ColorEdit3("Background", ui.background);
+    ImGui::Separator();
+    ImGui::Text("%.0f fps | %llu particles drawn", ImGui::GetIO().Framerate, static_cast<unsigned long long>(drawn));
+    ImGui::Text("stream %.3f ms | sort %.3f ms | upload + draw %.3f ms", stream_ms, sort_ms, draw_ms);
+    ImGui::TextDisabled("%s", render::Renderer::gl_renderer().c_str());
+    for (auto& s : streams) {
+      ImGui::Separator();
+      const auto f = s.clip->frame();
+      ImGui::Text("%s - frame %llu / %llu", std::filesystem::path(s.file).filename().c_str(),
+                  static_cast<unsigned long long>(f.frame), static_cast<unsigned long long>(s.clip->metadata().frame_count()));
+      if (s.clip->state() == stream::PlayState::Error) {
+        ImGui::TextColored({1, 0.35f, 0.3f, 1}, "error: %s", s.clip->error().c_str());
+      }
+      cache_view(*s.clip);
+    }
+    ImGui::PushTextWrapPos(0.0f);
+    ImGui::TextDisabled("space play/pause, arrows step, F frame, drag orbit/pan, wheel zoom");
+    ImGui::PopTextWrapPos();
+    ImGui::End();
+    ImGui::Render();
+    ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+
+    ++frame_number;
+    if (cli.frames_to_run > 0 && frame_number >= cli.frames_to_run) {
+      if (!cli.screenshot.empty()) {
+        std::vector<std::uint8_t> pixels(std::size_t(width) * height * 4);
+        glPixelStorei(GL_PACK_ALIGNMENT, 1);
+        glReadBuffer(GL_BACK);
+        glReadPixels(0, 0, width, height, GL_RGBA, GL_UNSIGNED_BYTE, pixels.data());
+        const std::size_t row = std::size_t(width) * 4;
+        for (int y = 0; y < height / 2; ++y) {
+          std::swap_ranges(pixels.begin() + y * row, pixels.begin() + (y + 1) * row, pixels.begin() + (height - 1 - y) * row);
+        }
+        render::write_png(cli.screenshot, width, height, pixels);
+      }
+      break;
+    }
+    glfwSwapBuffers(window);
+  }
+  renderer.reset();
+  ImGui_ImplOpenGL3_Shutdown();
+  ImGui_ImplGlfw_Shutdown();
+  ImGui::DestroyContext();
+  glfwDestroyWindow(window);
+  return 0;
+}
+
+}  // namespace pstream::app
