@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 
 #include "alembic/archive_data.hpp"
+#include "alembic/layout.hpp"
 
 namespace pstream::alembic {
 namespace {
@@ -15,11 +16,7 @@ using detail::ArchiveData;
 using detail::ObjectNode;
 using detail::PropertyNode;
 
-// Root group children.
-enum RootChild : std::uint64_t { kFileVersion = 0, kLibraryVersion, kTopObject, kMetadata, kTimeSamplings, kIndexedMetadata };
-constexpr std::uint64_t kRootChildren = 6;
-constexpr std::size_t kObjectHashBytes = 32;  // object headers end with two 16-byte hashes
-constexpr std::uint8_t kMetadataInline = 0xff;
+using namespace layout;
 
 std::uint32_t read_u32_block(const ArchiveData& a, ogawa::Data data, std::string_view what) {
   ogawa::Reader in(a.file, data);

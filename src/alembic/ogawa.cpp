@@ -1,4 +1,5 @@
 #include "alembic/ogawa.hpp"
+#include "alembic/layout.hpp"
 
 #include <cstring>
 
@@ -9,8 +10,8 @@
 namespace pstream::alembic::ogawa {
 namespace {
 
-constexpr std::uint64_t kDataBit = 1ull << 63;
-constexpr std::size_t kHeaderSize = 16;
+using layout::kDataBit;
+using layout::kHeaderSize;
 constexpr unsigned char kHdf5Signature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
 
 bool has_hdf5_signature(std::span<const std::byte> bytes) {

@@ -3,40 +3,42 @@
 #include <fmt/format.h>
 
 #include "alembic/archive_data.hpp"
+#include "alembic/layout.hpp"
 
 namespace pstream::alembic::detail {
 namespace {
 
-constexpr std::uint32_t kMetadataInline = 0xff;
+using namespace layout::info;
+constexpr std::uint32_t kMetadataInline = layout::kMetadataInline;
 
 PropertyHeader read_header(const ArchiveData& archive, ogawa::Reader& in) {
   const std::uint64_t at = in.offset();
   const std::uint32_t info = in.u32("property header info");
   PropertyHeader h;
-  const std::uint32_t type = info & 0x3;
-  const unsigned size_hint = (info >> 2) & 0x3;
+  const std::uint32_t type = info & kTypeMask;
+  const unsigned size_hint = (info >> kSizeHintShift) & 0x3;
   h.kind = type == 0 ? PropertyKind::Compound : type == 1 ? PropertyKind::Scalar : PropertyKind::Array;
   h.scalar_like = (type & 1) != 0 && type != 1;
   if (h.kind != PropertyKind::Compound) {
-    const std::uint32_t pod = (info >> 4) & 0xf;
+    const std::uint32_t pod = (info >> kPodShift) & 0xf;
     if (pod > static_cast<std::uint32_t>(Pod::WString)) {
       archive.file.fail(at, fmt::format("property header has invalid POD type {} (expected 0..13)", pod));
     }
     h.pod = static_cast<Pod>(pod);
-    h.extent = static_cast<std::uint8_t>((info >> 12) & 0xff);
+    h.extent = static_cast<std::uint8_t>((info >> kExtentShift) & 0xff);
     if (h.extent == 0) archive.file.fail(at, "property header has extent 0 (expected at least 1)");
-    h.homogeneous = (info & 0x400) != 0;
+    h.homogeneous = (info & kHomogeneous) != 0;
     h.num_samples = in.sized(size_hint, "property sample count");
-    if (info & 0x200) {
+    if (info & kHasFirstLast) {
       h.first_changed = in.sized(size_hint, "property first changed index");
       h.last_changed = in.sized(size_hint, "property last changed index");
-    } else if (info & 0x800) {
+    } else if (info & kConstant) {
       h.first_changed = h.last_changed = 0;
     } else {
       h.first_changed = 1;
       h.last_changed = h.num_samples - 1;
     }
-    if (info & 0x100) h.time_sampling_index = in.sized(size_hint, "property time sampling index");
+    if (info & kHasTimeSampling) h.time_sampling_index = in.sized(size_hint, "property time sampling index");
     if (h.time_sampling_index >= archive.time_samplings.size()) {
       archive.file.fail(at, fmt::format("property uses time sampling {} but the archive has {}", h.time_sampling_index,
                                         archive.time_samplings.size()));
@@ -44,7 +46,7 @@ PropertyHeader read_header(const ArchiveData& archive, ogawa::Reader& in) {
   }
   const std::uint32_t name_size = in.sized(size_hint, "property name size");
   h.name = std::string(in.str(name_size, "property name"));
-  const std::uint32_t md_index = (info >> 20) & 0xff;
+  const std::uint32_t md_index = (info >> kMetadataShift) & 0xff;
   if (md_index == kMetadataInline) {
     const std::uint32_t md_size = in.sized(size_hint, "property metadata size");
     h.metadata = MetaData::parse(in.str(md_size, "property metadata"));

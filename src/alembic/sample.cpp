@@ -5,11 +5,12 @@
 #include <fmt/format.h>
 
 #include "alembic/archive_data.hpp"
+#include "alembic/layout.hpp"
 
 namespace pstream::alembic {
 namespace {
 
-constexpr std::size_t kKeyBytes = 16;  // every stored sample starts with its content hash
+constexpr std::size_t kKeyBytes = layout::kSampleKeyBytes;
 
 float half_to_float(std::uint16_t h) {
   const std::uint32_t sign = (h >> 15) & 1u, exp = (h >> 10) & 0x1fu, mant = h & 0x3ffu;

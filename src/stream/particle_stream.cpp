@@ -341,7 +341,8 @@ void ParticleStream::update(double dt) {
     }
   }
   const std::uint64_t target = frame_of(time_);
-  const auto [need_first, need_last] = seq_range(d.lap, target);
+  const auto needed = seq_range(d.lap, target);
+  const std::uint64_t need_first = needed.first, need_last = needed.second;  // named: lambdas capture them
 
   std::unique_lock lock(d.mutex);
   if (d.failed) {
