@@ -8,6 +8,9 @@
 #include <cstring>
 #include <filesystem>
 
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
 #include "particlestream/cook.hpp"
 #include "particlestream/render.hpp"
 #include "test_util.hpp"
@@ -182,6 +185,45 @@ TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
   }
   EXPECT_GT(title, 2000u) << "no ImGui panel in the screenshot";
   EXPECT_GT(particles, 500u) << "no particles in the screenshot";
+}
+
+}  // namespace
+
+namespace {
+
+// `pstream demo` end to end on a small smoke simulation (the preset where sorting matters):
+// every output exists, the report holds measured figures, and two frames match references.
+TEST(Demo, SmallSmokeRunProducesEverythingAndMatchingFrames) {
+  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "demo-run";
+  fs::remove_all(dir);
+  const auto r = test::run_cli("demo --preset smoke --particles 3000 --seconds 1 --fps 12 --size 320x180 --headless -q --out '" +
+                               dir.string() + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* f : {"demo.abc", "demo.pstream", "contact_sheet.png", "report.json", "report.md", "demo.mp4"}) {
+    EXPECT_TRUE(fs::exists(dir / f)) << f;
+  }
+  const auto report = nlohmann::json::parse(test::read_text(dir / "report.json"));
+  EXPECT_GT(report["simulation"]["peak_particles"].get<int>(), 300);  // 1 s of a 4-7 s lifetime
+  EXPECT_GT(report["simulation"]["abc_bytes"].get<double>(), 0);
+  EXPECT_GT(report["cook"]["pstream_bytes"].get<double>(), 0);
+  EXPECT_GT(report["render"]["frame_ms"]["median"].get<double>(), 0);
+  EXPECT_GE(report["stream"]["frame_ms"]["p99"].get<double>(), report["stream"]["frame_ms"]["median"].get<double>());
+  EXPECT_EQ(report["render"]["frames"].get<int>(), 12);
+  for (int frame : {4, 10}) {
+    int w = 0, h = 0;
+    const auto img = read_png(dir / "frames" / fmt::format("frame_{:05d}.png", frame), w, h);
+    ASSERT_EQ(w, 320);
+    const fs::path golden = test::data_path(fmt::format("demo/smoke_frame_{}.png", frame));
+    if (std::getenv("PSTREAM_UPDATE_GOLDEN") != nullptr) write_png(golden, w, h, img);
+    int gw = 0, gh = 0;
+    const auto ref = read_png(golden, gw, gh);
+    ASSERT_EQ(ref.size(), img.size());
+    std::size_t off = 0, lit = 0;
+    for (std::size_t i = 0; i < ref.size(); ++i) off += std::abs(int(ref[i]) - int(img[i])) > 8;
+    for (std::size_t i = 0; i < img.size(); i += 4) lit += img[i] + img[i + 1] + img[i + 2] > 60;
+    EXPECT_LE(off, ref.size() / 200) << "frame " << frame << " differs from its reference";
+    EXPECT_GT(lit, 200u) << "frame " << frame << " is nearly blank";
+  }
 }
 
 }  // namespace

@@ -74,7 +74,11 @@ struct RenderCli {
   float size_multiplier = 1.0f;
   bool quiet = false;
 };
-int run_render(const RenderCli& cli);
+struct RenderStats {
+  std::vector<double> frame_ms;  // each frame's draw + read-back (PNG writing excluded)
+  std::string gl_renderer;
+};
+int run_render(const RenderCli& cli, RenderStats* stats = nullptr);
 
 struct ViewerCli {
   std::vector<std::string> files;
@@ -83,6 +87,15 @@ struct ViewerCli {
   std::string screenshot;  // with frames_to_run: save the last frame (PNG)
 };
 int run_viewer(const ViewerCli& cli);
+
+struct DemoCli {
+  std::string preset = "fountain", out = "demo", size = "960x540";
+  std::uint64_t particles = 250000;
+  double seconds = 10.0, fps = 30.0;
+  std::uint64_t seed = 1;
+  bool window = false, headless = false, quiet = false;
+};
+int run_demo(const DemoCli& cli);
 
 struct BenchRenderOptions {
   int repetitions = 3;

@@ -2,6 +2,7 @@
 // through ffmpeg): stream (blocking, no frame skipped) -> sort back to front -> draw.
 #include <unistd.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -61,7 +62,7 @@ void parse_size(const std::string& text, int& width, int& height) {
   }
 }
 
-int run_render(const RenderCli& cli) {
+int run_render(const RenderCli& cli, RenderStats* stats) {
   int width = 0, height = 0;
   parse_size(cli.size, width, height);
   stream::StreamOptions options;
@@ -93,6 +94,7 @@ int run_render(const RenderCli& cli) {
   const format::Attribute* color = m.find("color");
   const bool sorted = blend == render::BlendMode::Alpha && cli.sort != "none";
 
+  if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
   clip->seek(t0);
   clip->play();
   clip->update(0);
@@ -120,11 +122,14 @@ int run_render(const RenderCli& cli) {
       batch.order = sorter.sort(records, f.count, m.record_size, render::multiply(camera.view(), batch.world),
                                 cli.sort == "front" ? sort::SortMode::FrontToBack : sort::SortMode::BackToFront);
     }
+    const auto t0 = std::chrono::steady_clock::now();
     context.bind();
     renderer.begin_frame(width, height, camera, {0.02f, 0.025f, 0.035f, 1.0f});
     renderer.draw(batch);
     renderer.end_frame();
-    render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", k), width, height, context.read_rgba());
+    const std::vector<std::uint8_t> pixels = context.read_rgba();
+    if (stats) stats->frame_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", k), width, height, pixels);
     bar.update(k + 1, outputs, fmt::format("frames ({}x{})", width, height));
   }
   if (!cli.quiet) fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());

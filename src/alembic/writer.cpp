@@ -211,9 +211,9 @@ std::string object_headers(const std::vector<std::pair<std::string, std::string>
   return s + std::string(kObjectHashBytes, '\0');
 }
 
-std::string geom_param_md(int extent, bool rgb) {
-  return fmt::format("arrayExtent=1;geoScope=vtx;{}isGeomParam=true;podExtent={};podName=float32_t", rgb ? "interpretation=rgb;" : "",
-                     extent);
+std::string geom_param_md(int extent, const char* interpretation) {
+  return fmt::format("arrayExtent=1;geoScope=vtx;{}isGeomParam=true;podExtent={};podName=float32_t",
+                     *interpretation ? fmt::format("interpretation={};", interpretation) : std::string(), extent);
 }
 
 }  // namespace
@@ -252,10 +252,10 @@ ArchiveWriter::ArchiveWriter(const std::filesystem::path& path, const std::strin
   d.P = PropertyOut("P", "geoScope=var;interpretation=point", PropertyKind::Array, Pod::Float32, 3);
   d.ids = PropertyOut(".pointIds", "geoScope=var", PropertyKind::Array, Pod::Uint64, 1);
   d.velocities = PropertyOut(".velocities", "interpretation=vector", PropertyKind::Array, Pod::Float32, 3);
-  d.widths = PropertyOut(".widths", geom_param_md(1, false), PropertyKind::Array, Pod::Float32, 1);
+  d.widths = PropertyOut(".widths", geom_param_md(1, ""), PropertyKind::Array, Pod::Float32, 1);
   for (const auto& [name, extent] : points.float_params) {
     if (extent < 1 || extent > 16) throw Error(fmt::format("parameter '{}': extent {} must be 1..16", name, extent));
-    d.params.emplace_back(name, geom_param_md(extent, name == "Cd" && extent == 3), PropertyKind::Array, Pod::Float32,
+    d.params.emplace_back(name, geom_param_md(extent, name != "Cd" ? "" : extent == 3 ? "rgb" : extent == 4 ? "rgba" : ""), PropertyKind::Array, Pod::Float32,
                           static_cast<std::uint8_t>(extent));
   }
 }
