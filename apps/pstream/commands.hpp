@@ -103,4 +103,9 @@ struct BenchRenderOptions {
 };
 int bench_render(const BenchRenderOptions& options);
 
+struct BenchAllOptions {
+  std::string out = "docs/benchmarks.md";
+};
+int bench_all(const BenchAllOptions& options);
+
 }  // namespace pstream::app

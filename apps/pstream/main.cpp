@@ -185,6 +185,11 @@ int main(int argc, char** argv) {
   bench_render_cmd->add_option("--repetitions", bench_render_opts.repetitions, "Frames timed per case")->check(CLI::Range(1, 100));
   bench_render_cmd->add_flag("--json", bench_render_opts.json, "Print JSON");
 
+  BenchAllOptions bench_all_opts;
+  auto* bench_all_cmd = bench_cmd->add_subcommand(
+      "all", "Run every benchmark on generated 1M-particle clips and write a Markdown page with tables and a plot");
+  bench_all_cmd->add_option("--out", bench_all_opts.out, "The page to write (a plot is written beside it)")->capture_default_str();
+
   CLI11_PARSE(app, argc, argv);
   try {
     if (info_cmd->parsed()) {
@@ -201,6 +206,7 @@ int main(int argc, char** argv) {
     if (play_cmd->parsed()) return run_viewer(viewer);
     if (demo_cmd->parsed()) return run_demo(demo);
     if (bench_render_cmd->parsed()) return bench_render(bench_render_opts);
+    if (bench_all_cmd->parsed()) return bench_all(bench_all_opts);
   } catch (const pstream::Error& e) {
     fmt::print(stderr, "pstream: error: {}\n", e.what());
     return 1;

@@ -6,6 +6,10 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <condition_variable>
+#include <mutex>
+#include <optional>
+#include <utility>
 #include <thread>
 
 #include <fmt/format.h>
@@ -135,39 +139,103 @@ std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan,
   return bad;
 }
 
-// Cuts the logical record stream into chunk-sized buffers as records are written into it.
+// Cuts the logical record stream into chunk-sized buffers as records are written into it. Two
+// buffers alternate, so a full one can be written out while the next fills.
 class ChunkCutter {
  public:
   ChunkCutter(std::size_t chunk_size, std::function<void(std::span<const std::byte>)> emit)
-      : chunk_(chunk_size), emit_(std::move(emit)) {}
+      : buffers_{std::vector<std::byte>(chunk_size), std::vector<std::byte>(chunk_size)}, emit_(std::move(emit)) {}
   // Room for a whole record at the write position, or nullptr when it would straddle a border.
   // A full chunk is emitted only when more bytes come, so reserved room is never emitted unwritten.
   std::byte* reserve(std::size_t n) {
-    if (fill_ == chunk_.size()) finish();
-    if (chunk_.size() - fill_ < n) return nullptr;
-    std::byte* p = chunk_.data() + fill_;
+    if (fill_ == size()) finish();
+    if (size() - fill_ < n) return nullptr;
+    std::byte* p = current().data() + fill_;
     fill_ += n;
     return p;
   }
   void write(const std::byte* data, std::size_t n) {
     while (n > 0) {
-      if (fill_ == chunk_.size()) finish();
-      const std::size_t take = std::min(n, chunk_.size() - fill_);
-      std::memcpy(chunk_.data() + fill_, data, take);
+      if (fill_ == size()) finish();
+      const std::size_t take = std::min(n, size() - fill_);
+      std::memcpy(current().data() + fill_, data, take);
       data += take;
       n -= take;
       fill_ += take;
     }
   }
+  // Emits what is buffered; the emit callback must be done with a buffer before the one after
+  // next is handed out (the raw-chunk sink below guarantees it).
   void finish() {
-    if (fill_ > 0) emit_(std::span(chunk_.data(), fill_));
+    if (fill_ > 0) emit_(std::span(current().data(), fill_));
     fill_ = 0;
+    which_ ^= 1;
   }
 
  private:
-  std::vector<std::byte> chunk_;
+  std::size_t size() const { return buffers_[0].size(); }
+  std::vector<std::byte>& current() { return buffers_[which_]; }
+  std::vector<std::byte> buffers_[2];
+  int which_ = 0;
   std::size_t fill_ = 0;
   std::function<void(std::span<const std::byte>)> emit_;
+};
+
+// Writes raw chunks on a helper thread (checksum and pwrite) while the cooker packs the next one:
+// on two cores the kernel's copy into the page cache overlaps our packing.
+class RawChunkSink {
+ public:
+  explicit RawChunkSink(format::Writer& writer) : writer_(writer), thread_([this] { run(); }) {}
+  ~RawChunkSink() {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    wake_.notify_all();
+    thread_.join();
+  }
+  // Hands a chunk over; returns once the previous one is written, so its buffer may be reused.
+  void submit(std::span<const std::byte> chunk) {
+    std::unique_lock lock(mutex_);
+    wake_.wait(lock, [&] { return !busy_; });
+    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
+    pending_ = chunk;
+    busy_ = true;
+    wake_.notify_all();
+  }
+  void drain() {
+    std::unique_lock lock(mutex_);
+    wake_.wait(lock, [&] { return !busy_; });
+    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
+  }
+
+ private:
+  void run() {
+    std::unique_lock lock(mutex_);
+    for (;;) {
+      wake_.wait(lock, [&] { return busy_ || stop_; });
+      if (!busy_) return;
+      const std::span<const std::byte> chunk = pending_;
+      lock.unlock();
+      try {
+        writer_.append_chunk(chunk, format::Codec::Raw, 0, format::checksum(chunk));
+      } catch (...) {
+        lock.lock();
+        error_ = std::current_exception();
+        lock.unlock();
+      }
+      lock.lock();
+      busy_ = false;
+      wake_.notify_all();
+    }
+  }
+  format::Writer& writer_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::span<const std::byte> pending_;
+  bool busy_ = false, stop_ = false;
+  std::exception_ptr error_;
+  std::thread thread_;
 };
 
 void pack_record(const ParticleFrame& f, const Plan& plan, std::uint64_t i, std::byte* dst) {
@@ -293,10 +361,12 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
     }
     batch.clear();
   };
+  std::optional<RawChunkSink> sink;
+  if (options.codec == format::Codec::Raw) sink.emplace(writer);
   ChunkCutter cutter(options.chunk_size, [&](std::span<const std::byte> raw) {
     ++report.chunks;
-    if (options.codec == format::Codec::Raw) {  // nothing to encode: straight from the chunk buffer
-      writer.append_chunk(raw, format::Codec::Raw, 0, format::checksum(raw));
+    if (sink) {  // nothing to encode: straight from the chunk buffer, written while the next fills
+      sink->submit(raw);
       state.bytes_out += raw.size();
       return;
     }
@@ -323,6 +393,7 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
     if (progress) progress(state);
   }
   cutter.finish();
+  if (sink) sink->drain();
   encode_batch();
   report.frames = state.frame_count;
   report.stream_bytes = writer.metadata().stream_size();
