@@ -91,9 +91,17 @@ struct Contender {
 
 inline const std::vector<Contender>& contenders() {
   static const std::vector<Contender> list = {
-      {"bubble", 4096},      {"insertion", 16384}, {"comb", SIZE_MAX},         {"merge", SIZE_MAX},
-      {"quick", SIZE_MAX},   {"std_sort", SIZE_MAX}, {"std_stable_sort", SIZE_MAX}, {"vqsort", SIZE_MAX},
-      {"ours", SIZE_MAX},    {"ours_2threads", SIZE_MAX}, {"ours_16bit", SIZE_MAX},
+      {"bubble", 4096},
+      {"insertion", 16384},
+      {"comb", SIZE_MAX},
+      {"merge", SIZE_MAX},
+      {"quick", SIZE_MAX},
+      {"std_sort", SIZE_MAX},
+      {"std_stable_sort", SIZE_MAX},
+      {"vqsort", SIZE_MAX},
+      {"ours", SIZE_MAX},
+      {"ours_2threads", SIZE_MAX},
+      {"ours_16bit", SIZE_MAX},
   };
   return list;
 }
@@ -101,7 +109,11 @@ inline const std::vector<Contender>& contenders() {
 // Sorts `depths` with contender `name`; `items` etc. are preallocated work buffers.
 struct SortBench {
   explicit SortBench(std::size_t max_n)
-      : items(max_n), scratch(max_n), indices(max_n), ours(max_n), ours2(max_n, {.threads = 2}),
+      : items(max_n),
+        scratch(max_n),
+        indices(max_n),
+        ours(max_n),
+        ours2(max_n, {.threads = 2}),
         ours16(max_n, {.quantize16 = true}) {}
 
   void run(std::string_view name, std::span<const float> depths) {
@@ -115,14 +127,22 @@ struct SortBench {
       items[i] = static_cast<Item>(pstream::sort::order_preserving_key(depths[i])) << 32 | i;
     }
     std::span<Item> a(items.data(), n);
-    if (name == "bubble") bubble_sort(a);
-    else if (name == "insertion") insertion_sort(a);
-    else if (name == "comb") comb_sort(a);
-    else if (name == "merge") merge_sort(a, scratch);
-    else if (name == "quick") quick_sort(a.data(), a.data() + n);
-    else if (name == "std_sort") std::sort(a.begin(), a.end());
-    else if (name == "std_stable_sort") std::stable_sort(a.begin(), a.end());
-    else if (name == "vqsort") vq(a.data(), n, hwy::SortAscending());
+    if (name == "bubble")
+      bubble_sort(a);
+    else if (name == "insertion")
+      insertion_sort(a);
+    else if (name == "comb")
+      comb_sort(a);
+    else if (name == "merge")
+      merge_sort(a, scratch);
+    else if (name == "quick")
+      quick_sort(a.data(), a.data() + n);
+    else if (name == "std_sort")
+      std::sort(a.begin(), a.end());
+    else if (name == "std_stable_sort")
+      std::stable_sort(a.begin(), a.end());
+    else if (name == "vqsort")
+      vq(a.data(), n, hwy::SortAscending());
     for (std::size_t i = 0; i < n; ++i) indices[i] = static_cast<std::uint32_t>(items[i]);
     result = {indices.data(), n};
   }

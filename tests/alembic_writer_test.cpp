@@ -29,7 +29,8 @@ std::vector<Frame> make_frames(int frames) {
     Frame fr;
     const int n = f == 0 ? 0 : 100 + 37 * f;  // births: counts vary, frame 0 empty
     for (int i = 0; i < n; ++i) {
-      for (int c = 0; c < 3; ++c) fr.P.push_back(uni(rng)), fr.v.push_back(uni(rng)), fr.cd.push_back((uni(rng) + 2) / 4);
+      for (int c = 0; c < 3; ++c)
+        fr.P.push_back(uni(rng)), fr.v.push_back(uni(rng)), fr.cd.push_back((uni(rng) + 2) / 4);
       fr.w.push_back(0.01f + 0.001f * float(i % 7));
       fr.age.push_back(float(f) / 24.0f);
       fr.ids.push_back((std::uint64_t(i) * 2654435761u) + (i % 4 == 0 ? (1ull << 33) : 0));
@@ -102,7 +103,8 @@ TEST(AlembicWriter, EveryValueReadsBack) {
   const auto P = obj->properties().find(".geom")->find("P");
   EXPECT_EQ(P->header().num_samples, frames.size());
   EXPECT_EQ(P->header().last_changed, frames.size() - 3);
-  EXPECT_EQ(P->header().stored_index(std::uint32_t(frames.size() - 1)), P->header().stored_index(std::uint32_t(frames.size() - 3)));
+  EXPECT_EQ(P->header().stored_index(std::uint32_t(frames.size() - 1)),
+            P->header().stored_index(std::uint32_t(frames.size() - 3)));
   EXPECT_EQ(points.find_param("Cd")->values().header().interpretation(), "rgb");
   EXPECT_EQ(points.widths()->scope(), GeomScope::Vertex);
   // The whole archive also describes cleanly (every property, every sample).

@@ -21,7 +21,8 @@ namespace fs = std::filesystem;
 
 fs::path temp_dir() {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  fs::path dir = fs::temp_directory_path() / "pstream-tests" / (std::string(info->test_suite_name()) + "." + info->name());
+  fs::path dir =
+      fs::temp_directory_path() / "pstream-tests" / (std::string(info->test_suite_name()) + "." + info->name());
   for (char& c : const_cast<std::string&>(dir.native())) {
     if (c == '<' || c == '>' || c == '"') c = '_';
   }
@@ -36,8 +37,8 @@ struct Expected {
 
 // What a frame must hold, computed from the Alembic reader independently of the cooker:
 // positions times the parent world matrix (in double, as Imath does), scale = width / 2.
-std::vector<float> expected_frame(const alembic::Archive& a, const std::vector<std::string>& objects, std::uint32_t sample,
-                                  float default_scale) {
+std::vector<float> expected_frame(const alembic::Archive& a, const std::vector<std::string>& objects,
+                                  std::uint32_t sample, float default_scale) {
   std::vector<float> out;
   for (const std::string& name : objects) {
     const alembic::Object o = *a.find(name);
@@ -64,7 +65,8 @@ std::vector<float> expected_frame(const alembic::Archive& a, const std::vector<s
       v.copy_raw(std::as_writable_bytes(std::span(P)));
     }
     const alembic::Matrix44 m = alembic::parent_world_matrix(o, time);
-    const double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
+    const double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) -
+                       m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
                        m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
     const bool identity = m == alembic::identity_matrix();
     for (std::uint64_t i = 0; i < n; ++i) {
@@ -127,7 +129,8 @@ TEST_P(CookFixture, EveryFrameEqualsTheSource) {
     ASSERT_EQ(m.frames[f].count * 4, expected.size()) << "frame " << f;
     reader.read_frame(f, buffer, scratch);
     for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
-      ASSERT_EQ(std::memcmp(buffer.data() + i * rs, &expected[i * 4], 16), 0) << c.file << " frame " << f << " particle " << i;
+      ASSERT_EQ(std::memcmp(buffer.data() + i * rs, &expected[i * 4], 16), 0)
+          << c.file << " frame " << f << " particle " << i;
     }
     const auto& e = m.frames[f];
     if (e.count && e.byte_offset / m.chunk_size != (e.byte_offset + e.count * rs - 1) / m.chunk_size) ++straddling;
@@ -143,7 +146,8 @@ std::string case_name(const ::testing::TestParamInfo<std::tuple<Case, format::Co
 
 INSTANTIATE_TEST_SUITE_P(Cook, CookFixture,
                          ::testing::Combine(::testing::ValuesIn(kCases),
-                                            ::testing::Values(format::Codec::Raw, format::Codec::Lz4, format::Codec::Zstd)),
+                                            ::testing::Values(format::Codec::Raw, format::Codec::Lz4,
+                                                              format::Codec::Zstd)),
                          case_name);
 
 TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
@@ -165,7 +169,8 @@ TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
     reader.read_frame(k, buffer, scratch);
     const double t = m.frames[k].time;
     const auto a = splash.time_sampling().near_index(t, 24).first, b = foam.time_sampling().near_index(t, 48).first;
-    ASSERT_EQ(m.frames[k].count, splash.count(static_cast<std::uint32_t>(a)) + foam.count(static_cast<std::uint32_t>(b)));
+    ASSERT_EQ(m.frames[k].count,
+              splash.count(static_cast<std::uint32_t>(a)) + foam.count(static_cast<std::uint32_t>(b)));
     float first_foam[4];
     std::memcpy(first_foam, buffer.data() + splash.count(static_cast<std::uint32_t>(a)) * 16, 16);
     std::vector<float> P(foam.count(static_cast<std::uint32_t>(b)) * 3);
@@ -361,7 +366,8 @@ TEST(CookPly, GapsMismatchesAndNaN) {
   write_ply(dir / "b.0001.ply", {{0, 0, 0, 1}}, false);
   {
     std::ofstream out(dir / "b.0002.ply");
-    out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n";
+    out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float "
+           "z\nend_header\n0 0 0\n";
   }
   o.input = dir / "b.0001.ply";
   expect_cook_error(o, "differ from the first file's");

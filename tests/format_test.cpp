@@ -113,8 +113,8 @@ TEST(FormatCorruption, ChunkTablePointingPastTheEnd) {
 TEST(FormatCorruption, FrameIndexInconsistent) {
   auto b = cooked_bytes();
   const auto m = format::Reader::from_memory(b, "x").metadata();
-  const std::size_t frames = get<std::uint64_t>(b, 128) + get<std::uint64_t>(b, 136) - m.chunk_count() * 32 -
-                             m.frame_count() * 48;
+  const std::size_t frames =
+      get<std::uint64_t>(b, 128) + get<std::uint64_t>(b, 136) - m.chunk_count() * 32 - m.frame_count() * 48;
   put<std::uint64_t>(b, frames + 5 * 48 + 8, 12345);  // frame 5's byte offset
   reseal(b);
   expect_error(b, "frame 5 starts at byte 12345");
@@ -165,7 +165,8 @@ TEST(Format, InfoJsonFrameSumsMatchTheSource) {
   const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "info";
   fs::create_directories(dir);
   const std::string out = (dir / "v.pstream").string();
-  auto r = test::run_cli("cook -q '" + test::data_path("alembic/points_varying.abc") + "' -o '" + out + "' --chunk-size 64KiB");
+  auto r = test::run_cli("cook -q '" + test::data_path("alembic/points_varying.abc") + "' -o '" + out +
+                         "' --chunk-size 64KiB");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   r = test::run_cli("info --json --frames '" + out + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;

@@ -22,7 +22,8 @@ struct Comparer {
     const double x = e.get<double>(), y = a.get<double>();
     if (x == y) return true;
     const double diff = std::abs(x - y);
-    return diff <= options.absolute_tolerance || diff <= options.relative_tolerance * std::max(std::abs(x), std::abs(y));
+    return diff <= options.absolute_tolerance ||
+           diff <= options.relative_tolerance * std::max(std::abs(x), std::abs(y));
   }
 
   void walk(const std::string& path, const nlohmann::json& e, const nlohmann::json& a) {

@@ -11,7 +11,7 @@ namespace pstream::test {
 
 struct JsonCompareOptions {
   double relative_tolerance = 1e-9;
-  double absolute_tolerance = 1e-12;   // for values that are zero in one document (rotations)
+  double absolute_tolerance = 1e-12;     // for values that are zero in one document (rotations)
   std::vector<std::string> ignore_keys;  // paths such as "/reader"
   std::size_t max_differences = 20;
 };

@@ -87,7 +87,8 @@ TEST_F(RenderTest, AlphaBlendingIsInDepthOrderFromBothSides) {
 }
 
 TEST_F(RenderTest, AdditiveBlendingIgnoresOrder) {
-  const std::vector<Particle> ps = {{0, 0, 0, 0.6f, 0x80ff4010u}, {0.3f, 0, -1, 0.6f, 0x801040ffu}, {-0.3f, 0.2f, 0.5f, 0.5f, 0x8040ff40u}};
+  const std::vector<Particle> ps = {
+      {0, 0, 0, 0.6f, 0x80ff4010u}, {0.3f, 0, -1, 0.6f, 0x801040ffu}, {-0.3f, 0.2f, 0.5f, 0.5f, 0x8040ff40u}};
   Camera cam;
   const auto a = draw(ctx, renderer, cam, ps, {0, 1, 2}, BlendMode::Additive);
   const auto b = draw(ctx, renderer, cam, ps, {2, 0, 1}, BlendMode::Additive);
@@ -150,8 +151,10 @@ TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
   }
   EXPECT_EQ(pngs, 12u);
   EXPECT_EQ(lit, 12u) << "blank frames";
-  const auto probe = test::run_cli_raw("ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=nb_read_frames "
-                                       "-of csv=p=0 '" + (dir / "v.mp4").string() + "'");
+  const auto probe = test::run_cli_raw(
+      "ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=nb_read_frames "
+      "-of csv=p=0 '" +
+      (dir / "v.mp4").string() + "'");
   EXPECT_EQ(probe.output, "12\n");
 }
 
@@ -179,7 +182,8 @@ TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
     for (int x = 0; x < w; ++x) {
       const std::uint8_t* p = &img[(std::size_t(y) * w + x) * 4];
       // ImGui's dark style: the active title bar is (41, 74, 122).
-      if (y < 40 && x < 480 && std::abs(p[0] - 41) < 14 && std::abs(p[1] - 74) < 14 && std::abs(p[2] - 122) < 16) ++title;
+      if (y < 40 && x < 480 && std::abs(p[0] - 41) < 14 && std::abs(p[1] - 74) < 14 && std::abs(p[2] - 122) < 16)
+        ++title;
       if (x > 480 && p[0] + p[1] + p[2] > 90) ++particles;  // lit pixels right of the panel
     }
   }
@@ -196,8 +200,9 @@ namespace {
 TEST(Demo, SmallSmokeRunProducesEverythingAndMatchingFrames) {
   const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "demo-run";
   fs::remove_all(dir);
-  const auto r = test::run_cli("demo --preset smoke --particles 3000 --seconds 1 --fps 12 --size 320x180 --headless -q --out '" +
-                               dir.string() + "'");
+  const auto r =
+      test::run_cli("demo --preset smoke --particles 3000 --seconds 1 --fps 12 --size 320x180 --headless -q --out '" +
+                    dir.string() + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   for (const char* f : {"demo.abc", "demo.pstream", "contact_sheet.png", "report.json", "report.md", "demo.mp4"}) {
     EXPECT_TRUE(fs::exists(dir / f)) << f;

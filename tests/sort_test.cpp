@@ -24,8 +24,16 @@ std::vector<float> make_keys(std::size_t n, Keys kind, std::uint32_t seed) {
   std::uniform_real_distribution<float> uni(-1000.0f, 1000.0f);
   std::uniform_int_distribution<int> small(0, 7);
   const float denorm = std::numeric_limits<float>::denorm_min();
-  const float specials[] = {0.0f, -0.0f, denorm, -denorm, 3 * denorm, -7 * denorm, std::numeric_limits<float>::min(),
-                            -std::numeric_limits<float>::max(), std::numeric_limits<float>::max(), 1e-30f};
+  const float specials[] = {0.0f,
+                            -0.0f,
+                            denorm,
+                            -denorm,
+                            3 * denorm,
+                            -7 * denorm,
+                            std::numeric_limits<float>::min(),
+                            -std::numeric_limits<float>::max(),
+                            std::numeric_limits<float>::max(),
+                            1e-30f};
   for (auto& v : k) {
     switch (kind) {
       case Keys::Random: v = uni(rng); break;
@@ -36,7 +44,8 @@ std::vector<float> make_keys(std::size_t n, Keys kind, std::uint32_t seed) {
   return k;
 }
 
-void expect_sorted_like_stable_sort(const std::vector<float>& depth, std::span<const std::uint32_t> order, SortMode mode) {
+void expect_sorted_like_stable_sort(const std::vector<float>& depth, std::span<const std::uint32_t> order,
+                                    SortMode mode) {
   const std::size_t n = depth.size();
   ASSERT_EQ(order.size(), n);
   std::vector<std::uint32_t> reference(n);
@@ -64,8 +73,8 @@ TEST(RadixSort, MatchesStableSortForEveryKindOfKeyAndSize) {
       for (unsigned threads : {1u, 2u}) {
         DepthSorter sorter(n, {.threads = threads});
         for (SortMode mode : {SortMode::BackToFront, SortMode::FrontToBack}) {
-          SCOPED_TRACE(testing::Message() << "n=" << n << " kind=" << int(kind) << " threads=" << threads
-                                          << " mode=" << int(mode));
+          SCOPED_TRACE(testing::Message()
+                       << "n=" << n << " kind=" << int(kind) << " threads=" << threads << " mode=" << int(mode));
           expect_sorted_like_stable_sort(depth, sorter.sort_depths(depth, mode), mode);
         }
       }
@@ -107,9 +116,9 @@ TEST(RadixSort, Quantized16KeepsOrderAtItsResolution) {
 }
 
 TEST(OrderPreservingKey, KeepsFloatOrder) {
-  const float values[] = {-std::numeric_limits<float>::infinity(), -1e30f, -1.0f, -std::numeric_limits<float>::denorm_min(),
-                          -0.0f, 0.0f, std::numeric_limits<float>::denorm_min(), 1.0f, 1e30f,
-                          std::numeric_limits<float>::infinity()};
+  const float values[] = {
+      -std::numeric_limits<float>::infinity(),  -1e30f, -1.0f, -std::numeric_limits<float>::denorm_min(), -0.0f, 0.0f,
+      std::numeric_limits<float>::denorm_min(), 1.0f,   1e30f, std::numeric_limits<float>::infinity()};
   for (std::size_t i = 1; i < std::size(values); ++i) {
     EXPECT_LT(order_preserving_key(values[i - 1]), order_preserving_key(values[i])) << values[i];
   }
@@ -171,7 +180,8 @@ TEST(DepthSorter, SortsRecordsWithoutAllocatingPerFrame) {
   for (unsigned threads : {1u, 2u}) {
     for (bool q16 : {false, true}) {
       DepthSorter sorter(n, {.quantize16 = q16, .threads = threads});
-      (void)sorter.sort(reinterpret_cast<const std::byte*>(records.data()), n, 16, view, SortMode::BackToFront, {0, 20});
+      (void)sorter.sort(reinterpret_cast<const std::byte*>(records.data()), n, 16, view, SortMode::BackToFront,
+                        {0, 20});
       const std::uint64_t before = pstream::test::allocation_count();
       for (int frame = 0; frame < 10; ++frame) {
         const auto order = sorter.sort(reinterpret_cast<const std::byte*>(records.data()), n - frame * 1000, 16, view,
@@ -180,8 +190,8 @@ TEST(DepthSorter, SortsRecordsWithoutAllocatingPerFrame) {
       }
       EXPECT_EQ(pstream::test::allocation_count(), before) << "threads=" << threads << " q16=" << q16;
       // Back to front: the first particle drawn is the farthest (most negative z).
-      const auto order = sorter.sort(reinterpret_cast<const std::byte*>(records.data()), n, 16, view, SortMode::BackToFront,
-                                     {0, 20});
+      const auto order =
+          sorter.sort(reinterpret_cast<const std::byte*>(records.data()), n, 16, view, SortMode::BackToFront, {0, 20});
       float min_z = 1e9f;
       for (std::size_t i = 0; i < n; ++i) min_z = std::min(min_z, records[i * 4 + 2]);
       EXPECT_NEAR(records[order[0] * 4 + 2], min_z, q16 ? 20.0f / 65535 * 2 : 0.0f);

@@ -49,7 +49,8 @@ fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::C
 }
 
 // A synthetic clip: frame f holds `count(f)` records whose floats encode (f, i).
-fs::path synthetic_clip(const fs::path& dir, std::uint64_t frames, double fps, const std::function<std::uint64_t(std::uint64_t)>& count,
+fs::path synthetic_clip(const fs::path& dir, std::uint64_t frames, double fps,
+                        const std::function<std::uint64_t(std::uint64_t)>& count,
                         std::uint64_t chunk_size = format::kMinChunkSize) {
   format::Metadata meta;
   meta.fps = fps;
@@ -89,10 +90,12 @@ struct Reference {
   std::vector<std::vector<std::byte>> frames;
 };
 
-::testing::AssertionResult frame_matches(const stream::ParticleStream& s, const Reference& ref, std::uint64_t expected_frame) {
+::testing::AssertionResult frame_matches(const stream::ParticleStream& s, const Reference& ref,
+                                         std::uint64_t expected_frame) {
   const stream::FrameView v = s.frame();
   if (!v.valid) return ::testing::AssertionFailure() << "no frame";
-  if (v.frame != expected_frame) return ::testing::AssertionFailure() << "frame " << v.frame << ", expected " << expected_frame;
+  if (v.frame != expected_frame)
+    return ::testing::AssertionFailure() << "frame " << v.frame << ", expected " << expected_frame;
   const auto& want = ref.frames[expected_frame];
   if (v.bytes() != want.size()) return ::testing::AssertionFailure() << v.bytes() << " bytes, expected " << want.size();
   if (want.empty()) return ::testing::AssertionSuccess();  // an empty frame: no bytes, null spans
@@ -170,7 +173,8 @@ TEST(Stream, LoopingAndSpeed) {
       // 2.5 frames a step: every other step lands half-way between frames, where rounding of
       // the accumulated time may go either way.
       const double t = std::fmod(2.5 * double(k), double(n));
-      const auto lo = static_cast<std::uint64_t>(std::floor(t + 1e-6)) % n, hi = static_cast<std::uint64_t>(std::ceil(t - 1e-6)) % n;
+      const auto lo = static_cast<std::uint64_t>(std::floor(t + 1e-6)) % n,
+                 hi = static_cast<std::uint64_t>(std::ceil(t - 1e-6)) % n;
       const auto shown = s->frame().frame;
       ASSERT_TRUE(shown == lo || shown == hi) << "step " << k << " shows " << shown;
       ASSERT_TRUE(frame_matches(*s, ref, shown)) << "step " << k;
@@ -281,7 +285,7 @@ TEST(Stream, ExactBandwidthNoStallsHalfBandwidthStallsAndRecovers) {
   const std::uint64_t starved = s->debug().stalls;
   EXPECT_GT(starved, 0u) << "at half the bandwidth";
   rate->store(0.0);  // bandwidth returns
-  play_for(0.3);  // catch up
+  play_for(0.3);     // catch up
   const std::uint64_t caught_up = s->debug().stalls;
   play_for(0.6);
   EXPECT_EQ(s->debug().stalls, caught_up) << "no new stalls once the bandwidth is back";
@@ -347,7 +351,8 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
     auto s = stream::ParticleStream::open(file, std::move(o));
     play_until_error(*s);
     ASSERT_EQ(s->state(), stream::PlayState::Error);
-    EXPECT_NE(s->error().find(fault == FaultyIo::Fault::ReadError ? "injected read error" : "chunk 5"), std::string::npos)
+    EXPECT_NE(s->error().find(fault == FaultyIo::Fault::ReadError ? "injected read error" : "chunk 5"),
+              std::string::npos)
         << s->error();
     s->close();
   }

@@ -88,25 +88,37 @@ int bench_all(const BenchAllOptions& o) {
 
   std::ofstream md(o.out);
   md << "# Benchmarks\n\n"
-        "Written by `pstream bench all` on this project's machine (2 cores, shared: absolute times drift, so every stage\n"
-        "is reported against a baseline measured in the same run). Clips are generated: 1,048,576 particles a frame.\n\n";
+        "Written by `pstream bench all` on this project's machine (2 cores, shared: absolute times drift, so every "
+        "stage\n"
+        "is reported against a baseline measured in the same run). Clips are generated: 1,048,576 particles a "
+        "frame.\n\n";
   md << "| stage | ours | baseline (same run) | ratio | target |\n|---|---:|---:|---:|---|\n";
-  md << fmt::format("| read Alembic positions into a caller buffer (10 frames) | {:.2f} ms | memcpy of the same bytes {:.2f} ms | {:.2f} | ≤ 1.5 |\n",
-                    read["read_ms"].get<double>(), read["memcpy_ms"].get<double>(), read["ratio"].get<double>());
-  md << fmt::format("| cook (raw codec) | {:.0f} MB/s | read source + write as many bytes {:.0f} MB/s | {:.2f} | ≥ 0.70 |\n",
-                    cook["cook_mb_s"].get<double>(), cook["baseline_mb_s"].get<double>(), cook["ratio"].get<double>());
-  md << fmt::format("| stream: update + copy a 16 MiB frame, real time | {:.3f} ms median | memcpy of the frame {:.3f} ms | {:.2f} | ≤ 1.3, 0 stalls ({} stalls) |\n",
-                    stream["frame_ms_median"].get<double>(), stream["memcpy_ms_median"].get<double>(), stream["ratio"].get<double>(),
-                    stream["stalls"].get<std::uint64_t>());
-  md << fmt::format("| sort 1M depths back to front | {:.2f} ms (16-bit keys {:.2f}, 2 threads {:.2f}) | vqsort {:.2f} ms, std::sort {:.2f} ms | {:.2f}× vqsort | ≥ 3× vqsort |\n",
-                    sort_one["ours_ms"].get<double>(), sort_one["ours_16bit_ms"].get<double>(), sort_one["ours_2threads_ms"].get<double>(),
-                    sort_one["vqsort_ms"].get<double>(), sort_one["std_sort_ms"].get<double>(), sort_one["ratio_vs_vqsort"].get<double>());
-  md << "\n## Rendering (" << render["gl_renderer"].get<std::string>() << ", 1280×720)\n\n| particles | method | ms a frame |\n|---:|---|---:|\n";
+  md << fmt::format(
+      "| read Alembic positions into a caller buffer (10 frames) | {:.2f} ms | memcpy of the same bytes {:.2f} ms | "
+      "{:.2f} | ≤ 1.5 |\n",
+      read["read_ms"].get<double>(), read["memcpy_ms"].get<double>(), read["ratio"].get<double>());
+  md << fmt::format(
+      "| cook (raw codec) | {:.0f} MB/s | read source + write as many bytes {:.0f} MB/s | {:.2f} | ≥ 0.70 |\n",
+      cook["cook_mb_s"].get<double>(), cook["baseline_mb_s"].get<double>(), cook["ratio"].get<double>());
+  md << fmt::format(
+      "| stream: update + copy a 16 MiB frame, real time | {:.3f} ms median | memcpy of the frame {:.3f} ms | {:.2f} | "
+      "≤ 1.3, 0 stalls ({} stalls) |\n",
+      stream["frame_ms_median"].get<double>(), stream["memcpy_ms_median"].get<double>(), stream["ratio"].get<double>(),
+      stream["stalls"].get<std::uint64_t>());
+  md << fmt::format(
+      "| sort 1M depths back to front | {:.2f} ms (16-bit keys {:.2f}, 2 threads {:.2f}) | vqsort {:.2f} ms, std::sort "
+      "{:.2f} ms | {:.2f}× vqsort | ≥ 3× vqsort |\n",
+      sort_one["ours_ms"].get<double>(), sort_one["ours_16bit_ms"].get<double>(),
+      sort_one["ours_2threads_ms"].get<double>(), sort_one["vqsort_ms"].get<double>(),
+      sort_one["std_sort_ms"].get<double>(), sort_one["ratio_vs_vqsort"].get<double>());
+  md << "\n## Rendering (" << render["gl_renderer"].get<std::string>()
+     << ", 1280×720)\n\n| particles | method | ms a frame |\n|---:|---|---:|\n";
   for (const auto& r : render["results"]) {
     md << fmt::format("| {} | {} | {:.1f} |\n", r["particles"].get<std::uint64_t>(), r["method"].get<std::string>(),
                       r["frame_ms_median"].get<double>());
   }
-  md << "\n## Sorting, every contender (ms, median)\n\n![sorting plot](" << plot.filename().string() << ")\n\n| input | N |";
+  md << "\n## Sorting, every contender (ms, median)\n\n![sorting plot](" << plot.filename().string()
+     << ")\n\n| input | N |";
   std::vector<std::string> keys;
   for (const auto& [k, v] : sort_table[0].items()) {
     if (k.size() > 3 && k.substr(k.size() - 3) == "_ms") keys.push_back(k);
@@ -117,11 +129,13 @@ int bench_all(const BenchAllOptions& o) {
   md << "\n";
   for (const auto& row : sort_table) {
     md << "| " << row["input"].get<std::string>() << " | " << row["n"].get<std::uint64_t>() << " |";
-    for (const auto& k : keys) md << " " << (row.contains(k) ? fmt::format("{:.3f}", row[k].get<double>()) : "—") << " |";
+    for (const auto& k : keys)
+      md << " " << (row.contains(k) ? fmt::format("{:.3f}", row[k].get<double>()) : "—") << " |";
     md << "\n";
   }
   md << "\nRaw results:\n\n```json\n"
-     << json{{"read", read}, {"cook", cook}, {"stream", stream}, {"sort", sort_one}, {"render", render}}.dump(1) << "\n```\n";
+     << json{{"read", read}, {"cook", cook}, {"stream", stream}, {"sort", sort_one}, {"render", render}}.dump(1)
+     << "\n```\n";
   fmt::print("wrote {} and {}\n", o.out, plot.string());
   return 0;
 }

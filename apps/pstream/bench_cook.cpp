@@ -94,9 +94,10 @@ int bench_cook(const BenchCookOptions& options) {
                                               {"repetitions", options.repetitions}}
                            .dump());
   } else {
-    fmt::print("{}: {:.1f} MB of records\n  cook (raw)            {:8.1f} MB/s\n  read + write baseline {:8.1f} MB/s\n"
-               "  ratio                 {:8.2f}  (target >= 0.70)\n",
-               options.file, mb, cook_mb_s, base_mb_s, ratio);
+    fmt::print(
+        "{}: {:.1f} MB of records\n  cook (raw)            {:8.1f} MB/s\n  read + write baseline {:8.1f} MB/s\n"
+        "  ratio                 {:8.2f}  (target >= 0.70)\n",
+        options.file, mb, cook_mb_s, base_mb_s, ratio);
   }
   return 0;
 }

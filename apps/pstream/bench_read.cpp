@@ -79,8 +79,12 @@ int bench_read(const BenchReadOptions& options) {
   const double read = median(read_ms), base = median(memcpy_ms);
   const double ratio = base > 0 ? read / base : 0.0;
   if (options.json) {
-    nlohmann::ordered_json j{{"file", options.file}, {"frames", frames},       {"bytes", total_bytes},
-                             {"read_ms", read},      {"memcpy_ms", base},     {"ratio", ratio},
+    nlohmann::ordered_json j{{"file", options.file},
+                             {"frames", frames},
+                             {"bytes", total_bytes},
+                             {"read_ms", read},
+                             {"memcpy_ms", base},
+                             {"ratio", ratio},
                              {"repetitions", options.repetitions}};
     fmt::print("{}\n", j.dump());
   } else {

@@ -23,7 +23,8 @@ int bench_render(const BenchRenderOptions& o) {
   for (std::uint64_t n : {std::uint64_t{100000}, std::uint64_t{1} << 20}) {
     std::vector<float> records(n * 4);
     for (std::uint64_t i = 0; i < n; ++i) {
-      records[i * 4] = uni(rng), records[i * 4 + 1] = uni(rng), records[i * 4 + 2] = uni(rng), records[i * 4 + 3] = 0.004f;
+      records[i * 4] = uni(rng), records[i * 4 + 1] = uni(rng), records[i * 4 + 2] = uni(rng),
+                  records[i * 4 + 3] = 0.004f;
     }
     for (bool points : {false, true}) {
       render::RendererOptions ro;
@@ -44,13 +45,17 @@ int bench_render(const BenchRenderOptions& o) {
         renderer.draw(b);
         renderer.end_frame();
         glFinish();
-        if (r > 0) ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());  // first warms up
+        if (r > 0)
+          ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());  // first warms up
       }
       std::sort(ms.begin(), ms.end());
-      results.push_back({{"particles", n}, {"method", points ? "points" : "instanced_quads"}, {"frame_ms_median", ms[ms.size() / 2]}});
+      results.push_back({{"particles", n},
+                         {"method", points ? "points" : "instanced_quads"},
+                         {"frame_ms_median", ms[ms.size() / 2]}});
     }
   }
-  nlohmann::ordered_json j{{"gl_renderer", render::Renderer::gl_renderer()}, {"width", 1280}, {"height", 720}, {"results", results}};
+  nlohmann::ordered_json j{
+      {"gl_renderer", render::Renderer::gl_renderer()}, {"width", 1280}, {"height", 720}, {"results", results}};
   if (o.json) {
     fmt::print("{}\n", j.dump());
   } else {

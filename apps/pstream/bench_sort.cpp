@@ -29,7 +29,8 @@ std::vector<float> make_input(const std::string& kind, std::size_t n, std::uint3
     for (auto& v : d) v = uni(rng);
   } else if (kind == "nearly_sorted") {  // the next frame of a coherent simulation
     std::normal_distribution<float> jitter(0.0f, 2.0f);
-    for (std::size_t i = 0; i < n; ++i) d[i] = -1000.0f + 2000.0f * float(i) / float(n) + jitter(rng) * 2000.0f / float(n);
+    for (std::size_t i = 0; i < n; ++i)
+      d[i] = -1000.0f + 2000.0f * float(i) / float(n) + jitter(rng) * 2000.0f / float(n);
   } else {  // reversed
     for (std::size_t i = 0; i < n; ++i) d[i] = 1000.0f - 2000.0f * float(i) / float(n);
   }
@@ -41,30 +42,38 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, double>>>& series, const std::string& title) {
+std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, double>>>& series,
+                     const std::string& title) {
   const double W = 760, H = 460, L = 70, R = 170, T = 40, B = 50;
   double xmin = 1e300, xmax = 0, ymin = 1e300, ymax = 0;
   for (const auto& [name, pts] : series) {
     for (auto [x, y] : pts) {
-      xmin = std::min(xmin, x), xmax = std::max(xmax, x), ymin = std::min(ymin, std::max(y, 1e-4)), ymax = std::max(ymax, y);
+      xmin = std::min(xmin, x), xmax = std::max(xmax, x), ymin = std::min(ymin, std::max(y, 1e-4)),
+      ymax = std::max(ymax, y);
     }
   }
   const double lx0 = std::floor(std::log10(xmin)), lx1 = std::ceil(std::log10(xmax));
   const double ly0 = std::floor(std::log10(ymin)), ly1 = std::ceil(std::log10(ymax));
   auto px = [&](double x) { return L + (std::log10(x) - lx0) / (lx1 - lx0) * (W - L - R); };
   auto py = [&](double y) { return H - B - (std::log10(std::max(y, 1e-4)) - ly0) / (ly1 - ly0) * (H - T - B); };
-  std::string s = fmt::format(R"(<svg xmlns="http://www.w3.org/2000/svg" width="{}" height="{}" font-family="sans-serif" font-size="12">)", W, H);
-  s += fmt::format(R"(<rect width="100%" height="100%" fill="white"/><text x="{}" y="22" font-size="15">{}</text>)", L, title);
+  std::string s = fmt::format(
+      R"(<svg xmlns="http://www.w3.org/2000/svg" width="{}" height="{}" font-family="sans-serif" font-size="12">)", W,
+      H);
+  s += fmt::format(R"(<rect width="100%" height="100%" fill="white"/><text x="{}" y="22" font-size="15">{}</text>)", L,
+                   title);
   for (double e = lx0; e <= lx1; ++e) {
-    s += fmt::format(R"(<line x1="{0}" y1="{1}" x2="{0}" y2="{2}" stroke="#ddd"/><text x="{0}" y="{3}" text-anchor="middle">{4}</text>)",
-                     px(std::pow(10, e)), T, H - B, H - B + 18, fmt::format("1e{}", e));
+    s += fmt::format(
+        R"(<line x1="{0}" y1="{1}" x2="{0}" y2="{2}" stroke="#ddd"/><text x="{0}" y="{3}" text-anchor="middle">{4}</text>)",
+        px(std::pow(10, e)), T, H - B, H - B + 18, fmt::format("1e{}", e));
   }
   for (double e = ly0; e <= ly1; ++e) {
-    s += fmt::format(R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="#ddd"/><text x="{3}" y="{4}" text-anchor="end">{5} ms</text>)",
-                     L, py(std::pow(10, e)), W - R, L - 6, py(std::pow(10, e)) + 4, fmt::format("{:g}", std::pow(10, e)));
+    s += fmt::format(
+        R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="#ddd"/><text x="{3}" y="{4}" text-anchor="end">{5} ms</text>)",
+        L, py(std::pow(10, e)), W - R, L - 6, py(std::pow(10, e)) + 4, fmt::format("{:g}", std::pow(10, e)));
   }
   s += fmt::format(R"(<text x="{}" y="{}" text-anchor="middle">particles (N)</text>)", (L + W - R) / 2, H - 12);
-  const char* colors[] = {"#999", "#bbb", "#8c564b", "#e377c2", "#7f7f7f", "#1f77b4", "#17becf", "#ff7f0e", "#d62728", "#2ca02c", "#9467bd"};
+  const char* colors[] = {"#999",    "#bbb",    "#8c564b", "#e377c2", "#7f7f7f", "#1f77b4",
+                          "#17becf", "#ff7f0e", "#d62728", "#2ca02c", "#9467bd"};
   int k = 0;
   for (const auto& [name, pts] : series) {
     const char* c = colors[k % 11];
@@ -72,8 +81,9 @@ std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, d
     for (auto [x, y] : pts) path += fmt::format("{}{:.1f},{:.1f} ", path.empty() ? "M" : "L", px(x), py(y));
     const bool ours = name.rfind("ours", 0) == 0;
     s += fmt::format(R"(<path d="{}" fill="none" stroke="{}" stroke-width="{}"/>)", path, c, ours ? 3 : 1.5);
-    s += fmt::format(R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="{3}" stroke-width="3"/><text x="{4}" y="{5}">{6}</text>)",
-                     W - R + 10, T + 10 + 18 * k, W - R + 30, c, W - R + 36, T + 14 + 18 * k, name);
+    s += fmt::format(
+        R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="{3}" stroke-width="3"/><text x="{4}" y="{5}">{6}</text>)",
+        W - R + 10, T + 10 + 18 * k, W - R + 30, c, W - R + 36, T + 14 + 18 * k, name);
     ++k;
   }
   return s + "</svg>\n";
@@ -82,10 +92,10 @@ std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, d
 }  // namespace
 
 int bench_sort(const BenchSortOptions& o) {
-  const std::vector<std::size_t> sizes = o.n ? std::vector<std::size_t>{o.n}
-                                             : std::vector<std::size_t>{1000, 16384, 262144, 1048576, 4194304};
-  const std::vector<std::string> inputs = o.n ? std::vector<std::string>{"random"}
-                                              : std::vector<std::string>{"random", "nearly_sorted", "reversed"};
+  const std::vector<std::size_t> sizes =
+      o.n ? std::vector<std::size_t>{o.n} : std::vector<std::size_t>{1000, 16384, 262144, 1048576, 4194304};
+  const std::vector<std::string> inputs =
+      o.n ? std::vector<std::string>{"random"} : std::vector<std::string>{"random", "nearly_sorted", "reversed"};
   bench::SortBench bench(*std::max_element(sizes.begin(), sizes.end()));
   std::vector<std::byte> copy_from(sizes.back() * 8), copy_to(sizes.back() * 8);
   nlohmann::ordered_json results = nlohmann::ordered_json::array();
@@ -117,7 +127,8 @@ int bench_sort(const BenchSortOptions& o) {
         for (std::size_t i = 1; i < n; ++i) {
           const float a = depths[bench.result[i - 1]], b = depths[bench.result[i]];
           const float tolerance = c.name == "ours_16bit" ? 2000.0f / 65535.0f : 0.0f;
-          if (b + tolerance < a) throw Error(fmt::format("bench sort: {} did not sort {} input of {}", c.name, input, n));
+          if (b + tolerance < a)
+            throw Error(fmt::format("bench sort: {} did not sort {} input of {}", c.name, input, n));
         }
         row[std::string(c.name) + "_ms"] = median(ms);
         if (input == "random") series[std::string(c.name)].emplace_back(double(n), median(ms));
@@ -163,11 +174,12 @@ int bench_sort(const BenchSortOptions& o) {
     if (o.json) {
       fmt::print("{}\n", j.dump());
     } else {
-      fmt::print("{} random depths: ours {:.2f} ms (2 threads {:.2f}, 16-bit {:.2f}), vqsort {:.2f} ms, std::sort {:.2f} ms, "
-                 "memcpy of the pairs {:.2f} ms\n  vqsort / ours = {:.2f}x (goal 3x)\n",
-                 o.n, r["ours_ms"].get<double>(), r["ours_2threads_ms"].get<double>(), r["ours_16bit_ms"].get<double>(),
-                 r["vqsort_ms"].get<double>(), r["std_sort_ms"].get<double>(), r["memcpy_pairs_ms"].get<double>(),
-                 r["ratio_vs_vqsort"].get<double>());
+      fmt::print(
+          "{} random depths: ours {:.2f} ms (2 threads {:.2f}, 16-bit {:.2f}), vqsort {:.2f} ms, std::sort {:.2f} ms, "
+          "memcpy of the pairs {:.2f} ms\n  vqsort / ours = {:.2f}x (goal 3x)\n",
+          o.n, r["ours_ms"].get<double>(), r["ours_2threads_ms"].get<double>(), r["ours_16bit_ms"].get<double>(),
+          r["vqsort_ms"].get<double>(), r["std_sort_ms"].get<double>(), r["memcpy_pairs_ms"].get<double>(),
+          r["ratio_vs_vqsort"].get<double>());
     }
     return 0;
   }

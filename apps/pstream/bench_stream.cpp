@@ -28,7 +28,8 @@ double percentile(std::vector<double> v, double q) {
 }
 
 // A clip of `count` particles a frame orbiting a centre, written with the raw codec.
-void generate_clip(const std::filesystem::path& path, std::uint64_t count, std::uint64_t frames, double fps, bool show) {
+void generate_clip(const std::filesystem::path& path, std::uint64_t count, std::uint64_t frames, double fps,
+                   bool show) {
   format::Metadata meta;
   meta.fps = fps;
   meta.layout = format::default_layout();
@@ -140,8 +141,8 @@ int bench_stream(const BenchStreamOptions& o) {
   if (o.json) {
     fmt::print("{}\n", j.dump());
   } else {
-    fmt::print("{} particles a frame ({:.1f} MiB), {} frames in real time at {:g} fps, cache {} x {} MiB\n", m.max_count,
-               m.max_count * m.record_size / 1048576.0, total, m.fps, d.slots.size(), m.chunk_size >> 20);
+    fmt::print("{} particles a frame ({:.1f} MiB), {} frames in real time at {:g} fps, cache {} x {} MiB\n",
+               m.max_count, m.max_count * m.record_size / 1048576.0, total, m.fps, d.slots.size(), m.chunk_size >> 20);
     fmt::print("  update + copy frame   median {:.3f} ms, p99 {:.3f} ms\n", frame_med, percentile(frame_ms, 0.99));
     fmt::print("  memcpy of the frame   median {:.3f} ms\n", copy_med);
     fmt::print("  ratio {:.2f} (target <= 1.3), stalls {}\n", frame_med / copy_med, d.stalls);

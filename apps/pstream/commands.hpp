@@ -83,7 +83,7 @@ int run_render(const RenderCli& cli, RenderStats* stats = nullptr);
 struct ViewerCli {
   std::vector<std::string> files;
   int width = 1280, height = 720;
-  int frames_to_run = 0;  // > 0: quit after that many frames (scripted runs, tests)
+  int frames_to_run = 0;   // > 0: quit after that many frames (scripted runs, tests)
   std::string screenshot;  // with frames_to_run: save the last frame (PNG)
 };
 int run_viewer(const ViewerCli& cli);

@@ -15,7 +15,8 @@ std::uint64_t parse_size(const std::string& text) {
   std::uint64_t value = 0;
   const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
   const std::string unit(ptr, text.data() + text.size());
-  if (ec != std::errc() || value == 0) throw Error(fmt::format("--chunk-size '{}': expected a size such as 2MiB", text));
+  if (ec != std::errc() || value == 0)
+    throw Error(fmt::format("--chunk-size '{}': expected a size such as 2MiB", text));
   if (unit.empty() || unit == "B") return value;
   if (unit == "K" || unit == "KiB" || unit == "k") return value << 10;
   if (unit == "M" || unit == "MiB") return value << 20;
@@ -25,10 +26,14 @@ std::uint64_t parse_size(const std::string& text) {
 void parse_codec(const std::string& text, cook::Options& o) {
   const auto colon = text.find(':');
   const std::string name = text.substr(0, colon);
-  if (name == "raw") o.codec = format::Codec::Raw;
-  else if (name == "lz4") o.codec = format::Codec::Lz4;
-  else if (name == "zstd") o.codec = format::Codec::Zstd;
-  else throw Error(fmt::format("--codec '{}': expected raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL", text));
+  if (name == "raw")
+    o.codec = format::Codec::Raw;
+  else if (name == "lz4")
+    o.codec = format::Codec::Lz4;
+  else if (name == "zstd")
+    o.codec = format::Codec::Zstd;
+  else
+    throw Error(fmt::format("--codec '{}': expected raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL", text));
   if (colon != std::string::npos) {
     const std::string level = text.substr(colon + 1);
     const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.codec_level);
@@ -76,7 +81,8 @@ int run_cook(const CookCli& cli) {
   o.color_from = cli.color_from;
   for (std::size_t start = 0; start < cli.attributes.size();) {
     const auto comma = cli.attributes.find(',', start);
-    const std::string name = cli.attributes.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    const std::string name =
+        cli.attributes.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
     if (!name.empty()) o.attributes.push_back(name);
     if (comma == std::string::npos) break;
     start = comma + 1;
@@ -95,10 +101,12 @@ int run_cook(const CookCli& cli) {
   });
   const double ratio = r.file_bytes ? double(r.stream_bytes) / double(r.file_bytes) : 0.0;
   if (cli.json) {
-    nlohmann::ordered_json j{{"output", cli.output},   {"object", r.object},           {"frames", r.frames},
-                             {"chunks", r.chunks},     {"particles", r.particles},     {"dropped_invalid", r.dropped_invalid},
-                             {"input_bytes", r.input_bytes}, {"stream_bytes", r.stream_bytes}, {"file_bytes", r.file_bytes},
-                             {"compression_ratio", ratio},   {"seconds", r.seconds}};
+    nlohmann::ordered_json j{{"output", cli.output},         {"object", r.object},
+                             {"frames", r.frames},           {"chunks", r.chunks},
+                             {"particles", r.particles},     {"dropped_invalid", r.dropped_invalid},
+                             {"input_bytes", r.input_bytes}, {"stream_bytes", r.stream_bytes},
+                             {"file_bytes", r.file_bytes},   {"compression_ratio", ratio},
+                             {"seconds", r.seconds}};
     fmt::print("{}\n", j.dump());
     return 0;
   }
@@ -107,10 +115,13 @@ int run_cook(const CookCli& cli) {
       fmt::print(stderr, "note: the source has no widths; every particle got scale {:g} (choose with --scale-from)\n",
                  r.default_scale);
     }
-    if (r.dropped_invalid) fmt::print(stderr, "note: dropped {} particles with NaN or infinite positions\n", r.dropped_invalid);
-    fmt::print("{} -> {}: {} frames, {} particles, {} chunks, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} s\n",
-               r.object, cli.output, r.frames, r.particles, r.chunks, r.file_bytes / 1048576.0, ratio,
-               r.stream_bytes / 1048576.0, r.seconds);
+    if (r.dropped_invalid)
+      fmt::print(stderr, "note: dropped {} particles with NaN or infinite positions\n", r.dropped_invalid);
+    fmt::print(
+        "{} -> {}: {} frames, {} particles, {} chunks, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} "
+        "s\n",
+        r.object, cli.output, r.frames, r.particles, r.chunks, r.file_bytes / 1048576.0, ratio,
+        r.stream_bytes / 1048576.0, r.seconds);
   }
   return 0;
 }

@@ -56,7 +56,8 @@ void contact_sheet(const std::filesystem::path& frames, std::size_t count, const
         for (int c = 0; c < 4; ++c) {
           int sum = 0;
           for (int dy = 0; dy < kShrink; ++dy) {
-            for (int dx = 0; dx < kShrink; ++dx) sum += img[(std::size_t(y * kShrink + dy) * fw + x * kShrink + dx) * 4 + c];
+            for (int dx = 0; dx < kShrink; ++dx)
+              sum += img[(std::size_t(y * kShrink + dy) * fw + x * kShrink + dx) * 4 + c];
           }
           sheet[(std::size_t(oy + y) * tw * kColumns + ox + x) * 4 + c] = std::uint8_t(sum / (kShrink * kShrink));
         }
@@ -111,10 +112,13 @@ int run_demo(const DemoCli& cli) {
     writer.close();
     write_ms += ms_since(t0);
   }
-  report["simulation"] = {{"frames", sim.frame_count()}, {"peak_particles", peak}, {"sim_ms", sim_ms}, {"abc_write_ms", write_ms},
+  report["simulation"] = {{"frames", sim.frame_count()},
+                          {"peak_particles", peak},
+                          {"sim_ms", sim_ms},
+                          {"abc_write_ms", write_ms},
                           {"abc_bytes", fs::file_size(abc)}};
-  say(fmt::format("simulated {} frames, peak {} particles: {:.1f} s; {} ({:.1f} MiB) in {:.1f} s", sim.frame_count(), peak,
-                  sim_ms / 1000, abc.string(), fs::file_size(abc) / 1048576.0, write_ms / 1000));
+  say(fmt::format("simulated {} frames, peak {} particles: {:.1f} s; {} ({:.1f} MiB) in {:.1f} s", sim.frame_count(),
+                  peak, sim_ms / 1000, abc.string(), fs::file_size(abc) / 1048576.0, write_ms / 1000));
 
   // 2. Cook.
   cook::Options co;
@@ -123,9 +127,13 @@ int run_demo(const DemoCli& cli) {
   co.codec = format::Codec::Lz4;
   co.command_line = "pstream demo (cook stage)";
   ProgressBar cook_bar("cook", !cli.quiet);
-  const cook::Report cr = cook::cook(co, [&](const cook::Progress& p) { cook_bar.update(p.frames_done, p.frame_count, "frames"); });
-  report["cook"] = {{"ms", cr.seconds * 1000}, {"pstream_bytes", cr.file_bytes}, {"record_stream_bytes", cr.stream_bytes},
-                    {"compression_ratio", double(cr.stream_bytes) / double(cr.file_bytes)}, {"chunks", cr.chunks}};
+  const cook::Report cr =
+      cook::cook(co, [&](const cook::Progress& p) { cook_bar.update(p.frames_done, p.frame_count, "frames"); });
+  report["cook"] = {{"ms", cr.seconds * 1000},
+                    {"pstream_bytes", cr.file_bytes},
+                    {"record_stream_bytes", cr.stream_bytes},
+                    {"compression_ratio", double(cr.stream_bytes) / double(cr.file_bytes)},
+                    {"chunks", cr.chunks}};
   say(fmt::format("cooked {} ({:.1f} MiB, {:.2f}x) in {:.1f} s", co.output.string(), cr.file_bytes / 1048576.0,
                   double(cr.stream_bytes) / double(cr.file_bytes), cr.seconds));
 
@@ -184,16 +192,22 @@ int run_demo(const DemoCli& cli) {
   const auto r0 = Clock::now();
   run_render(rc, &rs);
   const std::vector<double>& render_ms = rs.frame_ms;
-  report["render"] = {{"frame_ms", percentiles(render_ms)}, {"total_ms", ms_since(r0)}, {"frames", render_ms.size()},
-                      {"size", cli.size}, {"gl_renderer", rs.gl_renderer}};
+  report["render"] = {{"frame_ms", percentiles(render_ms)},
+                      {"total_ms", ms_since(r0)},
+                      {"frames", render_ms.size()},
+                      {"size", cli.size},
+                      {"gl_renderer", rs.gl_renderer}};
   contact_sheet(rc.out, render_ms.size(), dir / "contact_sheet.png");
   if (!have_ffmpeg) say("note: no demo.mp4 — the ffmpeg program is not installed (apt-get install ffmpeg)");
 
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
   report["peak_rss_bytes"] = std::uint64_t(usage.ru_maxrss) * 1024;
-  report["outputs"] = {{"abc", abc.string()}, {"pstream", co.output.string()}, {"frames", rc.out},
-                       {"video", have_ffmpeg ? rc.video : ""}, {"contact_sheet", (dir / "contact_sheet.png").string()}};
+  report["outputs"] = {{"abc", abc.string()},
+                       {"pstream", co.output.string()},
+                       {"frames", rc.out},
+                       {"video", have_ffmpeg ? rc.video : ""},
+                       {"contact_sheet", (dir / "contact_sheet.png").string()}};
   std::ofstream(dir / "report.json") << report.dump(2) << "\n";
 
   const auto med = [&](const char* stage) { return report[stage]["frame_ms"]["median"].get<double>(); };
@@ -201,20 +215,21 @@ int run_demo(const DemoCli& cli) {
   std::ofstream md(dir / "report.md");
   md << fmt::format("# pstream demo — {}\n\n![contact sheet](contact_sheet.png)\n\n", cli.preset);
   md << "| stage | figure |\n|---|---|\n";
-  md << fmt::format("| simulate | {} frames at {:g} fps, peak {} particles, {:.2f} s |\n", sim.frame_count(), cli.fps, peak, sim_ms / 1000);
+  md << fmt::format("| simulate | {} frames at {:g} fps, peak {} particles, {:.2f} s |\n", sim.frame_count(), cli.fps,
+                    peak, sim_ms / 1000);
   md << fmt::format("| write Alembic | {:.1f} MiB in {:.2f} s |\n", fs::file_size(abc) / 1048576.0, write_ms / 1000);
-  md << fmt::format("| cook | {:.1f} MiB .pstream, {:.2f}x smaller than the records, {:.2f} s |\n", cr.file_bytes / 1048576.0,
-                    double(cr.stream_bytes) / double(cr.file_bytes), cr.seconds);
-  md << fmt::format("| stream (real time) | {:.3f} ms median, {:.3f} ms p99 a frame; {} stalls; cache {:.1f} MiB |\n", med("stream"),
-                    p99("stream"), stalls, cache_bytes / 1048576.0);
+  md << fmt::format("| cook | {:.1f} MiB .pstream, {:.2f}x smaller than the records, {:.2f} s |\n",
+                    cr.file_bytes / 1048576.0, double(cr.stream_bytes) / double(cr.file_bytes), cr.seconds);
+  md << fmt::format("| stream (real time) | {:.3f} ms median, {:.3f} ms p99 a frame; {} stalls; cache {:.1f} MiB |\n",
+                    med("stream"), p99("stream"), stalls, cache_bytes / 1048576.0);
   md << fmt::format("| sort (back to front) | {:.3f} ms median, {:.3f} ms p99 |\n", med("sort"), p99("sort"));
   md << fmt::format("| render {} | {:.1f} ms median, {:.1f} ms p99 ({}) |\n", cli.size, med("render"), p99("render"),
                     rs.gl_renderer);
   md << fmt::format("| peak RSS | {:.0f} MiB (it counts the pages of the memory-mapped Alembic file the cook read) |\n",
                     usage.ru_maxrss / 1024.0);
   md << "\nEvery figure was measured in this run (report.json has them all).\n";
-  say(fmt::format("report: {} and {}; frames in {}; contact sheet {}", (dir / "report.md").string(), (dir / "report.json").string(),
-                  rc.out, (dir / "contact_sheet.png").string()));
+  say(fmt::format("report: {} and {}; frames in {}; contact sheet {}", (dir / "report.md").string(),
+                  (dir / "report.json").string(), rc.out, (dir / "contact_sheet.png").string()));
   return 0;
 }
 

@@ -34,8 +34,8 @@ std::string sampling_line(const TimeSampling& ts) {
       return fmt::format("uniform, {:.6g} s per sample ({:.6g} fps), starts at {:.6g} s", ts.time_per_cycle,
                          1.0 / ts.time_per_cycle, ts.stored_times[0]);
     case TimeSamplingType::Cyclic:
-      return fmt::format("cyclic, {} samples every {:.6g} s, starts at {:.6g} s", ts.samples_per_cycle, ts.time_per_cycle,
-                         ts.stored_times[0]);
+      return fmt::format("cyclic, {} samples every {:.6g} s, starts at {:.6g} s", ts.samples_per_cycle,
+                         ts.time_per_cycle, ts.stored_times[0]);
     case TimeSamplingType::Acyclic:
       return fmt::format("acyclic, {} explicit times from {:.6g} s", ts.stored_times.size(), ts.stored_times.front());
   }
@@ -45,8 +45,8 @@ std::string sampling_line(const TimeSampling& ts) {
 void print_param(const GeomParam& p) {
   const PropertyHeader& h = p.values().header();
   std::string interp = h.interpretation();
-  fmt::print("      {:<14} {:<11} {:<8}{}{}\n", p.name(), type_name(h), geom_scope_name(p.scope()), p.indexed() ? " indexed" : "",
-             interp.empty() ? "" : " (" + interp + ")");
+  fmt::print("      {:<14} {:<11} {:<8}{}{}\n", p.name(), type_name(h), geom_scope_name(p.scope()),
+             p.indexed() ? " indexed" : "", interp.empty() ? "" : " (" + interp + ")");
 }
 
 void print_points(const Object& o) {
@@ -98,7 +98,8 @@ int info_alembic(const InfoOptions& options) {
   for (const Object& o : archive.objects()) {
     const auto depth = std::count(o.full_name().begin(), o.full_name().end(), '/');
     const std::string schema = o.schema();
-    fmt::print("  {}{}  [{}]\n", std::string(2 * (depth - 1), ' '), o.full_name(), schema.empty() ? "no schema" : schema);
+    fmt::print("  {}{}  [{}]\n", std::string(2 * (depth - 1), ' '), o.full_name(),
+               schema.empty() ? "no schema" : schema);
     if (Points::matches(o)) print_points(o);
   }
   return 0;

@@ -18,7 +18,8 @@ using json = nlohmann::ordered_json;
 json layout_json(const Metadata& m) {
   json out = json::array();
   for (const Attribute& a : m.layout) {
-    out.push_back({{"name", a.name}, {"type", attribute_type_name(a.type)}, {"components", a.components}, {"offset", a.offset}});
+    out.push_back(
+        {{"name", a.name}, {"type", attribute_type_name(a.type)}, {"components", a.components}, {"offset", a.offset}});
   }
   return out;
 }
@@ -50,27 +51,29 @@ int info_pstream(const InfoPstreamOptions& options) {
   const std::uint64_t stored = stored_bytes(m);
   const double ratio = stored ? double(m.stream_size()) / double(stored) : 1.0;
   if (options.json) {
-    json j{{"format", "pstream"},
-           {"file", options.file},
-           {"version", m.version},
-           {"flags", {{"xforms_baked", (m.flags & kFlagXformsBaked) != 0}, {"interpolated", (m.flags & kFlagInterpolated) != 0}}},
-           {"source", {{"file", m.source_file}, {"object", m.source_object}}},
-           {"cooked_with", m.cooked_with},
-           {"fps", m.fps},
-           {"time_of_frame0", m.time_of_frame0},
-           {"frame_count", m.frame_count()},
-           {"particles", {{"min", m.min_count}, {"avg", m.avg_count}, {"max", m.max_count}}},
-           {"bounds", bounds_json(m.bounds)},
-           {"record_size", m.record_size},
-           {"layout", layout_json(m)},
-           {"chunk_size", m.chunk_size},
-           {"chunk_count", m.chunk_count()},
-           {"particles_per_chunk", m.particles_per_chunk()},
-           {"stream_bytes", m.stream_size()},
-           {"stored_bytes", stored},
-           {"file_bytes", reader.file_size()},
-           {"compression_ratio", ratio},
-           {"codecs", codecs}};
+    json j{
+        {"format", "pstream"},
+        {"file", options.file},
+        {"version", m.version},
+        {"flags",
+         {{"xforms_baked", (m.flags & kFlagXformsBaked) != 0}, {"interpolated", (m.flags & kFlagInterpolated) != 0}}},
+        {"source", {{"file", m.source_file}, {"object", m.source_object}}},
+        {"cooked_with", m.cooked_with},
+        {"fps", m.fps},
+        {"time_of_frame0", m.time_of_frame0},
+        {"frame_count", m.frame_count()},
+        {"particles", {{"min", m.min_count}, {"avg", m.avg_count}, {"max", m.max_count}}},
+        {"bounds", bounds_json(m.bounds)},
+        {"record_size", m.record_size},
+        {"layout", layout_json(m)},
+        {"chunk_size", m.chunk_size},
+        {"chunk_count", m.chunk_count()},
+        {"particles_per_chunk", m.particles_per_chunk()},
+        {"stream_bytes", m.stream_size()},
+        {"stored_bytes", stored},
+        {"file_bytes", reader.file_size()},
+        {"compression_ratio", ratio},
+        {"codecs", codecs}};
     if (options.frames) {
       json frames = json::array();
       std::vector<std::byte> buffer(m.max_count * m.record_size), scratch(m.chunk_size);
@@ -89,24 +92,26 @@ int info_pstream(const InfoPstreamOptions& options) {
     fmt::print("{}\n", j.dump(1));
     return 0;
   }
-  fmt::print("{}: ParticleStream clip (format version {}), {:.1f} MiB\n", options.file, m.version, reader.file_size() / 1048576.0);
+  fmt::print("{}: ParticleStream clip (format version {}), {:.1f} MiB\n", options.file, m.version,
+             reader.file_size() / 1048576.0);
   fmt::print("  source        {} {}\n", m.source_file, m.source_object);
   if (!m.cooked_with.empty()) fmt::print("  cooked with   {}\n", m.cooked_with);
   fmt::print("  frames        {} at {:.6g} fps, from {:.6g} s{}{}\n", m.frame_count(), m.fps, m.time_of_frame0,
              m.flags & kFlagXformsBaked ? ", world space" : ", object space",
              m.flags & kFlagInterpolated ? ", interpolated" : "");
   fmt::print("  particles     min {} / avg {:.1f} / max {} per frame\n", m.min_count, m.avg_count, m.max_count);
-  fmt::print("  bounds        ({:.4g}, {:.4g}, {:.4g}) .. ({:.4g}, {:.4g}, {:.4g})\n", m.bounds[0], m.bounds[1], m.bounds[2],
-             m.bounds[3], m.bounds[4], m.bounds[5]);
+  fmt::print("  bounds        ({:.4g}, {:.4g}, {:.4g}) .. ({:.4g}, {:.4g}, {:.4g})\n", m.bounds[0], m.bounds[1],
+             m.bounds[2], m.bounds[3], m.bounds[4], m.bounds[5]);
   fmt::print("  record        {} bytes:", m.record_size);
   for (const Attribute& a : m.layout) {
-    fmt::print(" {}({}{})@{}", a.name, attribute_type_name(a.type), a.components > 1 ? fmt::format("x{}", a.components) : "",
-               a.offset);
+    fmt::print(" {}({}{})@{}", a.name, attribute_type_name(a.type),
+               a.components > 1 ? fmt::format("x{}", a.components) : "", a.offset);
   }
-  fmt::print("\n  chunks        {} of {} KiB ({:.0f} particles each)", m.chunk_count(), m.chunk_size >> 10, m.particles_per_chunk());
+  fmt::print("\n  chunks        {} of {} KiB ({:.0f} particles each)", m.chunk_count(), m.chunk_size >> 10,
+             m.particles_per_chunk());
   for (const auto& [name, n] : codecs) fmt::print(", {} {}", n, name);
-  fmt::print("\n  size          {:.1f} MiB of records stored in {:.1f} MiB: compression {:.2f}x\n", m.stream_size() / 1048576.0,
-             stored / 1048576.0, ratio);
+  fmt::print("\n  size          {:.1f} MiB of records stored in {:.1f} MiB: compression {:.2f}x\n",
+             m.stream_size() / 1048576.0, stored / 1048576.0, ratio);
   return 0;
 }
 
@@ -130,8 +135,11 @@ int verify_pstream(const std::string& file, bool as_json) {
     errors.push_back(e.what());
   }
   if (as_json) {
-    fmt::print("{}\n", json{{"file", file}, {"ok", errors.empty()}, {"chunks_verified", chunks}, {"frames", frames},
-                            {"errors", errors}}.dump());
+    fmt::print(
+        "{}\n",
+        json{
+            {"file", file}, {"ok", errors.empty()}, {"chunks_verified", chunks}, {"frames", frames}, {"errors", errors}}
+            .dump());
   } else if (errors.empty()) {
     fmt::print("{}: OK — {} frames, {} chunks, every checksum and index entry verified\n", file, frames, chunks);
   } else {

@@ -2,8 +2,8 @@
 #include <cstdio>
 #include <exception>
 
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
+#include <CLI/CLI.hpp>
 
 #include "commands.hpp"
 #include "particlestream/error.hpp"
@@ -43,40 +43,51 @@ int main(int argc, char** argv) {
   info_cmd->add_flag("--json", info_json,
                      "Print JSON. For Alembic: the alembic-fixture-expected/1 schema (docs/alembic.md), comparable "
                      "value by value with the official library. For .pstream: header, layout and chunk summary");
-  info_cmd->add_flag("--frames", info_frames, "With --json on a .pstream: per-frame count and float64 sums of x, y, z, scale");
+  info_cmd->add_flag("--frames", info_frames,
+                     "With --json on a .pstream: per-frame count and float64 sums of x, y, z, scale");
 
   // cook -------------------------------------------------------------------------------------
   CookCli cook;
   cook.command_line = join_args(argc, argv);
-  auto* cook_cmd = app.add_subcommand(
-      "cook", "Cook an Alembic point cache or a numbered PLY sequence into a .pstream\n\n"
-              "Examples:\n"
-              "  pstream cook splash.abc -o splash.pstream\n"
-              "  pstream cook fx.abc --object /fx/sparks -o sparks.pstream --codec zstd:5\n"
-              "  pstream cook fx.abc --merge --fps 60 --interpolate -o fx.pstream\n"
-              "  pstream cook render/frame.0001.ply --fps 24 -o smoke.pstream");
+  auto* cook_cmd = app.add_subcommand("cook",
+                                      "Cook an Alembic point cache or a numbered PLY sequence into a .pstream\n\n"
+                                      "Examples:\n"
+                                      "  pstream cook splash.abc -o splash.pstream\n"
+                                      "  pstream cook fx.abc --object /fx/sparks -o sparks.pstream --codec zstd:5\n"
+                                      "  pstream cook fx.abc --merge --fps 60 --interpolate -o fx.pstream\n"
+                                      "  pstream cook render/frame.0001.ply --fps 24 -o smoke.pstream");
   cook_cmd->add_option("input", cook.input, "Alembic file, or any file of a PLY sequence (frame.0001.ply)")
       ->required()
       ->check(CLI::ExistingFile);
-  cook_cmd->add_option("-o,--output", cook.output, "The .pstream to write (written to a temporary file, renamed on success)")
+  cook_cmd
+      ->add_option("-o,--output", cook.output,
+                   "The .pstream to write (written to a temporary file, renamed on success)")
       ->required();
-  cook_cmd->add_option("--object", cook.object, "Full name of the points object (or a PolyMesh, cooked as its vertices)");
+  cook_cmd->add_option("--object", cook.object,
+                       "Full name of the points object (or a PolyMesh, cooked as its vertices)");
   cook_cmd->add_flag("--merge", cook.merge, "Cook every points object into one stream, each with its own transform");
-  cook_cmd->add_flag("--no-xforms", cook.no_xforms, "Keep positions in object space (default: bake the world transform)");
-  cook_cmd->add_option("--fps", cook.fps, "Output frame rate (default: the source's; PLY: 24)")->check(CLI::PositiveNumber);
+  cook_cmd->add_flag("--no-xforms", cook.no_xforms,
+                     "Keep positions in object space (default: bake the world transform)");
+  cook_cmd->add_option("--fps", cook.fps, "Output frame rate (default: the source's; PLY: 24)")
+      ->check(CLI::PositiveNumber);
   cook_cmd->add_flag("--interpolate", cook.interpolate,
                      "Between source samples, blend particles matched by id (default: take the nearest sample)");
-  cook_cmd->add_option("--scale-from", cook.scale_from,
-                       "widths (a width is a diameter; the record stores the radius), constant:X, or attr:NAME")
+  cook_cmd
+      ->add_option("--scale-from", cook.scale_from,
+                   "widths (a width is a diameter; the record stores the radius), constant:X, or attr:NAME")
       ->capture_default_str();
-  cook_cmd->add_option("--color-from", cook.color_from, "Cd, none, or auto (Cd when the source has it)")->capture_default_str();
+  cook_cmd->add_option("--color-from", cook.color_from, "Cd, none, or auto (Cd when the source has it)")
+      ->capture_default_str();
   cook_cmd->add_option("--attributes", cook.attributes,
                        "Extra record attributes, comma separated: velocity, id (uint64), id32, or any float attribute");
-  cook_cmd->add_option("--chunk-size", cook.chunk_size, "Chunk size, a power of two from 64KiB to 64MiB")->capture_default_str();
+  cook_cmd->add_option("--chunk-size", cook.chunk_size, "Chunk size, a power of two from 64KiB to 64MiB")
+      ->capture_default_str();
   cook_cmd->add_option("--codec", cook.codec, "raw, lz4[:HC level], zstd[:level]")->capture_default_str();
   cook_cmd->add_option("--frames", cook.frames, "Output frames A:B (from A up to but not including B)");
-  cook_cmd->add_flag("--drop-invalid", cook.drop_invalid, "Drop particles with NaN or infinite positions instead of failing");
-  cook_cmd->add_option("--max-particles", cook.max_particles, "Largest particle count a frame may have")->capture_default_str();
+  cook_cmd->add_flag("--drop-invalid", cook.drop_invalid,
+                     "Drop particles with NaN or infinite positions instead of failing");
+  cook_cmd->add_option("--max-particles", cook.max_particles, "Largest particle count a frame may have")
+      ->capture_default_str();
   cook_cmd->add_option("--threads", cook.threads, "Chunk encoding threads (default: one per core)");
   cook_cmd->add_flag("-q,--quiet", cook.quiet, "No progress bar or summary");
   cook_cmd->add_flag("--json", cook.json, "Print the cook report as JSON");
@@ -84,7 +95,8 @@ int main(int argc, char** argv) {
   // verify -----------------------------------------------------------------------------------
   std::string verify_file;
   bool verify_json = false;
-  auto* verify_cmd = app.add_subcommand("verify", "Check every checksum and index entry of a .pstream (exit code 0 only if all is right)");
+  auto* verify_cmd = app.add_subcommand(
+      "verify", "Check every checksum and index entry of a .pstream (exit code 0 only if all is right)");
   verify_cmd->add_option("file", verify_file, "A .pstream file")->required()->check(CLI::ExistingFile);
   verify_cmd->add_flag("--json", verify_json, "Print the result as JSON");
 
@@ -109,8 +121,9 @@ int main(int argc, char** argv) {
 
   BenchSortOptions bench_sort_opts;
   auto* bench_sort_cmd = bench_cmd->add_subcommand(
-      "sort", "Compare depth sorts (bubble, comb, insertion, merge, quick, std::sort, std::stable_sort, vqsort, ours)\n"
-              "on random, nearly sorted and reversed depths, N = 1k .. 4M");
+      "sort",
+      "Compare depth sorts (bubble, comb, insertion, merge, quick, std::sort, std::stable_sort, vqsort, ours)\n"
+      "on random, nearly sorted and reversed depths, N = 1k .. 4M");
   bench_sort_cmd->add_option("--n", bench_sort_opts.n, "One size only, random input (prints ours_ms, vqsort_ms, ...)");
   bench_sort_cmd->add_option("--repetitions", bench_sort_opts.repetitions, "Runs of each; medians are reported")
       ->check(CLI::Range(1, 1000));
@@ -123,7 +136,8 @@ int main(int argc, char** argv) {
       "stream", "Per-frame cost of update() + copying the frame out, against memcpy of the same bytes, in real time");
   bench_stream_cmd->add_option("file", bench_stream_opts.file,
                                "A .pstream (default: generate 1M particles x 60 frames in a temporary folder)");
-  bench_stream_cmd->add_option("--particles", bench_stream_opts.particles, "Particles per generated frame")->capture_default_str();
+  bench_stream_cmd->add_option("--particles", bench_stream_opts.particles, "Particles per generated frame")
+      ->capture_default_str();
   bench_stream_cmd->add_option("--frames", bench_stream_opts.frames, "Generated frames")->capture_default_str();
   bench_stream_cmd->add_option("--fps", bench_stream_opts.fps, "Generated frame rate")->capture_default_str();
   bench_stream_cmd->add_option("--cache-seconds", bench_stream_opts.cache_seconds, "Seconds of frames the cache holds")
@@ -134,29 +148,33 @@ int main(int argc, char** argv) {
 
   RenderCli render_cli;
   auto* render_cmd = app.add_subcommand(
-      "render", "Render a .pstream headless (no display needed) to PNG frames and, with ffmpeg, an MP4\n\n"
-                "Examples:\n"
-                "  pstream render splash.pstream --out frames\n"
-                "  pstream render splash.pstream --out frames --frames 0:48 --size 1920x1080 --video splash.mp4\n"
-                "  pstream render fx.pstream --out f --camera 4,3,6:0,1,0 --blend additive");
+      "render",
+      "Render a .pstream headless (no display needed) to PNG frames and, with ffmpeg, an MP4\n\n"
+      "Examples:\n"
+      "  pstream render splash.pstream --out frames\n"
+      "  pstream render splash.pstream --out frames --frames 0:48 --size 1920x1080 --video splash.mp4\n"
+      "  pstream render fx.pstream --out f --camera 4,3,6:0,1,0 --blend additive");
   render_cmd->add_option("file", render_cli.file, "A .pstream file")->required()->check(CLI::ExistingFile);
   render_cmd->add_option("--out", render_cli.out, "Folder for frame_NNNNN.png")->capture_default_str();
   render_cmd->add_option("--frames", render_cli.frames, "Clip frames A:B (from A up to but not including B)");
   render_cmd->add_option("--size", render_cli.size, "Image size WIDTHxHEIGHT")->capture_default_str();
-  render_cmd->add_option("--camera", render_cli.camera, "auto (frame the clip's bounds) or x,y,z:tx,ty,tz")->capture_default_str();
+  render_cmd->add_option("--camera", render_cli.camera, "auto (frame the clip's bounds) or x,y,z:tx,ty,tz")
+      ->capture_default_str();
   render_cmd->add_option("--fps", render_cli.fps, "Output frame rate (default: the clip's)");
   render_cmd->add_option("--video", render_cli.video, "Also write an MP4 through ffmpeg");
   render_cmd->add_option("--blend", render_cli.blend, "alpha (sorted), additive or alphatest")->capture_default_str();
   render_cmd->add_option("--sort", render_cli.sort, "back (back to front), front, or none")->capture_default_str();
-  render_cmd->add_option("--size-multiplier", render_cli.size_multiplier, "Scale every particle")->capture_default_str();
+  render_cmd->add_option("--size-multiplier", render_cli.size_multiplier, "Scale every particle")
+      ->capture_default_str();
   render_cmd->add_option("--texture", render_cli.texture, "A sprite image (PNG) instead of the soft round sprite");
   render_cmd->add_flag("-q,--quiet", render_cli.quiet, "No progress or summary");
 
   ViewerCli viewer;
   auto* play_cmd = app.add_subcommand(
-      "play", "Open a window and play .pstream files: orbit camera, playback controls, statistics, chunk cache view\n\n"
-              "Keys: space play/pause, left/right step a frame, F frame the clip, Esc quit.\n"
-              "Mouse: left drag orbits, right drag pans, wheel zooms.");
+      "play",
+      "Open a window and play .pstream files: orbit camera, playback controls, statistics, chunk cache view\n\n"
+      "Keys: space play/pause, left/right step a frame, F frame the clip, Esc quit.\n"
+      "Mouse: left drag orbits, right drag pans, wheel zooms.");
   play_cmd->add_option("files", viewer.files, "One or more .pstream files")->required()->check(CLI::ExistingFile);
   play_cmd->add_option("--width", viewer.width, "Window width")->capture_default_str();
   play_cmd->add_option("--height", viewer.height, "Window height")->capture_default_str();
@@ -165,14 +183,17 @@ int main(int argc, char** argv) {
 
   DemoCli demo;
   auto* demo_cmd = app.add_subcommand(
-      "demo", "The whole pipeline on a built-in simulation: simulate -> DIR/demo.abc -> cook DIR/demo.pstream -> stream in\n"
-              "real time -> sort -> render DIR/frames/*.png, DIR/demo.mp4, DIR/contact_sheet.png, DIR/report.md + .json.\n"
-              "With a display (or --window) it opens the viewer instead of rendering headless.");
-  demo_cmd->add_option("--preset", demo.preset, "fountain, explosion or smoke (smoke is where sorting matters)")->capture_default_str();
+      "demo",
+      "The whole pipeline on a built-in simulation: simulate -> DIR/demo.abc -> cook DIR/demo.pstream -> stream in\n"
+      "real time -> sort -> render DIR/frames/*.png, DIR/demo.mp4, DIR/contact_sheet.png, DIR/report.md + .json.\n"
+      "With a display (or --window) it opens the viewer instead of rendering headless.");
+  demo_cmd->add_option("--preset", demo.preset, "fountain, explosion or smoke (smoke is where sorting matters)")
+      ->capture_default_str();
   demo_cmd->add_option("--particles", demo.particles, "About the peak particle count")->capture_default_str();
   demo_cmd->add_option("--seconds", demo.seconds, "Length of the simulation")->capture_default_str();
   demo_cmd->add_option("--fps", demo.fps, "Frames per second")->capture_default_str();
-  demo_cmd->add_option("--seed", demo.seed, "Random seed (the simulation is deterministic for a seed)")->capture_default_str();
+  demo_cmd->add_option("--seed", demo.seed, "Random seed (the simulation is deterministic for a seed)")
+      ->capture_default_str();
   demo_cmd->add_option("--out", demo.out, "Output folder")->capture_default_str();
   demo_cmd->add_option("--size", demo.size, "Rendered frame size")->capture_default_str();
   demo_cmd->add_flag("--window", demo.window, "Open the viewer after cooking");
@@ -182,13 +203,15 @@ int main(int argc, char** argv) {
   BenchRenderOptions bench_render_opts;
   auto* bench_render_cmd = bench_cmd->add_subcommand(
       "render", "Per-frame cost of 100k and 1M particles at 1280x720: instanced quads vs points, with GL_RENDERER");
-  bench_render_cmd->add_option("--repetitions", bench_render_opts.repetitions, "Frames timed per case")->check(CLI::Range(1, 100));
+  bench_render_cmd->add_option("--repetitions", bench_render_opts.repetitions, "Frames timed per case")
+      ->check(CLI::Range(1, 100));
   bench_render_cmd->add_flag("--json", bench_render_opts.json, "Print JSON");
 
   BenchAllOptions bench_all_opts;
   auto* bench_all_cmd = bench_cmd->add_subcommand(
       "all", "Run every benchmark on generated 1M-particle clips and write a Markdown page with tables and a plot");
-  bench_all_cmd->add_option("--out", bench_all_opts.out, "The page to write (a plot is written beside it)")->capture_default_str();
+  bench_all_cmd->add_option("--out", bench_all_opts.out, "The page to write (a plot is written beside it)")
+      ->capture_default_str();
 
   CLI11_PARSE(app, argc, argv);
   try {

@@ -26,8 +26,8 @@ class ProgressBar {
       last_ = now;
       constexpr int width = 30;
       const int filled = static_cast<int>(width * done / total);
-      fmt::print(stderr, "\r{} [{}{}] {:3d}% {}/{} {}\x1b[K", label_, std::string(filled, '#'), std::string(width - filled, '.'),
-                 percent, done, total, detail);
+      fmt::print(stderr, "\r{} [{}{}] {:3d}% {}/{} {}\x1b[K", label_, std::string(filled, '#'),
+                 std::string(width - filled, '.'), percent, done, total, detail);
       if (done == total) fmt::print(stderr, "\n");
     } else if (std::chrono::steady_clock::now() - start_ > std::chrono::seconds(1) &&
                (percent / 10 != last_decile_ || done == total)) {  // short jobs print nothing

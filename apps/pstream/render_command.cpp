@@ -77,7 +77,8 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     if (colon > 0) first = std::stoll(cli.frames.substr(0, colon));
     if (colon + 1 < cli.frames.size()) last = std::min<std::int64_t>(last, std::stoll(cli.frames.substr(colon + 1)));
   }
-  if (first < 0 || first >= last) throw Error(fmt::format("--frames {}: selects no frames of {}", cli.frames, m.frame_count()));
+  if (first < 0 || first >= last)
+    throw Error(fmt::format("--frames {}: selects no frames of {}", cli.frames, m.frame_count()));
   const double fps = cli.fps > 0 ? cli.fps : m.fps;
   const double t0 = m.frames[std::size_t(first)].time, t1 = m.frames[std::size_t(last - 1)].time;
   const auto outputs = static_cast<std::uint64_t>(std::floor((t1 - t0) * fps + 1e-6)) + 1;
@@ -128,20 +129,25 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     renderer.draw(batch);
     renderer.end_frame();
     const std::vector<std::uint8_t> pixels = context.read_rgba();
-    if (stats) stats->frame_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    if (stats)
+      stats->frame_ms.push_back(
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", k), width, height, pixels);
     bar.update(k + 1, outputs, fmt::format("frames ({}x{})", width, height));
   }
-  if (!cli.quiet) fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
+  if (!cli.quiet)
+    fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
   if (!cli.video.empty()) {
     if (!have_program("ffmpeg")) {
-      fmt::print(stderr, "note: --video needs the ffmpeg program, which is not installed (apt-get install ffmpeg; "
-                         "scripts/install-deps.sh installs it). The PNG frames are written.\n");
+      fmt::print(stderr,
+                 "note: --video needs the ffmpeg program, which is not installed (apt-get install ffmpeg; "
+                 "scripts/install-deps.sh installs it). The PNG frames are written.\n");
       return 0;
     }
     const std::string command = fmt::format(
         "ffmpeg -y -loglevel error -framerate {} -i '{}/frame_%05d.png' -c:v libx264 -pix_fmt yuv420p "
-        "-vf 'pad=ceil(iw/2)*2:ceil(ih/2)*2' '{}'", fps, cli.out, cli.video);
+        "-vf 'pad=ceil(iw/2)*2:ceil(ih/2)*2' '{}'",
+        fps, cli.out, cli.video);
     if (std::system(command.c_str()) != 0) throw Error(fmt::format("ffmpeg failed to write {}", cli.video));
     if (!cli.quiet) fmt::print("video -> {}\n", cli.video);
   }

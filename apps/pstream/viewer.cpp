@@ -58,8 +58,8 @@ struct Ui {
   double last_x = 0, last_y = 0;
   float speed = 1.0f, size = 1.0f;
   bool loop = true;
-  int sort_mode = 1;   // none, back to front, front to back
-  int blend = 0;       // alpha, additive, alpha test
+  int sort_mode = 1;  // none, back to front, front to back
+  int blend = 0;      // alpha, additive, alpha test
   float background[3] = {0.02f, 0.025f, 0.035f};
   std::vector<Playing>* streams = nullptr;
 };
@@ -101,22 +101,27 @@ void cache_view(const stream::ParticleStream& clip) {
   ImDrawList* draw = ImGui::GetWindowDrawList();
   const ImVec2 origin = ImGui::GetCursorScreenPos();
   for (std::size_t i = 0; i < d.slots.size(); ++i) {
-    const float x = origin.x + float(int(i) % per_row) * (block + gap), y = origin.y + float(int(i) / per_row) * (block + gap);
+    const float x = origin.x + float(int(i) % per_row) * (block + gap),
+                y = origin.y + float(int(i) / per_row) * (block + gap);
     const ImU32 colour = d.slots[i].state == stream::SlotState::Ready     ? IM_COL32(70, 190, 90, 255)
                          : d.slots[i].state == stream::SlotState::Loading ? IM_COL32(230, 180, 40, 255)
                                                                           : IM_COL32(70, 70, 80, 255);
     draw->AddRectFilled({x, y}, {x + block, y + block}, colour, 2.0f);
-    if (i == d.read_slot && clip.frame().valid) draw->AddRect({x - 1, y - 1}, {x + block + 1, y + block + 1}, IM_COL32_WHITE, 2, 0, 2);
+    if (i == d.read_slot && clip.frame().valid)
+      draw->AddRect({x - 1, y - 1}, {x + block + 1, y + block + 1}, IM_COL32_WHITE, 2, 0, 2);
     if (ImGui::IsMouseHoveringRect({x, y}, {x + block, y + block})) {
       ImGui::SetTooltip("slot %zu: chunk %lld, %s", i, static_cast<long long>(d.slots[i].chunk),
-                        d.slots[i].state == stream::SlotState::Ready ? "Ready" : d.slots[i].state == stream::SlotState::Loading ? "Loading" : "Empty");
+                        d.slots[i].state == stream::SlotState::Ready     ? "Ready"
+                        : d.slots[i].state == stream::SlotState::Loading ? "Loading"
+                                                                         : "Empty");
     }
   }
   const int rows = (int(d.slots.size()) + per_row - 1) / per_row;
   ImGui::Dummy({1, float(rows) * (block + gap)});
-  ImGui::TextWrapped("%zu slots, %.1f MiB | loads %llu, in flight %u | read %.1f MiB, IO %.0f ms, decode %.0f ms | stalls %llu",
-              d.slots.size(), d.cache_bytes / 1048576.0, static_cast<unsigned long long>(d.loads_done), d.loads_in_flight,
-              d.bytes_read / 1048576.0, d.io_ms, d.decode_ms, static_cast<unsigned long long>(d.stalls));
+  ImGui::TextWrapped(
+      "%zu slots, %.1f MiB | loads %llu, in flight %u | read %.1f MiB, IO %.0f ms, decode %.0f ms | stalls %llu",
+      d.slots.size(), d.cache_bytes / 1048576.0, static_cast<unsigned long long>(d.loads_done), d.loads_in_flight,
+      d.bytes_read / 1048576.0, d.io_ms, d.decode_ms, static_cast<unsigned long long>(d.stalls));
   ImGui::TextColored({0.45f, 0.75f, 0.5f, 1}, "Ready");
   ImGui::SameLine();
   ImGui::TextColored({0.9f, 0.7f, 0.15f, 1}, "Loading");
@@ -142,8 +147,9 @@ int run_viewer(const ViewerCli& cli) {
   glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
   GLFWwindow* window = glfwCreateWindow(cli.width, cli.height, "ParticleStream", nullptr, nullptr);
   if (window == nullptr) {
-    throw Error("could not create an OpenGL 4.5 core window: the driver or display lacks OpenGL 4.5. "
-                "`pstream render FILE --out DIR` renders headless instead");
+    throw Error(
+        "could not create an OpenGL 4.5 core window: the driver or display lacks OpenGL 4.5. "
+        "`pstream render FILE --out DIR` renders headless instead");
   }
   glfwMakeContextCurrent(window);
   glfwSwapInterval(cli.frames_to_run > 0 ? 0 : 1);
@@ -203,7 +209,8 @@ int run_viewer(const ViewerCli& cli) {
         const render::Camera c = ui.orbit.camera();
         const render::Mat4 v = c.view();
         const float k = ui.orbit.distance * 0.0015f;
-        for (int i = 0; i < 3; ++i) ui.orbit.target[i] += (-float(x - ui.last_x) * v[i * 4] + float(y - ui.last_y) * v[i * 4 + 1]) * k;
+        for (int i = 0; i < 3; ++i)
+          ui.orbit.target[i] += (-float(x - ui.last_x) * v[i * 4] + float(y - ui.last_y) * v[i * 4 + 1]) * k;
       }
       ui.dragging_left = left;
       ui.dragging_right = right;
@@ -232,7 +239,9 @@ int run_viewer(const ViewerCli& cli) {
       b.record_size = s.clip->metadata().record_size;
       b.color_offset = s.color ? std::int32_t(s.color->offset) : -1;
       b.world = s.clip->world_transform();
-      b.blend = ui.blend == 0 ? render::BlendMode::Alpha : ui.blend == 1 ? render::BlendMode::Additive : render::BlendMode::AlphaTest;
+      b.blend = ui.blend == 0   ? render::BlendMode::Alpha
+                : ui.blend == 1 ? render::BlendMode::Additive
+                                : render::BlendMode::AlphaTest;
       b.size_multiplier = ui.size;
       if (ui.sort_mode != 0 && f.count > 0 && b.blend == render::BlendMode::Alpha) {
         const std::byte* records = f.first.data();
@@ -262,19 +271,25 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::SetNextWindowPos({10, 10}, ImGuiCond_FirstUseEver);
     ImGui::SetNextWindowSize({460, 0}, ImGuiCond_FirstUseEver);
     ImGui::Begin("ParticleStream");
-    if (ImGui::Button("Play")) for (auto& s : streams) s.clip->play();
+    if (ImGui::Button("Play"))
+      for (auto& s : streams) s.clip->play();
     ImGui::SameLine();
-    if (ImGui::Button("Pause")) for (auto& s : streams) s.clip->pause();
+    if (ImGui::Button("Pause"))
+      for (auto& s : streams) s.clip->pause();
     ImGui::SameLine();
-    if (ImGui::Button("Stop")) for (auto& s : streams) s.clip->stop();
+    if (ImGui::Button("Stop"))
+      for (auto& s : streams) s.clip->stop();
     ImGui::SameLine();
-    if (ImGui::Checkbox("Loop", &ui.loop)) for (auto& s : streams) s.clip->set_loop(ui.loop);
+    if (ImGui::Checkbox("Loop", &ui.loop))
+      for (auto& s : streams) s.clip->set_loop(ui.loop);
     if (!streams.empty()) {
       auto& first = *streams.front().clip;
       const auto& m = first.metadata();
       float t = float(first.time());
-      const float t0 = m.frame_count() ? float(m.frames.front().time) : 0, t1 = m.frame_count() ? float(m.frames.back().time) : 0;
-      if (ImGui::SliderFloat("Time", &t, t0, t1, "%.3f s")) for (auto& s : streams) s.clip->seek(t);
+      const float t0 = m.frame_count() ? float(m.frames.front().time) : 0,
+                  t1 = m.frame_count() ? float(m.frames.back().time) : 0;
+      if (ImGui::SliderFloat("Time", &t, t0, t1, "%.3f s"))
+        for (auto& s : streams) s.clip->seek(t);
     }
     ImGui::SliderFloat("Speed", &ui.speed, 0.0f, 4.0f, "%.2fx");
     ImGui::SliderFloat("Particle size", &ui.size, 0.1f, 5.0f, "%.2fx");
@@ -289,7 +304,8 @@ int run_viewer(const ViewerCli& cli) {
       ImGui::Separator();
       const auto f = s.clip->frame();
       ImGui::Text("%s - frame %llu / %llu", std::filesystem::path(s.file).filename().c_str(),
-                  static_cast<unsigned long long>(f.frame), static_cast<unsigned long long>(s.clip->metadata().frame_count()));
+                  static_cast<unsigned long long>(f.frame),
+                  static_cast<unsigned long long>(s.clip->metadata().frame_count()));
       if (s.clip->state() == stream::PlayState::Error) {
         ImGui::TextColored({1, 0.35f, 0.3f, 1}, "error: %s", s.clip->error().c_str());
       }
@@ -311,7 +327,8 @@ int run_viewer(const ViewerCli& cli) {
         glReadPixels(0, 0, width, height, GL_RGBA, GL_UNSIGNED_BYTE, pixels.data());
         const std::size_t row = std::size_t(width) * 4;
         for (int y = 0; y < height / 2; ++y) {
-          std::swap_ranges(pixels.begin() + y * row, pixels.begin() + (y + 1) * row, pixels.begin() + (height - 1 - y) * row);
+          std::swap_ranges(pixels.begin() + y * row, pixels.begin() + (y + 1) * row,
+                           pixels.begin() + (height - 1 - y) * row);
         }
         render::write_png(cli.screenshot, width, height, pixels);
       }

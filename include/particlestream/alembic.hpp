@@ -37,13 +37,25 @@ struct PropertyNode;
 // ---------------------------------------------------------------------------------------------
 // Plain old data types, in Alembic's numbering.
 enum class Pod : std::uint8_t {
-  Bool = 0, Uint8, Int8, Uint16, Int16, Uint32, Int32, Uint64, Int64, Float16, Float32, Float64,
-  String, WString
+  Bool = 0,
+  Uint8,
+  Int8,
+  Uint16,
+  Int16,
+  Uint32,
+  Int32,
+  Uint64,
+  Int64,
+  Float16,
+  Float32,
+  Float64,
+  String,
+  WString
 };
-std::size_t pod_size(Pod pod);         // bytes of one scalar (string: 1, wstring: 4)
-std::string_view pod_name(Pod pod);    // "float32", "uint64", ...
-bool pod_is_integer(Pod pod);          // bool and the integer types
-bool pod_is_float(Pod pod);            // float16/32/64
+std::size_t pod_size(Pod pod);       // bytes of one scalar (string: 1, wstring: 4)
+std::string_view pod_name(Pod pod);  // "float32", "uint64", ...
+bool pod_is_integer(Pod pod);        // bool and the integer types
+bool pod_is_float(Pod pod);          // float16/32/64
 
 // ---------------------------------------------------------------------------------------------
 // "key=value;key=value" metadata, kept sorted by key as the official library does.
@@ -93,11 +105,11 @@ struct PropertyHeader {
   std::uint8_t extent = 0;
   MetaData metadata;
   std::uint32_t time_sampling_index = 0;
-  std::uint32_t num_samples = 0;      // samples written, repeats included
-  std::uint32_t first_changed = 0;    // first sample that differs from sample 0
-  std::uint32_t last_changed = 0;     // last sample that was stored; later ones repeat it
-  bool scalar_like = false;           // an array property whose samples hold one element
-  bool homogeneous = false;           // as flagged by the writer; not reliable for extent > 1
+  std::uint32_t num_samples = 0;    // samples written, repeats included
+  std::uint32_t first_changed = 0;  // first sample that differs from sample 0
+  std::uint32_t last_changed = 0;   // last sample that was stored; later ones repeat it
+  bool scalar_like = false;         // an array property whose samples hold one element
+  bool homogeneous = false;         // as flagged by the writer; not reliable for extent > 1
 
   bool is_constant() const { return first_changed == 0; }
   std::string interpretation() const { return metadata.get("interpretation"); }
@@ -114,7 +126,7 @@ class SampleView {
 
   Pod pod() const { return pod_; }
   std::uint8_t extent() const { return extent_; }
-  std::uint64_t size() const { return count_; }                   // elements (extent values each)
+  std::uint64_t size() const { return count_; }                    // elements (extent values each)
   std::uint64_t scalar_count() const { return count_ * extent_; }  // values
   bool empty() const { return count_ == 0; }
   std::span<const std::byte> bytes() const { return bytes_; }
@@ -288,10 +300,10 @@ class Points {
   double sample_time(std::uint32_t index) const { return time_sampling().sample_time(index); }
   bool is_constant() const;
 
-  std::uint64_t count(std::uint32_t sample) const;  // particles in a sample
+  std::uint64_t count(std::uint32_t sample) const;   // particles in a sample
   SampleView positions(std::uint32_t sample) const;  // float32 x3
   bool has_ids() const { return ids_.valid(); }
-  SampleView ids(std::uint32_t sample) const;        // uint64 (may be empty)
+  SampleView ids(std::uint32_t sample) const;  // uint64 (may be empty)
   bool has_velocities() const { return velocities_.valid(); }
   SampleView velocities(std::uint32_t sample) const;  // nearest to the sample's time
   Box3 self_bounds(std::uint32_t sample) const;

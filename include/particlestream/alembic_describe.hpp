@@ -12,7 +12,7 @@
 namespace pstream::alembic {
 
 struct DescribeOptions {
-  int indent = 1;                                                          // -1: one line
+  int indent = 1;                                                         // -1: one line
   std::uint32_t max_samples = std::numeric_limits<std::uint32_t>::max();  // per object (fuzzing)
 };
 

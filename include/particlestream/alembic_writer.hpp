@@ -16,18 +16,18 @@ namespace pstream::alembic {
 
 struct PointsWriterOptions {
   std::string name = "particles";
-  std::string parent_xform;               // non-empty: a constant Xform object of this name above it
+  std::string parent_xform;                  // non-empty: a constant Xform object of this name above it
   std::array<double, 3> translate{0, 0, 0};  // the Xform's translation
   bool velocities = true;
-  bool widths = true;                     // per-particle widths (a diameter), vertex scope
+  bool widths = true;                                     // per-particle widths (a diameter), vertex scope
   std::vector<std::pair<std::string, int>> float_params;  // arbGeomParams: name and extent (Cd: 3, rgb)
 };
 
 // One sample of the points object. Spans hold count, 3 x count, ... values as the options ask.
 struct PointsSample {
-  std::span<const float> positions;       // 3 per particle
+  std::span<const float> positions;  // 3 per particle
   std::span<const std::uint64_t> ids;
-  std::span<const float> velocities;      // 3 per particle
+  std::span<const float> velocities;  // 3 per particle
   std::span<const float> widths;
   std::vector<std::span<const float>> params;  // in PointsWriterOptions::float_params order
 };

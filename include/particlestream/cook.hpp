@@ -24,11 +24,11 @@ struct Options {
   ScaleFrom scale_from = ScaleFrom::Widths;
   float scale_constant = 0.0f;
   std::string scale_attribute;
-  std::string color_from = "auto";     // "Cd", "none", or "auto" (Cd when present)
+  std::string color_from = "auto";      // "Cd", "none", or "auto" (Cd when present)
   std::vector<std::string> attributes;  // "velocity", "id", "id32", or a float attribute name
   std::uint64_t chunk_size = format::kDefaultChunkSize;
   format::Codec codec = format::Codec::Raw;
-  int codec_level = 0;  // zstd level (default 3 when 0), lz4: 0 fast, > 0 HC
+  int codec_level = 0;                           // zstd level (default 3 when 0), lz4: 0 fast, > 0 HC
   std::int64_t frame_begin = 0, frame_end = -1;  // output frames [begin, end); -1: to the end
   bool drop_invalid = false;                     // drop NaN/Inf positions instead of failing
   std::uint64_t max_particles = 64ull << 20;     // per frame

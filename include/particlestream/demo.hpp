@@ -10,7 +10,7 @@
 namespace pstream::demo {
 
 struct SimulationOptions {
-  std::string preset = "fountain";  // fountain, explosion, smoke
+  std::string preset = "fountain";   // fountain, explosion, smoke
   std::uint64_t particles = 250000;  // about the peak count
   double seconds = 10.0, fps = 30.0;
   std::uint64_t seed = 1;
@@ -31,7 +31,7 @@ struct ParticleState {
 class Simulator {
  public:
   explicit Simulator(SimulationOptions options);  // throws pstream::Error for an unknown preset
-  void step();  // one frame: births, forces, integration, ground, deaths
+  void step();                                    // one frame: births, forces, integration, ground, deaths
   const ParticleState& state() const { return state_; }
   std::uint64_t frame() const { return frame_; }
   double time() const { return double(frame_) / options_.fps; }

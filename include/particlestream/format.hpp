@@ -191,6 +191,6 @@ class Writer {
 
 std::vector<std::byte> serialize_tables(const Metadata& meta);
 std::vector<std::byte> serialize_header(const Metadata& meta, std::uint64_t tables_offset,
-                                       std::span<const std::byte> tables);
+                                        std::span<const std::byte> tables);
 
 }  // namespace pstream::format

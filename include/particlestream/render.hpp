@@ -41,9 +41,9 @@ struct ParticleBatch {
   std::span<const std::byte> first, second;  // the records (second: across the cache ring's wrap)
   std::uint64_t count = 0;
   std::uint32_t record_size = 16;
-  std::int32_t color_offset = -1;              // an RGBA8 attribute in the record, or -1
-  Mat4 world = identity();                     // object -> world
-  std::span<const std::uint32_t> order;        // draw order (back to front); empty: stored order
+  std::int32_t color_offset = -1;        // an RGBA8 attribute in the record, or -1
+  Mat4 world = identity();               // object -> world
+  std::span<const std::uint32_t> order;  // draw order (back to front); empty: stored order
   BlendMode blend = BlendMode::Alpha;
   std::array<float, 4> color{0.45f, 0.65f, 0.95f, 0.9f};  // when the record has no colour
   float size_multiplier = 1.0f;
@@ -85,8 +85,8 @@ class HeadlessContext {
   HeadlessContext& operator=(const HeadlessContext&) = delete;
   int width() const { return width_; }
   int height() const { return height_; }
-  void bind();                              // makes the context current and binds the framebuffer
-  std::vector<std::uint8_t> read_rgba();    // top row first
+  void bind();                            // makes the context current and binds the framebuffer
+  std::vector<std::uint8_t> read_rgba();  // top row first
  private:
   int width_, height_;
   struct Impl;

@@ -12,8 +12,8 @@
 #include <filesystem>
 #include <memory>
 #include <span>
-#include <thread>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "particlestream/format.hpp"
@@ -89,8 +89,8 @@ enum class PlayState : std::uint8_t { Stopped, Playing, Paused, Error };
 
 struct StreamOptions {
   double cache_seconds = 1.0;
-  std::size_t min_slots = 0;              // tests: force a tiny cache (still at least what a frame needs)
-  std::size_t max_slots = 0;              // tests: 0 = no cap beyond chunk_count
+  std::size_t min_slots = 0;  // tests: force a tiny cache (still at least what a frame needs)
+  std::size_t max_slots = 0;  // tests: 0 = no cap beyond chunk_count
   unsigned max_loads_in_flight = 1;
   bool blocking = false;                   // update() waits for data instead of stalling
   std::shared_ptr<IoScheduler> scheduler;  // default: a process-wide one with one worker
@@ -99,11 +99,11 @@ struct StreamOptions {
 };
 
 struct FrameView {
-  std::uint64_t frame = 0;      // index in the clip
-  std::uint64_t count = 0;      // particles
-  double time = 0.0;            // the frame's time, seconds
+  std::uint64_t frame = 0;                   // index in the clip
+  std::uint64_t count = 0;                   // particles
+  double time = 0.0;                         // the frame's time, seconds
   std::span<const std::byte> first, second;  // the records; second is non-empty across the ring's wrap
-  bool valid = false;           // false until the first frame is ready
+  bool valid = false;                        // false until the first frame is ready
   std::uint64_t bytes() const { return first.size() + second.size(); }
 };
 
@@ -135,8 +135,8 @@ class ParticleStream {
   // Playback. Time only advances through update(dt), with the host's clock.
   void play();
   void pause();
-  void stop();                   // pause and go back to the start of the range
-  void seek(double time);        // the frame nearest `time` becomes current once its chunks are in
+  void stop();             // pause and go back to the start of the range
+  void seek(double time);  // the frame nearest `time` becomes current once its chunks are in
   void set_loop(bool loop);
   void set_speed(double speed);  // 0, fractional, > 1 (frames are skipped, never chunks)
   void set_range(double start, double end);

@@ -45,7 +45,8 @@ std::vector<TimeSampling> read_time_samplings(const ogawa::File& file, ogawa::Da
       ts.samples_per_cycle = TimeSampling::kAcyclicSamplesPerCycle;
     } else {
       if (!(ts.time_per_cycle > 0.0) || !std::isfinite(ts.time_per_cycle)) {
-        file.fail(at - 8, fmt::format("time sampling has time per cycle {}, expected a positive number", ts.time_per_cycle));
+        file.fail(at - 8,
+                  fmt::format("time sampling has time per cycle {}, expected a positive number", ts.time_per_cycle));
       }
       ts.type = n == 1 ? TimeSamplingType::Uniform : TimeSamplingType::Cyclic;
       ts.samples_per_cycle = n;
@@ -66,15 +67,16 @@ std::vector<MetaData> read_indexed_metadata(const ogawa::File& file, ogawa::Data
   return out;
 }
 
-void read_object(const ArchiveData& a, ObjectNode& object, ogawa::Group group, std::unordered_set<std::uint64_t>& visited,
-                 int depth) {
+void read_object(const ArchiveData& a, ObjectNode& object, ogawa::Group group,
+                 std::unordered_set<std::uint64_t>& visited, int depth) {
   const ogawa::File& file = a.file;
   if (depth > detail::kMaxHierarchyDepth) {
     file.fail(group.offset, fmt::format("objects nest deeper than {} levels", detail::kMaxHierarchyDepth));
   }
   if (group.offset != 0 && !visited.insert(group.offset).second) {
     file.fail(group.offset, fmt::format("object group of '{}' is reached twice: the hierarchy has a cycle or a "
-                                        "corrupted offset", object.full_name));
+                                        "corrupted offset",
+                                        object.full_name));
   }
   object.properties = std::make_unique<PropertyNode>();
   object.properties->header.kind = PropertyKind::Compound;
@@ -114,8 +116,8 @@ void read_object(const ArchiveData& a, ObjectNode& object, ogawa::Group group, s
     }
   }
   if (object.children.size() != child_count) {
-    file.fail(headers.offset, fmt::format("object '{}' has {} child groups but its headers describe {}", object.full_name,
-                                          child_count, object.children.size()));
+    file.fail(headers.offset, fmt::format("object '{}' has {} child groups but its headers describe {}",
+                                          object.full_name, child_count, object.children.size()));
   }
   for (std::size_t i = 0; i < object.children.size(); ++i) {
     read_object(a, *object.children[i], file.child_group(group, i + 1), visited, depth + 1);
@@ -126,8 +128,8 @@ std::unique_ptr<ArchiveData> parse(std::unique_ptr<ArchiveData> a) {
   const ogawa::File& file = a->file;
   const ogawa::Group root = file.root();
   if (root.count < kRootChildren) {
-    file.fail(root.offset, fmt::format("root group has {} children, an Alembic archive has at least {}", root.count,
-                                       kRootChildren));
+    file.fail(root.offset,
+              fmt::format("root group has {} children, an Alembic archive has at least {}", root.count, kRootChildren));
   }
   a->ogawa_version = read_u32_block(*a, file.child_data(root, kFileVersion), "Ogawa file version");
   a->archive_version = read_u32_block(*a, file.child_data(root, kLibraryVersion), "Alembic library version");
@@ -181,7 +183,8 @@ const std::vector<TimeSampling>& Archive::time_samplings() const { return d_->ti
 
 const TimeSampling& Archive::time_sampling(std::uint32_t index) const {
   if (index >= d_->time_samplings.size()) {
-    throw Error(fmt::format("{}: time sampling {} requested, the archive has {}", name(), index, d_->time_samplings.size()));
+    throw Error(
+        fmt::format("{}: time sampling {} requested, the archive has {}", name(), index, d_->time_samplings.size()));
   }
   return d_->time_samplings[index];
 }
@@ -246,7 +249,9 @@ std::optional<Object> Object::parent() const {
 // ---- Property -------------------------------------------------------------------------------
 
 const PropertyHeader& Property::header() const { return node_->header; }
-const TimeSampling& Property::time_sampling() const { return archive_->time_samplings[node_->header.time_sampling_index]; }
+const TimeSampling& Property::time_sampling() const {
+  return archive_->time_samplings[node_->header.time_sampling_index];
+}
 std::size_t Property::child_count() const { return node_->children.size(); }
 Property Property::child(std::size_t i) const { return Property(archive_, node_->children.at(i).get()); }
 

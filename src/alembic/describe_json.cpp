@@ -64,7 +64,8 @@ json stats(std::uint64_t count, std::size_t extent, bool integer, Value value, N
 
 json sample_stats(const SampleView& v) {
   if (v.pod() == Pod::String || v.pod() == Pod::WString) {
-    return stats(0, v.extent(), false, [](std::uint64_t) { return json(); }, [](std::uint64_t) { return 0.0; });
+    return stats(
+        0, v.extent(), false, [](std::uint64_t) { return json(); }, [](std::uint64_t) { return 0.0; });
   }
   const bool integer = pod_is_integer(v.pod());
   auto value = [&](std::uint64_t i) -> json {
@@ -77,7 +78,8 @@ json sample_stats(const SampleView& v) {
 }
 
 json box_json(const Box3& b) {
-  return json{{"min", {b.min[0], b.min[1], b.min[2]}}, {"max", {b.max[0], b.max[1], b.max[2]}}, {"is_empty", b.is_empty()}};
+  return json{
+      {"min", {b.min[0], b.min[1], b.min[2]}}, {"max", {b.max[0], b.max[1], b.max[2]}}, {"is_empty", b.is_empty()}};
 }
 
 json positions_json(const SampleView& v) {
@@ -111,15 +113,17 @@ json param_json(const GeomParam& p, double time) {
     const SampleView idx = ih.num_samples ? p.indices().sample_at(time).first : SampleView(ih.pod, 1, 0, {});
     out["indices"] = sample_stats(idx);
     std::vector<double> expanded;
-    expanded.reserve(std::min<std::uint64_t>(idx.scalar_count() * vals.extent(), vals.bytes().size() + idx.bytes().size()));
+    expanded.reserve(
+        std::min<std::uint64_t>(idx.scalar_count() * vals.extent(), vals.bytes().size() + idx.bytes().size()));
     for (std::uint64_t i = 0; i < idx.scalar_count(); ++i) {
       const std::uint64_t k = idx.value_u64(i);
       for (std::size_t c = 0; c < vals.extent(); ++c) {
         expanded.push_back(k < vals.size() ? vals.value_f64(k * vals.extent() + c) : 0.0);
       }
     }
-    out["expanded"] = stats(idx.scalar_count(), vals.extent(), false, [&](std::uint64_t i) { return json(expanded[i]); },
-                            [&](std::uint64_t i) { return expanded[i]; });
+    out["expanded"] = stats(
+        idx.scalar_count(), vals.extent(), false, [&](std::uint64_t i) { return json(expanded[i]); },
+        [&](std::uint64_t i) { return expanded[i]; });
   }
   return out;
 }
@@ -155,12 +159,9 @@ json visibility_chain(const Object& object, double time) {
 
 json points_json(const Object& object, const DescribeOptions& options) {
   const Points points(object);
-  json out{{"full_name", object.full_name()},
-           {"time_sampling_index", points.time_sampling_index()},
-           {"num_samples", points.num_samples()},
-           {"is_constant", points.is_constant()},
-           {"has_velocities", points.has_velocities()},
-           {"has_widths", points.widths().has_value()}};
+  json out{{"full_name", object.full_name()},           {"time_sampling_index", points.time_sampling_index()},
+           {"num_samples", points.num_samples()},       {"is_constant", points.is_constant()},
+           {"has_velocities", points.has_velocities()}, {"has_widths", points.widths().has_value()}};
   json names = json::array();
   for (const GeomParam& p : points.arb_geom_params()) names.push_back(p.name());
   out["arb_geom_param_names"] = names;
@@ -249,7 +250,9 @@ json archive_json(const Archive& archive) {
   json samplings = json::array();
   for (std::size_t i = 0; i < archive.time_samplings().size(); ++i) {
     const TimeSampling& ts = archive.time_samplings()[i];
-    const char* type = ts.type == TimeSamplingType::Uniform ? "uniform" : ts.type == TimeSamplingType::Cyclic ? "cyclic" : "acyclic";
+    const char* type = ts.type == TimeSamplingType::Uniform  ? "uniform"
+                       : ts.type == TimeSamplingType::Cyclic ? "cyclic"
+                                                             : "acyclic";
     samplings.push_back({{"index", i},
                          {"type", type},
                          {"samples_per_cycle", ts.samples_per_cycle},

@@ -7,11 +7,18 @@
 namespace pstream::alembic::layout {
 
 inline constexpr std::uint64_t kDataBit = 1ull << 63;  // a group child that is a data block
-inline constexpr std::size_t kHeaderSize = 16;          // "Ogawa", frozen byte, version, root offset
+inline constexpr std::size_t kHeaderSize = 16;         // "Ogawa", frozen byte, version, root offset
 inline constexpr unsigned char kFrozen = 0xFF, kNotFrozen = 0x00;
 
 // Root group children.
-enum RootChild : std::uint64_t { kFileVersion = 0, kLibraryVersion, kTopObject, kMetadata, kTimeSamplings, kIndexedMetadata };
+enum RootChild : std::uint64_t {
+  kFileVersion = 0,
+  kLibraryVersion,
+  kTopObject,
+  kMetadata,
+  kTimeSamplings,
+  kIndexedMetadata
+};
 inline constexpr std::uint64_t kRootChildren = 6;
 
 inline constexpr std::size_t kObjectHashBytes = 32;  // object headers end with two 16-byte hashes

@@ -27,17 +27,18 @@ bool has_hdf5_signature(std::span<const std::byte> bytes) {
 File::File(std::span<const std::byte> bytes, std::string name) : bytes_(bytes), name_(std::move(name)) {
   if (bytes_.empty()) throw Error(fmt::format("{}: empty file (expected an Ogawa Alembic archive)", name_));
   if (has_hdf5_signature(bytes_)) {
-    throw Error(fmt::format(
-        "{}: this Alembic archive uses the legacy HDF5 backend, which ParticleStream does not read; "
-        "re-export it with the Ogawa backend (the default of every current exporter)",
-        name_));
+    throw Error(
+        fmt::format("{}: this Alembic archive uses the legacy HDF5 backend, which ParticleStream does not read; "
+                    "re-export it with the Ogawa backend (the default of every current exporter)",
+                    name_));
   }
   if (bytes_.size() < kHeaderSize) {
     fail(bytes_.size(), fmt::format("truncated header: {} bytes, an Ogawa header has {}", bytes_.size(), kHeaderSize));
   }
   if (std::memcmp(bytes_.data(), "Ogawa", 5) != 0) fail(0, "not an Alembic file: expected the magic \"Ogawa\"");
   const auto frozen = static_cast<unsigned char>(bytes_[5]);
-  if (frozen == 0x00) fail(5, "the file is still being written or its writer crashed (frozen byte is 0x00, expected 0xFF)");
+  if (frozen == 0x00)
+    fail(5, "the file is still being written or its writer crashed (frozen byte is 0x00, expected 0xFF)");
   if (frozen != 0xFF) fail(5, fmt::format("invalid frozen byte 0x{:02X}, expected 0xFF", frozen));
   const auto v0 = static_cast<unsigned char>(bytes_[6]), v1 = static_cast<unsigned char>(bytes_[7]);
   if (v0 != 0 || v1 != 1) fail(6, fmt::format("unsupported Ogawa version {}.{}, expected 0.1", v0, v1));
@@ -53,7 +54,8 @@ void File::fail(std::uint64_t offset, std::string_view what) const {
 
 std::uint64_t File::read_u64(std::uint64_t offset, std::string_view what) const {
   if (offset > bytes_.size() || bytes_.size() - offset < 8) {
-    fail(offset, fmt::format("{} lies past the end of the file ({} bytes): truncated or corrupted", what, bytes_.size()));
+    fail(offset,
+         fmt::format("{} lies past the end of the file ({} bytes): truncated or corrupted", what, bytes_.size()));
   }
   return load_le<std::uint64_t>(bytes_.data() + offset);
 }

@@ -13,10 +13,11 @@ std::uint32_t clamp_index(std::uint32_t index, const Property& p) {
   return n == 0 ? 0 : std::min(index, n - 1);
 }
 
-void check_capacity(const Object& object, std::string_view what, std::uint32_t sample, std::size_t need, std::size_t have) {
+void check_capacity(const Object& object, std::string_view what, std::uint32_t sample, std::size_t need,
+                    std::size_t have) {
   if (have < need) {
-    throw Error(fmt::format("{} of '{}' sample {}: buffer holds {} values, {} are needed", what, object.full_name(), sample,
-                            have, need));
+    throw Error(fmt::format("{} of '{}' sample {}: buffer holds {} values, {} are needed", what, object.full_name(),
+                            sample, have, need));
   }
 }
 
@@ -34,7 +35,8 @@ Points::Points(const Object& object) : object_(object) {
     throw Error(fmt::format("'{}' is not a Points object (schema '{}')", object.full_name(), object.schema()));
   }
   const auto geom = object.properties().find(".geom");
-  if (!geom || !geom->is_compound()) throw Error(fmt::format("'{}' is not a Points object (no .geom compound)", object.full_name()));
+  if (!geom || !geom->is_compound())
+    throw Error(fmt::format("'{}' is not a Points object (no .geom compound)", object.full_name()));
   geom_ = *geom;
   const auto P = geom_.find("P");
   if (!P || P->kind() != PropertyKind::Array || P->header().pod != Pod::Float32 || P->header().extent != 3) {
@@ -54,8 +56,8 @@ Points::Points(const Object& object) : object_(object) {
     }
     velocities_ = *v;
   }
-  if (auto b = geom_.find(".selfBnds"); b && b->kind() == PropertyKind::Scalar && b->header().pod == Pod::Float64 &&
-                                         b->header().extent == 6) {
+  if (auto b = geom_.find(".selfBnds");
+      b && b->kind() == PropertyKind::Scalar && b->header().pod == Pod::Float64 && b->header().extent == 6) {
     self_bounds_ = *b;
   }
   if (auto w = geom_.find(".widths")) widths_ = GeomParam::from(*w);

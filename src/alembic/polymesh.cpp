@@ -21,7 +21,8 @@ bool PolyMesh::matches(const Object& object) { return object.schema() == "AbcGeo
 
 PolyMesh::PolyMesh(const Object& object) : object_(object) {
   const auto geom = object.properties().find(".geom");
-  if (!geom || !geom->is_compound()) throw Error(fmt::format("'{}' is not a PolyMesh (no .geom compound)", object.full_name()));
+  if (!geom || !geom->is_compound())
+    throw Error(fmt::format("'{}' is not a PolyMesh (no .geom compound)", object.full_name()));
   geom_ = *geom;
   const auto P = geom_.find("P");
   if (!P || P->kind() != PropertyKind::Array || P->header().pod != Pod::Float32 || P->header().extent != 3) {
@@ -30,14 +31,17 @@ PolyMesh::PolyMesh(const Object& object) : object_(object) {
   P_ = *P;
   if (auto p = geom_.find(".faceCounts"); p && p->kind() == PropertyKind::Array) counts_ = *p;
   if (auto p = geom_.find(".faceIndices"); p && p->kind() == PropertyKind::Array) indices_ = *p;
-  if (auto p = geom_.find(".velocities"); p && p->kind() == PropertyKind::Array && p->header().pod == Pod::Float32) velocities_ = *p;
-  if (auto p = geom_.find(".selfBnds"); p && p->kind() == PropertyKind::Scalar && p->header().pod == Pod::Float64 &&
-                                         p->header().extent == 6) {
+  if (auto p = geom_.find(".velocities"); p && p->kind() == PropertyKind::Array && p->header().pod == Pod::Float32)
+    velocities_ = *p;
+  if (auto p = geom_.find(".selfBnds");
+      p && p->kind() == PropertyKind::Scalar && p->header().pod == Pod::Float64 && p->header().extent == 6) {
     self_bounds_ = *p;
   }
 }
 
-std::uint32_t PolyMesh::num_samples() const { return std::max({samples_of(P_), samples_of(counts_), samples_of(indices_)}); }
+std::uint32_t PolyMesh::num_samples() const {
+  return std::max({samples_of(P_), samples_of(counts_), samples_of(indices_)});
+}
 std::uint32_t PolyMesh::time_sampling_index() const { return P_.header().time_sampling_index; }
 const TimeSampling& PolyMesh::time_sampling() const { return P_.time_sampling(); }
 
@@ -49,7 +53,9 @@ int PolyMesh::topology_variance() const {
 
 SampleView PolyMesh::positions(std::uint32_t sample) const { return sample_or_empty(P_, sample, Pod::Float32, 3); }
 SampleView PolyMesh::face_counts(std::uint32_t sample) const { return sample_or_empty(counts_, sample, Pod::Int32, 1); }
-SampleView PolyMesh::face_indices(std::uint32_t sample) const { return sample_or_empty(indices_, sample, Pod::Int32, 1); }
+SampleView PolyMesh::face_indices(std::uint32_t sample) const {
+  return sample_or_empty(indices_, sample, Pod::Int32, 1);
+}
 
 SampleView PolyMesh::velocities(std::uint32_t sample) const {
   if (!velocities_.valid() || velocities_.header().num_samples == 0) return SampleView(Pod::Float32, 3, 0, {});

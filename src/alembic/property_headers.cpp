@@ -77,8 +77,8 @@ void read_compound(const ArchiveData& archive, PropertyNode& compound, std::unor
   const std::uint64_t property_count = group.count - 1;
   while (!in.done()) {
     if (compound.children.size() >= property_count) {
-      file.fail(in.offset(), fmt::format("compound property holds {} properties but its headers describe more",
-                                         property_count));
+      file.fail(in.offset(),
+                fmt::format("compound property holds {} properties but its headers describe more", property_count));
     }
     auto node = std::make_unique<PropertyNode>();
     node->header = read_header(archive, in);
@@ -90,7 +90,8 @@ void read_compound(const ArchiveData& archive, PropertyNode& compound, std::unor
     } else {
       if (node->group.count % 2 != 0) {
         file.fail(node->group.offset, fmt::format("array property '{}' has {} children, expected pairs of data and "
-                                                  "dimensions", node->header.name, node->group.count));
+                                                  "dimensions",
+                                                  node->header.name, node->group.count));
       }
       node->stored_count = node->group.count / 2;
     }

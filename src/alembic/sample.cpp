@@ -30,22 +30,34 @@ T at(std::span<const std::byte> bytes, std::uint64_t i) {
   return ogawa::load_le<T>(bytes.data() + i * sizeof(T));
 }
 
-bool multiply_overflows(std::uint64_t a, std::uint64_t b, std::uint64_t& out) { return __builtin_mul_overflow(a, b, &out); }
+bool multiply_overflows(std::uint64_t a, std::uint64_t b, std::uint64_t& out) {
+  return __builtin_mul_overflow(a, b, &out);
+}
 
 }  // namespace
 
 std::size_t pod_size(Pod pod) {
   switch (pod) {
-    case Pod::Bool: case Pod::Uint8: case Pod::Int8: case Pod::String: return 1;
-    case Pod::Uint16: case Pod::Int16: case Pod::Float16: return 2;
-    case Pod::Uint32: case Pod::Int32: case Pod::Float32: case Pod::WString: return 4;
-    case Pod::Uint64: case Pod::Int64: case Pod::Float64: return 8;
+    case Pod::Bool:
+    case Pod::Uint8:
+    case Pod::Int8:
+    case Pod::String: return 1;
+    case Pod::Uint16:
+    case Pod::Int16:
+    case Pod::Float16: return 2;
+    case Pod::Uint32:
+    case Pod::Int32:
+    case Pod::Float32:
+    case Pod::WString: return 4;
+    case Pod::Uint64:
+    case Pod::Int64:
+    case Pod::Float64: return 8;
   }
   return 1;
 }
 
 std::string_view pod_name(Pod pod) {
-  static constexpr std::string_view names[] = {"bool",  "uint8", "int8",   "uint16",  "int16",   "uint32",  "int32",
+  static constexpr std::string_view names[] = {"bool",   "uint8", "int8",    "uint16",  "int16",   "uint32", "int32",
                                                "uint64", "int64", "float16", "float32", "float64", "string", "wstring"};
   return names[static_cast<std::size_t>(pod)];
 }
@@ -88,8 +100,11 @@ std::int64_t SampleView::value_i64(std::uint64_t i) const {
     case Pod::Int32: return at<std::int32_t>(bytes_, i);
     case Pod::Uint64: return static_cast<std::int64_t>(at<std::uint64_t>(bytes_, i));
     case Pod::Int64: return at<std::int64_t>(bytes_, i);
-    case Pod::Float16: case Pod::Float32: case Pod::Float64: return static_cast<std::int64_t>(value_f64(i));
-    case Pod::String: case Pod::WString: return 0;
+    case Pod::Float16:
+    case Pod::Float32:
+    case Pod::Float64: return static_cast<std::int64_t>(value_f64(i));
+    case Pod::String:
+    case Pod::WString: return 0;
   }
   return 0;
 }
@@ -101,14 +116,16 @@ std::uint64_t SampleView::value_u64(std::uint64_t i) const {
 SampleView Property::sample(std::uint32_t index) const {
   const PropertyHeader& h = node_->header;
   const ogawa::File& file = archive_->file;
-  if (h.kind == PropertyKind::Compound) throw Error(fmt::format("{}: property '{}' is a compound, it has no samples", file.name(), h.name));
+  if (h.kind == PropertyKind::Compound)
+    throw Error(fmt::format("{}: property '{}' is a compound, it has no samples", file.name(), h.name));
   if (index >= h.num_samples) {
-    throw Error(fmt::format("{}: property '{}' has {} samples, sample {} was asked for", file.name(), h.name, h.num_samples, index));
+    throw Error(fmt::format("{}: property '{}' has {} samples, sample {} was asked for", file.name(), h.name,
+                            h.num_samples, index));
   }
   const std::uint32_t stored = h.stored_index(index);
   if (stored >= node_->stored_count) {
-    file.fail(node_->group.offset, fmt::format("property '{}' sample {} maps to stored sample {} but {} are stored", h.name,
-                                               index, stored, node_->stored_count));
+    file.fail(node_->group.offset, fmt::format("property '{}' sample {} maps to stored sample {} but {} are stored",
+                                               h.name, index, stored, node_->stored_count));
   }
   const std::uint64_t elem_bytes = pod_size(h.pod) * h.extent;
   const bool is_text = h.pod == Pod::String || h.pod == Pod::WString;
@@ -116,7 +133,8 @@ SampleView Property::sample(std::uint32_t index) const {
   if (h.kind == PropertyKind::Scalar) {
     const ogawa::Data data = file.child_data(node_->group, stored);
     if (data.size < kKeyBytes) {
-      file.fail(data.offset, fmt::format("scalar sample of '{}' has {} bytes, expected a 16-byte key and values", h.name, data.size));
+      file.fail(data.offset, fmt::format("scalar sample of '{}' has {} bytes, expected a 16-byte key and values",
+                                         h.name, data.size));
     }
     const auto values = file.payload(data).subspan(kKeyBytes);
     if (!is_text && values.size() != elem_bytes) {
@@ -130,27 +148,32 @@ SampleView Property::sample(std::uint32_t index) const {
   const ogawa::Data dims = file.child_data(node_->group, 2ull * stored + 1);
   if (data.size == 0) return SampleView(h.pod, h.extent, 0, {});
   if (data.size < kKeyBytes) {
-    file.fail(data.offset, fmt::format("array sample of '{}' has {} bytes, expected a 16-byte key and values", h.name, data.size));
+    file.fail(data.offset,
+              fmt::format("array sample of '{}' has {} bytes, expected a 16-byte key and values", h.name, data.size));
   }
   const auto values = file.payload(data).subspan(kKeyBytes);
   std::uint64_t count = 0;
   if (dims.size == 0) {
     if (values.size() % elem_bytes != 0) {
-      file.fail(data.offset, fmt::format("array sample of '{}' has {} value bytes, not a multiple of {} ({} x {})", h.name,
-                                         values.size(), elem_bytes, pod_name(h.pod), int(h.extent)));
+      file.fail(data.offset, fmt::format("array sample of '{}' has {} value bytes, not a multiple of {} ({} x {})",
+                                         h.name, values.size(), elem_bytes, pod_name(h.pod), int(h.extent)));
     }
     count = values.size() / elem_bytes;
   } else {
-    if (dims.size % 8 != 0) file.fail(dims.offset, fmt::format("dimensions of '{}' take {} bytes, expected a multiple of 8", h.name, dims.size));
+    if (dims.size % 8 != 0)
+      file.fail(dims.offset,
+                fmt::format("dimensions of '{}' take {} bytes, expected a multiple of 8", h.name, dims.size));
     count = 1;
     for (std::uint64_t r = 0; r < dims.size / 8; ++r) {
       const std::uint64_t d = file.read_u64(dims.offset + r * 8, "array dimension");
-      if (multiply_overflows(count, d, count)) file.fail(dims.offset, fmt::format("dimensions of '{}' overflow", h.name));
+      if (multiply_overflows(count, d, count))
+        file.fail(dims.offset, fmt::format("dimensions of '{}' overflow", h.name));
     }
     std::uint64_t expected = 0;
     if (!is_text && (multiply_overflows(count, elem_bytes, expected) || expected != values.size())) {
-      file.fail(data.offset, fmt::format("array sample of '{}' has {} value bytes but its dimensions say {} elements of {} bytes",
-                                         h.name, values.size(), count, elem_bytes));
+      file.fail(data.offset,
+                fmt::format("array sample of '{}' has {} value bytes but its dimensions say {} elements of {} bytes",
+                            h.name, values.size(), count, elem_bytes));
     }
   }
   if (is_text && dims.size == 0) count = 0;  // strings: count the NUL terminators instead

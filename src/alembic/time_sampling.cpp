@@ -16,8 +16,7 @@ constexpr double kTolerance = kEpsilon * 32.0;
 double TimeSampling::sample_time(std::uint64_t index) const {
   switch (type) {
     case TimeSamplingType::Uniform: return stored_times[0] + time_per_cycle * static_cast<double>(index);
-    case TimeSamplingType::Acyclic:
-      return index < stored_times.size() ? stored_times[index] : stored_times.back();
+    case TimeSamplingType::Acyclic: return index < stored_times.size() ? stored_times[index] : stored_times.back();
     case TimeSamplingType::Cyclic: {
       const std::uint64_t n = stored_times.size();
       const std::uint64_t cycles = index / n;

@@ -119,9 +119,9 @@ struct PropertyOut {
 struct CompoundOut {
   CompoundOut(std::string n, std::string md) : name(std::move(n)), metadata(std::move(md)) {}
   std::string name, metadata;
-  std::vector<PropertyOut*> properties;   // in header order; compounds below are kept apart
+  std::vector<PropertyOut*> properties;  // in header order; compounds below are kept apart
   std::vector<CompoundOut*> compounds;
-  std::vector<bool> is_compound;          // per child, in order
+  std::vector<bool> is_compound;  // per child, in order
 };
 
 void put_sized(std::string& out, std::uint32_t v, unsigned hint) {
@@ -141,7 +141,8 @@ unsigned size_hint(std::initializer_list<std::uint64_t> values) {
   return m < 256 ? 0 : m < 65536 ? 1 : 2;
 }
 
-void header_for(std::string& out, const std::string& name, const std::string& md, PropertyKind kind, const PropertyOut* p) {
+void header_for(std::string& out, const std::string& name, const std::string& md, PropertyKind kind,
+                const PropertyOut* p) {
   using namespace layout::info;
   const std::uint32_t md_index = md.empty() ? 0 : kMetadataInline;
   std::uint32_t info = kind == PropertyKind::Compound ? 0 : kind == PropertyKind::Scalar ? 1 : 2;
@@ -230,8 +231,9 @@ struct ArchiveWriter::Impl {
   explicit Impl(const std::filesystem::path& path) : out(path) {}
 };
 
-ArchiveWriter::ArchiveWriter(const std::filesystem::path& path, const std::string& application, const std::string& description,
-                             double fps, double start_time, const PointsWriterOptions& points)
+ArchiveWriter::ArchiveWriter(const std::filesystem::path& path, const std::string& application,
+                             const std::string& description, double fps, double start_time,
+                             const PointsWriterOptions& points)
     : impl_(std::make_unique<Impl>(path)) {
   Impl& d = *impl_;
   if (!(fps > 0)) throw Error(fmt::format("{}: frame rate {} must be positive", path.string(), fps));
@@ -255,8 +257,12 @@ ArchiveWriter::ArchiveWriter(const std::filesystem::path& path, const std::strin
   d.widths = PropertyOut(".widths", geom_param_md(1, ""), PropertyKind::Array, Pod::Float32, 1);
   for (const auto& [name, extent] : points.float_params) {
     if (extent < 1 || extent > 16) throw Error(fmt::format("parameter '{}': extent {} must be 1..16", name, extent));
-    d.params.emplace_back(name, geom_param_md(extent, name != "Cd" ? "" : extent == 3 ? "rgb" : extent == 4 ? "rgba" : ""), PropertyKind::Array, Pod::Float32,
-                          static_cast<std::uint8_t>(extent));
+    d.params.emplace_back(name,
+                          geom_param_md(extent, name != "Cd"  ? ""
+                                                : extent == 3 ? "rgb"
+                                                : extent == 4 ? "rgba"
+                                                              : ""),
+                          PropertyKind::Array, Pod::Float32, static_cast<std::uint8_t>(extent));
   }
 }
 
@@ -269,7 +275,9 @@ void ArchiveWriter::write_sample(const PointsSample& s) {
   if (d.closed) throw Error("ArchiveWriter: write_sample after close");
   const std::size_t n = s.positions.size() / 3;
   const auto check = [&](std::size_t have, std::size_t want, const char* what) {
-    if (have != want) throw Error(fmt::format("Alembic sample {}: {} values of {} for {} particles, expected {}", d.P.num_samples, have, what, n, want));
+    if (have != want)
+      throw Error(fmt::format("Alembic sample {}: {} values of {} for {} particles, expected {}", d.P.num_samples, have,
+                              what, n, want));
   };
   check(s.positions.size(), n * 3, "P");
   check(s.ids.size(), n, ".pointIds");
@@ -320,7 +328,8 @@ void ArchiveWriter::close() {
   points_top.is_compound.push_back(true);
   const std::uint64_t points_props = write_compound(out, points_top);
   const std::uint64_t points_object = out.group({points_props, out.data(object_headers({}))});
-  const std::string points_md = "schema=AbcGeom_Points_v1;schemaBaseType=AbcGeom_GeomBase_v1;schemaObjTitle=AbcGeom_Points_v1:.geom";
+  const std::string points_md =
+      "schema=AbcGeom_Points_v1;schemaBaseType=AbcGeom_GeomBase_v1;schemaObjTitle=AbcGeom_Points_v1:.geom";
 
   std::uint64_t top_child = points_object;
   std::string top_name = d.options.name, top_md = points_md;
@@ -336,7 +345,8 @@ void ArchiveWriter::close() {
     vals.add(out, d.options.translate.data(), 24);
     identity.add(out, &yes, 1);
     CompoundOut xform{".xform", "schema=AbcGeom_Xform_v3"};
-    for (PropertyOut* p : {&inherits, &ops, &vals, &identity}) xform.properties.push_back(p), xform.is_compound.push_back(false);
+    for (PropertyOut* p : {&inherits, &ops, &vals, &identity})
+      xform.properties.push_back(p), xform.is_compound.push_back(false);
     CompoundOut xform_top{"", ""};
     xform_top.compounds.push_back(&xform);
     xform_top.is_compound.push_back(true);
@@ -359,8 +369,8 @@ void ArchiveWriter::close() {
   sampling(ts0_samples, 1.0, 0.0);
   sampling(d.P.num_samples, 1.0 / d.fps, d.start);
   const std::uint32_t file_version = 0, library_version = 10812;  // the Ogawa layout of Alembic 1.8.12
-  const std::uint64_t root = out.group({out.data(&file_version, 4), out.data(&library_version, 4), top, out.data(d.metadata),
-                                        out.data(samplings), kDataBit});
+  const std::uint64_t root = out.group({out.data(&file_version, 4), out.data(&library_version, 4), top,
+                                        out.data(d.metadata), out.data(samplings), kDataBit});
   out.finish(root);
 }
 

@@ -28,9 +28,7 @@ std::uint32_t near(const Property& p, double time) {
   return static_cast<std::uint32_t>(p.time_sampling().near_index(time, p.header().num_samples).first);
 }
 
-std::uint32_t clamp(const Property& p, std::uint32_t index) {
-  return std::min(index, p.header().num_samples - 1);
-}
+std::uint32_t clamp(const Property& p, std::uint32_t index) { return std::min(index, p.header().num_samples - 1); }
 
 }  // namespace
 
@@ -47,7 +45,8 @@ Matrix44 multiply(const Matrix44& a, const Matrix44& b) {
 }
 
 std::string_view xform_op_name(XformOpType type) {
-  static constexpr std::string_view names[] = {"scale", "translate", "rotate", "matrix", "rotateX", "rotateY", "rotateZ"};
+  static constexpr std::string_view names[] = {"scale",   "translate", "rotate", "matrix",
+                                               "rotateX", "rotateY",   "rotateZ"};
   return names[static_cast<std::size_t>(type)];
 }
 
@@ -60,8 +59,16 @@ Matrix44 XformOp::matrix() const {
   Matrix44 m = identity_matrix();
   const auto& c = channels;
   switch (type) {
-    case XformOpType::Scale: m[0][0] = c[0]; m[1][1] = c[1]; m[2][2] = c[2]; break;
-    case XformOpType::Translate: m[3][0] = c[0]; m[3][1] = c[1]; m[3][2] = c[2]; break;
+    case XformOpType::Scale:
+      m[0][0] = c[0];
+      m[1][1] = c[1];
+      m[2][2] = c[2];
+      break;
+    case XformOpType::Translate:
+      m[3][0] = c[0];
+      m[3][1] = c[1];
+      m[3][2] = c[2];
+      break;
     case XformOpType::Rotate: m = axis_angle(c[0], c[1], c[2], c[3]); break;
     case XformOpType::RotateX: m = axis_angle(1, 0, 0, c[0]); break;
     case XformOpType::RotateY: m = axis_angle(0, 1, 0, c[0]); break;
@@ -83,10 +90,13 @@ bool Xform::matches(const Object& object) { return object.schema() == "AbcGeom_X
 
 Xform::Xform(const Object& object) : object_(object) {
   const auto xform = object.properties().find(".xform");
-  if (!xform || !xform->is_compound()) throw Error(fmt::format("'{}' is not an Xform object (no .xform compound)", object.full_name()));
-  if (auto inherits = xform->find(".inherits"); inherits && inherits->kind() == PropertyKind::Scalar) inherits_ = *inherits;
+  if (!xform || !xform->is_compound())
+    throw Error(fmt::format("'{}' is not an Xform object (no .xform compound)", object.full_name()));
+  if (auto inherits = xform->find(".inherits"); inherits && inherits->kind() == PropertyKind::Scalar)
+    inherits_ = *inherits;
   if (auto vals = xform->find(".vals"); vals && !vals->is_compound()) {
-    if (vals->header().pod != Pod::Float64) throw Error(fmt::format("Xform '{}': .vals is not float64", object.full_name()));
+    if (vals->header().pod != Pod::Float64)
+      throw Error(fmt::format("Xform '{}': .vals is not float64", object.full_name()));
     vals_ = *vals;
   }
   constant_identity_ = !xform->find("isNotConstantIdentity").has_value();
@@ -107,7 +117,9 @@ Xform::Xform(const Object& object) : object_(object) {
 }
 
 std::uint32_t Xform::num_samples() const { return inherits_.valid() ? inherits_.header().num_samples : 0; }
-std::uint32_t Xform::time_sampling_index() const { return inherits_.valid() ? inherits_.header().time_sampling_index : 0; }
+std::uint32_t Xform::time_sampling_index() const {
+  return inherits_.valid() ? inherits_.header().time_sampling_index : 0;
+}
 const TimeSampling& Xform::time_sampling() const {
   return inherits_.valid() ? inherits_.time_sampling() : object_.properties().time_sampling();
 }
@@ -130,8 +142,8 @@ XformSample read_sample(const Object& object, const std::vector<XformOp>& ops, c
   std::uint64_t needed = 0;
   for (const XformOp& op : ops) needed += op.channel_count();
   if (v.scalar_count() < needed) {
-    throw Error(fmt::format("Xform '{}': its ops need {} channel values, the sample holds {}", object.full_name(), needed,
-                            v.scalar_count()));
+    throw Error(fmt::format("Xform '{}': its ops need {} channel values, the sample holds {}", object.full_name(),
+                            needed, v.scalar_count()));
   }
   std::uint64_t k = 0;
   for (XformOp& op : s.ops) {

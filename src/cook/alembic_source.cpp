@@ -17,7 +17,8 @@ bool is_identity(const Matrix44& m) { return m == identity_matrix(); }
 
 // Uniform scale of a transform: the cube root of its 3x3 determinant's magnitude.
 double uniform_scale(const Matrix44& m) {
-  const double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
+  const double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) -
+                     m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
                      m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
   return std::cbrt(std::abs(det));
 }
@@ -26,7 +27,8 @@ double uniform_scale(const Matrix44& m) {
 // Writes them into `out` from element `base` on.
 void expand_param(const GeomParam& p, double time, std::uint64_t count, const std::string& where,
                   std::vector<float>& out, std::uint64_t base) {
-  if (p.values().header().num_samples == 0) throw Error(fmt::format("{}: parameter '{}' has no samples", where, p.name()));
+  if (p.values().header().num_samples == 0)
+    throw Error(fmt::format("{}: parameter '{}' has no samples", where, p.name()));
   const SampleView vals = p.values().sample_at(time).first;
   if (!pod_is_float(vals.pod()) && !pod_is_integer(vals.pod())) {
     throw Error(fmt::format("{}: parameter '{}' is {}, not a number", where, p.name(), pod_name(vals.pod())));
@@ -41,7 +43,8 @@ void expand_param(const GeomParam& p, double time, std::uint64_t count, const st
     for (std::uint64_t i = 0; i < elements; ++i) {
       index[i] = idx.value_u64(i);
       if (index[i] >= vals.size()) {
-        throw Error(fmt::format("{}: parameter '{}' index {} points past its {} values", where, p.name(), index[i], vals.size()));
+        throw Error(fmt::format("{}: parameter '{}' index {} points past its {} values", where, p.name(), index[i],
+                                vals.size()));
       }
     }
   }
@@ -106,8 +109,10 @@ class AlembicSource final : public Source {
       }
       if (objects_.empty()) throw Error(fmt::format("{}: the archive holds no points objects{}", file, object_list()));
       if (objects_.size() > 1 && !options.merge) {
-        throw Error(fmt::format("{}: {} points objects; choose one with --object PATH or cook them together with "
-                                "--merge{}", file, objects_.size(), object_list()));
+        throw Error(
+            fmt::format("{}: {} points objects; choose one with --object PATH or cook them together with "
+                        "--merge{}",
+                        file, objects_.size(), object_list()));
       }
     }
     for (const Cooked& c : objects_) {
@@ -139,7 +144,8 @@ class AlembicSource final : public Source {
   }
   std::uint64_t input_bytes() const override { return archive_.file_size(); }
   bool has_widths() const override {
-    return std::all_of(objects_.begin(), objects_.end(), [](const Cooked& c) { return c.points && c.points->widths(); });
+    return std::all_of(objects_.begin(), objects_.end(),
+                       [](const Cooked& c) { return c.points && c.points->widths(); });
   }
   bool has_color() const override {
     return std::all_of(objects_.begin(), objects_.end(), [](const Cooked& c) { return c.param("Cd") != nullptr; });
@@ -150,7 +156,8 @@ class AlembicSource final : public Source {
     });
   }
   bool has_ids() const override {
-    return std::all_of(objects_.begin(), objects_.end(), [](const Cooked& c) { return c.points && c.points->has_ids(); });
+    return std::all_of(objects_.begin(), objects_.end(),
+                       [](const Cooked& c) { return c.points && c.points->has_ids(); });
   }
   std::uint32_t float_components(const std::string& name) const override {
     std::uint32_t components = 0;
@@ -175,7 +182,8 @@ class AlembicSource final : public Source {
         read_sample(c, static_cast<std::uint32_t>(a), time, request, out);
         continue;
       }
-      blend(c, static_cast<std::uint32_t>(a), static_cast<std::uint32_t>(b), (time - ta) / (tb - ta), time, request, out);
+      blend(c, static_cast<std::uint32_t>(a), static_cast<std::uint32_t>(b), (time - ta) / (tb - ta), time, request,
+            out);
     }
   }
 
@@ -207,13 +215,15 @@ class AlembicSource final : public Source {
     const double size_factor = identity ? 1.0 : uniform_scale(m);
     if (request.scale_from == ScaleFrom::Constant) {
       ensure_size(out.scale, out.count);
-      std::fill(out.scale.begin() + static_cast<std::ptrdiff_t>(base), out.scale.begin() + static_cast<std::ptrdiff_t>(out.count),
-                request.scale_constant);
+      std::fill(out.scale.begin() + static_cast<std::ptrdiff_t>(base),
+                out.scale.begin() + static_cast<std::ptrdiff_t>(out.count), request.scale_constant);
     } else {
-      const GeomParam* p = request.scale_from == ScaleFrom::Widths ? c.param("widths") : c.param(request.scale_attribute);
+      const GeomParam* p =
+          request.scale_from == ScaleFrom::Widths ? c.param("widths") : c.param(request.scale_attribute);
       if (p == nullptr) {
-        throw Error(fmt::format("{}: no {} to take the scale from", where,
-                                request.scale_from == ScaleFrom::Widths ? "widths" : "attribute '" + request.scale_attribute + "'"));
+        throw Error(fmt::format(
+            "{}: no {} to take the scale from", where,
+            request.scale_from == ScaleFrom::Widths ? "widths" : "attribute '" + request.scale_attribute + "'"));
       }
       expand_param(*p, sample_time, n, where, out.scale, base);
       const bool diameter = request.scale_from == ScaleFrom::Widths;
@@ -259,7 +269,8 @@ class AlembicSource final : public Source {
     const double w = translate ? 1.0 : 0.0;
     for (std::uint64_t i = 0; i < n; ++i) {
       const double x = xyz[i * 3], y = xyz[i * 3 + 1], z = xyz[i * 3 + 2];
-      for (int c = 0; c < 3; ++c) xyz[i * 3 + c] = static_cast<float>(x * m[0][c] + y * m[1][c] + z * m[2][c] + w * m[3][c]);
+      for (int c = 0; c < 3; ++c)
+        xyz[i * 3 + c] = static_cast<float>(x * m[0][c] + y * m[1][c] + z * m[2][c] + w * m[3][c]);
     }
   }
 
@@ -297,7 +308,8 @@ class AlembicSource final : public Source {
       }
       for (std::size_t e = 0; e < fa.extra.size(); ++e) {
         const std::size_t comps = float_components(request.floats[e]);
-        for (std::size_t k = 0; k < comps; ++k) fa.extra[e][i * comps + k] = lerp(fa.extra[e][i * comps + k], fb.extra[e][j * comps + k]);
+        for (std::size_t k = 0; k < comps; ++k)
+          fa.extra[e][i * comps + k] = lerp(fa.extra[e][i * comps + k], fb.extra[e][j * comps + k]);
       }
     }
     append(fa, request, out);
@@ -315,7 +327,8 @@ class AlembicSource final : public Source {
     if (request.color) copy(f.color, out.color, 4);
     if (request.velocity) copy(f.velocity, out.velocity, 3);
     if (request.id) copy(f.id, out.id, 1);
-    for (std::size_t e = 0; e < f.extra.size(); ++e) copy(f.extra[e], out.extra[e], float_components(request.floats[e]));
+    for (std::size_t e = 0; e < f.extra.size(); ++e)
+      copy(f.extra[e], out.extra[e], float_components(request.floats[e]));
   }
 
   Archive archive_;

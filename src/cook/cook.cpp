@@ -4,13 +4,13 @@
 #include <bit>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstring>
 #include <limits>
-#include <condition_variable>
 #include <mutex>
 #include <optional>
-#include <utility>
 #include <thread>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -63,26 +63,33 @@ Plan make_plan(const Options& options, const Source& source, Report& report) {
   if (r.color) format::append_attribute(plan.layout, "color", AttributeType::Unorm8, 4);
   for (const std::string& a : options.attributes) {
     if (a == "velocity") {
-      if (!source.has_velocity()) throw Error(fmt::format("{}: --attributes velocity, but the source has none", source.name()));
+      if (!source.has_velocity())
+        throw Error(fmt::format("{}: --attributes velocity, but the source has none", source.name()));
       r.velocity = true;
       format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
     } else if (a == "id" || a == "id32") {
-      if (!source.has_ids()) throw Error(fmt::format("{}: --attributes {}, but the source has no ids", source.name(), a));
+      if (!source.has_ids())
+        throw Error(fmt::format("{}: --attributes {}, but the source has no ids", source.name(), a));
       r.id = true;
       format::append_attribute(plan.layout, "id", a == "id" ? AttributeType::Uint64 : AttributeType::Uint32, 1);
     } else {
       const std::uint32_t components = source.float_components(a);
-      if (components == 0) throw Error(fmt::format("{}: --attributes {}: the source has no such attribute", source.name(), a));
+      if (components == 0)
+        throw Error(fmt::format("{}: --attributes {}: the source has no such attribute", source.name(), a));
       r.floats.push_back(a);
       format::append_attribute(plan.layout, a, AttributeType::Float32, static_cast<std::uint8_t>(components));
     }
   }
   plan.record_size = format::record_size_of(plan.layout);
   for (const Attribute& a : plan.layout) {
-    if (a.name == "color") plan.color = &a;
-    else if (a.name == "velocity") plan.velocity = &a;
-    else if (a.name == "id") plan.id = &a;
-    else if (a.name != "position" && a.name != "scale") plan.floats.push_back(&a);
+    if (a.name == "color")
+      plan.color = &a;
+    else if (a.name == "velocity")
+      plan.velocity = &a;
+    else if (a.name == "id")
+      plan.id = &a;
+    else if (a.name != "position" && a.name != "scale")
+      plan.floats.push_back(&a);
   }
   return plan;
 }
@@ -117,15 +124,19 @@ std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan,
   const std::uint64_t bad = scan.invalid, first_bad = scan.first_invalid;
   if (bad == 0) return 0;
   if (!options.drop_invalid) {
-    throw Error(fmt::format("{}: frame {}: {} particles have NaN or infinite positions (the first is particle {}); "
-                            "--drop-invalid drops them", source, frame, bad, first_bad));
+    throw Error(
+        fmt::format("{}: frame {}: {} particles have NaN or infinite positions (the first is particle {}); "
+                    "--drop-invalid drops them",
+                    source, frame, bad, first_bad));
   }
   std::uint64_t kept = 0;
   for (std::uint64_t i = 0; i < f.count; ++i) {
     const float* p = &f.position[i * 3];
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
     const auto move = [&](auto& v, std::size_t k) {
-      if (v.size() >= f.count * k) std::copy_n(v.begin() + static_cast<std::ptrdiff_t>(i * k), k, v.begin() + static_cast<std::ptrdiff_t>(kept * k));
+      if (v.size() >= f.count * k)
+        std::copy_n(v.begin() + static_cast<std::ptrdiff_t>(i * k), k,
+                    v.begin() + static_cast<std::ptrdiff_t>(kept * k));
     };
     move(f.position, 3);
     move(f.scale, 1);
@@ -296,7 +307,8 @@ std::vector<format::EncodedChunk> encode_all(const std::vector<std::vector<std::
   for (unsigned t = 0; t < threads; ++t) {
     pool.emplace_back([&, t] {
       try {
-        for (std::size_t i = t; i < raws.size(); i += threads) out[i] = format::encode_chunk(raws[i], options.codec, level);
+        for (std::size_t i = t; i < raws.size(); i += threads)
+          out[i] = format::encode_chunk(raws[i], options.codec, level);
       } catch (...) {
         errors[t] = std::current_exception();
       }
@@ -334,12 +346,13 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   const std::int64_t first = options.frame_begin;
   const std::int64_t last = options.frame_end < 0 ? total_frames : std::min(options.frame_end, total_frames);
   if (first < 0 || first >= last) {
-    throw Error(fmt::format("{}: --frames {}:{} selects no frames (the clip has {} frames at {} fps)", source->name(), first,
-                            options.frame_end, total_frames, fps));
+    throw Error(fmt::format("{}: --frames {}:{} selects no frames (the clip has {} frames at {} fps)", source->name(),
+                            first, options.frame_end, total_frames, fps));
   }
 
   format::Metadata meta;
-  meta.flags = (options.bake_xforms ? format::kFlagXformsBaked : 0) | (options.interpolate ? format::kFlagInterpolated : 0);
+  meta.flags =
+      (options.bake_xforms ? format::kFlagXformsBaked : 0) | (options.interpolate ? format::kFlagInterpolated : 0);
   meta.fps = fps;
   meta.time_of_frame0 = start + static_cast<double>(first) / fps;
   meta.chunk_size = options.chunk_size;

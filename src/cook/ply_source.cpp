@@ -40,10 +40,12 @@ std::size_t type_size(PlyType t) {
 
 bool parse_type(const std::string& s, PlyType& t) {
   static const std::map<std::string, PlyType> types = {
-      {"char", PlyType::Int8},    {"int8", PlyType::Int8},     {"uchar", PlyType::Uint8},    {"uint8", PlyType::Uint8},
-      {"short", PlyType::Int16},  {"int16", PlyType::Int16},   {"ushort", PlyType::Uint16},  {"uint16", PlyType::Uint16},
-      {"int", PlyType::Int32},    {"int32", PlyType::Int32},   {"uint", PlyType::Uint32},    {"uint32", PlyType::Uint32},
-      {"float", PlyType::Float32}, {"float32", PlyType::Float32}, {"double", PlyType::Float64}, {"float64", PlyType::Float64}};
+      {"char", PlyType::Int8},      {"int8", PlyType::Int8},       {"uchar", PlyType::Uint8},
+      {"uint8", PlyType::Uint8},    {"short", PlyType::Int16},     {"int16", PlyType::Int16},
+      {"ushort", PlyType::Uint16},  {"uint16", PlyType::Uint16},   {"int", PlyType::Int32},
+      {"int32", PlyType::Int32},    {"uint", PlyType::Uint32},     {"uint32", PlyType::Uint32},
+      {"float", PlyType::Float32},  {"float32", PlyType::Float32}, {"double", PlyType::Float64},
+      {"float64", PlyType::Float64}};
   const auto it = types.find(s);
   if (it == types.end()) return false;
   t = it->second;
@@ -101,14 +103,46 @@ PlyHeader parse_header(std::string_view text, const std::string& file) {
 
 double load_binary(const std::byte* p, PlyType t) {
   switch (t) {
-    case PlyType::Int8: { std::int8_t v; std::memcpy(&v, p, 1); return v; }
-    case PlyType::Uint8: { std::uint8_t v; std::memcpy(&v, p, 1); return v; }
-    case PlyType::Int16: { std::int16_t v; std::memcpy(&v, p, 2); return v; }
-    case PlyType::Uint16: { std::uint16_t v; std::memcpy(&v, p, 2); return v; }
-    case PlyType::Int32: { std::int32_t v; std::memcpy(&v, p, 4); return v; }
-    case PlyType::Uint32: { std::uint32_t v; std::memcpy(&v, p, 4); return v; }
-    case PlyType::Float32: { float v; std::memcpy(&v, p, 4); return v; }
-    case PlyType::Float64: { double v; std::memcpy(&v, p, 8); return v; }
+    case PlyType::Int8: {
+      std::int8_t v;
+      std::memcpy(&v, p, 1);
+      return v;
+    }
+    case PlyType::Uint8: {
+      std::uint8_t v;
+      std::memcpy(&v, p, 1);
+      return v;
+    }
+    case PlyType::Int16: {
+      std::int16_t v;
+      std::memcpy(&v, p, 2);
+      return v;
+    }
+    case PlyType::Uint16: {
+      std::uint16_t v;
+      std::memcpy(&v, p, 2);
+      return v;
+    }
+    case PlyType::Int32: {
+      std::int32_t v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case PlyType::Uint32: {
+      std::uint32_t v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case PlyType::Float32: {
+      float v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case PlyType::Float64: {
+      double v;
+      std::memcpy(&v, p, 8);
+      return v;
+    }
   }
   return 0;
 }
@@ -139,13 +173,15 @@ std::vector<SequenceFile> find_sequence(const std::filesystem::path& example) {
       continue;
     }
     const std::string mid = n.substr(prefix.size(), n.size() - prefix.size() - suffix.size());
-    if (!std::all_of(mid.begin(), mid.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); })) continue;
+    if (!std::all_of(mid.begin(), mid.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); }))
+      continue;
     files.push_back({std::stoll(mid), entry.path()});
   }
   std::sort(files.begin(), files.end(), [](const auto& a, const auto& b) { return a.number < b.number; });
   for (std::size_t i = 1; i < files.size(); ++i) {
     if (files[i].number == files[i - 1].number) {
-      throw Error(fmt::format("{} and {} have the same frame number", files[i - 1].path.string(), files[i].path.string()));
+      throw Error(
+          fmt::format("{} and {} have the same frame number", files[i - 1].path.string(), files[i].path.string()));
     }
     if (files[i].number != files[i - 1].number + 1) {
       throw Error(fmt::format("PLY sequence {}{}{}: frame {} is missing (between {} and {})", prefix,
@@ -192,14 +228,15 @@ class PlySource final : public Source {
     std::vector<std::string> names;
     for (const auto& p : h.properties) names.push_back(p.name);
     if (names != names_ || h.binary != header_.binary) {
-      throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file, fmt::join(names, " "),
-                              fmt::join(names_, " ")));
+      throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file,
+                              fmt::join(names, " "), fmt::join(names_, " ")));
     }
     const std::uint64_t n = h.vertex_count;
     std::vector<double> values(n * h.properties.size());
     if (h.binary) {
       if (n > (mapping.bytes().size() - h.data_offset) / std::max<std::size_t>(h.vertex_size, 1)) {
-        throw Error(fmt::format("{}: {} vertices of {} bytes do not fit in the file (truncated)", file, n, h.vertex_size));
+        throw Error(
+            fmt::format("{}: {} vertices of {} bytes do not fit in the file (truncated)", file, n, h.vertex_size));
       }
       const std::byte* p = mapping.bytes().data() + h.data_offset;
       for (std::uint64_t i = 0; i < n; ++i, p += h.vertex_size) {
@@ -232,8 +269,8 @@ class PlySource final : public Source {
       out.position[(base + i) * 3 + 2] = static_cast<float>(column(z, i));
     }
     ensure_size(out.scale, out.count);
-    std::fill(out.scale.begin() + static_cast<std::ptrdiff_t>(base), out.scale.begin() + static_cast<std::ptrdiff_t>(out.count),
-              request.scale_constant);
+    std::fill(out.scale.begin() + static_cast<std::ptrdiff_t>(base),
+              out.scale.begin() + static_cast<std::ptrdiff_t>(out.count), request.scale_constant);
     if (request.scale_from != ScaleFrom::Constant) {
       int k = -1;
       bool diameter = false;

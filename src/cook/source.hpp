@@ -14,11 +14,11 @@ namespace pstream::cook {
 // their size across frames (no re-zeroing each frame): only the first `count` entries are valid.
 struct ParticleFrame {
   std::uint64_t count = 0;
-  std::vector<float> position;       // 3 per particle
-  std::vector<float> scale;          // 1 per particle
-  std::vector<std::uint8_t> color;   // RGBA8, 4 per particle
-  std::vector<float> velocity;       // 3 per particle
-  std::vector<std::uint64_t> id;     // 1 per particle
+  std::vector<float> position;            // 3 per particle
+  std::vector<float> scale;               // 1 per particle
+  std::vector<std::uint8_t> color;        // RGBA8, 4 per particle
+  std::vector<float> velocity;            // 3 per particle
+  std::vector<std::uint64_t> id;          // 1 per particle
   std::vector<std::vector<float>> extra;  // one array per requested float attribute
   void clear(std::size_t extra_count) {
     count = 0;
@@ -45,8 +45,8 @@ struct Request {
 class Source {
  public:
   virtual ~Source() = default;
-  virtual std::string name() const = 0;     // file and object, for messages and the header
-  virtual std::string object() const = 0;   // what was cooked
+  virtual std::string name() const = 0;    // file and object, for messages and the header
+  virtual std::string object() const = 0;  // what was cooked
   virtual double default_fps() const = 0;
   virtual double start_time() const = 0;
   virtual double end_time() const = 0;

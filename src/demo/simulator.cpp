@@ -35,12 +35,54 @@ struct PresetData {
 };
 
 constexpr PresetData kPresets[] = {
-    {"fountain", 2.4f, 3.6f, 9.81f, 0.15f, 0.0f, {0.6f, 0, 0.15f}, 0.8f, 1.3f, 0.35f, 0.25f,
-     {0.75f, 0.9f, 1.0f, 0.9f}, {0.1f, 0.35f, 0.95f, 0.6f}, 0.07f, 0.04f, false},
-    {"explosion", 1.5f, 3.5f, 4.0f, 1.1f, 0.0f, {0.3f, 0, 0}, 1.5f, 0.9f, 0.25f, 0.4f,
-     {1.0f, 0.85f, 0.35f, 1.0f}, {0.35f, 0.08f, 0.05f, 0.5f}, 0.05f, 0.03f, true},
-    {"smoke", 4.0f, 7.0f, 0.0f, 0.6f, 1.2f, {0.5f, 0, 0.1f}, 1.1f, 0.7f, 0.0f, 0.0f,
-     {0.55f, 0.55f, 0.58f, 0.35f}, {0.25f, 0.25f, 0.28f, 0.0f}, 0.08f, 0.55f, false},
+    {"fountain",
+     2.4f,
+     3.6f,
+     9.81f,
+     0.15f,
+     0.0f,
+     {0.6f, 0, 0.15f},
+     0.8f,
+     1.3f,
+     0.35f,
+     0.25f,
+     {0.75f, 0.9f, 1.0f, 0.9f},
+     {0.1f, 0.35f, 0.95f, 0.6f},
+     0.07f,
+     0.04f,
+     false},
+    {"explosion",
+     1.5f,
+     3.5f,
+     4.0f,
+     1.1f,
+     0.0f,
+     {0.3f, 0, 0},
+     1.5f,
+     0.9f,
+     0.25f,
+     0.4f,
+     {1.0f, 0.85f, 0.35f, 1.0f},
+     {0.35f, 0.08f, 0.05f, 0.5f},
+     0.05f,
+     0.03f,
+     true},
+    {"smoke",
+     4.0f,
+     7.0f,
+     0.0f,
+     0.6f,
+     1.2f,
+     {0.5f, 0, 0.1f},
+     1.1f,
+     0.7f,
+     0.0f,
+     0.0f,
+     {0.55f, 0.55f, 0.58f, 0.35f},
+     {0.25f, 0.25f, 0.28f, 0.0f},
+     0.08f,
+     0.55f,
+     false},
 };
 
 const PresetData& find_preset(const std::string& name) {
@@ -85,7 +127,8 @@ void Simulator::step() {
   birth_debt_ -= double(born);
   for (std::uint64_t b = 0; b < born; ++b) {
     const std::uint64_t id = next_id_++;
-    const float r1 = random01(seed, id, 0), r2 = random01(seed, id, 1), r3 = random01(seed, id, 2), r4 = random01(seed, id, 3);
+    const float r1 = random01(seed, id, 0), r2 = random01(seed, id, 1), r3 = random01(seed, id, 2),
+                r4 = random01(seed, id, 3);
     const float angle = 2 * std::numbers::pi_v<float> * r1;
     float pos[3], vel[3];
     if (options_.preset == "fountain") {

@@ -48,8 +48,10 @@ void decode_chunk(const ChunkEntry& entry, std::span<const std::byte> stored, st
                   std::string_view where) {
   const std::uint64_t sum = checksum(stored);
   if (sum != entry.checksum) {
-    throw Error(fmt::format("{}: checksum mismatch: stored bytes hash to {:016x}, the chunk table says {:016x} "
-                            "(the file is corrupted)", where, sum, entry.checksum));
+    throw Error(
+        fmt::format("{}: checksum mismatch: stored bytes hash to {:016x}, the chunk table says {:016x} "
+                    "(the file is corrupted)",
+                    where, sum, entry.checksum));
   }
   switch (entry.codec) {
     case Codec::Raw:
@@ -59,8 +61,9 @@ void decode_chunk(const ChunkEntry& entry, std::span<const std::byte> stored, st
       if (!out.empty()) std::memcpy(out.data(), stored.data(), out.size());
       return;
     case Codec::Lz4: {
-      const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(stored.data()), reinterpret_cast<char*>(out.data()),
-                                        static_cast<int>(stored.size()), static_cast<int>(out.size()));
+      const int n =
+          LZ4_decompress_safe(reinterpret_cast<const char*>(stored.data()), reinterpret_cast<char*>(out.data()),
+                              static_cast<int>(stored.size()), static_cast<int>(out.size()));
       if (n < 0 || static_cast<std::size_t>(n) != out.size()) {
         throw Error(fmt::format("{}: lz4 data decodes to {} bytes, expected {}", where, n, out.size()));
       }
@@ -69,7 +72,8 @@ void decode_chunk(const ChunkEntry& entry, std::span<const std::byte> stored, st
     case Codec::Zstd: {
       const std::size_t n = ZSTD_decompress(out.data(), out.size(), stored.data(), stored.size());
       if (ZSTD_isError(n)) throw Error(fmt::format("{}: zstd data does not decode: {}", where, ZSTD_getErrorName(n)));
-      if (n != out.size()) throw Error(fmt::format("{}: zstd data decodes to {} bytes, expected {}", where, n, out.size()));
+      if (n != out.size())
+        throw Error(fmt::format("{}: zstd data decodes to {} bytes, expected {}", where, n, out.size()));
       return;
     }
   }
@@ -90,18 +94,22 @@ void ChunkDecoder::decode(const ChunkEntry& entry, std::span<const std::byte> st
                           std::string_view file, std::uint64_t chunk) {
   const auto where = [&] { return fmt::format("{}: chunk {} (file offset {})", file, chunk, entry.file_offset); };
   if (checksum(stored) != entry.checksum) {
-    throw Error(fmt::format("{}: checksum mismatch: the stored bytes do not hash to the chunk table's {:016x} "
-                            "(the file is corrupted or was replaced)", where(), entry.checksum));
+    throw Error(
+        fmt::format("{}: checksum mismatch: the stored bytes do not hash to the chunk table's {:016x} "
+                    "(the file is corrupted or was replaced)",
+                    where(), entry.checksum));
   }
   if (entry.codec == Codec::Zstd) {
-    const std::size_t n = ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(zstd_), out.data(), out.size(), stored.data(), stored.size());
+    const std::size_t n =
+        ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(zstd_), out.data(), out.size(), stored.data(), stored.size());
     if (ZSTD_isError(n) || n != out.size()) {
       throw Error(fmt::format("{}: zstd data does not decode to {} bytes", where(), out.size()));
     }
     return;
   }
   if (entry.codec == Codec::Raw) {
-    if (stored.size() != out.size()) throw Error(fmt::format("{}: raw chunk holds {} bytes, expected {}", where(), stored.size(), out.size()));
+    if (stored.size() != out.size())
+      throw Error(fmt::format("{}: raw chunk holds {} bytes, expected {}", where(), stored.size(), out.size()));
     if (!out.empty()) std::memcpy(out.data(), stored.data(), out.size());
     return;
   }

@@ -16,7 +16,8 @@ std::string_view attribute_type_name(AttributeType type) {
 
 std::size_t attribute_type_size(AttributeType type) {
   switch (type) {
-    case AttributeType::Float32: case AttributeType::Uint32: return 4;
+    case AttributeType::Float32:
+    case AttributeType::Uint32: return 4;
     case AttributeType::Unorm8: return 1;
     case AttributeType::Uint64: return 8;
   }

@@ -115,7 +115,8 @@ std::vector<std::byte> tables_bytes(const Metadata& m) {
 
 std::vector<std::byte> serialize_tables(const Metadata& m) { return tables_bytes(m); }
 
-std::vector<std::byte> serialize_header(const Metadata& m, std::uint64_t tables_offset, std::span<const std::byte> tables) {
+std::vector<std::byte> serialize_header(const Metadata& m, std::uint64_t tables_offset,
+                                        std::span<const std::byte> tables) {
   std::vector<std::byte> h;
   Out out(h);
   out.bytes(kMagic, sizeof kMagic);
@@ -164,13 +165,15 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   header.file_size = file_size;
   Metadata& m = header.meta;
   m.version = h.get<std::uint32_t>("version");
-  if (m.version != kVersion) h.fail(fmt::format("unsupported format version {} (this build reads version {})", m.version, kVersion));
+  if (m.version != kVersion)
+    h.fail(fmt::format("unsupported format version {} (this build reads version {})", m.version, kVersion));
   const auto header_size = h.get<std::uint32_t>("header_size");
   if (header_size != kHeaderSize) h.fail(fmt::format("header_size is {}, expected {}", header_size, kHeaderSize));
   std::uint64_t stored_header_sum = 0;
   std::memcpy(&stored_header_sum, bytes.data() + kHeaderChecksumAt, 8);
   if (checksum(bytes.first(kHeaderChecksumAt)) != stored_header_sum) {
-    throw Error(fmt::format("{}: at offset {}: header checksum mismatch (the header is corrupted)", name, kHeaderChecksumAt));
+    throw Error(
+        fmt::format("{}: at offset {}: header checksum mismatch (the header is corrupted)", name, kHeaderChecksumAt));
   }
   m.flags = h.get<std::uint64_t>("flags");
   m.fps = h.get<double>("fps");
@@ -179,7 +182,8 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   header.frame_count = h.get<std::uint64_t>("frame_count");
   m.chunk_size = h.get<std::uint64_t>("chunk_size");
   if (!std::has_single_bit(m.chunk_size) || m.chunk_size < kMinChunkSize || m.chunk_size > kMaxChunkSize) {
-    h.fail(fmt::format("chunk_size is {}, expected a power of two from {} to {}", m.chunk_size, kMinChunkSize, kMaxChunkSize));
+    h.fail(fmt::format("chunk_size is {}, expected a power of two from {} to {}", m.chunk_size, kMinChunkSize,
+                       kMaxChunkSize));
   }
   header.chunk_count = h.get<std::uint64_t>("chunk_count");
   header.stream_size = h.get<std::uint64_t>("stream_size");
@@ -218,8 +222,9 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
   const std::uint64_t fixed = attribute_count * kAttributeEntrySize;
   if (frame_count > tables_size / kFrameEntrySize || chunk_count > tables_size / kChunkEntrySize ||
       fixed + frame_count * kFrameEntrySize + chunk_count * kChunkEntrySize > tables_size) {
-    throw Error(fmt::format("{}: tables of {} bytes cannot hold {} attributes, {} frames and {} chunks (corrupted counts)",
-                            name, tables_size, attribute_count, frame_count, chunk_count));
+    throw Error(
+        fmt::format("{}: tables of {} bytes cannot hold {} attributes, {} frames and {} chunks (corrupted counts)",
+                    name, tables_size, attribute_count, frame_count, chunk_count));
   }
   if (checksum(tables) != header.tables_checksum) {
     throw Error(fmt::format("{}: at offset {}: tables checksum mismatch (the frame index or chunk table is corrupted)",
@@ -236,7 +241,8 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
     for (char& c : raw_name) c = static_cast<char>(t.get<std::uint8_t>("attribute name"));
     a.name.assign(raw_name, strnlen(raw_name, kAttributeNameSize));
     const auto type = t.get<std::uint8_t>("attribute type");
-    if (type > static_cast<std::uint8_t>(AttributeType::Uint64)) t.fail(fmt::format("attribute {} has unknown type {}", i, type));
+    if (type > static_cast<std::uint8_t>(AttributeType::Uint64))
+      t.fail(fmt::format("attribute {} has unknown type {}", i, type));
     a.type = static_cast<AttributeType>(type);
     a.components = t.get<std::uint8_t>("attribute components");
     t.skip(2, "attribute reserved");
@@ -272,17 +278,17 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
     m.frames.push_back(f);
   }
   if (expected_offset != stream_size) {
-    throw Error(fmt::format("{}: the frame index covers {} bytes but stream_size is {} (frame index inconsistent)", name,
-                            expected_offset, stream_size));
+    throw Error(fmt::format("{}: the frame index covers {} bytes but stream_size is {} (frame index inconsistent)",
+                            name, expected_offset, stream_size));
   }
   if (frame_count > 0 && (min_count != m.min_count || max_count != m.max_count)) {
-    throw Error(fmt::format("{}: header says {}..{} particles per frame, the frame index says {}..{}", name, m.min_count,
-                            m.max_count, min_count, max_count));
+    throw Error(fmt::format("{}: header says {}..{} particles per frame, the frame index says {}..{}", name,
+                            m.min_count, m.max_count, min_count, max_count));
   }
   const std::uint64_t expected_chunks = (stream_size + m.chunk_size - 1) / m.chunk_size;
   if (chunk_count != expected_chunks) {
-    throw Error(fmt::format("{}: chunk_count is {}, but {} bytes in {}-byte chunks need {}", name, chunk_count, stream_size,
-                            m.chunk_size, expected_chunks));
+    throw Error(fmt::format("{}: chunk_count is {}, but {} bytes in {}-byte chunks need {}", name, chunk_count,
+                            stream_size, m.chunk_size, expected_chunks));
   }
   const std::uint64_t payload_start = kHeaderSize, payload_end = header.tables_offset;
   for (std::uint64_t i = 0; i < chunk_count; ++i) {
@@ -299,9 +305,10 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
     }
     c.codec = static_cast<Codec>(codec);
     if (c.file_offset < payload_start || c.file_offset > payload_end || c.stored_size > payload_end - c.file_offset) {
-      throw Error(fmt::format("{}: at offset {}: chunk {} lies at bytes {}..{} but the payload is {}..{} (chunk table "
-                              "points past the end or into the tables)", name, at, i, c.file_offset,
-                              c.file_offset + c.stored_size, payload_start, payload_end));
+      throw Error(
+          fmt::format("{}: at offset {}: chunk {} lies at bytes {}..{} but the payload is {}..{} (chunk table "
+                      "points past the end or into the tables)",
+                      name, at, i, c.file_offset, c.file_offset + c.stored_size, payload_start, payload_end));
     }
     m.chunks.push_back(c);
   }

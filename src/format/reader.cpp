@@ -52,7 +52,8 @@ void Reader::read_chunk(std::uint64_t chunk, std::span<std::byte> out) const {
     throw Error(fmt::format("{}: chunk {} requested, the file has {}", impl_->name, chunk, m.chunk_count()));
   }
   const std::uint64_t raw = m.chunk_raw_size(chunk);
-  if (out.size() < raw) throw Error(fmt::format("{}: buffer of {} bytes for chunk {} of {} bytes", impl_->name, out.size(), chunk, raw));
+  if (out.size() < raw)
+    throw Error(fmt::format("{}: buffer of {} bytes for chunk {} of {} bytes", impl_->name, out.size(), chunk, raw));
   decode_chunk(m.chunks[chunk], stored_chunk(chunk), out.first(raw),
                fmt::format("{}: chunk {} (file offset {})", impl_->name, chunk, m.chunks[chunk].file_offset));
 }
@@ -64,15 +65,16 @@ void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out, std::span
   }
   const FrameEntry& f = m.frames[frame];
   const std::uint64_t size = f.count * m.record_size;
-  if (out.size() < size) throw Error(fmt::format("{}: buffer of {} bytes for frame {} of {} bytes", impl_->name, out.size(), frame, size));
+  if (out.size() < size)
+    throw Error(fmt::format("{}: buffer of {} bytes for frame {} of {} bytes", impl_->name, out.size(), frame, size));
   std::uint64_t pos = f.byte_offset, done = 0;
   while (done < size) {
     const std::uint64_t chunk = pos / m.chunk_size;
     const std::uint64_t within = pos - chunk * m.chunk_size;
     const std::uint64_t take = std::min(size - done, m.chunk_raw_size(chunk) - within);
     if (scratch.size() < m.chunk_raw_size(chunk)) {
-      throw Error(fmt::format("{}: scratch buffer of {} bytes for chunk {} of {} bytes", impl_->name, scratch.size(), chunk,
-                              m.chunk_raw_size(chunk)));
+      throw Error(fmt::format("{}: scratch buffer of {} bytes for chunk {} of {} bytes", impl_->name, scratch.size(),
+                              chunk, m.chunk_raw_size(chunk)));
     }
     read_chunk(chunk, scratch);
     std::memcpy(out.data() + done, scratch.data() + within, take);

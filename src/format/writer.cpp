@@ -21,7 +21,9 @@ void Writer::write_at(std::uint64_t offset, std::span<const std::byte> bytes) {
   while (!bytes.empty()) {
     const ssize_t n = ::pwrite(fd, bytes.data(), bytes.size(), static_cast<off_t>(offset));
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) throw Error(fmt::format("{}: write failed: {}", temp_path_.string(), n < 0 ? std::strerror(errno) : "disk full?"));
+    if (n <= 0)
+      throw Error(
+          fmt::format("{}: write failed: {}", temp_path_.string(), n < 0 ? std::strerror(errno) : "disk full?"));
     bytes = bytes.subspan(static_cast<std::size_t>(n));
     offset += static_cast<std::uint64_t>(n);
   }
@@ -55,7 +57,8 @@ void Writer::append_chunk(const EncodedChunk& chunk) {
   append_chunk(chunk.stored, chunk.codec, chunk.codec_param, chunk.checksum);
 }
 
-void Writer::append_chunk(std::span<const std::byte> stored, Codec codec, std::uint32_t codec_param, std::uint64_t sum) {
+void Writer::append_chunk(std::span<const std::byte> stored, Codec codec, std::uint32_t codec_param,
+                          std::uint64_t sum) {
   ChunkEntry e;
   e.file_offset = position_;
   e.stored_size = stored.size();
@@ -70,7 +73,8 @@ void Writer::append_chunk(std::span<const std::byte> stored, Codec codec, std::u
 std::uint64_t Writer::commit() {
   const std::uint64_t expected = (meta_.stream_size() + meta_.chunk_size - 1) / meta_.chunk_size;
   if (meta_.chunks.size() != expected) {
-    throw Error(fmt::format("{}: {} chunks written, the frames need {}", path_.string(), meta_.chunks.size(), expected));
+    throw Error(
+        fmt::format("{}: {} chunks written, the frames need {}", path_.string(), meta_.chunks.size(), expected));
   }
   constexpr float inf = std::numeric_limits<float>::infinity();
   meta_.bounds = {inf, inf, inf, -inf, -inf, -inf};

@@ -40,25 +40,29 @@ EGLDisplay open_display() {
   EGLDisplay d = eglGetPlatformDisplayEXT(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
   EGLint major = 0, minor = 0;
   if (d == EGL_NO_DISPLAY || !eglInitialize(d, &major, &minor)) {
-    throw Error("no headless OpenGL: neither an EGL device nor Mesa's surfaceless platform could be initialised "
-                "(install libegl-mesa0 and libgl1-mesa-dri, or a GPU driver with EGL)");
+    throw Error(
+        "no headless OpenGL: neither an EGL device nor Mesa's surfaceless platform could be initialised "
+        "(install libegl-mesa0 and libgl1-mesa-dri, or a GPU driver with EGL)");
   }
   return d;
 }
 
 }  // namespace
 
-HeadlessContext::HeadlessContext(int width, int height) : width_(width), height_(height), impl_(std::make_unique<Impl>()) {
+HeadlessContext::HeadlessContext(int width, int height)
+    : width_(width), height_(height), impl_(std::make_unique<Impl>()) {
   if (width <= 0 || height <= 0 || width > 16384 || height > 16384) {
     throw Error(fmt::format("image size {}x{} is out of range (1..16384)", width, height));
   }
   impl_->display = open_display();
   if (!eglBindAPI(EGL_OPENGL_API)) throw Error("EGL: the OpenGL API is not available");
-  const EGLint attributes[] = {EGL_CONTEXT_MAJOR_VERSION, 4, EGL_CONTEXT_MINOR_VERSION, 5, EGL_CONTEXT_OPENGL_PROFILE_MASK,
-                               EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
+  const EGLint attributes[] = {
+      EGL_CONTEXT_MAJOR_VERSION,           4,       EGL_CONTEXT_MINOR_VERSION, 5, EGL_CONTEXT_OPENGL_PROFILE_MASK,
+      EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
   impl_->context = eglCreateContext(impl_->display, EGL_NO_CONFIG_KHR, EGL_NO_CONTEXT, attributes);
   if (impl_->context == EGL_NO_CONTEXT) {
-    throw Error(fmt::format("EGL: no OpenGL 4.5 core context (error 0x{:x}); ParticleStream needs OpenGL 4.5", eglGetError()));
+    throw Error(
+        fmt::format("EGL: no OpenGL 4.5 core context (error 0x{:x}); ParticleStream needs OpenGL 4.5", eglGetError()));
   }
   bind();
   glGenFramebuffers(1, &impl_->framebuffer);
@@ -71,7 +75,8 @@ HeadlessContext::HeadlessContext(int width, int height) : width_(width), height_
   glBindFramebuffer(GL_FRAMEBUFFER, impl_->framebuffer);
   glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, impl_->color);
   glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, impl_->depth);
-  if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) throw Error("offscreen framebuffer incomplete");
+  if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+    throw Error("offscreen framebuffer incomplete");
 }
 
 HeadlessContext::~HeadlessContext() {
@@ -100,7 +105,8 @@ std::vector<std::uint8_t> HeadlessContext::read_rgba() {
   glReadPixels(0, 0, width_, height_, GL_RGBA, GL_UNSIGNED_BYTE, pixels.data());
   const std::size_t row = std::size_t(width_) * 4;  // OpenGL's first row is the bottom one
   for (int y = 0; y < height_ / 2; ++y) {
-    std::swap_ranges(pixels.begin() + y * row, pixels.begin() + (y + 1) * row, pixels.begin() + (height_ - 1 - y) * row);
+    std::swap_ranges(pixels.begin() + y * row, pixels.begin() + (y + 1) * row,
+                     pixels.begin() + (height_ - 1 - y) * row);
   }
   return pixels;
 }

@@ -126,9 +126,11 @@ Renderer::Renderer(RendererOptions options) : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
   d.options = options;
   if (epoxy_gl_version() < 45 || !epoxy_is_desktop_gl()) {
-    throw Error(fmt::format("OpenGL 4.5 core is required; this context offers {} {}.{} ({}). Use `pstream render` for "
-                            "headless rendering, or update the graphics driver", epoxy_is_desktop_gl() ? "OpenGL" : "OpenGL ES",
-                            epoxy_gl_version() / 10, epoxy_gl_version() % 10, gl_renderer()));
+    throw Error(
+        fmt::format("OpenGL 4.5 core is required; this context offers {} {}.{} ({}). Use `pstream render` for "
+                    "headless rendering, or update the graphics driver",
+                    epoxy_is_desktop_gl() ? "OpenGL" : "OpenGL ES", epoxy_gl_version() / 10, epoxy_gl_version() % 10,
+                    gl_renderer()));
   }
   const GLuint vs = compile(GL_VERTEX_SHADER, kVertexShader), fs = compile(GL_FRAGMENT_SHADER, kFragmentShader);
   d.program = glCreateProgram();
@@ -225,13 +227,14 @@ void Renderer::draw(const ParticleBatch& b) {
   std::byte* dst = d.records_map + std::uint64_t(d.region) * d.region_bytes + at;
   std::memcpy(dst, b.first.data(), b.first.size());
   if (!b.second.empty()) std::memcpy(dst + b.first.size(), b.second.data(), b.second.size());
-  glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 0, d.records, GLintptr(std::uint64_t(d.region) * d.region_bytes + at), GLsizeiptr(bytes));
+  glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 0, d.records, GLintptr(std::uint64_t(d.region) * d.region_bytes + at),
+                    GLsizeiptr(bytes));
   const bool ordered = !b.order.empty() && b.blend != BlendMode::Additive;
   if (ordered) {
-    std::memcpy(reinterpret_cast<std::byte*>(d.order_map) + std::uint64_t(d.region) * d.order_region + order_at, b.order.data(),
-                b.order.size_bytes());
-    glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order, GLintptr(std::uint64_t(d.region) * d.order_region + order_at),
-                      GLsizeiptr(b.order.size_bytes()));
+    std::memcpy(reinterpret_cast<std::byte*>(d.order_map) + std::uint64_t(d.region) * d.order_region + order_at,
+                b.order.data(), b.order.size_bytes());
+    glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order,
+                      GLintptr(std::uint64_t(d.region) * d.order_region + order_at), GLsizeiptr(b.order.size_bytes()));
     d.order_used = order_at + b.order.size_bytes();
   } else {
     glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order, 0, 4);
@@ -252,7 +255,8 @@ void Renderer::draw(const ParticleBatch& b) {
   const Mat4 model_view = multiply(d.view, b.world);
   // The light in view space (a direction: no translation).
   const Vec3& l = d.options.light_direction;
-  Vec3 lv{d.view[0] * l[0] + d.view[4] * l[1] + d.view[8] * l[2], d.view[1] * l[0] + d.view[5] * l[1] + d.view[9] * l[2],
+  Vec3 lv{d.view[0] * l[0] + d.view[4] * l[1] + d.view[8] * l[2],
+          d.view[1] * l[0] + d.view[5] * l[1] + d.view[9] * l[2],
           d.view[2] * l[0] + d.view[6] * l[1] + d.view[10] * l[2]};
   const float len = std::sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]);
   for (float& c : lv) c /= len > 0 ? len : 1.0f;

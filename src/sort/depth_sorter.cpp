@@ -166,7 +166,8 @@ std::span<const std::uint32_t> DepthSorter::sort_depths(std::span<const float> d
         sum += shared_hist[0][b] + shared_hist[1][b];
       }
       if (digit == kDigits - 1) {
-        for (std::size_t i = begin; i < end; ++i) out[offset[(src[i] >> shift) & kMask]++] = static_cast<std::uint32_t>(src[i]);
+        for (std::size_t i = begin; i < end; ++i)
+          out[offset[(src[i] >> shift) & kMask]++] = static_cast<std::uint32_t>(src[i]);
       } else {
         for (std::size_t i = begin; i < end; ++i) dst[offset[(src[i] >> shift) & kMask]++] = src[i];
         std::swap(src, dst);

@@ -29,7 +29,9 @@ class FileIo final : public IoBackend {
     while (!out.empty()) {
       const ssize_t n = ::pread(fd_, out.data(), out.size(), static_cast<off_t>(offset));
       if (n < 0 && errno == EINTR) continue;
-      if (n < 0) throw Error(fmt::format("{}: read of {} bytes at offset {} failed: {}", name_, out.size(), offset, std::strerror(errno)));
+      if (n < 0)
+        throw Error(fmt::format("{}: read of {} bytes at offset {} failed: {}", name_, out.size(), offset,
+                                std::strerror(errno)));
       if (n == 0) throw Error(fmt::format("{}: read at offset {} hit the end of the file (truncated?)", name_, offset));
       out = out.subspan(static_cast<std::size_t>(n));
       offset += static_cast<std::uint64_t>(n);

@@ -48,7 +48,8 @@ std::size_t cache_slots(const format::Metadata& m, double seconds) {
   const double wanted = std::ceil(seconds * m.fps * double(m.max_count) / m.particles_per_chunk());
   // Every frame must fit: the most chunks any one frame spans, read from the frame index.
   std::uint64_t frame_chunks = 1;
-  for (std::uint64_t f = 0; f < m.frame_count(); ++f) frame_chunks = std::max(frame_chunks, last_chunk(m, f) - first_chunk(m, f) + 1);
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f)
+    frame_chunks = std::max(frame_chunks, last_chunk(m, f) - first_chunk(m, f) + 1);
   std::uint64_t s = std::max<std::uint64_t>(2, static_cast<std::uint64_t>(std::max(wanted, 0.0)));
   s = std::min<std::uint64_t>(s, m.chunk_count());
   s = std::max<std::uint64_t>(s, frame_chunks);
@@ -188,14 +189,16 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->slot_count = slots;
   impl->cache_bytes = slots * m.chunk_size;
   if (options.budget && !options.budget->try_reserve(impl->cache_bytes)) {
-    throw Error(fmt::format("{}: its cache of {} slots x {} KiB = {:.1f} MiB does not fit the memory budget ({:.1f} of {:.1f} "
-                            "MiB used)", impl->name, slots, m.chunk_size >> 10, impl->cache_bytes / 1048576.0,
-                            options.budget->used() / 1048576.0, options.budget->total() / 1048576.0));
+    throw Error(
+        fmt::format("{}: its cache of {} slots x {} KiB = {:.1f} MiB does not fit the memory budget ({:.1f} of {:.1f} "
+                    "MiB used)",
+                    impl->name, slots, m.chunk_size >> 10, impl->cache_bytes / 1048576.0,
+                    options.budget->used() / 1048576.0, options.budget->total() / 1048576.0));
   }
   impl->budget = options.budget;
   // The cache: one allocation of s x chunk_size bytes, made here and never again.
-  impl->cache.reset(static_cast<std::byte*>(::operator new[](std::max<std::uint64_t>(impl->cache_bytes, 1),
-                                                             std::align_val_t(kCacheAlignment))));
+  impl->cache.reset(static_cast<std::byte*>(
+      ::operator new[](std::max<std::uint64_t>(impl->cache_bytes, 1), std::align_val_t(kCacheAlignment))));
   impl->slots.assign(slots, SlotInfo{});
   impl->slots_snapshot.assign(slots, SlotInfo{});
   const unsigned loads = std::max(1u, options.max_loads_in_flight);
@@ -284,8 +287,8 @@ void ParticleStream::seek(double time) {
   }
   time_ = std::clamp(time, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time);
   d.lap = 0;
-  const std::uint64_t frame = static_cast<std::uint64_t>(std::clamp(
-      std::round((time_ - meta_.time_of_frame0) * meta_.fps), double(d.frame_begin), double(d.frame_end)));
+  const std::uint64_t frame = static_cast<std::uint64_t>(
+      std::clamp(std::round((time_ - meta_.time_of_frame0) * meta_.fps), double(d.frame_begin), double(d.frame_end)));
   std::lock_guard lock(d.mutex);
   // Drop the cache. Loads still in flight free their slots when they complete.
   std::size_t after = 0;
@@ -315,8 +318,8 @@ void ParticleStream::update(double dt) {
   }
   const std::uint64_t N = d.range_chunks();
   const auto frame_of = [&](double t) {
-    return static_cast<std::uint64_t>(std::clamp(std::round((t - m.time_of_frame0) * m.fps), double(d.frame_begin),
-                                                 double(d.frame_end)));
+    return static_cast<std::uint64_t>(
+        std::clamp(std::round((t - m.time_of_frame0) * m.fps), double(d.frame_begin), double(d.frame_end)));
   };
   const auto seq_range = [&](std::uint64_t lap, std::uint64_t frame) {
     return std::pair{lap * N + (first_chunk(m, frame) - d.c0), lap * N + (last_chunk(m, frame) - d.c0)};
@@ -382,7 +385,8 @@ void ParticleStream::update(double dt) {
   d.issue_locked();
   // 4. Blocking mode (offline rendering): wait for the frame instead of stalling.
   if (d.blocking) {
-    d.loaded.wait(lock, [&] { return d.failed || ready() || (d.in_flight == 0 && (d.issue_locked(), d.in_flight == 0)); });
+    d.loaded.wait(lock,
+                  [&] { return d.failed || ready() || (d.in_flight == 0 && (d.issue_locked(), d.in_flight == 0)); });
     if (d.failed) {
       state_ = PlayState::Error;
       error_ = d.failure;
@@ -427,7 +431,8 @@ FrameView ParticleStream::frame() const {
 std::size_t ParticleStream::copy_frame(std::span<std::byte> out) const {
   const FrameView v = frame();
   if (out.size() < v.bytes()) {
-    throw Error(fmt::format("{}: frame {} needs {} bytes, the buffer has {}", impl_->name, v.frame, v.bytes(), out.size()));
+    throw Error(
+        fmt::format("{}: frame {} needs {} bytes, the buffer has {}", impl_->name, v.frame, v.bytes(), out.size()));
   }
   if (!v.first.empty()) std::memcpy(out.data(), v.first.data(), v.first.size());
   if (!v.second.empty()) std::memcpy(out.data() + v.first.size(), v.second.data(), v.second.size());
