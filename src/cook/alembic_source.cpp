@@ -169,6 +169,36 @@ class AlembicSource final : public Source {
     return components;
   }
 
+  bool read_direct(double time, const Request& request, DirectFrame& out) override {
+    if (objects_.size() != 1 || !objects_[0].points || request.interpolate || request.color || request.velocity ||
+        request.id || !request.floats.empty() || request.scale_from == ScaleFrom::Attribute) {
+      return false;
+    }
+    const Cooked& c = objects_[0];
+    const auto index = static_cast<std::uint32_t>(c.sampling().near_index(time, c.samples()).first);
+    const SampleView P = c.points->positions(index);
+    out.count = P.size();
+    out.positions = P.bytes().data();
+    const Matrix44 m = request.bake_xforms ? parent_world_matrix(c.object, time) : identity_matrix();
+    out.identity = is_identity(m);
+    out.matrix = m;
+    const double size_factor = out.identity ? 1.0 : uniform_scale(m);
+    out.widths = nullptr;
+    if (request.scale_from == ScaleFrom::Constant) {
+      out.constant_scale = request.scale_constant;
+      return true;
+    }
+    const GeomParam* w = c.param("widths");
+    if (w == nullptr || w->indexed() || w->values().header().num_samples == 0) return false;
+    const SampleView widths = w->values().sample_at(c.sampling().sample_time(index)).first;
+    if (widths.pod() != Pod::Float32 || widths.extent() != 1 || widths.size() != out.count)
+      return false;  // general path
+    out.widths = widths.bytes().data();
+    out.width_to_scale = static_cast<float>(0.5 * size_factor);
+    if (size_factor != 1.0) return false;  // keep the general path's exact rounding when a transform scales
+    return true;
+  }
+
   void read(double time, const Request& request, ParticleFrame& out) override {
     for (const Cooked& c : objects_) {
       const TimeSampling& ts = c.sampling();

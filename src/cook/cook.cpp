@@ -118,6 +118,34 @@ Scan scan(const ParticleFrame& f) {
   return s;
 }
 
+// A direct frame's position, through its matrix when there is one (as the general path does).
+inline void direct_position(const Source::DirectFrame& d, std::uint64_t i, float out[3]) {
+  std::memcpy(out, d.positions + i * 12, 12);
+  if (d.identity) return;
+  const double x = out[0], y = out[1], z = out[2];
+  const auto& m = d.matrix;
+  for (int c = 0; c < 3; ++c) out[c] = static_cast<float>(x * m[0][c] + y * m[1][c] + z * m[2][c] + m[3][c]);
+}
+
+Scan scan_direct(const Source::DirectFrame& d) {
+  constexpr float inf = std::numeric_limits<float>::infinity();
+  Scan s{{inf, inf, inf, -inf, -inf, -inf}};
+  for (std::uint64_t i = 0; i < d.count; ++i) {
+    float p[3];
+    direct_position(d, i, p);
+    if (!(std::abs(p[0]) <= std::numeric_limits<float>::max() && std::abs(p[1]) <= std::numeric_limits<float>::max() &&
+          std::abs(p[2]) <= std::numeric_limits<float>::max())) {
+      if (s.invalid++ == 0) s.first_invalid = i;
+      continue;
+    }
+    for (int c = 0; c < 3; ++c) {
+      s.bounds[c] = std::min(s.bounds[c], p[c]);
+      s.bounds[c + 3] = std::max(s.bounds[c + 3], p[c]);
+    }
+  }
+  return s;
+}
+
 // Removes particles whose position is not finite, or fails naming the frame.
 std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan, const Options& options,
                            std::uint64_t frame, const std::string& source) {
@@ -293,6 +321,25 @@ void pack(const ParticleFrame& f, const Plan& plan, ChunkCutter& out) {
   }
 }
 
+void pack_direct(const Source::DirectFrame& d, ChunkCutter& out) {
+  for (std::uint64_t i = 0; i < d.count; ++i) {
+    float record[4];
+    direct_position(d, i, record);
+    if (d.widths != nullptr) {
+      float w;
+      std::memcpy(&w, d.widths + i * 4, 4);
+      record[3] = w * d.width_to_scale;
+    } else {
+      record[3] = d.constant_scale;
+    }
+    if (std::byte* dst = out.reserve(sizeof record)) {
+      std::memcpy(dst, record, sizeof record);
+    } else {
+      out.write(reinterpret_cast<const std::byte*>(record), sizeof record);
+    }
+  }
+}
+
 // Encodes chunks on `threads` workers; results keep their order.
 std::vector<format::EncodedChunk> encode_all(const std::vector<std::vector<std::byte>>& raws, const Options& options,
                                              unsigned threads) {
@@ -388,9 +435,27 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   });
 
   ParticleFrame frame;
+  Source::DirectFrame direct;
   for (std::int64_t k = first; k < last; ++k) {
     const double time = start + static_cast<double>(k) / fps;
     const auto index = static_cast<std::uint64_t>(k - first);
+    // The default record straight from the source's mapping: a scan pass and a packing pass,
+    // no intermediate copies. A frame with NaN/Inf positions takes the general path below.
+    if (plan.layout.size() == 2 && source->read_direct(time, plan.request, direct)) {
+      const Scan found = scan_direct(direct);
+      if (found.invalid == 0) {
+        if (direct.count > options.max_particles) {
+          throw Error(fmt::format("{}: frame {} has {} particles, more than --max-particles {}", source->name(), index,
+                                  direct.count, options.max_particles));
+        }
+        writer.append_frame(direct.count, time, found.bounds);
+        pack_direct(direct, cutter);
+        report.particles += direct.count;
+        state.frames_done = index + 1;
+        if (progress) progress(state);
+        continue;
+      }
+    }
     frame.clear(plan.request.floats.size());
     source->read(time, plan.request, frame);
     const Scan found = scan(frame);

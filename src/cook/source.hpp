@@ -1,6 +1,7 @@
 // What the cooker reads particles from: an Alembic archive or a PLY sequence.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -59,6 +60,20 @@ class Source {
   virtual std::uint32_t float_components(const std::string& name) const = 0;
   // Appends the particles at `time` to `out` (nearest sample, or blended when interpolating).
   virtual void read(double time, const Request& request, ParticleFrame& out) = 0;
+
+  // The frame's positions and scales as views into the source (no copies), when the source can
+  // give them for this request: the default [x y z scale] record's fast path. `positions` are
+  // float32 x3 (possibly unaligned); each record's scale is `widths[i] * width_to_scale`, or
+  // `constant_scale` when `widths` is null; positions go through `matrix` unless it is identity.
+  struct DirectFrame {
+    std::uint64_t count = 0;
+    const std::byte* positions = nullptr;
+    const std::byte* widths = nullptr;
+    float width_to_scale = 0.5f, constant_scale = 0.0f;
+    bool identity = true;
+    std::array<std::array<double, 4>, 4> matrix{};
+  };
+  virtual bool read_direct(double /*time*/, const Request& /*request*/, DirectFrame& /*out*/) { return false; }
 };
 
 std::unique_ptr<Source> open_alembic(const Options& options);
