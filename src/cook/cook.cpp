@@ -100,13 +100,15 @@ struct Scan {
   std::uint64_t invalid = 0, first_invalid = 0;
 };
 
-Scan scan(const ParticleFrame& f) {
-  constexpr float inf = std::numeric_limits<float>::infinity();
+// One pass over `count` positions given by `position(i, p)`.
+template <class PositionOf>
+Scan scan_positions(std::uint64_t count, PositionOf position) {
+  constexpr float inf = std::numeric_limits<float>::infinity(), big = std::numeric_limits<float>::max();
   Scan s{{inf, inf, inf, -inf, -inf, -inf}};
-  for (std::uint64_t i = 0; i < f.count; ++i) {
-    const float* p = &f.position[i * 3];
-    if (!(std::abs(p[0]) <= std::numeric_limits<float>::max() && std::abs(p[1]) <= std::numeric_limits<float>::max() &&
-          std::abs(p[2]) <= std::numeric_limits<float>::max())) {
+  for (std::uint64_t i = 0; i < count; ++i) {
+    float p[3];
+    position(i, p);
+    if (!(std::abs(p[0]) <= big && std::abs(p[1]) <= big && std::abs(p[2]) <= big)) {  // NaN or infinite
       if (s.invalid++ == 0) s.first_invalid = i;
       continue;
     }
@@ -116,6 +118,10 @@ Scan scan(const ParticleFrame& f) {
     }
   }
   return s;
+}
+
+Scan scan(const ParticleFrame& f) {
+  return scan_positions(f.count, [&](std::uint64_t i, float* p) { std::copy_n(&f.position[i * 3], 3, p); });
 }
 
 // A direct frame's position, through its matrix when there is one (as the general path does).
@@ -128,22 +134,7 @@ inline void direct_position(const Source::DirectFrame& d, std::uint64_t i, float
 }
 
 Scan scan_direct(const Source::DirectFrame& d) {
-  constexpr float inf = std::numeric_limits<float>::infinity();
-  Scan s{{inf, inf, inf, -inf, -inf, -inf}};
-  for (std::uint64_t i = 0; i < d.count; ++i) {
-    float p[3];
-    direct_position(d, i, p);
-    if (!(std::abs(p[0]) <= std::numeric_limits<float>::max() && std::abs(p[1]) <= std::numeric_limits<float>::max() &&
-          std::abs(p[2]) <= std::numeric_limits<float>::max())) {
-      if (s.invalid++ == 0) s.first_invalid = i;
-      continue;
-    }
-    for (int c = 0; c < 3; ++c) {
-      s.bounds[c] = std::min(s.bounds[c], p[c]);
-      s.bounds[c + 3] = std::max(s.bounds[c + 3], p[c]);
-    }
-  }
-  return s;
+  return scan_positions(d.count, [&](std::uint64_t i, float* p) { direct_position(d, i, p); });
 }
 
 // Removes particles whose position is not finite, or fails naming the frame.

@@ -348,13 +348,15 @@ void ParticleStream::update(double dt) {
   const std::uint64_t need_first = needed.first, need_last = needed.second;  // named: lambdas capture them
 
   std::unique_lock lock(d.mutex);
-  if (d.failed) {
+  const auto failed = [&] {  // the IO worker reported a fault: the stream stops, the host goes on
+    if (!d.failed) return false;
     state_ = PlayState::Error;
     error_ = d.failure;
     d.playing = false;
     d.current_valid = false;
-    return;
-  }
+    return true;
+  };
+  if (failed()) return;
   const auto ready = [&] {
     if (m.frames[target].count == 0) return true;
     if (need_first < d.oldest || need_last >= d.next) return false;
@@ -387,13 +389,7 @@ void ParticleStream::update(double dt) {
   if (d.blocking) {
     d.loaded.wait(lock,
                   [&] { return d.failed || ready() || (d.in_flight == 0 && (d.issue_locked(), d.in_flight == 0)); });
-    if (d.failed) {
-      state_ = PlayState::Error;
-      error_ = d.failure;
-      d.playing = false;
-      d.current_valid = false;
-      return;
-    }
+    if (failed()) return;
   }
   if (ready()) {
     d.current_valid = true;
