@@ -61,7 +61,6 @@ struct ParticleStream::Impl {
   std::unique_ptr<IoBackend> io;
   std::shared_ptr<IoScheduler> scheduler;
   std::shared_ptr<MemoryBudget> budget;
-  bool blocking = false;
   std::string name;
 
   std::unique_ptr<std::byte[], AlignedDelete> cache;
@@ -75,10 +74,8 @@ struct ParticleStream::Impl {
 
   // Playback range in frames and the chunks covering it (host thread only).
   std::uint64_t frame_begin = 0, frame_end = 0, c0 = 0, c1 = 0;
-  bool playing = false;
   double speed = 1.0;
   std::uint64_t lap = 0;
-  bool current_valid = false;
   std::uint64_t current_frame = 0, current_lap = 0;
 
   // Shared with the IO worker, under `mutex`.
@@ -86,13 +83,15 @@ struct ParticleStream::Impl {
   std::condition_variable loaded;  // a load finished (blocking mode, close)
   std::vector<SlotInfo> slots;
   mutable std::vector<SlotInfo> slots_snapshot;  // what debug() hands out
-  bool loop = false;
   std::uint64_t seq_base = 0, slot_base = 0, oldest = 0, next = 0;
-  std::uint32_t in_flight = 0;
-  bool closing = false, failed = false;
   std::string failure;
   std::uint64_t loads_done = 0, bytes_read = 0, stalls = 0;
   std::int64_t io_ns = 0, decode_ns = 0;
+  std::uint32_t in_flight = 0;
+
+  // Flags last, packed together.
+  bool blocking = false, playing = false, current_valid = false;  // host thread
+  bool loop = false, closing = false, failed = false;             // under `mutex`
   bool closed = false;
 
   std::uint64_t range_chunks() const { return c1 - c0 + 1; }
