@@ -61,12 +61,14 @@ std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, d
       H);
   s += fmt::format(R"(<rect width="100%" height="100%" fill="white"/><text x="{}" y="22" font-size="15">{}</text>)", L,
                    title);
-  for (double e = lx0; e <= lx1; ++e) {
+  for (int decade = int(lx0); decade <= int(lx1); ++decade) {
+    const double e = decade;
     s += fmt::format(
         R"(<line x1="{0}" y1="{1}" x2="{0}" y2="{2}" stroke="#ddd"/><text x="{0}" y="{3}" text-anchor="middle">{4}</text>)",
         px(std::pow(10, e)), T, H - B, H - B + 18, fmt::format("1e{}", e));
   }
-  for (double e = ly0; e <= ly1; ++e) {
+  for (int decade = int(ly0); decade <= int(ly1); ++decade) {
+    const double e = decade;
     s += fmt::format(
         R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="#ddd"/><text x="{3}" y="{4}" text-anchor="end">{5} ms</text>)",
         L, py(std::pow(10, e)), W - R, L - 6, py(std::pow(10, e)) + 4, fmt::format("{:g}", std::pow(10, e)));
