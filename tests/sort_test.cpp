@@ -200,3 +200,45 @@ TEST(DepthSorter, SortsRecordsWithoutAllocatingPerFrame) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST(DepthSorter, MergedSourcesSortTogether) {
+  // Three streams with their own world transforms: the merged order must equal sorting all
+  // their depths together, and each entry must name its stream and index.
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> uni(-3.0f, 3.0f);
+  std::vector<std::vector<float>> records(3);
+  std::vector<DepthSorter::Source> sources;
+  const std::size_t counts[3] = {5000, 1, 7000};
+  for (int k = 0; k < 3; ++k) {
+    records[k].resize(counts[k] * 4);
+    for (auto& v : records[k]) v = uni(rng);
+    DepthSorter::Source s;
+    s.records = reinterpret_cast<const std::byte*>(records[k].data());
+    s.count = counts[k];
+    s.view_world = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, float(k), 0, -10.0f - 2.0f * float(k), 1};
+    sources.push_back(s);
+  }
+  DepthSorter sorter(12001);
+  const auto order = sorter.sort_merged(sources, SortMode::BackToFront);
+  ASSERT_EQ(order.size(), 12001u);
+  std::vector<float> all;  // depth = -(z + offset) for these pure translations
+  for (int k = 0; k < 3; ++k) {
+    for (std::size_t i = 0; i < counts[k]; ++i) all.push_back(-(records[k][i * 4 + 2] - 10.0f - 2.0f * float(k)));
+  }
+  std::vector<std::uint32_t> global;
+  const std::size_t base[3] = {0, 5000, 5001};
+  for (std::uint32_t e : order) {
+    const std::uint32_t k = e >> DepthSorter::kMergedIndexBits, i = e & ((1u << DepthSorter::kMergedIndexBits) - 1);
+    ASSERT_LT(k, 3u);
+    ASSERT_LT(i, counts[k]);
+    global.push_back(static_cast<std::uint32_t>(base[k] + i));
+  }
+  for (std::size_t i = 1; i < global.size(); ++i) ASSERT_GE(all[global[i - 1]] + 1e-5f, all[global[i]]) << i;
+  std::vector<bool> seen(all.size());
+  for (auto g : global) seen[g] = true;
+  EXPECT_TRUE(std::all_of(seen.begin(), seen.end(), [](bool b) { return b; }));
+}
+
+}  // namespace

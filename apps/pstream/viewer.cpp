@@ -172,6 +172,13 @@ int run_viewer(const ViewerCli& cli) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(total_max, 4096);
   auto renderer = std::make_unique<render::Renderer>(ro);  // destroyed before its context (below)
+  std::uint64_t total_particles = 0;
+  for (auto& s : streams) total_particles += s.clip->metadata().max_count;
+  auto merged_sorter = std::make_unique<sort::DepthSorter>(total_particles);  // all streams' particles at once
+  std::vector<render::ParticleBatch> batches;
+  std::vector<sort::DepthSorter::Source> sources;
+  batches.reserve(streams.size());
+  sources.reserve(streams.size());
 
   Ui ui;
   ui.streams = &streams;
@@ -226,6 +233,15 @@ int run_viewer(const ViewerCli& cli) {
     renderer->begin_frame(width, height, camera, {ui.background[0], ui.background[1], ui.background[2], 1});
     std::uint64_t drawn = 0;
     double t_stream = 0, t_sort = 0, t_draw = 0;
+    const render::BlendMode blend = ui.blend == 0   ? render::BlendMode::Alpha
+                                    : ui.blend == 1 ? render::BlendMode::Additive
+                                                    : render::BlendMode::AlphaTest;
+    const bool sorting = ui.sort_mode != 0 && blend == render::BlendMode::Alpha;
+    const sort::SortMode mode = ui.sort_mode == 1 ? sort::SortMode::BackToFront : sort::SortMode::FrontToBack;
+    // Several streams sorted as one, so where they overlap they blend in depth order.
+    const bool merge = sorting && streams.size() > 1 && streams.size() <= render::Renderer::kMaxMergedBatches;
+    batches.clear();
+    sources.clear();
     for (auto& s : streams) {
       auto t0 = Clock::now();
       s.clip->set_speed(ui.speed);
@@ -239,26 +255,40 @@ int run_viewer(const ViewerCli& cli) {
       b.record_size = s.clip->metadata().record_size;
       b.color_offset = s.color ? std::int32_t(s.color->offset) : -1;
       b.world = s.clip->world_transform();
-      b.blend = ui.blend == 0   ? render::BlendMode::Alpha
-                : ui.blend == 1 ? render::BlendMode::Additive
-                                : render::BlendMode::AlphaTest;
+      b.blend = blend;
       b.size_multiplier = ui.size;
-      if (ui.sort_mode != 0 && f.count > 0 && b.blend == render::BlendMode::Alpha) {
+      if (sorting && f.count > 0) {
         const std::byte* records = f.first.data();
         if (!f.second.empty()) {
           s.clip->copy_frame(s.contiguous);
           records = s.contiguous.data();
         }
-        b.order = s.sorter->sort(records, f.count, b.record_size, render::multiply(camera.view(), b.world),
-                                 ui.sort_mode == 1 ? sort::SortMode::BackToFront : sort::SortMode::FrontToBack);
+        const render::Mat4 view_world = render::multiply(camera.view(), b.world);
+        if (merge) {
+          sources.push_back({records, f.count, b.record_size, view_world});
+        } else {
+          b.order = s.sorter->sort(records, f.count, b.record_size, view_world, mode);
+        }
       }
       auto t2 = Clock::now();
-      renderer->draw(b);
+      if (merge) {
+        if (f.count > 0) batches.push_back(b);
+      } else {
+        renderer->draw(b);
+      }
       auto t3 = Clock::now();
       drawn += f.count;
       t_stream += std::chrono::duration<double, std::milli>(t1 - t0).count();
       t_sort += std::chrono::duration<double, std::milli>(t2 - t1).count();
       t_draw += std::chrono::duration<double, std::milli>(t3 - t2).count();
+    }
+    if (merge && !batches.empty()) {
+      auto t0 = Clock::now();
+      const auto order = merged_sorter->sort_merged(sources, mode);
+      auto t1 = Clock::now();
+      renderer->draw_merged(batches, order);
+      t_sort += std::chrono::duration<double, std::milli>(t1 - t0).count();
+      t_draw += std::chrono::duration<double, std::milli>(Clock::now() - t1).count();
     }
     renderer->end_frame();
     stream_ms = stream_ms * 0.9 + t_stream * 0.1;

@@ -67,10 +67,16 @@ class Renderer {
 
   void begin_frame(int width, int height, const Camera& camera, const std::array<float, 4>& background);
   void draw(const ParticleBatch& batch);
+  // Several streams' frames as one draw, in a merged order whose entries are (batch << 28) |
+  // index — sort::DepthSorter::sort_merged makes it — so overlapping streams blend in depth
+  // order. The first batch's blend mode and sprite apply to all.
+  static constexpr std::size_t kMaxMergedBatches = 8;
+  void draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order);
   void end_frame();  // fences this frame's buffer region
   static std::string gl_renderer();
 
  private:
+  void impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

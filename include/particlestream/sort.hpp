@@ -73,6 +73,19 @@ class DepthSorter {
                                              std::array<float, 2> near_far = {0.0f, 1.0f});
   std::span<const float> depths() const { return {depths_.get(), last_count_}; }
 
+  // Several streams sorted together (overlapping streams blend correctly only in one order):
+  // each source's records go through its own (view x world) matrix. The entries of the returned
+  // order are (source << kMergedIndexBits) | index within that source. The total count must not
+  // exceed capacity(); at most kMaxMergedSources sources of fewer than 2^28 particles each.
+  static constexpr int kMergedIndexBits = 28;
+  static constexpr std::size_t kMaxMergedSources = 8;
+  struct Source {
+    const std::byte* records = nullptr;
+    std::size_t count = 0, stride = 16;
+    std::array<float, 16> view_world{};
+  };
+  std::span<const std::uint32_t> sort_merged(std::span<const Source> sources, SortMode mode);
+
  private:
   struct Helper;
   std::size_t capacity_;

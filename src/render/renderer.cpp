@@ -4,6 +4,7 @@
 #include <epoxy/gl.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 
@@ -17,24 +18,29 @@ namespace {
 constexpr const char* kVertexShader = R"(#version 450 core
 layout(std430, binding = 0) readonly buffer Records { uint words[]; };
 layout(std430, binding = 1) readonly buffer Order { uint order[]; };
-uniform mat4 u_model_view;
+const int kBatches = 8;                  // streams drawn together in one merged order
+uniform mat4 u_model_view[kBatches];
 uniform mat4 u_projection;
-uniform uint u_stride_words;
-uniform int u_color_word;
-uniform vec4 u_color;
-uniform float u_size;
+uniform uint u_stride_words[kBatches];
+uniform uint u_base_words[kBatches];     // where each batch's records start in the buffer
+uniform int u_color_word[kBatches];
+uniform vec4 u_color[kBatches];
+uniform float u_size[kBatches];
 uniform bool u_use_order;
+uniform bool u_merged;                   // order entries are (batch << 28) | index
 uniform bool u_points;
 uniform float u_viewport_height;
 out vec2 v_corner;
 out vec4 v_color;
 void main() {
-  uint index = u_use_order ? order[gl_InstanceID] : uint(gl_InstanceID);
-  uint w = index * u_stride_words;
+  uint entry = u_use_order ? order[gl_InstanceID] : uint(gl_InstanceID);
+  uint b = u_merged ? entry >> 28u : 0u;
+  uint index = u_merged ? entry & 0x0FFFFFFFu : entry;
+  uint w = u_base_words[b] + index * u_stride_words[b];
   vec3 p = vec3(uintBitsToFloat(words[w]), uintBitsToFloat(words[w + 1u]), uintBitsToFloat(words[w + 2u]));
-  float scale = uintBitsToFloat(words[w + 3u]) * u_size * length(u_model_view[0].xyz);
-  v_color = u_color_word >= 0 ? unpackUnorm4x8(words[w + uint(u_color_word)]) : u_color;
-  vec4 view = u_model_view * vec4(p, 1.0);
+  float scale = uintBitsToFloat(words[w + 3u]) * u_size[b] * length(u_model_view[b][0].xyz);
+  v_color = u_color_word[b] >= 0 ? unpackUnorm4x8(words[w + uint(u_color_word[b])]) : u_color[b];
+  vec4 view = u_model_view[b] * vec4(p, 1.0);
   if (u_points) {
     gl_Position = u_projection * view;
     gl_PointSize = max(1.0, u_projection[1][1] * scale * u_viewport_height / max(-view.z, 1e-4));
@@ -113,8 +119,9 @@ struct Renderer::Impl {
   Mat4 view = identity(), projection = identity();
   int viewport_height = 1;
   GLint ssbo_alignment = 256;
-  GLint u_model_view = -1, u_projection = -1, u_stride = -1, u_color_word = -1, u_color = -1, u_size = -1,
-        u_use_order = -1, u_points = -1, u_viewport_height = -1, u_mode = -1, u_light = -1, u_textured = -1;
+  GLint u_model_view = -1, u_projection = -1, u_stride = -1, u_base = -1, u_color_word = -1, u_color = -1, u_size = -1,
+        u_use_order = -1, u_merged = -1, u_points = -1, u_viewport_height = -1, u_mode = -1, u_light = -1,
+        u_textured = -1;
 };
 
 std::string Renderer::gl_renderer() {
@@ -150,6 +157,8 @@ Renderer::Renderer(RendererOptions options) : impl_(std::make_unique<Impl>()) {
   d.u_model_view = loc("u_model_view");
   d.u_projection = loc("u_projection");
   d.u_stride = loc("u_stride_words");
+  d.u_base = loc("u_base_words");
+  d.u_merged = loc("u_merged");
   d.u_color_word = loc("u_color_word");
   d.u_color = loc("u_color");
   d.u_size = loc("u_size");
@@ -211,48 +220,83 @@ void Renderer::begin_frame(int width, int height, const Camera& camera, const st
 }
 
 void Renderer::draw(const ParticleBatch& b) {
-  Impl& d = *impl_;
-  if (b.count == 0) return;
-  const std::uint64_t bytes = b.first.size() + b.second.size();
-  if (bytes != b.count * b.record_size || b.record_size % 4 != 0) {
-    throw Error(fmt::format("particle batch: {} bytes for {} records of {} bytes", bytes, b.count, b.record_size));
+  const bool ordered = !b.order.empty() && b.blend != BlendMode::Additive;
+  impl_draw({&b, 1}, ordered ? b.order : std::span<const std::uint32_t>{}, false);
+}
+
+void Renderer::draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order) {
+  if (batches.size() > kMaxMergedBatches) {
+    throw Error(
+        fmt::format("{} streams drawn together; the renderer merges at most {}", batches.size(), kMaxMergedBatches));
   }
+  impl_draw(batches, order, true);
+}
+
+void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged) {
+  Impl& d = *impl_;
+  std::uint64_t total = 0, bytes = 0;
+  for (const ParticleBatch& b : batches) {
+    const std::uint64_t n = b.first.size() + b.second.size();
+    if (n != b.count * b.record_size || b.record_size % 4 != 0) {
+      throw Error(fmt::format("particle batch: {} bytes for {} records of {} bytes", n, b.count, b.record_size));
+    }
+    total += b.count;
+    bytes += n;
+  }
+  if (total == 0) return;
   const std::uint64_t at = align_up(d.records_used, std::uint64_t(d.ssbo_alignment));
   const std::uint64_t order_at = align_up(d.order_used, std::uint64_t(d.ssbo_alignment));
-  if (at + bytes > d.region_bytes || order_at + b.order.size_bytes() > d.order_region) {
+  if (at + bytes > d.region_bytes || order_at + order.size_bytes() > d.order_region) {
     throw Error(fmt::format("a frame of {:.1f} MiB exceeds the renderer's {:.1f} MiB per frame (RendererOptions)",
                             (at + bytes) / 1048576.0, d.region_bytes / 1048576.0));
   }
-  // The frame's records move once: from the stream's cache into the mapped GPU buffer.
+  // Each frame's records move once: from the stream's cache into the mapped GPU buffer, batch
+  // after batch; the shader finds a batch's records at its base word.
   std::byte* dst = d.records_map + std::uint64_t(d.region) * d.region_bytes + at;
-  std::memcpy(dst, b.first.data(), b.first.size());
-  if (!b.second.empty()) std::memcpy(dst + b.first.size(), b.second.data(), b.second.size());
+  std::array<GLuint, kMaxMergedBatches> base{}, stride{};
+  std::array<GLint, kMaxMergedBatches> color_word{};
+  std::array<float, kMaxMergedBatches> size{};
+  std::array<float, 4 * kMaxMergedBatches> color{};
+  std::array<float, 16 * kMaxMergedBatches> model_view{};
+  std::uint64_t offset = 0;
+  for (std::size_t k = 0; k < batches.size(); ++k) {
+    const ParticleBatch& b = batches[k];
+    std::memcpy(dst + offset, b.first.data(), b.first.size());
+    if (!b.second.empty()) std::memcpy(dst + offset + b.first.size(), b.second.data(), b.second.size());
+    base[k] = GLuint(offset / 4);
+    stride[k] = b.record_size / 4;
+    color_word[k] = b.color_offset >= 0 ? b.color_offset / 4 : -1;
+    size[k] = b.size_multiplier;
+    std::copy(b.color.begin(), b.color.end(), color.begin() + 4 * k);
+    const Mat4 mv = multiply(d.view, b.world);
+    std::copy(mv.begin(), mv.end(), model_view.begin() + 16 * k);
+    offset += b.first.size() + b.second.size();
+  }
   glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 0, d.records, GLintptr(std::uint64_t(d.region) * d.region_bytes + at),
                     GLsizeiptr(bytes));
-  const bool ordered = !b.order.empty() && b.blend != BlendMode::Additive;
-  if (ordered) {
+  if (!order.empty()) {
     std::memcpy(reinterpret_cast<std::byte*>(d.order_map) + std::uint64_t(d.region) * d.order_region + order_at,
-                b.order.data(), b.order.size_bytes());
+                order.data(), order.size_bytes());
     glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order,
-                      GLintptr(std::uint64_t(d.region) * d.order_region + order_at), GLsizeiptr(b.order.size_bytes()));
-    d.order_used = order_at + b.order.size_bytes();
+                      GLintptr(std::uint64_t(d.region) * d.order_region + order_at), GLsizeiptr(order.size_bytes()));
+    d.order_used = order_at + order.size_bytes();
   } else {
     glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order, 0, 4);
   }
   d.records_used = at + bytes;
 
-  if (!b.texture.empty() && b.texture != d.sprite_path) {  // an artist's sprite, loaded once
+  const ParticleBatch& first = batches.front();                    // blend mode and sprite of the draw
+  if (!first.texture.empty() && first.texture != d.sprite_path) {  // an artist's sprite, loaded once
     int w = 0, h = 0;
-    const auto pixels = read_png(b.texture, w, h);
+    const auto pixels = read_png(first.texture, w, h);
     if (d.sprite) glDeleteTextures(1, &d.sprite);
     glCreateTextures(GL_TEXTURE_2D, 1, &d.sprite);
     glTextureStorage2D(d.sprite, 1, GL_RGBA8, w, h);
     glTextureSubImage2D(d.sprite, 0, 0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, pixels.data());
     glTextureParameteri(d.sprite, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-    d.sprite_path = b.texture;
+    d.sprite_path = first.texture;
   }
 
-  const Mat4 model_view = multiply(d.view, b.world);
   // The light in view space (a direction: no translation).
   const Vec3& l = d.options.light_direction;
   Vec3 lv{d.view[0] * l[0] + d.view[4] * l[1] + d.view[8] * l[2],
@@ -261,21 +305,24 @@ void Renderer::draw(const ParticleBatch& b) {
   const float len = std::sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]);
   for (float& c : lv) c /= len > 0 ? len : 1.0f;
 
+  const auto n = GLsizei(batches.size());
   glUseProgram(d.program);
   glBindVertexArray(d.vao);
-  glUniformMatrix4fv(d.u_model_view, 1, GL_FALSE, model_view.data());
+  glUniformMatrix4fv(d.u_model_view, n, GL_FALSE, model_view.data());
   glUniformMatrix4fv(d.u_projection, 1, GL_FALSE, d.projection.data());
-  glUniform1ui(d.u_stride, b.record_size / 4);
-  glUniform1i(d.u_color_word, b.color_offset >= 0 ? b.color_offset / 4 : -1);
-  glUniform4fv(d.u_color, 1, b.color.data());
-  glUniform1f(d.u_size, b.size_multiplier);
-  glUniform1i(d.u_use_order, ordered ? 1 : 0);
+  glUniform1uiv(d.u_stride, n, stride.data());
+  glUniform1uiv(d.u_base, n, base.data());
+  glUniform1iv(d.u_color_word, n, color_word.data());
+  glUniform4fv(d.u_color, n, color.data());
+  glUniform1fv(d.u_size, n, size.data());
+  glUniform1i(d.u_use_order, order.empty() ? 0 : 1);
+  glUniform1i(d.u_merged, merged ? 1 : 0);
   glUniform1i(d.u_points, d.options.points ? 1 : 0);
   glUniform1f(d.u_viewport_height, float(d.viewport_height));
   glUniform3fv(d.u_light, 1, lv.data());
-  glUniform1i(d.u_textured, b.texture.empty() ? 0 : 1);
+  glUniform1i(d.u_textured, first.texture.empty() ? 0 : 1);
   if (d.sprite) glBindTextureUnit(0, d.sprite);
-  switch (b.blend) {
+  switch (first.blend) {
     case BlendMode::Alpha:  // premultiplied, drawn back to front, no depth writes
       glEnable(GL_BLEND);
       glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
@@ -297,9 +344,9 @@ void Renderer::draw(const ParticleBatch& b) {
   }
   if (d.options.points) {
     glEnable(GL_PROGRAM_POINT_SIZE);
-    glDrawArraysInstanced(GL_POINTS, 0, 1, GLsizei(b.count));
+    glDrawArraysInstanced(GL_POINTS, 0, 1, GLsizei(total));
   } else {
-    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(b.count));
+    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(total));
   }
 }
 

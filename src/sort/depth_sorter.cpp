@@ -179,4 +179,29 @@ std::span<const std::uint32_t> DepthSorter::sort_depths(std::span<const float> d
   return {out, n};
 }
 
+std::span<const std::uint32_t> DepthSorter::sort_merged(std::span<const Source> sources, SortMode mode) {
+  if (sources.size() > kMaxMergedSources) throw std::length_error("DepthSorter::sort_merged: too many sources");
+  std::size_t base[kMaxMergedSources + 1] = {};
+  for (std::size_t k = 0; k < sources.size(); ++k) {
+    if (sources[k].count >= (std::size_t{1} << kMergedIndexBits))
+      throw std::length_error("DepthSorter::sort_merged: source too large");
+    base[k + 1] = base[k] + sources[k].count;
+  }
+  const std::size_t total = base[sources.size()];
+  if (total > capacity_) throw std::length_error("DepthSorter::sort_merged: more particles than the capacity");
+  for (std::size_t k = 0; k < sources.size(); ++k) {
+    compute_depths(sources[k].records, sources[k].count, sources[k].stride, depth_axis(sources[k].view_world),
+                   depths_.get() + base[k]);
+  }
+  const auto order = sort_depths({depths_.get(), total}, mode);
+  std::uint32_t* out = indices_.get();
+  for (std::size_t i = 0; i < order.size(); ++i) {  // global index -> (source, index)
+    const std::size_t g = out[i];
+    std::size_t k = 0;
+    while (g >= base[k + 1]) ++k;
+    out[i] = static_cast<std::uint32_t>(k << kMergedIndexBits | (g - base[k]));
+  }
+  return {out, total};
+}
+
 }  // namespace pstream::sort
