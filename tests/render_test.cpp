@@ -166,7 +166,8 @@ TEST_F(RenderTest, OverlappingStreamsBlendInOneMergedOrder) {
   EXPECT_GT(p[0], 2 * p[2]) << "near red should cover blue";
   ctx.bind();
   renderer.begin_frame(kW, kH, cam, {0, 0, 0, 1});
-  ba.order = std::vector<std::uint32_t>{1, 0};
+  const std::vector<std::uint32_t> a_order = {1, 0};  // stream A alone, back to front
+  ba.order = a_order;
   renderer.draw(ba);
   renderer.draw(bb);
   renderer.end_frame();

@@ -30,7 +30,7 @@ int main(int argc, char** argv) {
       "  pstream verify sim.pstream                  check every checksum and index entry\n"
       "  pstream play sim.pstream                    watch it in a window, with the chunk cache view\n"
       "  pstream render sim.pstream --out frames     headless PNG frames (and --video out.mp4)\n"
-      "  pstream bench read|cook FILE                measure a stage against a baseline",
+      "  pstream bench all                           every benchmark, written to docs/benchmarks.md",
       "pstream"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "pstream 0.1.0");
