@@ -173,14 +173,18 @@ std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan,
 // buffers alternate, so a full one can be written out while the next fills.
 class ChunkCutter {
  public:
+  // The buffers are not zeroed: every byte emitted has been written by reserve() or write().
   ChunkCutter(std::size_t chunk_size, std::function<void(std::span<const std::byte>)> emit)
-      : buffers_{std::vector<std::byte>(chunk_size), std::vector<std::byte>(chunk_size)}, emit_(std::move(emit)) {}
+      : size_(chunk_size),
+        buffers_{std::unique_ptr<std::byte[]>(new std::byte[chunk_size]),
+                 std::unique_ptr<std::byte[]>(new std::byte[chunk_size])},
+        emit_(std::move(emit)) {}
   // Room for a whole record at the write position, or nullptr when it would straddle a border.
   // A full chunk is emitted only when more bytes come, so reserved room is never emitted unwritten.
   std::byte* reserve(std::size_t n) {
     if (fill_ == size()) finish();
     if (size() - fill_ < n) return nullptr;
-    std::byte* p = current().data() + fill_;
+    std::byte* p = current_data() + fill_;
     fill_ += n;
     return p;
   }
@@ -188,7 +192,7 @@ class ChunkCutter {
     while (n > 0) {
       if (fill_ == size()) finish();
       const std::size_t take = std::min(n, size() - fill_);
-      std::memcpy(current().data() + fill_, data, take);
+      std::memcpy(current_data() + fill_, data, take);
       data += take;
       n -= take;
       fill_ += take;
@@ -197,15 +201,16 @@ class ChunkCutter {
   // Emits what is buffered; the emit callback must be done with a buffer before the one after
   // next is handed out (the raw-chunk sink below guarantees it).
   void finish() {
-    if (fill_ > 0) emit_(std::span(current().data(), fill_));
+    if (fill_ > 0) emit_(std::span(current_data(), fill_));
     fill_ = 0;
     which_ ^= 1;
   }
 
  private:
-  std::size_t size() const { return buffers_[0].size(); }
-  std::vector<std::byte>& current() { return buffers_[which_]; }
-  std::vector<std::byte> buffers_[2];
+  std::size_t size() const { return size_; }
+  std::byte* current_data() { return buffers_[which_].get(); }
+  std::size_t size_;
+  std::unique_ptr<std::byte[]> buffers_[2];
   int which_ = 0;
   std::size_t fill_ = 0;
   std::function<void(std::span<const std::byte>)> emit_;
