@@ -29,16 +29,21 @@ struct Particle {
   std::uint32_t rgba;  // R in the lowest byte
 };
 
-std::vector<std::uint8_t> draw(HeadlessContext& ctx, Renderer& r, const Camera& cam, const std::vector<Particle>& ps,
-                               std::vector<std::uint32_t> order, BlendMode blend, const Mat4& world = identity()) {
+ParticleBatch batch_of(const std::vector<Particle>& ps, const Mat4& world = identity()) {
   ParticleBatch b;
   b.first = std::as_bytes(std::span(ps));
   b.count = ps.size();
   b.record_size = sizeof(Particle);
   b.color_offset = 16;
+  b.world = world;
+  return b;
+}
+
+std::vector<std::uint8_t> draw(HeadlessContext& ctx, Renderer& r, const Camera& cam, const std::vector<Particle>& ps,
+                               std::vector<std::uint32_t> order, BlendMode blend, const Mat4& world = identity()) {
+  ParticleBatch b = batch_of(ps, world);
   b.order = order;
   b.blend = blend;
-  b.world = world;
   ctx.bind();
   r.begin_frame(kW, kH, cam, {0, 0, 0, 1});
   r.draw(b);
@@ -135,16 +140,7 @@ TEST_F(RenderTest, OverlappingStreamsBlendInOneMergedOrder) {
   const std::vector<Particle> b = {{0.3f, 0, -0.5f, 0.6f, 0xffe02020u}};
   const Mat4 b_world = translation({0, 0, -0.5f});  // the blue one ends at z = -1
   Camera cam;
-  const auto batch_of = [](const std::vector<Particle>& ps, const Mat4& world) {
-    ParticleBatch batch;
-    batch.first = std::as_bytes(std::span(ps));
-    batch.count = ps.size();
-    batch.record_size = sizeof(Particle);
-    batch.color_offset = 16;
-    batch.world = world;
-    return batch;
-  };
-  ParticleBatch ba = batch_of(a, identity()), bb = batch_of(b, b_world);
+  ParticleBatch ba = batch_of(a), bb = batch_of(b, b_world);
   pstream::sort::DepthSorter sorter(3);
   const std::vector<pstream::sort::DepthSorter::Source> sources = {
       {ba.first.data(), 2, sizeof(Particle), multiply(cam.view(), ba.world)},
