@@ -182,20 +182,19 @@ class AlembicSource final : public Source {
     const Matrix44 m = request.bake_xforms ? parent_world_matrix(c.object, time) : identity_matrix();
     out.identity = is_identity(m);
     out.matrix = m;
-    const double size_factor = out.identity ? 1.0 : uniform_scale(m);
     out.widths = nullptr;
     if (request.scale_from == ScaleFrom::Constant) {
       out.constant_scale = request.scale_constant;
       return true;
     }
+    // A transform that scales also scales widths: the general path does that arithmetic.
+    if (!out.identity && uniform_scale(m) != 1.0) return false;
     const GeomParam* w = c.param("widths");
     if (w == nullptr || w->indexed() || w->values().header().num_samples == 0) return false;
     const SampleView widths = w->values().sample_at(c.sampling().sample_time(index)).first;
     if (widths.pod() != Pod::Float32 || widths.extent() != 1 || widths.size() != out.count)
       return false;  // general path
     out.widths = widths.bytes().data();
-    out.width_to_scale = static_cast<float>(0.5 * size_factor);
-    if (size_factor != 1.0) return false;  // keep the general path's exact rounding when a transform scales
     return true;
   }
 

@@ -324,7 +324,7 @@ void pack_direct(const Source::DirectFrame& d, ChunkCutter& out) {
     if (d.widths != nullptr) {
       float w;
       std::memcpy(&w, d.widths + i * 4, 4);
-      record[3] = w * d.width_to_scale;
+      record[3] = scale_from_width(w);
     } else {
       record[3] = d.constant_scale;
     }

@@ -63,13 +63,13 @@ class Source {
 
   // The frame's positions and scales as views into the source (no copies), when the source can
   // give them for this request: the default [x y z scale] record's fast path. `positions` are
-  // float32 x3 (possibly unaligned); each record's scale is `widths[i] * width_to_scale`, or
+  // float32 x3 (possibly unaligned); each record's scale is scale_from_width(widths[i]), or
   // `constant_scale` when `widths` is null; positions go through `matrix` unless it is identity.
   struct DirectFrame {
     std::uint64_t count = 0;
     const std::byte* positions = nullptr;
     const std::byte* widths = nullptr;
-    float width_to_scale = 0.5f, constant_scale = 0.0f;
+    float constant_scale = 0.0f;
     bool identity = true;
     std::array<std::array<double, 4>, 4> matrix{};
   };
