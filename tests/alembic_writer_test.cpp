@@ -53,8 +53,7 @@ PointsSample sample_of(const Frame& f) {
 }
 
 TEST(AlembicWriter, EveryValueReadsBack) {
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "writer";
-  fs::create_directories(dir);
+  const fs::path dir = test::fresh_dir();
   const fs::path file = dir / "written.abc";
   const auto frames = make_frames(10);
   PointsWriterOptions o;
@@ -112,8 +111,7 @@ TEST(AlembicWriter, EveryValueReadsBack) {
 }
 
 TEST(AlembicWriter, UnclosedFileIsRefused) {
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "writer";
-  fs::create_directories(dir);
+  const fs::path dir = test::fresh_dir();
   const fs::path file = dir / "unclosed.abc";
   {
     ArchiveWriter w(file, "t", "d", 24.0, 0.0, {});

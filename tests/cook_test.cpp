@@ -19,18 +19,6 @@ namespace {
 using namespace pstream;
 namespace fs = std::filesystem;
 
-fs::path temp_dir() {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  fs::path dir =
-      fs::temp_directory_path() / "pstream-tests" / (std::string(info->test_suite_name()) + "." + info->name());
-  for (char& c : const_cast<std::string&>(dir.native())) {
-    if (c == '<' || c == '>' || c == '"') c = '_';
-  }
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
 struct Expected {
   std::vector<float> records;  // x y z scale per particle
 };
@@ -104,7 +92,7 @@ class CookFixture : public ::testing::TestWithParam<std::tuple<Case, format::Cod
 
 TEST_P(CookFixture, EveryFrameEqualsTheSource) {
   const auto& [c, codec] = GetParam();
-  const fs::path dir = temp_dir();
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path(std::string("alembic/") + c.file + ".abc");
   o.output = dir / "out.pstream";
@@ -151,7 +139,7 @@ INSTANTIATE_TEST_SUITE_P(Cook, CookFixture,
                          case_name);
 
 TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
-  const fs::path dir = temp_dir();
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path("alembic/points_multi.abc");
   o.output = dir / "merged.pstream";
@@ -180,7 +168,7 @@ TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
 }
 
 TEST(Cook, AttributesColourVelocityIdAndFloats) {
-  const fs::path dir = temp_dir();
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path("alembic/points_varying.abc");
   o.output = dir / "attrs.pstream";
@@ -223,7 +211,7 @@ TEST(Cook, AttributesColourVelocityIdAndFloats) {
 }
 
 TEST(Cook, InterpolationBlendsParticlesMatchedById) {
-  const fs::path dir = temp_dir();
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path("alembic/points_constant.abc");
   o.output = dir / "interp.pstream";
@@ -252,7 +240,7 @@ TEST(Cook, InterpolationBlendsParticlesMatchedById) {
 }
 
 TEST(Cook, SameInputSameBytes) {
-  const fs::path dir = temp_dir();
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path("alembic/points_varying.abc");
   o.codec = format::Codec::Zstd;
@@ -289,7 +277,7 @@ void expect_cook_error(const cook::Options& o, const std::string& fragment) {
 }
 
 TEST(CookBadInput, MissingObjectNoPointsZeroFramesTooMany) {
-  const fs::path dir = temp_dir();
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.output = dir / "out.pstream";
   o.input = test::data_path("alembic/points_constant.abc");
@@ -331,7 +319,7 @@ void write_ply(const fs::path& path, const std::vector<std::array<float, 4>>& po
 
 TEST(CookPly, AsciiAndBinarySequencesCookExactly) {
   for (bool binary : {false, true}) {
-    const fs::path dir = temp_dir();
+    const fs::path dir = test::fresh_dir();
     for (int f = 1; f <= 3; ++f) {
       std::vector<std::array<float, 4>> pts;
       for (int i = 0; i < 10 * f; ++i) pts.push_back({0.5f * i, 0.25f * f, -1.0f * i, 0.125f});
@@ -355,7 +343,7 @@ TEST(CookPly, AsciiAndBinarySequencesCookExactly) {
 }
 
 TEST(CookPly, GapsMismatchesAndNaN) {
-  const fs::path dir = temp_dir();
+  const fs::path dir = test::fresh_dir();
   write_ply(dir / "a.0001.ply", {{0, 0, 0, 1}}, false);
   write_ply(dir / "a.0003.ply", {{0, 0, 0, 1}}, false);
   cook::Options o;

@@ -34,8 +34,7 @@ TEST(DemoSimulator, DeterministicWithBirthsAndDeaths) {
 }
 
 TEST(DemoSimulator, AlembicFileReadsBackWithEveryValueEqual) {
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "demo-abc";
-  fs::create_directories(dir);
+  const fs::path dir = test::fresh_dir();
   const fs::path file = dir / "demo.abc";
   demo::Simulator sim({"fountain", 3000, 2.0, 24.0, 3, 0});
   std::vector<demo::ParticleState> frames;

@@ -18,8 +18,7 @@ namespace fs = std::filesystem;
 
 std::vector<std::byte> cooked_bytes() {
   static const std::vector<std::byte> bytes = [] {
-    const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "format";
-    fs::create_directories(dir);
+    const fs::path dir = test::fresh_dir();  // per test: CTest runs tests in parallel processes
     cook::Options o;
     o.input = test::data_path("alembic/points_constant.abc");
     o.output = dir / "clip.pstream";
@@ -128,8 +127,7 @@ TEST(FormatCorruption, TablesChecksum) {
 }
 
 TEST(FormatCorruption, VerifyCommandExitCodes) {
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "verify";
-  fs::create_directories(dir);
+  const fs::path dir = test::fresh_dir();
   auto b = cooked_bytes();
   const auto write = [&](const fs::path& p) {
     std::FILE* f = std::fopen(p.c_str(), "wb");
@@ -162,8 +160,7 @@ TEST(Format, MetadataRoundTrips) {
 }
 
 TEST(Format, InfoJsonFrameSumsMatchTheSource) {
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "info";
-  fs::create_directories(dir);
+  const fs::path dir = test::fresh_dir();
   const std::string out = (dir / "v.pstream").string();
   auto r = test::run_cli("cook -q '" + test::data_path("alembic/points_varying.abc") + "' -o '" + out +
                          "' --chunk-size 64KiB");

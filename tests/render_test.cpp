@@ -173,9 +173,7 @@ TEST_F(RenderTest, OverlappingStreamsBlendInOneMergedOrder) {
 }
 
 TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "render-command";
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path("alembic/points_varying.abc");
   o.output = dir / "v.pstream";
@@ -204,9 +202,7 @@ TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
 
 TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
   if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "viewer";
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path("alembic/points_large.abc");
   o.output = dir / "large.pstream";
@@ -242,8 +238,7 @@ namespace {
 // `pstream demo` end to end on a small smoke simulation (the preset where sorting matters):
 // every output exists, the report holds measured figures, and two frames match references.
 TEST(Demo, SmallSmokeRunProducesEverythingAndMatchingFrames) {
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / "demo-run";
-  fs::remove_all(dir);
+  const fs::path dir = test::fresh_dir();
   const auto r =
       test::run_cli("demo --preset smoke --particles 3000 --seconds 1 --fps 12 --size 320x180 --headless -q --out '" +
                     dir.string() + "'");

@@ -23,18 +23,6 @@ namespace {
 using namespace pstream;
 namespace fs = std::filesystem;
 
-fs::path test_dir() {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  std::string name = std::string(info->test_suite_name()) + "." + info->name();
-  for (char& c : name) {
-    if (c == '/') c = '_';
-  }
-  const fs::path dir = fs::temp_directory_path() / "pstream-tests" / name;
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
 fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::Codec codec,
                       std::vector<std::string> attributes = {}, const std::string& object = {}) {
   cook::Options o;
@@ -117,7 +105,7 @@ stream::StreamOptions tiny_cache(bool blocking = true) {
 }
 
 TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const std::vector<fs::path> files = {
       cook_fixture(dir, "points_constant", format::Codec::Raw),
       cook_fixture(dir, "points_varying", format::Codec::Lz4, {"velocity", "id"}),  // 40-byte records
@@ -147,7 +135,7 @@ TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
 }
 
 TEST(Stream, LoopingAndSpeed) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path file = cook_fixture(dir, "points_varying", format::Codec::Raw);
   const Reference ref(file);
   const auto& m = ref.reader.metadata();
@@ -183,7 +171,7 @@ TEST(Stream, LoopingAndSpeed) {
 }
 
 TEST(Stream, TwoHundredRandomSeeks) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path file = cook_fixture(dir, "points_large", format::Codec::Lz4);
   const Reference ref(file);
   const auto& m = ref.reader.metadata();
@@ -201,7 +189,7 @@ TEST(Stream, TwoHundredRandomSeeks) {
 }
 
 TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path file = cook_fixture(dir, "points_varying", format::Codec::Zstd, {"velocity"});
   const Reference ref(file);
   const auto& m = ref.reader.metadata();
@@ -249,7 +237,7 @@ class ThrottledIo final : public stream::IoBackend {
 };
 
 TEST(Stream, ExactBandwidthNoStallsHalfBandwidthStallsAndRecovers) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const double fps = 30;
   const fs::path file = synthetic_clip(dir, 150, fps, [](std::uint64_t) { return 8192; });  // 128 KiB a frame
   const auto m = format::Reader::open(file).metadata();
@@ -321,7 +309,7 @@ void play_until_error(stream::ParticleStream& s) {
 }
 
 TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path file = cook_fixture(dir, "points_constant", format::Codec::Raw);
   const auto m = format::Reader::open(file).metadata();
   const std::uint64_t chunk5 = m.chunks[5].file_offset;
@@ -371,7 +359,7 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
 }
 
 TEST(Stream, CacheSizingAndSharedMemoryBudget) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path file = synthetic_clip(dir, 240, 60, [](std::uint64_t f) { return 4000 + f * 10; });  // T = 6390
   const auto m = format::Reader::open(file).metadata();
   // s = ceil(t * fps * T / p) with p = 65536 / 16 = 4096 particles per chunk.
@@ -407,14 +395,14 @@ TEST(Stream, CacheSizingAndSharedMemoryBudget) {
 }
 
 TEST(Stream, SmallestCacheIsTwoSlots) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path file = cook_fixture(dir, "points_constant", format::Codec::Raw);  // 16 KB frames, 64 KiB chunks
   auto s = stream::ParticleStream::open(file, tiny_cache());
   EXPECT_EQ(s->debug().slots.size(), 2u);
 }
 
 TEST(Stream, StreamsShareOneScheduler) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path a_file = cook_fixture(dir, "points_varying", format::Codec::Lz4);
   const fs::path b_file = cook_fixture(dir, "points_large", format::Codec::Raw);
   const Reference a_ref(a_file), b_ref(b_file);
@@ -436,7 +424,7 @@ TEST(Stream, StreamsShareOneScheduler) {
 }
 
 TEST(Stream, DebugInfoWorldTransformRangeAndStop) {
-  const fs::path dir = test_dir();
+  const fs::path dir = test::fresh_dir();
   const fs::path file = synthetic_clip(dir, 100, 25, [](std::uint64_t) { return 3000; });
   auto s = stream::ParticleStream::open(file, tiny_cache());
   const auto d0 = s->debug();

@@ -1,5 +1,8 @@
 #pragma once
 
+#include <gtest/gtest.h>
+
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -8,6 +11,22 @@
 #include <vector>
 
 namespace pstream::test {
+
+// An empty folder of its own for a test under /tmp/pstream-tests/: named `name`, or after the
+// running GoogleTest test (characters that are awkward in paths become '_').
+inline std::filesystem::path fresh_dir(std::string name = {}) {
+  if (name.empty()) {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    name = std::string(info->test_suite_name()) + "." + info->name();
+  }
+  for (char& c : name) {
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.' && c != '-' && c != '_') c = '_';
+  }
+  const auto dir = std::filesystem::temp_directory_path() / "pstream-tests" / name;
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
 
 inline std::string data_path(const std::string& relative) { return std::string(PSTREAM_TEST_DATA) + "/" + relative; }
 
