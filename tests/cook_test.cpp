@@ -2,14 +2,19 @@
 // (positions, scale = width / 2), whatever the codec and however frames straddle chunks.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 #include <fmt/format.h>
+#include <hwy/targets.h>
 
 #include "particlestream/alembic.hpp"
+#include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
 #include "test_util.hpp"
@@ -88,16 +93,31 @@ const Case kCases[] = {
     {"mesh_vertices", {"/grid"}, 24},
 };
 
-class CookFixture : public ::testing::TestWithParam<std::tuple<Case, format::Codec>> {};
+// Bounds of a frame's expected records (min xyz, max xyz).
+std::array<float, 6> bounds_of(const std::vector<float>& records) {
+  constexpr float inf = std::numeric_limits<float>::infinity();
+  std::array<float, 6> b{inf, inf, inf, -inf, -inf, -inf};
+  for (std::size_t i = 0; i < records.size(); i += 4) {
+    for (int c = 0; c < 3; ++c) {
+      b[c] = std::min(b[c], records[i + c]);
+      b[c + 3] = std::max(b[c + 3], records[i + c]);
+    }
+  }
+  return b;
+}
+
+// Chunk sizes: the smallest (frames straddle many borders) and one larger than the cooker's raw
+// write pieces (a chunk is then written and checksummed in several pieces).
+class CookFixture : public ::testing::TestWithParam<std::tuple<Case, format::Codec, std::uint64_t>> {};
 
 TEST_P(CookFixture, EveryFrameEqualsTheSource) {
-  const auto& [c, codec] = GetParam();
+  const auto& [c, codec, chunk_size] = GetParam();
   const fs::path dir = test::fresh_dir();
   cook::Options o;
   o.input = test::data_path(std::string("alembic/") + c.file + ".abc");
   o.output = dir / "out.pstream";
   o.object = c.objects.front();
-  o.chunk_size = format::kMinChunkSize;  // many chunks, frames straddling their borders
+  o.chunk_size = chunk_size;
   o.codec = codec;
   o.threads = 2;
   const cook::Report report = cook::cook(o);
@@ -121,6 +141,7 @@ TEST_P(CookFixture, EveryFrameEqualsTheSource) {
           << c.file << " frame " << f << " particle " << i;
     }
     const auto& e = m.frames[f];
+    EXPECT_EQ(e.bounds, bounds_of(expected)) << c.file << " frame " << f;
     if (e.count && e.byte_offset / m.chunk_size != (e.byte_offset + e.count * rs - 1) / m.chunk_size) ++straddling;
   }
   if (m.stream_size() > 2 * m.chunk_size) {
@@ -128,14 +149,16 @@ TEST_P(CookFixture, EveryFrameEqualsTheSource) {
   }
 }
 
-std::string case_name(const ::testing::TestParamInfo<std::tuple<Case, format::Codec>>& info) {
-  return std::string(std::get<0>(info.param).file) + "_" + std::string(format::codec_name(std::get<1>(info.param)));
+std::string case_name(const ::testing::TestParamInfo<std::tuple<Case, format::Codec, std::uint64_t>>& info) {
+  return fmt::format("{}_{}_{}k", std::get<0>(info.param).file, format::codec_name(std::get<1>(info.param)),
+                     std::get<2>(info.param) / 1024);
 }
 
 INSTANTIATE_TEST_SUITE_P(Cook, CookFixture,
                          ::testing::Combine(::testing::ValuesIn(kCases),
                                             ::testing::Values(format::Codec::Raw, format::Codec::Lz4,
-                                                              format::Codec::Zstd)),
+                                                              format::Codec::Zstd),
+                                            ::testing::Values(format::kMinChunkSize, std::uint64_t{1} << 20)),
                          case_name);
 
 TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
@@ -315,6 +338,88 @@ void write_ply(const fs::path& path, const std::vector<std::array<float, 4>>& po
       out << p[0] << " " << p[1] << " " << p[2] << " " << p[3] << "\n";
     }
   }
+}
+
+// NaN/Inf positions in an Alembic cache, through the cooker's fast path: its SIMD body and scalar
+// tail, block borders, with and without a transform and widths.
+TEST(CookBadInput, NanAndInfPositionsFailTheFrameOrAreDropped) {
+  constexpr std::size_t n = 5003;  // not a multiple of any SIMD width: the kernel's tail runs too
+  const float nan = std::nanf(""), inf = std::numeric_limits<float>::infinity();
+  std::vector<float> p0(n * 3), p1(n * 3), widths(n);
+  std::vector<std::uint64_t> ids(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float x = static_cast<float>(i) * 0.25f - 300.0f, y = static_cast<float>(i % 97) - 40.0f,
+                z = -static_cast<float>(i) * 0.125f;
+    p0[i * 3] = p1[i * 3] = x;
+    p0[i * 3 + 1] = y;
+    p1[i * 3 + 1] = y + 1.0f;
+    p0[i * 3 + 2] = p1[i * 3 + 2] = z;
+    widths[i] = 0.01f * static_cast<float>(1 + i % 5);
+    ids[i] = i;
+  }
+  // Around the 4096-record border of a 64 KiB chunk, at both ends, one of each kind.
+  const std::pair<std::size_t, float> bad[] = {{3 * 3, nan},         {1000 * 3 + 1, nan}, {2048 * 3, inf},
+                                               {4095 * 3 + 1, -inf}, {4096 * 3 + 2, nan}, {5002 * 3 + 2, inf}};
+  for (const auto& [at, value] : bad) p0[at] = value;
+
+  // Every SIMD target this machine runs (Highway dispatches to the best one otherwise).
+  for (const std::int64_t target : hwy::SupportedAndGeneratedTargets()) {
+    hwy::SetSupportedTargetsForTest(target);
+    for (const bool translated : {false, true}) {
+      for (const bool with_widths : {true, false}) {
+        SCOPED_TRACE(fmt::format("{}: translated {} widths {}", hwy::TargetName(target), translated, with_widths));
+        const fs::path dir = test::fresh_dir();
+        alembic::PointsWriterOptions po;
+        po.widths = with_widths;
+        po.velocities = false;
+        if (translated) {
+          po.parent_xform = "xf";
+          po.translate = {1.5, -2.0, 0.25};
+        }
+        {
+          alembic::ArchiveWriter w(dir / "in.abc", "test", "NaN positions", 24.0, 0.0, po);
+          for (const auto* p : {&p0, &p1}) {
+            alembic::PointsSample sample;
+            sample.positions = *p;
+            sample.ids = ids;
+            if (with_widths) sample.widths = widths;
+            w.write_sample(sample);
+          }
+          w.close();
+        }
+        cook::Options o;
+        o.input = dir / "in.abc";
+        o.output = dir / "out.pstream";
+        o.chunk_size = format::kMinChunkSize;
+        expect_cook_error(o, "frame 0: 6 particles have NaN or infinite positions (the first is particle 3)");
+
+        o.drop_invalid = true;
+        const cook::Report report = cook::cook(o);
+        EXPECT_EQ(report.dropped_invalid, 6u);
+        const format::Reader reader = format::Reader::open(o.output);
+        const format::Metadata& m = reader.metadata();
+        ASSERT_EQ(m.frame_count(), 2u);
+        std::vector<std::byte> buffer(n * 16), scratch(m.chunk_size);
+        for (std::uint32_t f = 0; f < 2; ++f) {
+          const std::vector<float>& p = f == 0 ? p0 : p1;
+          std::vector<float> expected;
+          for (std::size_t i = 0; i < n; ++i) {
+            if (!std::isfinite(p[i * 3]) || !std::isfinite(p[i * 3 + 1]) || !std::isfinite(p[i * 3 + 2])) continue;
+            for (int c = 0; c < 3; ++c) {
+              expected.push_back(translated ? static_cast<float>(double{p[i * 3 + c]} + po.translate[c])
+                                            : p[i * 3 + c]);
+            }
+            expected.push_back(with_widths ? widths[i] * 0.5f : static_cast<float>(report.default_scale));
+          }
+          ASSERT_EQ(m.frames[f].count * 4, expected.size()) << "frame " << f;
+          reader.read_frame(f, buffer, scratch);
+          EXPECT_EQ(std::memcmp(buffer.data(), expected.data(), expected.size() * 4), 0) << "frame " << f;
+          EXPECT_EQ(m.frames[f].bounds, bounds_of(expected)) << "frame " << f;
+        }
+      }
+    }
+  }
+  hwy::SetSupportedTargetsForTest(0);  // back to what the CPU supports
 }
 
 TEST(CookPly, AsciiAndBinarySequencesCookExactly) {

@@ -75,7 +75,7 @@ int bench_all(const BenchAllOptions& o) {
   bar.update(1, steps, "bench read");
   const json read = run_json(fmt::format("bench read '{}'", abc.string()));
   bar.update(2, steps, "bench cook");
-  const json cook = run_json(fmt::format("bench cook '{}' --repetitions 5", abc.string()));
+  const json cook = run_json(fmt::format("bench cook '{}' --repetitions 7", abc.string()));
   bar.update(3, steps, "bench stream");
   const json stream = run_json("bench stream");
   bar.update(4, steps, "bench sort");

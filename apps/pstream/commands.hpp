@@ -46,7 +46,7 @@ int run_cook(const CookCli& cli);
 
 struct BenchCookOptions {
   std::string file;
-  int repetitions = 5;
+  int repetitions = 7;
   bool json = false;
 };
 int bench_cook(const BenchCookOptions& options);

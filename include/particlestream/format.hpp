@@ -172,9 +172,13 @@ class Writer {
   ~Writer();
   Writer(const Writer&) = delete;
   Writer& operator=(const Writer&) = delete;
-  void append_frame(std::uint64_t count, double time, const std::array<float, 6>& bounds);
+  void append_frame(std::uint64_t count, double time, std::array<float, 6> bounds);
   void append_chunk(const EncodedChunk& chunk);  // in order
   void append_chunk(std::span<const std::byte> stored, Codec codec, std::uint32_t codec_param, std::uint64_t checksum);
+  // A raw chunk can also be written in pieces as it is produced (its checksum is streamed), so
+  // the producer needs no chunk-sized buffer: append_raw_piece() until end_raw_chunk().
+  void append_raw_piece(std::span<const std::byte> bytes);
+  void end_raw_chunk();
   const Metadata& metadata() const { return meta_; }
   // Checks that the chunks cover the frames, fills in counts and bounds, writes the tables and
   // the header, syncs and renames. Returns the file size.
@@ -186,6 +190,8 @@ class Writer {
   Metadata meta_;
   std::FILE* file_ = nullptr;
   std::uint64_t position_ = 0;  // where the next chunk goes
+  struct RawChunk;              // the raw chunk being written in pieces
+  std::unique_ptr<RawChunk> raw_;
   bool committed_ = false;
 };
 

@@ -1,19 +1,18 @@
 // The cook driver: resample the source to fixed frames, pack records, cut the record stream
 // into chunks, encode chunks in parallel, write them in order.
 #include <algorithm>
-#include <bit>
 #include <chrono>
 #include <cmath>
-#include <condition_variable>
 #include <cstring>
 #include <limits>
-#include <mutex>
 #include <optional>
 #include <thread>
 #include <utility>
 
 #include <fmt/format.h>
 
+#include "cook/chunk_cutter.hpp"
+#include "cook/direct_pack.hpp"
 #include "cook/source.hpp"
 #include "particlestream/cook.hpp"
 
@@ -24,6 +23,10 @@ using format::Attribute;
 using format::AttributeType;
 
 constexpr float kDefaultScale = 0.01f;
+// Raw chunks are written in pieces of this size: small enough to stay in a core's L2 cache
+// between packing and the kernel's copy into the page cache (measured faster than whole 2 MiB
+// chunks written from a helper thread, see docs/benchmarks.md).
+constexpr std::size_t kRawPieceSize = 256 * 1024;
 
 struct Plan {
   Request request;
@@ -124,19 +127,6 @@ Scan scan(const ParticleFrame& f) {
   return scan_positions(f.count, [&](std::uint64_t i, float* p) { std::copy_n(&f.position[i * 3], 3, p); });
 }
 
-// A direct frame's position, through its matrix when there is one (as the general path does).
-inline void direct_position(const Source::DirectFrame& d, std::uint64_t i, float out[3]) {
-  std::memcpy(out, d.positions + i * 12, 12);
-  if (d.identity) return;
-  const double x = out[0], y = out[1], z = out[2];
-  const auto& m = d.matrix;
-  for (int c = 0; c < 3; ++c) out[c] = static_cast<float>(x * m[0][c] + y * m[1][c] + z * m[2][c] + m[3][c]);
-}
-
-Scan scan_direct(const Source::DirectFrame& d) {
-  return scan_positions(d.count, [&](std::uint64_t i, float* p) { direct_position(d, i, p); });
-}
-
 // Removes particles whose position is not finite, or fails naming the frame.
 std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan, const Options& options,
                            std::uint64_t frame, const std::string& source) {
@@ -169,110 +159,6 @@ std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan,
   return bad;
 }
 
-// Cuts the logical record stream into chunk-sized buffers as records are written into it. Two
-// buffers alternate, so a full one can be written out while the next fills.
-class ChunkCutter {
- public:
-  // The buffers are not zeroed: every byte emitted has been written by reserve() or write().
-  ChunkCutter(std::size_t chunk_size, std::function<void(std::span<const std::byte>)> emit)
-      : size_(chunk_size),
-        buffers_{std::unique_ptr<std::byte[]>(new std::byte[chunk_size]),
-                 std::unique_ptr<std::byte[]>(new std::byte[chunk_size])},
-        emit_(std::move(emit)) {}
-  // Room for a whole record at the write position, or nullptr when it would straddle a border.
-  // A full chunk is emitted only when more bytes come, so reserved room is never emitted unwritten.
-  std::byte* reserve(std::size_t n) {
-    if (fill_ == size()) finish();
-    if (size() - fill_ < n) return nullptr;
-    std::byte* p = current_data() + fill_;
-    fill_ += n;
-    return p;
-  }
-  void write(const std::byte* data, std::size_t n) {
-    while (n > 0) {
-      if (fill_ == size()) finish();
-      const std::size_t take = std::min(n, size() - fill_);
-      std::memcpy(current_data() + fill_, data, take);
-      data += take;
-      n -= take;
-      fill_ += take;
-    }
-  }
-  // Emits what is buffered; the emit callback must be done with a buffer before the one after
-  // next is handed out (the raw-chunk sink below guarantees it).
-  void finish() {
-    if (fill_ > 0) emit_(std::span(current_data(), fill_));
-    fill_ = 0;
-    which_ ^= 1;
-  }
-
- private:
-  std::size_t size() const { return size_; }
-  std::byte* current_data() { return buffers_[which_].get(); }
-  std::size_t size_;
-  std::unique_ptr<std::byte[]> buffers_[2];
-  int which_ = 0;
-  std::size_t fill_ = 0;
-  std::function<void(std::span<const std::byte>)> emit_;
-};
-
-// Writes raw chunks on a helper thread (checksum and pwrite) while the cooker packs the next one:
-// on two cores the kernel's copy into the page cache overlaps our packing.
-class RawChunkSink {
- public:
-  explicit RawChunkSink(format::Writer& writer) : writer_(writer), thread_([this] { run(); }) {}
-  ~RawChunkSink() {
-    {
-      std::lock_guard lock(mutex_);
-      stop_ = true;
-    }
-    wake_.notify_all();
-    thread_.join();
-  }
-  // Hands a chunk over; returns once the previous one is written, so its buffer may be reused.
-  void submit(std::span<const std::byte> chunk) {
-    std::unique_lock lock(mutex_);
-    wake_.wait(lock, [&] { return !busy_; });
-    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
-    pending_ = chunk;
-    busy_ = true;
-    wake_.notify_all();
-  }
-  void drain() {
-    std::unique_lock lock(mutex_);
-    wake_.wait(lock, [&] { return !busy_; });
-    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
-  }
-
- private:
-  void run() {
-    std::unique_lock lock(mutex_);
-    for (;;) {
-      wake_.wait(lock, [&] { return busy_ || stop_; });
-      if (!busy_) return;
-      const std::span<const std::byte> chunk = pending_;
-      lock.unlock();
-      try {
-        writer_.append_chunk(chunk, format::Codec::Raw, 0, format::checksum(chunk));
-      } catch (...) {
-        lock.lock();
-        error_ = std::current_exception();
-        lock.unlock();
-      }
-      lock.lock();
-      busy_ = false;
-      wake_.notify_all();
-    }
-  }
-  format::Writer& writer_;
-  std::mutex mutex_;
-  std::condition_variable wake_;
-  std::span<const std::byte> pending_;
-  bool busy_ = false, stop_ = false;
-  std::exception_ptr error_;
-  std::thread thread_;
-};
-
 void pack_record(const ParticleFrame& f, const Plan& plan, std::uint64_t i, std::byte* dst) {
   std::memcpy(dst, &f.position[i * 3], 12);
   std::memcpy(dst + 12, &f.scale[i], 4);
@@ -296,43 +182,18 @@ void pack_record(const ParticleFrame& f, const Plan& plan, std::uint64_t i, std:
 // record is written and the output is deterministic.
 void pack(const ParticleFrame& f, const Plan& plan, ChunkCutter& out) {
   std::vector<std::byte> straddling(plan.record_size);
-  if (plan.layout.size() == 2) {  // the default [x y z scale] record: no per-attribute work
-    for (std::uint64_t i = 0; i < f.count; ++i) {
-      const float record[4] = {f.position[i * 3], f.position[i * 3 + 1], f.position[i * 3 + 2], f.scale[i]};
-      if (std::byte* dst = out.reserve(sizeof record)) {
-        std::memcpy(dst, record, sizeof record);
-      } else {
-        out.write(reinterpret_cast<const std::byte*>(record), sizeof record);
-      }
-    }
-    return;
-  }
-  for (std::uint64_t i = 0; i < f.count; ++i) {
-    if (std::byte* dst = out.reserve(plan.record_size)) {
-      pack_record(f, plan, i, dst);
-    } else {
+  for (std::uint64_t i = 0; i < f.count;) {
+    const std::span<std::byte> room = out.room(plan.record_size);
+    if (room.empty()) {  // one record across a border, in two pieces
       pack_record(f, plan, i, straddling.data());
       out.write(straddling.data(), straddling.size());
+      ++i;
+      continue;
     }
-  }
-}
-
-void pack_direct(const Source::DirectFrame& d, ChunkCutter& out) {
-  for (std::uint64_t i = 0; i < d.count; ++i) {
-    float record[4];
-    direct_position(d, i, record);
-    if (d.widths != nullptr) {
-      float w;
-      std::memcpy(&w, d.widths + i * 4, 4);
-      record[3] = scale_from_width(w);
-    } else {
-      record[3] = d.constant_scale;
-    }
-    if (std::byte* dst = out.reserve(sizeof record)) {
-      std::memcpy(dst, record, sizeof record);
-    } else {
-      out.write(reinterpret_cast<const std::byte*>(record), sizeof record);
-    }
+    const std::uint64_t n = std::min<std::uint64_t>(room.size() / plan.record_size, f.count - i);
+    for (std::uint64_t k = 0; k < n; ++k) pack_record(f, plan, i + k, room.data() + k * plan.record_size);
+    out.commit(n * plan.record_size);
+    i += n;
   }
 }
 
@@ -417,36 +278,37 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
     }
     batch.clear();
   };
-  std::optional<RawChunkSink> sink;
-  if (options.codec == format::Codec::Raw) sink.emplace(writer);
-  ChunkCutter cutter(options.chunk_size, [&](std::span<const std::byte> raw) {
-    ++report.chunks;
-    if (sink) {  // nothing to encode: straight from the chunk buffer, written while the next fills
-      sink->submit(raw);
-      state.bytes_out += raw.size();
-      return;
-    }
-    batch.emplace_back(raw.begin(), raw.end());
-    if (batch.size() >= batch_chunks) encode_batch();
-  });
+  // Raw chunks go to the file in cache-sized pieces as they fill (no chunk-sized buffer, the
+  // kernel copies from hot cache lines); other codecs need whole chunks to encode.
+  const bool raw = options.codec == format::Codec::Raw;
+  ChunkCutter cutter(options.chunk_size, raw ? kRawPieceSize : options.chunk_size,
+                     [&](std::span<const std::byte> piece, bool ends_chunk) {
+                       if (ends_chunk) ++report.chunks;
+                       if (raw) {
+                         writer.append_raw_piece(piece);
+                         if (ends_chunk) writer.end_raw_chunk();
+                         state.bytes_out += piece.size();
+                         return;
+                       }
+                       batch.emplace_back(piece.begin(), piece.end());
+                       if (batch.size() >= batch_chunks) encode_batch();
+                     });
 
   ParticleFrame frame;
   Source::DirectFrame direct;
   for (std::int64_t k = first; k < last; ++k) {
     const double time = start + static_cast<double>(k) / fps;
     const auto index = static_cast<std::uint64_t>(k - first);
-    // The default record straight from the source's mapping: a scan pass and a packing pass,
-    // no intermediate copies. A frame with NaN/Inf positions takes the general path below.
-    if (plan.layout.size() == 2 && source->read_direct(time, plan.request, direct)) {
-      const Scan found = scan_direct(direct);
-      if (found.invalid == 0) {
-        if (direct.count > options.max_particles) {
-          throw Error(fmt::format("{}: frame {} has {} particles, more than --max-particles {}", source->name(), index,
-                                  direct.count, options.max_particles));
-        }
-        writer.append_frame(direct.count, time, found.bounds);
-        pack_direct(direct, cutter);
-        report.particles += direct.count;
+    // The default record straight from the source's mapping, packed, scanned and checked in one
+    // pass. A frame it cannot take (or one that fails) goes through the general path below,
+    // which names what is wrong.
+    if (plan.layout.size() == 2 && source->read_direct(time, plan.request, direct) &&
+        direct.count <= options.max_particles) {
+      const DirectPackResult packed = pack_direct(direct, options.drop_invalid, cutter);
+      if (packed.invalid == 0 || options.drop_invalid) {
+        writer.append_frame(packed.packed, time, packed.bounds);
+        report.dropped_invalid += packed.invalid;
+        report.particles += packed.packed;
         state.frames_done = index + 1;
         if (progress) progress(state);
         continue;
@@ -467,7 +329,6 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
     if (progress) progress(state);
   }
   cutter.finish();
-  if (sink) sink->drain();
   encode_batch();
   report.frames = state.frame_count;
   report.stream_bytes = writer.metadata().stream_size();

@@ -4,8 +4,10 @@
 #include <limits>
 #include <vector>
 
+#include <fcntl.h>
 #include <fmt/format.h>
 #include <unistd.h>
+#include <xxhash.h>
 
 #include "particlestream/format.hpp"
 
@@ -14,7 +16,22 @@ namespace {
 
 std::uint64_t align_up(std::uint64_t v, std::uint64_t a) { return (v + a - 1) / a * a; }
 
+// Starts writing a finished chunk to the disk now, without waiting: the disk works while the
+// next chunks are made, the final fsync has little left, and a multi-gigabyte cook does not
+// pile up dirty pages. Linux only; elsewhere the fsync in commit() does it all.
+void start_writeback([[maybe_unused]] std::FILE* file, [[maybe_unused]] std::uint64_t offset,
+                     [[maybe_unused]] std::uint64_t size) {
+#ifdef __linux__
+  ::sync_file_range(::fileno(file), static_cast<off_t>(offset), static_cast<off_t>(size), SYNC_FILE_RANGE_WRITE);
+#endif
+}
+
 }  // namespace
+
+struct Writer::RawChunk {
+  std::unique_ptr<XXH3_state_t, decltype(&XXH3_freeState)> hash{XXH3_createState(), &XXH3_freeState};
+  std::uint64_t offset = 0, size = 0;
+};
 
 void Writer::write_at(std::uint64_t offset, std::span<const std::byte> bytes) {
   const int fd = ::fileno(file_);
@@ -49,7 +66,10 @@ Writer::~Writer() {
   }
 }
 
-void Writer::append_frame(std::uint64_t count, double time, const std::array<float, 6>& bounds) {
+void Writer::append_frame(std::uint64_t count, double time, std::array<float, 6> bounds) {
+  // A zero bound is stored as +0: whether a min/max meets -0 or +0 first depends on the order
+  // particles are visited (SIMD lanes), and the bytes of a cook must not.
+  for (float& b : bounds) b += 0.0f;
   meta_.frames.push_back({count, meta_.stream_size(), time, bounds});
 }
 
@@ -59,6 +79,7 @@ void Writer::append_chunk(const EncodedChunk& chunk) {
 
 void Writer::append_chunk(std::span<const std::byte> stored, Codec codec, std::uint32_t codec_param,
                           std::uint64_t sum) {
+  if (raw_ && raw_->size != 0) throw Error(fmt::format("{}: a raw chunk was not ended", path_.string()));
   ChunkEntry e;
   e.file_offset = position_;
   e.stored_size = stored.size();
@@ -66,11 +87,41 @@ void Writer::append_chunk(std::span<const std::byte> stored, Codec codec, std::u
   e.codec = codec;
   e.codec_param = codec_param;
   write_at(position_, stored);
+  start_writeback(file_, position_, stored.size());
   position_ = align_up(position_ + stored.size(), kChunkAlignment);
   meta_.chunks.push_back(e);
 }
 
+void Writer::append_raw_piece(std::span<const std::byte> bytes) {
+  if (!raw_) {
+    raw_ = std::make_unique<RawChunk>();
+    if (!raw_->hash) throw std::bad_alloc();
+  }
+  if (raw_->size == 0) {
+    XXH3_64bits_reset(raw_->hash.get());
+    raw_->offset = position_;
+  }
+  write_at(raw_->offset + raw_->size, bytes);
+  XXH3_64bits_update(raw_->hash.get(), bytes.data(), bytes.size());
+  raw_->size += bytes.size();
+}
+
+void Writer::end_raw_chunk() {
+  if (!raw_ || raw_->size == 0) throw Error(fmt::format("{}: end_raw_chunk() without a piece", path_.string()));
+  ChunkEntry e;
+  e.file_offset = raw_->offset;
+  e.stored_size = raw_->size;
+  e.checksum = XXH3_64bits_digest(raw_->hash.get());
+  e.codec = Codec::Raw;
+  e.codec_param = 0;
+  meta_.chunks.push_back(e);
+  start_writeback(file_, raw_->offset, raw_->size);
+  position_ = align_up(raw_->offset + raw_->size, kChunkAlignment);
+  raw_->size = 0;
+}
+
 std::uint64_t Writer::commit() {
+  if (raw_ && raw_->size != 0) throw Error(fmt::format("{}: a raw chunk was not ended", path_.string()));
   const std::uint64_t expected = (meta_.stream_size() + meta_.chunk_size - 1) / meta_.chunk_size;
   if (meta_.chunks.size() != expected) {
     throw Error(
