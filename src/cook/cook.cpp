@@ -24,8 +24,9 @@ using format::AttributeType;
 
 constexpr float kDefaultScale = 0.01f;
 // Raw chunks are written in pieces of this size: small enough to stay in a core's L2 cache
-// between packing and the kernel's copy into the page cache (measured faster than whole 2 MiB
-// chunks written from a helper thread, see docs/benchmarks.md).
+// between packing and the kernel's copy into the page cache. Measured on a 16 MB cook: 17.2 ms,
+// against 20.8 ms for whole 2 MiB chunks handed to a writer thread (the copy then reads another
+// core's cache).
 constexpr std::size_t kRawPieceSize = 256 * 1024;
 
 struct Plan {
