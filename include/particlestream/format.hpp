@@ -186,6 +186,8 @@ class Writer {
 
  private:
   void write_at(std::uint64_t offset, std::span<const std::byte> bytes);
+  // Records the chunk just written at position_ and moves position_ past it.
+  void end_chunk(std::uint64_t stored_size, Codec codec, std::uint32_t codec_param, std::uint64_t checksum);
   std::filesystem::path path_, temp_path_;
   Metadata meta_;
   std::FILE* file_ = nullptr;

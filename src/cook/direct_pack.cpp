@@ -1,7 +1,6 @@
 #include "cook/direct_pack.hpp"
 
 #include <algorithm>
-#include <bit>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -15,15 +14,12 @@ namespace {
 using DirectFrame = Source::DirectFrame;
 
 constexpr std::size_t kRecordSize = 16;
-// Particles per pass; a block holding a NaN/Inf position is packed again by the careful loop.
+// Particles per SIMD call; a block holding a NaN/Inf position is packed again one by one.
 constexpr std::size_t kBlock = 16384;
-constexpr std::uint32_t kExponentAllOnes = 0x7f800000u;  // |bits| at or above: Inf or NaN
 
 // min xyz, max xyz
 using Bounds = std::array<float, 6>;
 
-// Components are loaded one by one: a 12-byte copy followed by a 16-byte store of the record
-// stalls store forwarding.
 template <bool kIdentity>
 inline void position_of(const DirectFrame& d, std::uint64_t i, float out[3]) {
   for (int c = 0; c < 3; ++c) std::memcpy(&out[c], d.positions + i * 12 + c * 4, 4);
@@ -45,40 +41,13 @@ inline float scale_of(const DirectFrame& d, std::uint64_t i) {
   }
 }
 
-// The common case in one pass: records, bounds, and the NaN/Inf check. False when some position
-// is not finite; `bounds` is then untouched. Untransformed positions go through the SIMD kernel;
-// transformed ones stay scalar, in the general path's double arithmetic (no fused multiply-add,
-// so both paths give the same floats).
+// Packs particles one by one, checking each position: the finite ones are packed, the others
+// counted; without `drop_invalid` it stops at the first. Returns the records written.
+// Transformed positions always come this way, in the general path's double arithmetic (a SIMD
+// kernel could fuse multiply-adds and give other floats).
 template <bool kIdentity, bool kWidths>
-bool pack_block(const DirectFrame& d, std::uint64_t first, std::size_t n, std::byte* dst, Bounds& bounds) {
-  if constexpr (kIdentity) {
-    return pack_untransformed_records(d.positions + first * 12, kWidths ? d.widths + first * 4 : nullptr,
-                                      d.constant_scale, n, dst, bounds);
-  } else {
-    Bounds b = bounds;
-    std::uint32_t worst = 0;  // the largest |position| bit pattern: an integer max catches NaN too
-    for (std::size_t k = 0; k < n; ++k) {
-      float r[4];
-      position_of<false>(d, first + k, r);
-      r[3] = scale_of<kWidths>(d, first + k);
-      for (int c = 0; c < 3; ++c) {
-        worst = std::max(worst, std::bit_cast<std::uint32_t>(r[c]) & 0x7fffffffu);
-        b[c] = std::min(b[c], r[c]);
-        b[c + 3] = std::max(b[c + 3], r[c]);
-      }
-      for (int c = 0; c < 4; ++c) std::memcpy(dst + k * kRecordSize + c * 4, &r[c], 4);
-    }
-    if (worst >= kExponentAllOnes) return false;
-    bounds = b;
-    return true;
-  }
-}
-
-// A block with NaN/Inf positions: packs the finite ones, counting the others; without
-// `drop_invalid` it stops at the first. Returns the records written.
-template <bool kIdentity, bool kWidths>
-std::size_t pack_block_checked(const DirectFrame& d, std::uint64_t first, std::size_t n, std::byte* dst,
-                               bool drop_invalid, Bounds& b, std::uint64_t& invalid) {
+std::size_t pack_checked(const DirectFrame& d, std::uint64_t first, std::size_t n, std::byte* dst, bool drop_invalid,
+                         Bounds& b, std::uint64_t& invalid) {
   std::size_t written = 0;
   for (std::size_t k = 0; k < n; ++k) {
     float r[4];
@@ -93,7 +62,9 @@ std::size_t pack_block_checked(const DirectFrame& d, std::uint64_t first, std::s
       b[c] = std::min(b[c], r[c]);
       b[c + 3] = std::max(b[c + 3], r[c]);
     }
-    std::memcpy(dst + written * kRecordSize, r, kRecordSize);
+    // Stored as loaded, one float at a time: reading the record back as one 16-byte value after
+    // smaller writes stalls store forwarding (perf showed 60% of this loop's time there).
+    for (int c = 0; c < 4; ++c) std::memcpy(dst + written * kRecordSize + c * 4, &r[c], 4);
     ++written;
   }
   return written;
@@ -111,10 +82,15 @@ DirectPackResult pack_frame(const DirectFrame& d, bool drop_invalid, ChunkCutter
     if (room.empty()) throw Error("cook: internal error: a 16-byte record across a chunk border");
     const std::size_t n =
         static_cast<std::size_t>(std::min<std::uint64_t>({room.size() / kRecordSize, kBlock, d.count - i}));
-    std::size_t written = n;
-    if (!pack_block<kIdentity, kWidths>(d, i, n, room.data(), b)) {
-      written = pack_block_checked<kIdentity, kWidths>(d, i, n, room.data(), drop_invalid, b, result.invalid);
+    std::byte* dst = room.data();
+    std::size_t written = 0;
+    if constexpr (kIdentity) {  // the SIMD kernel takes whole vectors; a block with NaN/Inf is redone
+      const auto simd = pack_untransformed_records(d.positions + i * 12, kWidths ? d.widths + i * 4 : nullptr,
+                                                   d.constant_scale, n, dst, b);
+      written = simd.value_or(0);
     }
+    written += pack_checked<kIdentity, kWidths>(d, i + written, n - written, dst + written * kRecordSize, drop_invalid,
+                                                b, result.invalid);
     out.commit(written * kRecordSize);
     result.packed += written;
     if (result.invalid > 0 && !drop_invalid) break;

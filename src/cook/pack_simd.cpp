@@ -4,13 +4,9 @@
 #include <hwy/foreach_target.h>  // IWYU pragma: keep
 #include <hwy/highway.h>
 
-#include <algorithm>
-#include <bit>
 #include <cstdint>
-#include <cstring>
 
 #include "cook/pack_simd.hpp"
-#include "particlestream/cook.hpp"
 
 HWY_BEFORE_NAMESPACE();
 namespace pstream::cook::HWY_NAMESPACE {
@@ -20,8 +16,8 @@ namespace hn = hwy::HWY_NAMESPACE;
 // which float min/max would not.
 constexpr std::int32_t kExponentAllOnes = 0x7f800000;
 
-bool PackUntransformed(const std::byte* positions, const std::byte* widths, float constant_scale, std::size_t n,
-                       std::byte* dst, std::array<float, 6>& bounds) {
+std::optional<std::size_t> PackUntransformed(const std::byte* positions, const std::byte* widths, float constant_scale,
+                                             std::size_t n, std::byte* dst, std::array<float, 6>& bounds) {
   const hn::ScalableTag<float> d;
   const hn::RebindToSigned<decltype(d)> di;
   using V = hn::Vec<decltype(d)>;
@@ -39,7 +35,7 @@ bool PackUntransformed(const std::byte* positions, const std::byte* widths, floa
   for (; i + lanes <= n; i += lanes) {
     V x, y, z;
     hn::LoadInterleaved3(d, p + 3 * i, x, y, z);
-    const V s = widths != nullptr ? hn::Mul(hn::LoadU(d, w + i), half) : constant;  // = scale_from_width
+    const V s = widths != nullptr ? hn::Mul(hn::LoadU(d, w + i), half) : constant;  // scale_from_width()
     worst = hn::Max(worst, hn::And(hn::BitCast(di, x), abs_bits));
     worst = hn::Max(worst, hn::And(hn::BitCast(di, y), abs_bits));
     worst = hn::Max(worst, hn::And(hn::BitCast(di, z), abs_bits));
@@ -47,29 +43,11 @@ bool PackUntransformed(const std::byte* positions, const std::byte* widths, floa
     hi_x = hn::Max(hi_x, x), hi_y = hn::Max(hi_y, y), hi_z = hn::Max(hi_z, z);
     hn::StoreInterleaved4(x, y, z, s, d, out + 4 * i);
   }
-  if (hn::GetLane(hn::MaxOfLanes(di, worst)) >= kExponentAllOnes) return false;
-  std::array<float, 6> b = {hn::GetLane(hn::MinOfLanes(d, lo_x)), hn::GetLane(hn::MinOfLanes(d, lo_y)),
-                            hn::GetLane(hn::MinOfLanes(d, lo_z)), hn::GetLane(hn::MaxOfLanes(d, hi_x)),
-                            hn::GetLane(hn::MaxOfLanes(d, hi_y)), hn::GetLane(hn::MaxOfLanes(d, hi_z))};
-  for (; i < n; ++i) {  // the last few, one by one
-    float r[4];
-    std::memcpy(r, positions + i * 12, 12);
-    if (widths != nullptr) {
-      float width;
-      std::memcpy(&width, widths + i * 4, 4);
-      r[3] = scale_from_width(width);
-    } else {
-      r[3] = constant_scale;
-    }
-    for (int c = 0; c < 3; ++c) {
-      if ((std::bit_cast<std::int32_t>(r[c]) & 0x7fffffff) >= kExponentAllOnes) return false;
-      b[c] = std::min(b[c], r[c]);
-      b[c + 3] = std::max(b[c + 3], r[c]);
-    }
-    std::memcpy(out + 4 * i, r, 16);
-  }
-  bounds = b;
-  return true;
+  if (hn::GetLane(hn::MaxOfLanes(di, worst)) >= kExponentAllOnes) return std::nullopt;
+  bounds = {hn::GetLane(hn::MinOfLanes(d, lo_x)), hn::GetLane(hn::MinOfLanes(d, lo_y)),
+            hn::GetLane(hn::MinOfLanes(d, lo_z)), hn::GetLane(hn::MaxOfLanes(d, hi_x)),
+            hn::GetLane(hn::MaxOfLanes(d, hi_y)), hn::GetLane(hn::MaxOfLanes(d, hi_z))};
+  return i;
 }
 
 }  // namespace pstream::cook::HWY_NAMESPACE
@@ -80,8 +58,9 @@ namespace pstream::cook {
 
 HWY_EXPORT(PackUntransformed);
 
-bool pack_untransformed_records(const std::byte* positions, const std::byte* widths, float constant_scale,
-                                std::size_t n, std::byte* dst, std::array<float, 6>& bounds) {
+std::optional<std::size_t> pack_untransformed_records(const std::byte* positions, const std::byte* widths,
+                                                      float constant_scale, std::size_t n, std::byte* dst,
+                                                      std::array<float, 6>& bounds) {
   return HWY_DYNAMIC_DISPATCH(PackUntransformed)(positions, widths, constant_scale, n, dst, bounds);
 }
 

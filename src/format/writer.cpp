@@ -2,6 +2,7 @@
 #include <cerrno>
 #include <cstring>
 #include <limits>
+#include <utility>
 #include <vector>
 
 #include <fcntl.h>
@@ -28,9 +29,10 @@ void start_writeback([[maybe_unused]] std::FILE* file, [[maybe_unused]] std::uin
 
 }  // namespace
 
+// A raw chunk being written in pieces; it starts at position_ (which moves only when it ends).
 struct Writer::RawChunk {
   std::unique_ptr<XXH3_state_t, decltype(&XXH3_freeState)> hash{XXH3_createState(), &XXH3_freeState};
-  std::uint64_t offset = 0, size = 0;
+  std::uint64_t size = 0;
 };
 
 void Writer::write_at(std::uint64_t offset, std::span<const std::byte> bytes) {
@@ -80,16 +82,8 @@ void Writer::append_chunk(const EncodedChunk& chunk) {
 void Writer::append_chunk(std::span<const std::byte> stored, Codec codec, std::uint32_t codec_param,
                           std::uint64_t sum) {
   if (raw_ && raw_->size != 0) throw Error(fmt::format("{}: a raw chunk was not ended", path_.string()));
-  ChunkEntry e;
-  e.file_offset = position_;
-  e.stored_size = stored.size();
-  e.checksum = sum;
-  e.codec = codec;
-  e.codec_param = codec_param;
   write_at(position_, stored);
-  start_writeback(file_, position_, stored.size());
-  position_ = align_up(position_ + stored.size(), kChunkAlignment);
-  meta_.chunks.push_back(e);
+  end_chunk(stored.size(), codec, codec_param, sum);
 }
 
 void Writer::append_raw_piece(std::span<const std::byte> bytes) {
@@ -97,27 +91,27 @@ void Writer::append_raw_piece(std::span<const std::byte> bytes) {
     raw_ = std::make_unique<RawChunk>();
     if (!raw_->hash) throw std::bad_alloc();
   }
-  if (raw_->size == 0) {
-    XXH3_64bits_reset(raw_->hash.get());
-    raw_->offset = position_;
-  }
-  write_at(raw_->offset + raw_->size, bytes);
+  if (raw_->size == 0) XXH3_64bits_reset(raw_->hash.get());
+  write_at(position_ + raw_->size, bytes);
   XXH3_64bits_update(raw_->hash.get(), bytes.data(), bytes.size());
   raw_->size += bytes.size();
 }
 
 void Writer::end_raw_chunk() {
   if (!raw_ || raw_->size == 0) throw Error(fmt::format("{}: end_raw_chunk() without a piece", path_.string()));
+  end_chunk(std::exchange(raw_->size, 0), Codec::Raw, 0, XXH3_64bits_digest(raw_->hash.get()));
+}
+
+void Writer::end_chunk(std::uint64_t stored_size, Codec codec, std::uint32_t codec_param, std::uint64_t sum) {
   ChunkEntry e;
-  e.file_offset = raw_->offset;
-  e.stored_size = raw_->size;
-  e.checksum = XXH3_64bits_digest(raw_->hash.get());
-  e.codec = Codec::Raw;
-  e.codec_param = 0;
+  e.file_offset = position_;
+  e.stored_size = stored_size;
+  e.checksum = sum;
+  e.codec = codec;
+  e.codec_param = codec_param;
   meta_.chunks.push_back(e);
-  start_writeback(file_, raw_->offset, raw_->size);
-  position_ = align_up(raw_->offset + raw_->size, kChunkAlignment);
-  raw_->size = 0;
+  start_writeback(file_, position_, stored_size);
+  position_ = align_up(position_ + stored_size, kChunkAlignment);
 }
 
 std::uint64_t Writer::commit() {
