@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <random>
 
+#include "alembic_read_back.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/alembic_describe.hpp"
 #include "particlestream/alembic_writer.hpp"
@@ -78,20 +79,13 @@ TEST(AlembicWriter, EveryValueReadsBack) {
     const Frame& f = frames[s];
     const std::size_t n = f.ids.size();
     ASSERT_EQ(points.count(s), n) << s;
-    std::vector<float> P(n * 3), v(n * 3), w(n), cd(n * 3), age(n);
-    std::vector<std::uint64_t> ids(n);
-    points.read_positions(s, P);
-    points.read_velocities(s, v);
-    points.read_ids(s, ids);
-    points.read_param("widths", s, w);
-    points.read_param("Cd", s, cd);
-    points.read_param("age", s, age);
-    EXPECT_EQ(P, f.P) << s;
-    EXPECT_EQ(v, f.v) << s;
-    EXPECT_EQ(ids, f.ids) << s;
-    EXPECT_EQ(w, f.w) << s;
-    EXPECT_EQ(cd, f.cd) << s;
-    EXPECT_EQ(age, f.age) << s;
+    const test::PointsSampleArrays got = test::read_sample_arrays(points, s, 3);
+    EXPECT_EQ(got.P, f.P) << s;
+    EXPECT_EQ(got.velocities, f.v) << s;
+    EXPECT_EQ(got.ids, f.ids) << s;
+    EXPECT_EQ(got.widths, f.w) << s;
+    EXPECT_EQ(got.Cd, f.cd) << s;
+    EXPECT_EQ(got.age, f.age) << s;
     const Box3 b = points.self_bounds(s);
     EXPECT_EQ(b.is_empty(), n == 0);
     const Matrix44 m = parent_world_matrix(*obj, points.sample_time(s));

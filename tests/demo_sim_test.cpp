@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <set>
 
+#include "alembic_read_back.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/demo.hpp"
@@ -64,20 +65,13 @@ TEST(DemoSimulator, AlembicFileReadsBackWithEveryValueEqual) {
     const auto& s = frames[f];
     const std::size_t n = s.size();
     ASSERT_EQ(points.count(f), n);
-    std::vector<float> P(n * 3), v(n * 3), w(n), cd(n * 4), age(n);
-    std::vector<std::uint64_t> ids(n);
-    points.read_positions(f, P);
-    points.read_velocities(f, v);
-    points.read_ids(f, ids);
-    points.read_param("widths", f, w);
-    points.read_param("Cd", f, cd);
-    points.read_param("age", f, age);
-    ASSERT_EQ(P, s.position) << f;
-    ASSERT_EQ(v, s.velocity) << f;
-    ASSERT_EQ(ids, s.id) << f;
-    ASSERT_EQ(w, s.width) << f;
-    ASSERT_EQ(cd, s.color) << f;
-    ASSERT_EQ(age, s.age) << f;
+    const test::PointsSampleArrays got = test::read_sample_arrays(points, f, 4);
+    ASSERT_EQ(got.P, s.position) << f;
+    ASSERT_EQ(got.velocities, s.velocity) << f;
+    ASSERT_EQ(got.ids, s.id) << f;
+    ASSERT_EQ(got.widths, s.width) << f;
+    ASSERT_EQ(got.Cd, s.color) << f;
+    ASSERT_EQ(got.age, s.age) << f;
   }
   EXPECT_EQ(points.find_param("Cd")->values().header().interpretation(), "rgba");
 }
