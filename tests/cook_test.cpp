@@ -135,7 +135,7 @@ TEST_P(CookFixture, EveryFrameEqualsTheSource) {
   for (std::uint32_t f = 0; f < c.samples; ++f) {
     const std::vector<float> expected = expected_frame(archive, c.objects, f, static_cast<float>(report.default_scale));
     ASSERT_EQ(m.frames[f].count * 4, expected.size()) << "frame " << f;
-    reader.read_frame(f, buffer, scratch);
+    reader.read_frame(f, buffer);
     for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
       ASSERT_EQ(std::memcmp(buffer.data() + i * rs, &expected[i * 4], 16), 0)
           << c.file << " frame " << f << " particle " << i;
@@ -177,7 +177,7 @@ TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
   // Output frame k is at 1/48 + k/24 s: splash sample k and foam's nearest sample 2k+1.
   const alembic::Points splash(*archive.find("/emitterA/splash")), foam(*archive.find("/emitterB/foam"));
   for (std::uint32_t k = 0; k < 24; ++k) {
-    reader.read_frame(k, buffer, scratch);
+    reader.read_frame(k, buffer);
     const double t = m.frames[k].time;
     const auto a = splash.time_sampling().near_index(t, 24).first, b = foam.time_sampling().near_index(t, 48).first;
     ASSERT_EQ(m.frames[k].count,
@@ -207,7 +207,7 @@ TEST(Cook, AttributesColourVelocityIdAndFloats) {
   const alembic::Points points(*archive.find("/particles"));
   std::vector<std::byte> buffer(m.max_count * m.record_size), scratch(m.chunk_size);
   for (std::uint32_t f : {5u, 20u, 59u}) {
-    reader.read_frame(f, buffer, scratch);
+    reader.read_frame(f, buffer);
     const std::uint64_t n = points.count(f);
     std::vector<float> v(n * 3), cd(n * 3), ages(n);
     std::vector<std::uint64_t> ids(n);
@@ -251,7 +251,7 @@ TEST(Cook, InterpolationBlendsParticlesMatchedById) {
   std::vector<std::byte> scratch(m.chunk_size);
   points.read_positions(3, a);
   points.read_positions(4, b);
-  reader.read_frame(7, std::as_writable_bytes(std::span(rec)), scratch);  // half-way between samples 3 and 4
+  reader.read_frame(7, std::as_writable_bytes(std::span(rec)));  // half-way between samples 3 and 4
   const double w = (m.frames[7].time - points.sample_time(3)) / (points.sample_time(4) - points.sample_time(3));
   EXPECT_NEAR(w, 0.5, 1e-9);
   for (int i = 0; i < 1000; ++i) {
@@ -412,7 +412,7 @@ TEST(CookBadInput, NanAndInfPositionsFailTheFrameOrAreDropped) {
             expected.push_back(with_widths ? widths[i] * 0.5f : static_cast<float>(report.default_scale));
           }
           ASSERT_EQ(m.frames[f].count * 4, expected.size()) << "frame " << f;
-          reader.read_frame(f, buffer, scratch);
+          reader.read_frame(f, buffer);
           EXPECT_EQ(std::memcmp(buffer.data(), expected.data(), expected.size() * 4), 0) << "frame " << f;
           EXPECT_EQ(m.frames[f].bounds, bounds_of(expected)) << "frame " << f;
         }
@@ -438,7 +438,7 @@ TEST(CookPly, AsciiAndBinarySequencesCookExactly) {
     ASSERT_EQ(reader.metadata().frame_count(), 3u);
     std::vector<float> rec(30 * 4);
     std::vector<std::byte> scratch(reader.metadata().chunk_size);
-    reader.read_frame(2, std::as_writable_bytes(std::span(rec)), scratch);
+    reader.read_frame(2, std::as_writable_bytes(std::span(rec)));
     EXPECT_EQ(reader.metadata().frames[2].count, 30u);
     EXPECT_EQ(rec[4 * 7 + 0], 3.5f);
     EXPECT_EQ(rec[4 * 7 + 1], 0.75f);

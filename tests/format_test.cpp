@@ -45,7 +45,7 @@ void put(std::vector<std::byte>& b, std::size_t at, T v) {
 void reseal(std::vector<std::byte>& b) {
   const auto tables_offset = get<std::uint64_t>(b, 128), tables_size = get<std::uint64_t>(b, 136);
   put(b, 144, format::checksum(std::span(b).subspan(tables_offset, tables_size)));
-  put(b, 152, format::checksum(std::span(b).first(152)));
+  put(b, 184, format::checksum(std::span(b).first(184)));  // version 2's header checksum
 }
 
 std::string open_error(const std::vector<std::byte>& bytes) {
@@ -91,8 +91,8 @@ TEST(FormatCorruption, WrongMagicAndVersion) {
   b[0] = std::byte{'X'};
   expect_error(b, "not a .pstream file");
   b = cooked_bytes();
-  put<std::uint32_t>(b, 8, 2);
-  expect_error(b, "unsupported format version 2 (this build reads version 1)");
+  put<std::uint32_t>(b, 8, 3);
+  expect_error(b, "unsupported format version 3 (this build reads versions 1 and 2)");
   b = cooked_bytes();
   b[30] ^= std::byte{1};  // inside fps
   expect_error(b, "header checksum mismatch");
@@ -113,8 +113,8 @@ TEST(FormatCorruption, FrameIndexInconsistent) {
   auto b = cooked_bytes();
   const auto m = format::Reader::from_memory(b, "x").metadata();
   const std::size_t frames =
-      get<std::uint64_t>(b, 128) + get<std::uint64_t>(b, 136) - m.chunk_count() * 32 - m.frame_count() * 48;
-  put<std::uint64_t>(b, frames + 5 * 48 + 8, 12345);  // frame 5's byte offset
+      get<std::uint64_t>(b, 128) + get<std::uint64_t>(b, 136) - m.chunk_count() * 32 - m.frame_count() * 64;
+  put<std::uint64_t>(b, frames + 5 * 64 + 8, 12345);  // frame 5's byte offset
   reseal(b);
   expect_error(b, "frame 5 starts at byte 12345");
   expect_error(b, "frame index inconsistent");

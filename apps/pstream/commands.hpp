@@ -35,11 +35,12 @@ int bench_read(const BenchReadOptions& options);
 // `pstream cook`: options as typed on the command line, converted by run_cook.
 struct CookCli {
   std::string input, output, object, scale_from = "widths", color_from = "auto", attributes, chunk_size = "2MiB",
-                                     codec = "raw", frames;
+                                     codec = "raw", frames, error = "1e-4";
   bool merge = false, no_xforms = false, interpolate = false, drop_invalid = false, quiet = false, json = false;
   double fps = 0.0;
   std::uint64_t max_particles = 64ull << 20;
   unsigned threads = 0;
+  std::uint32_t keyframe_interval = 64;
   std::string command_line;
 };
 int run_cook(const CookCli& cli);

@@ -1,5 +1,6 @@
 // `pstream cook IN -o OUT.pstream`: option parsing and the report printed at the end.
 #include <charconv>
+#include <cmath>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -24,6 +25,11 @@ std::uint64_t parse_size(const std::string& text) {
 }
 
 void parse_codec(const std::string& text, cook::Options& o) {
+  if (text == "particle" || text == "particle-lossless") {
+    o.frame_codec = format::FrameCodec::Particle;
+    o.particle.lossless = text == "particle-lossless";
+    return;
+  }
   const auto colon = text.find(':');
   const std::string name = text.substr(0, colon);
   if (name == "raw")
@@ -33,13 +39,31 @@ void parse_codec(const std::string& text, cook::Options& o) {
   else if (name == "zstd")
     o.codec = format::Codec::Zstd;
   else
-    throw Error(fmt::format("--codec '{}': expected raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL", text));
+    throw Error(fmt::format(
+        "--codec '{}': expected particle, particle-lossless, raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL", text));
   if (colon != std::string::npos) {
     const std::string level = text.substr(colon + 1);
     const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.codec_level);
     if (ec != std::errc() || ptr != level.data() + level.size() || o.codec_level < 0 || o.codec_level > 22) {
       throw Error(fmt::format("--codec '{}': level must be 0..22", text));
     }
+  }
+}
+
+// "1e-4" or "rel:1e-4": a fraction of the clip's bounds diagonal; "abs:0.001": scene units.
+void parse_error(const std::string& text, cook::Options& o) {
+  std::string number = text;
+  o.particle.error_relative = true;
+  if (text.rfind("abs:", 0) == 0 || text.rfind("rel:", 0) == 0) {
+    o.particle.error_relative = text[0] == 'r';
+    number = text.substr(4);
+  }
+  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), o.particle.error);
+  if (ec != std::errc() || ptr != number.data() + number.size() || !(o.particle.error > 0) ||
+      !std::isfinite(o.particle.error) || (o.particle.error_relative && o.particle.error >= 1)) {
+    throw Error(fmt::format("--error '{}': expected a fraction of the bounds diagonal such as 1e-4 (or rel:1e-4), "
+                            "or abs:VALUE in scene units",
+                            text));
   }
 }
 
@@ -89,6 +113,8 @@ int run_cook(const CookCli& cli) {
   }
   o.chunk_size = parse_size(cli.chunk_size);
   parse_codec(cli.codec, o);
+  parse_error(cli.error, o);
+  o.particle.keyframe_interval = cli.keyframe_interval;
   if (!cli.frames.empty()) parse_frames(cli.frames, o);
   o.drop_invalid = cli.drop_invalid;
   o.max_particles = cli.max_particles;
@@ -107,6 +133,13 @@ int run_cook(const CookCli& cli) {
                              {"input_bytes", r.input_bytes}, {"stream_bytes", r.stream_bytes},
                              {"file_bytes", r.file_bytes},   {"compression_ratio", ratio},
                              {"seconds", r.seconds}};
+    if (o.frame_codec == format::FrameCodec::Particle) {
+      j["codec"] = o.particle.lossless ? "particle-lossless" : "particle";
+      j["error"] = r.error;
+      j["keyframes"] = r.keyframes;
+      j["bytes_per_particle"] = r.particles ? double(r.file_bytes) / double(r.particles) : 0.0;
+      j["match_rate"] = r.predictable ? double(r.matched) / double(r.predictable) : 1.0;
+    }
     fmt::print("{}\n", j.dump());
     return 0;
   }
@@ -122,6 +155,22 @@ int run_cook(const CookCli& cli) {
         "s\n",
         r.object, cli.output, r.frames, r.particles, r.chunks, r.file_bytes / 1048576.0, ratio,
         r.stream_bytes / 1048576.0, r.seconds);
+    if (o.frame_codec == format::FrameCodec::Particle) {
+      const double per_particle = r.particles ? double(r.file_bytes) / double(r.particles) : 0.0;
+      const double match = r.predictable ? 100.0 * double(r.matched) / double(r.predictable) : 100.0;
+      if (o.particle.lossless) {
+        fmt::print("  particle codec, lossless: {:.2f} bytes per particle per frame, {} keyframes\n", per_particle,
+                   r.keyframes);
+      } else {
+        fmt::print(
+            "  particle codec: {:.2f} bytes per particle per frame, positions within {:.3g} ({}), {} keyframes, "
+            "{:.1f}% of particles predicted from the frame before ({})\n",
+            per_particle, r.error,
+            o.particle.error_relative ? fmt::format("{:g} of the bounds diagonal", o.particle.error) : "absolute",
+            r.keyframes, match,
+            r.order == format::FrameOrder::Id ? "matched by id" : "matched by predicted position, no ids");
+      }
+    }
   }
   return 0;
 }

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
+#include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::app {
@@ -30,6 +31,58 @@ std::uint64_t stored_bytes(const Metadata& m) {
   return s;
 }
 
+std::string_view coding_name(WordCoding c) {
+  switch (c) {
+    case WordCoding::Quantized: return "quantized";
+    case WordCoding::Exact: return "exact";
+    case WordCoding::Constant: return "constant";
+    case WordCoding::Id: return "id";
+  }
+  return "?";
+}
+
+std::string_view order_name(FrameOrder o) {
+  switch (o) {
+    case FrameOrder::Source: return "source";
+    case FrameOrder::Id: return "id";
+    case FrameOrder::Matched: return "matched";
+  }
+  return "?";
+}
+
+double bytes_per_particle(const Metadata& m) {
+  const std::uint64_t n = m.total_particles();
+  std::uint64_t stored = 0;
+  for (const ChunkEntry& c : m.chunks) stored += c.stored_size;
+  return n ? double(stored) / double(n) : 0.0;
+}
+
+// The frame codec and, for the particle codec, how each attribute is coded and its bound.
+json codec_json(const Metadata& m) {
+  json j{{"name", frame_codec_name(m.codec.codec)}, {"bytes_per_particle", bytes_per_particle(m)}};
+  if (m.codec.codec != FrameCodec::Particle) return j;
+  j["lossless"] = m.codec.lossless;
+  j["order"] = order_name(m.codec.order);
+  j["keyframe_interval"] = m.codec.keyframe_interval;
+  j["error"] = m.codec.error;
+  json attributes = json::array();
+  for (const Attribute& a : m.layout) {
+    json words = json::array();
+    for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) {
+      const WordCodingEntry& e = m.codec.words[w];
+      json word{{"coding", coding_name(e.coding)}};
+      if (e.coding == WordCoding::Quantized) {
+        word["step"] = e.step;
+        word["error"] = e.error;
+      }
+      words.push_back(word);
+    }
+    attributes.push_back({{"name", a.name}, {"words", words}});
+  }
+  j["attributes"] = attributes;
+  return j;
+}
+
 json bounds_json(const std::array<float, 6>& b) {
   return json{{"min", {b[0], b[1], b[2]}}, {"max", {b[3], b[4], b[5]}}};
 }
@@ -50,6 +103,7 @@ int info_pstream(const InfoPstreamOptions& options) {
   for (const ChunkEntry& c : m.chunks) ++codecs[std::string(codec_name(c.codec))];
   const std::uint64_t stored = stored_bytes(m);
   const double ratio = stored ? double(m.stream_size()) / double(stored) : 1.0;
+  const double decoded_ratio = stored ? double(m.decoded_size()) / double(stored) : 1.0;
   if (options.json) {
     json j{
         {"format", "pstream"},
@@ -70,15 +124,17 @@ int info_pstream(const InfoPstreamOptions& options) {
         {"chunk_count", m.chunk_count()},
         {"particles_per_chunk", m.particles_per_chunk()},
         {"stream_bytes", m.stream_size()},
+        {"decoded_bytes", m.decoded_size()},
         {"stored_bytes", stored},
         {"file_bytes", reader.file_size()},
         {"compression_ratio", ratio},
-        {"codecs", codecs}};
+        {"codecs", codecs},
+        {"frame_codec", codec_json(m)}};
     if (options.frames) {
       json frames = json::array();
-      std::vector<std::byte> buffer(m.max_count * m.record_size), scratch(m.chunk_size);
+      std::vector<std::byte> buffer(m.max_count * m.record_size);
       for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
-        reader.read_frame(f, buffer, scratch);
+        reader.read_frame(f, buffer);
         double sum[4] = {0, 0, 0, 0};
         for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
           float rec[4];
@@ -110,8 +166,25 @@ int info_pstream(const InfoPstreamOptions& options) {
   fmt::print("\n  chunks        {} of {} KiB ({:.0f} particles each)", m.chunk_count(), m.chunk_size >> 10,
              m.particles_per_chunk());
   for (const auto& [name, n] : codecs) fmt::print(", {} {}", n, name);
-  fmt::print("\n  size          {:.1f} MiB of records stored in {:.1f} MiB: compression {:.2f}x\n",
-             m.stream_size() / 1048576.0, stored / 1048576.0, ratio);
+  fmt::print("\n  size          {:.1f} MiB of records stored in {:.1f} MiB: compression {:.2f}x, {:.2f} bytes per "
+             "particle per frame\n",
+             m.decoded_size() / 1048576.0, stored / 1048576.0, decoded_ratio, bytes_per_particle(m));
+  if (m.codec.codec == FrameCodec::Particle) {
+    fmt::print("  frame codec   particle{}, keyframe every {} frames, frames ordered by {}\n",
+               m.codec.lossless ? " (lossless)" : "", m.codec.keyframe_interval, order_name(m.codec.order));
+    for (const Attribute& a : m.layout) {
+      fmt::print("    {:<12}", a.name);
+      for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) {
+        const WordCodingEntry& e = m.codec.words[w];
+        if (e.coding == WordCoding::Quantized)
+          fmt::print(" quantized(within {:.3g})", e.error);
+        else
+          fmt::print(" {}", coding_name(e.coding));
+        if (e.coding == WordCoding::Id) break;
+      }
+      fmt::print("\n");
+    }
+  }
   return 0;
 }
 
@@ -129,6 +202,18 @@ int verify_pstream(const std::string& file, bool as_json) {
         ++chunks;
       } catch (const Error& e) {
         errors.push_back(e.what());
+      }
+    }
+    // Every frame decodes (in order: a predicted frame needs the one before it).
+    if (errors.empty()) {
+      std::vector<std::byte> records(m.max_count * m.record_size);
+      for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+        try {
+          reader.read_frame(f, records);
+        } catch (const Error& e) {
+          errors.push_back(e.what());
+          break;
+        }
       }
     }
   } catch (const Error& e) {

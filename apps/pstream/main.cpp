@@ -82,7 +82,24 @@ int main(int argc, char** argv) {
                        "Extra record attributes, comma separated: velocity, id (uint64), id32, or any float attribute");
   cook_cmd->add_option("--chunk-size", cook.chunk_size, "Chunk size, a power of two from 64KiB to 64MiB")
       ->capture_default_str();
-  cook_cmd->add_option("--codec", cook.codec, "raw, lz4[:HC level], zstd[:level]")->capture_default_str();
+  cook_cmd
+      ->add_option("--codec", cook.codec,
+                    "particle: error-bounded, predicted over time (about 1 byte per particle per frame); "
+                    "particle-lossless: bit-exact, source order kept; raw, lz4[:HC level], zstd[:level]: the records "
+                    "as they are, chunk-compressed")
+      ->capture_default_str();
+  cook_cmd
+      ->add_option("--error", cook.error,
+                   "particle codec: the bound on every decoded position coordinate, as a fraction of the clip's bounds "
+                   "diagonal (1e-4, or rel:1e-4) or in scene units (abs:0.001). Scale shares it, velocity gets it per "
+                   "frame (x fps), other float attributes the same fraction of their range; colours and ids are exact")
+      ->capture_default_str();
+  cook_cmd
+      ->add_option("--keyframe-interval", cook.keyframe_interval,
+                   "particle codec: a frame that decodes alone every K frames; a seek decodes at most K-1 frames "
+                   "past it")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1024));
   cook_cmd->add_option("--frames", cook.frames, "Output frames A:B (from A up to but not including B)");
   cook_cmd->add_flag("--drop-invalid", cook.drop_invalid,
                      "Drop particles with NaN or infinite positions instead of failing");

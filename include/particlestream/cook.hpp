@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::cook {
@@ -27,6 +28,10 @@ struct Options {
   std::string color_from = "auto";      // "Cd", "none", or "auto" (Cd when present)
   std::vector<std::string> attributes;  // "velocity", "id", "id32", or a float attribute name
   std::uint64_t chunk_size = format::kDefaultChunkSize;
+  // How frames are stored: records (cut into chunks compressed by `codec`) or the particle codec
+  // (`particle`; its chunks are raw: the packets are already compressed).
+  format::FrameCodec frame_codec = format::FrameCodec::Records;
+  format::ParticleCodecOptions particle;
   format::Codec codec = format::Codec::Raw;
   int codec_level = 0;                           // zstd level (default 3 when 0), lz4: 0 fast, > 0 HC
   std::int64_t frame_begin = 0, frame_end = -1;  // output frames [begin, end); -1: to the end
@@ -47,6 +52,11 @@ struct Report {
   double seconds = 0.0;
   double default_scale = 0.0;  // set when the source had no widths and a default scale was used
   std::string object;
+  // The particle codec: the positions' bound (absolute), keyframes, and how many particles were
+  // predicted from the frame before out of how many could have been.
+  double error = 0.0;
+  std::uint64_t keyframes = 0, matched = 0, predictable = 0;
+  format::FrameOrder order = format::FrameOrder::Source;
 };
 
 // Cooks `options.input` into `options.output`. Throws pstream::Error naming the input, the

@@ -11,14 +11,22 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "particlestream/error.hpp"
 
 namespace pstream::format {
 
-inline constexpr std::uint32_t kVersion = 1;
-inline constexpr std::size_t kHeaderSize = 160;
+inline constexpr std::uint32_t kVersion = 2;          // what the writer writes; the reader takes 1 and 2
+inline constexpr std::size_t kHeaderSizeV1 = 160;
+inline constexpr std::size_t kHeaderSize = 192;      // version 2
+inline constexpr std::uint32_t kDefaultKeyframeInterval = 64;
+inline constexpr int kDefaultParticleZstdLevel = 16;
+inline constexpr std::uint32_t kMaxKeyframeInterval = 1024;
+// The most particles one frame of the particle codec may hold: decoders size their state from
+// the largest frame at open, so a file cannot ask for more memory than this bounds.
+inline constexpr std::uint64_t kMaxFrameParticles = 64ull << 20;
 inline constexpr std::uint64_t kMinChunkSize = 64ull << 10;
 inline constexpr std::uint64_t kMaxChunkSize = 64ull << 20;
 inline constexpr std::uint64_t kDefaultChunkSize = 2ull << 20;
@@ -54,9 +62,51 @@ struct ChunkEntry {
 
 struct FrameEntry {
   std::uint64_t count = 0;        // particles
-  std::uint64_t byte_offset = 0;  // in the logical record stream
+  std::uint64_t byte_offset = 0;  // of the frame's first record in the decoded record stream
   double time = 0.0;              // seconds
   std::array<float, 6> bounds{};  // min xyz, max xyz of the positions (empty frame: +inf/-inf)
+  // Where the frame's packet lies in the chunked stream, and whether it decodes alone. With the
+  // records codec (and in version 1 files) the packet is the records: packet_offset ==
+  // byte_offset, packet_size == count × record_size, every frame a keyframe.
+  std::uint64_t packet_offset = 0;
+  std::uint64_t packet_size = 0;
+  bool keyframe = true;
+};
+
+// How frames are stored (docs/format.md, "Frame codecs"); include/particlestream/codec.hpp.
+enum class FrameCodec : std::uint32_t { Records = 0, Particle = 1 };
+std::string_view frame_codec_name(FrameCodec codec);
+
+// The particle codec's coding of each 32-bit word of a record.
+enum class WordCoding : std::uint8_t {
+  Quantized = 0,  // a float32 on a grid: origin + q × step, |q| < 2^24
+  Exact = 1,      // the 32 bits as they are
+  Constant = 2,   // the same bits for every particle of the clip; not stored per particle
+  Id = 3,         // the two words of the uint64 id: survivors inherit it, new particles code it
+};
+// How the particle codec orders each frame.
+enum class FrameOrder : std::uint8_t {
+  Source = 0,   // as the source wrote it; particle i is predicted from particle i of the last frame
+  Id = 1,       // ascending id; particles are matched by id
+  Matched = 2,  // the encoder's: persisting particles in the last frame's order, matched by predicted
+                // position, then new particles in Morton order
+};
+
+struct WordCodingEntry {
+  WordCoding coding = WordCoding::Exact;
+  float step = 0.0f;       // Quantized: the grid step
+  float error = 0.0f;      // Quantized: the bound the encoder guarantees, |decoded - source| <= error
+  std::uint32_t base = 0;  // Quantized: the grid origin's float bits; Constant: the word's bits
+};
+
+struct CodecInfo {
+  FrameCodec codec = FrameCodec::Records;
+  FrameOrder order = FrameOrder::Source;
+  bool lossless = false;
+  std::uint32_t keyframe_interval = 1;
+  int zstd_level = kDefaultParticleZstdLevel;  // encoder only; not stored
+  double error = 0.0;                          // the positions' bound, absolute; 0 when lossless
+  std::vector<WordCodingEntry> words;          // record_size / 4 entries (particle codec only)
 };
 
 struct Metadata {
@@ -71,14 +121,24 @@ struct Metadata {
   std::array<float, 6> bounds{};
   std::string source_file, source_object, cooked_with;
   std::vector<Attribute> layout;
+  CodecInfo codec;  // how frames are stored
   std::vector<FrameEntry> frames;
   std::vector<ChunkEntry> chunks;
 
   std::uint64_t frame_count() const { return frames.size(); }
   std::uint64_t chunk_count() const { return chunks.size(); }
-  std::uint64_t stream_size() const;  // bytes of the logical record stream
+  // Bytes of the chunked stream (the frames' packets, back to back); with the records codec this
+  // is also the decoded record stream.
+  std::uint64_t stream_size() const;
+  std::uint64_t decoded_size() const;  // bytes of every frame's records, decoded
   std::uint64_t chunk_raw_size(std::uint64_t chunk) const;
-  double particles_per_chunk() const { return double(chunk_size) / record_size; }
+  // Chunk indices [first, last] holding frame f's packet (an empty packet: first == last).
+  std::pair<std::uint64_t, std::uint64_t> frame_chunks(std::uint64_t frame) const;
+  // Particles a chunk holds on average: chunk_size over the stored bytes per particle.
+  double particles_per_chunk() const;
+  std::uint64_t total_particles() const;
+  // The frame nearest `time` (seconds), clamped to the clip: the one rounding of time to frames.
+  std::uint64_t frame_at(double time) const;
   const Attribute* find(std::string_view name) const;
 };
 
@@ -100,12 +160,11 @@ struct EncodedChunk {
 EncodedChunk encode_chunk(std::span<const std::byte> raw, Codec codec, int level);
 // Checks the checksum, then decodes into `out`, which must be exactly the chunk's raw size.
 // `where` names the file and chunk in errors.
-void decode_chunk(const ChunkEntry& entry, std::span<const std::byte> stored, std::span<std::byte> out,
-                  std::string_view where);
 std::uint64_t checksum(std::span<const std::byte> bytes);
 
 // A reusable decoder that owns its codec state, so decoding allocates nothing (for the streaming
-// runtime, whose playback must not allocate). decode() throws pstream::Error naming `file` and
+// runtime, whose playback must not allocate). decode() checks the checksum, then decodes into
+// `out`, which must be exactly the chunk's raw size; it throws pstream::Error naming `file` and
 // `chunk` on a checksum or codec failure; only that error path allocates.
 class ChunkDecoder {
  public:
@@ -137,9 +196,13 @@ class Reader {
   std::uint64_t file_size() const;
   std::span<const std::byte> stored_chunk(std::uint64_t chunk) const;
   void read_chunk(std::uint64_t chunk, std::span<std::byte> out) const;  // out: the chunk's raw size
-  // The frame's records into `out` (count * record_size bytes); `scratch` must hold the raw
-  // size of each chunk the frame touches (chunk_size, or less for the last chunk).
-  void read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const;
+  // The frame's packet (its bytes in the chunked stream) into `out` (packet_size bytes); `scratch`
+  // must hold the raw size of each chunk the packet touches (chunk_size, or less for the last).
+  void read_packet(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const;
+  // The frame's records, decoded, into `out` (count × record_size bytes). With a predicting codec
+  // this decodes forward from the frame's keyframe (or from the last frame read, when that is
+  // the one before): read frames in order for speed.
+  void read_frame(std::uint64_t frame, std::span<std::byte> out) const;
 
  private:
   struct Impl;
@@ -172,7 +235,11 @@ class Writer {
   ~Writer();
   Writer(const Writer&) = delete;
   Writer& operator=(const Writer&) = delete;
+  // A frame whose packet is its records (the records codec): its bytes follow in chunks.
   void append_frame(std::uint64_t count, double time, std::array<float, 6> bounds);
+  // A frame whose packet of `packet_size` bytes follows in chunks (other frame codecs).
+  void append_frame(std::uint64_t count, double time, std::array<float, 6> bounds, std::uint64_t packet_size,
+                    bool keyframe);
   void append_chunk(const EncodedChunk& chunk);  // in order
   void append_chunk(std::span<const std::byte> stored, Codec codec, std::uint32_t codec_param, std::uint64_t checksum);
   // A raw chunk can also be written in pieces as it is produced (its checksum is streamed), so

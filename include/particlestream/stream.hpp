@@ -1,7 +1,10 @@
-// Playing back a .pstream with fixed memory: a ring of chunk-sized cache slots, fed by IO workers
-// (at most a set number of loads in flight), advanced once per host frame by update(dt), handing
-// out the current frame as spans into the cache. After open, playback allocates nothing, and the
-// caller's thread never waits on disk (unless blocking mode is asked for, for offline rendering).
+// Playing back a .pstream with fixed memory: a ring of chunk-sized cache slots holding the file's
+// stored bytes (compressed packets with the particle codec), fed by IO workers (at most a set
+// number of loads in flight); frames decoded in playback order on the IO worker into a small ring
+// of decoded frames (which also carries the codec's reference frames); advanced once per host
+// frame by update(dt), handing out the current frame as a span into that ring. After open,
+// playback allocates nothing, and the caller's thread never waits on disk or decoding (unless
+// blocking mode is asked for, for offline rendering).
 #pragma once
 
 #include <array>
@@ -78,8 +81,10 @@ class MemoryBudget {
 
 // ---- Cache sizing ----------------------------------------------------------------------------
 
-// s = ceil(t * fps * T / p) slots: t seconds held, T the largest frame, p particles per chunk;
-// clamped to [2, chunk_count], and never fewer than the most chunks one frame spans.
+// s = ceil(t * fps * T / p) slots: t seconds held, T the largest frame, p particles per chunk
+// (chunk_size over the stored bytes per particle, so a compressed clip holds more seconds in the
+// same memory); clamped to [2, chunk_count], and never fewer than the most chunks one frame's
+// packet spans.
 std::size_t cache_slots(const format::Metadata& meta, double seconds);
 
 // ---- The stream ----------------------------------------------------------------------------
@@ -92,6 +97,8 @@ struct StreamOptions {
   std::size_t min_slots = 0;  // tests: force a tiny cache (still at least what a frame needs)
   std::size_t max_slots = 0;  // tests: 0 = no cap beyond chunk_count
   unsigned max_loads_in_flight = 1;
+  // Decoded frames held: the current one, the next, and room to decode ahead (at least 2).
+  std::size_t decoded_frames = 3;
   bool blocking = false;                   // update() waits for data instead of stalling
   std::shared_ptr<IoScheduler> scheduler;  // default: a process-wide one with one worker
   std::shared_ptr<MemoryBudget> budget;    // optional: the cache must fit in it
@@ -102,7 +109,7 @@ struct FrameView {
   std::uint64_t frame = 0;                   // index in the clip
   std::uint64_t count = 0;                   // particles
   double time = 0.0;                         // the frame's time, seconds
-  std::span<const std::byte> first, second;  // the records; second is non-empty across the ring's wrap
+  std::span<const std::byte> first, second;  // the records (decoded frames are contiguous: second is empty)
   bool valid = false;                        // false until the first frame is ready
   std::uint64_t bytes() const { return first.size() + second.size(); }
 };
@@ -114,12 +121,17 @@ struct SlotInfo {
 
 struct DebugInfo {
   std::span<const SlotInfo> slots;  // one per cache slot, in ring order
-  std::size_t read_slot = 0;        // the slot holding the current frame's first record
-  std::uint64_t read_offset = 0;    // byte offset of the current frame in the record stream
+  std::size_t read_slot = 0;        // the slot holding the next frame to decode's first byte
+  std::uint64_t read_offset = 0;    // where that frame's packet starts in the chunked stream
+  std::uint64_t decode_frame = 0;   // the next frame the IO worker decodes
+  std::uint64_t frames_decoded = 0; // frames decoded since open (seeks decode from a keyframe)
+  std::size_t decoded_ready = 0, decoded_slots = 0;  // decoded frames waiting, of the ring's size
   std::uint32_t loads_in_flight = 0;
   std::uint64_t loads_done = 0, bytes_read = 0, stalls = 0;
-  double io_ms = 0.0, decode_ms = 0.0;  // totals on the IO workers
-  std::uint64_t cache_bytes = 0;
+  double io_ms = 0.0, decode_ms = 0.0;  // totals on the IO workers (decode: chunk codecs and frames)
+  std::uint64_t cache_bytes = 0;   // the chunk ring: slots × chunk_size
+  std::uint64_t decode_bytes = 0;  // the decoded frames, the frame decoder's state, a packet's staging
+  std::uint64_t wrapped_packets = 0;  // packets decoded from across the ring's wrap (copied together)
   bool seeking = false;
 };
 
@@ -136,7 +148,9 @@ class ParticleStream {
   void play();
   void pause();
   void stop();             // pause and go back to the start of the range
-  void seek(double time);  // the frame nearest `time` becomes current once its chunks are in
+  // The frame nearest `time` becomes current once it is decoded (from the keyframe at or before
+  // it: at most keyframe_interval - 1 extra frame decodes). Invalidates the current FrameView.
+  void seek(double time);
   void set_loop(bool loop);
   void set_speed(double speed);  // 0, fractional, > 1 (frames are skipped, never chunks)
   void set_range(double start, double end);

@@ -155,9 +155,17 @@ class AlembicSource final : public Source {
       return c.points ? c.points->has_velocities() : c.mesh->has_velocities();
     });
   }
+  // Ids that can be used: the property exists and holds one id per particle. Some exporters
+  // (Blender's FLIP liquids) write an empty .pointIds in every sample: that is no ids.
   bool has_ids() const override {
-    return std::all_of(objects_.begin(), objects_.end(),
-                       [](const Cooked& c) { return c.points && c.points->has_ids(); });
+    return std::all_of(objects_.begin(), objects_.end(), [](const Cooked& c) {
+      if (!c.points || !c.points->has_ids()) return false;
+      for (std::uint32_t s = 0; s < c.samples(); ++s) {
+        const std::uint64_t n = c.points->positions(s).size();
+        if (n != 0) return c.points->ids(s).size() == n;
+      }
+      return true;
+    });
   }
   std::uint32_t float_components(const std::string& name) const override {
     std::uint32_t components = 0;

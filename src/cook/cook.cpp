@@ -84,6 +84,9 @@ Plan make_plan(const Options& options, const Source& source, Report& report) {
     }
   }
   plan.record_size = format::record_size_of(plan.layout);
+  if (options.frame_codec == format::FrameCodec::Particle && !options.particle.lossless) {
+    r.id = r.id || source.has_ids();  // frames are ordered and matched by id
+  }
   for (const Attribute& a : plan.layout) {
     if (a.name == "color")
       plan.color = &a;
@@ -197,6 +200,23 @@ void pack(const ParticleFrame& f, const Plan& plan, ChunkCutter& out) {
   }
 }
 
+// A frame held for the particle codec: its records, and the ids that order and match particles
+// across frames (whether or not the record keeps them).
+struct HeldFrame {
+  std::vector<std::byte> records;
+  std::vector<std::uint64_t> ids;
+  std::uint64_t count = 0;
+  double time = 0.0;
+  format::SourceFrame view() const { return {records, ids, count}; }
+};
+
+void hold(const ParticleFrame& f, const Plan& plan, HeldFrame& out) {
+  out.count = f.count;
+  out.records.resize(f.count * plan.record_size);
+  for (std::uint64_t i = 0; i < f.count; ++i) pack_record(f, plan, i, out.records.data() + i * plan.record_size);
+  out.ids.assign(f.id.begin(), f.id.begin() + static_cast<std::ptrdiff_t>(plan.request.id ? f.count : 0));
+}
+
 // Encodes chunks on `threads` workers; results keep their order.
 std::vector<format::EncodedChunk> encode_all(const std::vector<std::vector<std::byte>>& raws, const Options& options,
                                              unsigned threads) {
@@ -229,6 +249,100 @@ bool is_ply(const std::filesystem::path& p) {
   std::string ext = p.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   return ext == ".ply";
+}
+
+// The particle codec's cook: a pass over the source for the clip's statistics (bounds, ranges,
+// constants: what the quantisation grids need), then keyframe groups, read in order and encoded
+// `threads` at a time, their packets written in order as raw chunks.
+void cook_particle(const Options& options, const Plan& plan, format::Metadata meta, std::uint64_t frames,
+                   unsigned threads, const std::function<std::array<float, 6>(std::uint64_t, ParticleFrame&)>& read,
+                   const std::function<void(const Progress&)>& progress, Report& report) {
+  ParticleFrame frame;
+  HeldFrame held;
+  Progress state;
+  state.frame_count = 2 * frames;  // both passes
+  format::ClipStats stats(plan.layout);
+  for (std::uint64_t k = 0; k < frames; ++k) {
+    read(k, frame);
+    hold(frame, plan, held);
+    stats.add(held.records, held.count);
+    state.frames_done = k + 1;
+    if (progress) progress(state);
+  }
+  meta.codec = format::plan_particle_codec(plan.layout, stats, meta.fps, plan.request.id && !options.particle.lossless,
+                                           options.particle);
+  report.error = meta.codec.error;
+  report.order = meta.codec.order;
+  format::Writer writer(options.output, meta);
+  ChunkCutter cutter(options.chunk_size, kRawPieceSize, [&](std::span<const std::byte> piece, bool ends_chunk) {
+    writer.append_raw_piece(piece);
+    if (ends_chunk) {
+      writer.end_raw_chunk();
+      ++report.chunks;
+    }
+  });
+  const std::uint64_t K = meta.codec.keyframe_interval;
+  std::vector<std::vector<HeldFrame>> groups;
+  std::vector<std::uint64_t> starts;  // each group's first frame
+  HeldFrame before;  // the frame before the first group of a batch
+  bool have_before = false;
+  for (std::uint64_t g0 = 0; g0 < frames;) {
+    // A batch: one group per thread, read in order.
+    groups.clear();
+    starts.clear();
+    for (unsigned t = 0; t < threads && g0 < frames; ++t, g0 += K) {
+      auto& group = groups.emplace_back();
+      starts.push_back(g0);
+      for (std::uint64_t k = g0; k < std::min(frames, g0 + K); ++k) {
+        read(k, frame);
+        hold(frame, plan, group.emplace_back());
+        group.back().time = meta.time_of_frame0 + double(k) / meta.fps;
+      }
+    }
+    std::vector<std::vector<format::EncodedFrame>> encoded(groups.size());
+    std::vector<std::exception_ptr> errors(groups.size());
+    {
+      std::vector<std::jthread> pool;
+      for (std::size_t g = 0; g < groups.size(); ++g) {
+        pool.emplace_back([&, g] {
+          try {
+            std::vector<format::SourceFrame> views;
+            for (const HeldFrame& h : groups[g]) views.push_back(h.view());
+            const HeldFrame* prior = g == 0 ? (have_before ? &before : nullptr) : &groups[g - 1].back();
+            const format::SourceFrame prior_view = prior ? prior->view() : format::SourceFrame{};
+            encoded[g] = format::encode_group(meta.codec, plan.layout, views, prior ? &prior_view : nullptr, starts[g]);
+          } catch (...) {
+            errors[g] = std::current_exception();
+          }
+        });
+      }
+    }
+    for (auto& e : errors) {
+      if (e) std::rethrow_exception(e);
+    }
+    for (std::size_t g = 0; g < groups.size(); ++g) {
+      for (std::size_t f = 0; f < encoded[g].size(); ++f) {
+        const format::EncodedFrame& e = encoded[g][f];
+        writer.append_frame(e.count, groups[g][f].time, e.bounds, e.packet.size(), e.keyframe);
+        cutter.write(e.packet.data(), e.packet.size());
+        report.particles += e.count;
+        report.keyframes += e.keyframe ? 1 : 0;
+        if (!e.keyframe) {
+          report.matched += e.matched;
+          report.predictable += e.predictable;
+        }
+        state.bytes_out += e.packet.size();
+        ++state.frames_done;
+        if (progress) progress(state);
+      }
+    }
+    before = std::move(groups.back().back());
+    have_before = true;
+  }
+  cutter.finish();
+  report.frames = frames;
+  report.stream_bytes = writer.metadata().decoded_size();
+  report.file_bytes = writer.commit();
 }
 
 }  // namespace
@@ -264,9 +378,33 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   meta.source_file = std::filesystem::path(source->name()).filename().string();
   meta.source_object = source->object();
   meta.cooked_with = options.command_line;
+  const unsigned threads = options.threads ? options.threads : std::max(1u, std::thread::hardware_concurrency());
+
+  // One output frame through the general path: read, scanned, NaN/Inf dropped or refused, the
+  // particle limit checked. Returns the frame's bounds.
+  const auto read = [&](std::uint64_t index, ParticleFrame& frame) {
+    const double time = start + static_cast<double>(first + static_cast<std::int64_t>(index)) / fps;
+    frame.clear(plan.request.floats.size());
+    source->read(time, plan.request, frame);
+    const Scan found = scan(frame);
+    report.dropped_invalid += drop_invalid(frame, found, plan, options, index, source->name());
+    if (frame.count > options.max_particles) {
+      throw Error(fmt::format("{}: frame {} has {} particles, more than --max-particles {}", source->name(), index,
+                              frame.count, options.max_particles));
+    }
+    return found.bounds;
+  };
+  const auto frame_count = static_cast<std::uint64_t>(last - first);
+  if (options.frame_codec == format::FrameCodec::Particle) {
+    report.dropped_invalid = 0;
+    cook_particle(options, plan, meta, frame_count, threads, read, progress, report);
+    report.dropped_invalid /= 2;  // both passes counted them
+    report.input_bytes = source->input_bytes();
+    report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return report;
+  }
   format::Writer writer(options.output, meta);
 
-  const unsigned threads = options.threads ? options.threads : std::max(1u, std::thread::hardware_concurrency());
   const std::size_t batch_chunks = std::max<std::size_t>(2, threads * 2);
   std::vector<std::vector<std::byte>> batch;  // raw chunks waiting to be encoded together
   Progress state;
@@ -314,15 +452,8 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
         continue;
       }
     }
-    frame.clear(plan.request.floats.size());
-    source->read(time, plan.request, frame);
-    const Scan found = scan(frame);
-    report.dropped_invalid += drop_invalid(frame, found, plan, options, index, source->name());
-    if (frame.count > options.max_particles) {
-      throw Error(fmt::format("{}: frame {} has {} particles, more than --max-particles {}", source->name(), index,
-                              frame.count, options.max_particles));
-    }
-    writer.append_frame(frame.count, time, found.bounds);
+    const std::array<float, 6> bounds = read(index, frame);
+    writer.append_frame(frame.count, time, bounds);
     pack(frame, plan, cutter);
     report.particles += frame.count;
     state.frames_done = index + 1;

@@ -1,9 +1,12 @@
-// Chunk codecs. Every chunk is compressed on its own so that it decodes alone.
+// Chunk codecs. Every chunk is compressed on its own so that it decodes alone. Each codec is one
+// unit (its encode and decode side by side); ChunkDecoder is the only way chunks are decoded.
 #include <lz4.h>
 #include <lz4hc.h>
 #include <xxhash.h>
 #include <zstd.h>
 
+#include <algorithm>
+#include <array>
 #include <cstring>
 
 #include <fmt/format.h>
@@ -11,78 +14,98 @@
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
+namespace {
+
+// What a chunk decoder hands a codec: reusable state and how to name the chunk in errors.
+struct DecodeContext {
+  ZSTD_DCtx* zstd;
+  std::string_view file;
+  std::uint64_t chunk;
+  const ChunkEntry& entry;
+  std::string where() const { return fmt::format("{}: chunk {} (file offset {})", file, chunk, entry.file_offset); }
+};
+
+struct ChunkCodecUnit {
+  Codec id;
+  std::string_view name;
+  void (*encode)(std::span<const std::byte> raw, int level, EncodedChunk& out);
+  void (*decode)(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out);
+};
+
+void raw_encode(std::span<const std::byte> raw, int /*level*/, EncodedChunk& out) {
+  out.stored.assign(raw.begin(), raw.end());
+}
+void raw_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
+  if (stored.size() != out.size())
+    throw Error(fmt::format("{}: raw chunk holds {} bytes, expected {}", ctx.where(), stored.size(), out.size()));
+  if (!out.empty() && stored.data() != out.data()) std::memcpy(out.data(), stored.data(), out.size());
+}
+
+void lz4_encode(std::span<const std::byte> raw, int level, EncodedChunk& out) {
+  if (raw.size() > static_cast<std::size_t>(LZ4_MAX_INPUT_SIZE)) throw Error("chunk too large for lz4");
+  out.stored.resize(static_cast<std::size_t>(LZ4_compressBound(static_cast<int>(raw.size()))));
+  const auto* src = reinterpret_cast<const char*>(raw.data());
+  auto* dst = reinterpret_cast<char*>(out.stored.data());
+  const int n = level > 0 ? LZ4_compress_HC(src, dst, int(raw.size()), int(out.stored.size()), level)
+                          : LZ4_compress_default(src, dst, int(raw.size()), int(out.stored.size()));
+  if (n <= 0) throw Error("lz4 compression failed");
+  out.stored.resize(static_cast<std::size_t>(n));
+  out.codec_param = static_cast<std::uint32_t>(std::max(level, 0));
+}
+void lz4_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
+  const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(stored.data()), reinterpret_cast<char*>(out.data()),
+                                    static_cast<int>(stored.size()), static_cast<int>(out.size()));
+  if (n < 0) throw Error(fmt::format("{}: lz4 data is corrupt (expected {} bytes)", ctx.where(), out.size()));
+  if (static_cast<std::size_t>(n) != out.size())
+    throw Error(fmt::format("{}: lz4 data decodes to {} bytes, expected {}", ctx.where(), n, out.size()));
+}
+
+void zstd_encode(std::span<const std::byte> raw, int level, EncodedChunk& out) {
+  out.stored.resize(ZSTD_compressBound(raw.size()));
+  const std::size_t n = ZSTD_compress(out.stored.data(), out.stored.size(), raw.data(), raw.size(), level);
+  if (ZSTD_isError(n)) throw Error(fmt::format("zstd compression failed: {}", ZSTD_getErrorName(n)));
+  out.stored.resize(n);
+  out.codec_param = static_cast<std::uint32_t>(level);
+}
+void zstd_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
+  const std::size_t n = ZSTD_decompressDCtx(ctx.zstd, out.data(), out.size(), stored.data(), stored.size());
+  if (ZSTD_isError(n))
+    throw Error(fmt::format("{}: zstd data does not decode: {}", ctx.where(), ZSTD_getErrorName(n)));
+  if (n != out.size())
+    throw Error(fmt::format("{}: zstd data decodes to {} bytes, expected {}", ctx.where(), n, out.size()));
+}
+
+constexpr std::array<ChunkCodecUnit, 3> kUnits{{
+    {Codec::Raw, "raw", raw_encode, raw_decode},
+    {Codec::Lz4, "lz4", lz4_encode, lz4_decode},
+    {Codec::Zstd, "zstd", zstd_encode, zstd_decode},
+}};
+
+const ChunkCodecUnit* unit_of(Codec codec) {
+  for (const ChunkCodecUnit& u : kUnits) {
+    if (u.id == codec) return &u;
+  }
+  return nullptr;
+}
+
+}  // namespace
+
+std::string_view codec_name(Codec codec) {
+  const ChunkCodecUnit* u = unit_of(codec);
+  return u ? u->name : "?";
+}
 
 std::uint64_t checksum(std::span<const std::byte> bytes) { return XXH3_64bits(bytes.data(), bytes.size()); }
 
 EncodedChunk encode_chunk(std::span<const std::byte> raw, Codec codec, int level) {
+  const ChunkCodecUnit* u = unit_of(codec);
+  if (u == nullptr) throw Error(fmt::format("unknown chunk codec {}", static_cast<int>(codec)));
   EncodedChunk out;
   out.codec = codec;
-  switch (codec) {
-    case Codec::Raw: out.stored.assign(raw.begin(), raw.end()); break;
-    case Codec::Lz4: {
-      if (raw.size() > static_cast<std::size_t>(LZ4_MAX_INPUT_SIZE)) throw Error("chunk too large for lz4");
-      out.stored.resize(static_cast<std::size_t>(LZ4_compressBound(static_cast<int>(raw.size()))));
-      const auto* src = reinterpret_cast<const char*>(raw.data());
-      auto* dst = reinterpret_cast<char*>(out.stored.data());
-      const int n = level > 0 ? LZ4_compress_HC(src, dst, int(raw.size()), int(out.stored.size()), level)
-                              : LZ4_compress_default(src, dst, int(raw.size()), int(out.stored.size()));
-      if (n <= 0) throw Error("lz4 compression failed");
-      out.stored.resize(static_cast<std::size_t>(n));
-      out.codec_param = static_cast<std::uint32_t>(std::max(level, 0));
-      break;
-    }
-    case Codec::Zstd: {
-      out.stored.resize(ZSTD_compressBound(raw.size()));
-      const std::size_t n = ZSTD_compress(out.stored.data(), out.stored.size(), raw.data(), raw.size(), level);
-      if (ZSTD_isError(n)) throw Error(fmt::format("zstd compression failed: {}", ZSTD_getErrorName(n)));
-      out.stored.resize(n);
-      out.codec_param = static_cast<std::uint32_t>(level);
-      break;
-    }
-  }
+  u->encode(raw, level, out);
   out.checksum = checksum(out.stored);
   return out;
 }
-
-void decode_chunk(const ChunkEntry& entry, std::span<const std::byte> stored, std::span<std::byte> out,
-                  std::string_view where) {
-  const std::uint64_t sum = checksum(stored);
-  if (sum != entry.checksum) {
-    throw Error(
-        fmt::format("{}: checksum mismatch: stored bytes hash to {:016x}, the chunk table says {:016x} "
-                    "(the file is corrupted)",
-                    where, sum, entry.checksum));
-  }
-  switch (entry.codec) {
-    case Codec::Raw:
-      if (stored.size() != out.size()) {
-        throw Error(fmt::format("{}: raw chunk holds {} bytes, expected {}", where, stored.size(), out.size()));
-      }
-      if (!out.empty()) std::memcpy(out.data(), stored.data(), out.size());
-      return;
-    case Codec::Lz4: {
-      const int n =
-          LZ4_decompress_safe(reinterpret_cast<const char*>(stored.data()), reinterpret_cast<char*>(out.data()),
-                              static_cast<int>(stored.size()), static_cast<int>(out.size()));
-      if (n < 0 || static_cast<std::size_t>(n) != out.size()) {
-        throw Error(fmt::format("{}: lz4 data decodes to {} bytes, expected {}", where, n, out.size()));
-      }
-      return;
-    }
-    case Codec::Zstd: {
-      const std::size_t n = ZSTD_decompress(out.data(), out.size(), stored.data(), stored.size());
-      if (ZSTD_isError(n)) throw Error(fmt::format("{}: zstd data does not decode: {}", where, ZSTD_getErrorName(n)));
-      if (n != out.size())
-        throw Error(fmt::format("{}: zstd data decodes to {} bytes, expected {}", where, n, out.size()));
-      return;
-    }
-  }
-  throw Error(fmt::format("{}: unknown codec {}", where, static_cast<int>(entry.codec)));
-}
-
-}  // namespace pstream::format
-
-namespace pstream::format {
 
 ChunkDecoder::ChunkDecoder() : zstd_(ZSTD_createDCtx()) {
   if (zstd_ == nullptr) throw Error("cannot create a zstd decoder");
@@ -92,36 +115,16 @@ ChunkDecoder::~ChunkDecoder() { ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(zstd_)); }
 
 void ChunkDecoder::decode(const ChunkEntry& entry, std::span<const std::byte> stored, std::span<std::byte> out,
                           std::string_view file, std::uint64_t chunk) {
-  const auto where = [&] { return fmt::format("{}: chunk {} (file offset {})", file, chunk, entry.file_offset); };
+  const DecodeContext ctx{static_cast<ZSTD_DCtx*>(zstd_), file, chunk, entry};
   if (checksum(stored) != entry.checksum) {
     throw Error(
         fmt::format("{}: checksum mismatch: the stored bytes do not hash to the chunk table's {:016x} "
                     "(the file is corrupted or was replaced)",
-                    where(), entry.checksum));
+                    ctx.where(), entry.checksum));
   }
-  if (entry.codec == Codec::Zstd) {
-    const std::size_t n =
-        ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(zstd_), out.data(), out.size(), stored.data(), stored.size());
-    if (ZSTD_isError(n) || n != out.size()) {
-      throw Error(fmt::format("{}: zstd data does not decode to {} bytes", where(), out.size()));
-    }
-    return;
-  }
-  if (entry.codec == Codec::Raw) {
-    if (stored.size() != out.size())
-      throw Error(fmt::format("{}: raw chunk holds {} bytes, expected {}", where(), stored.size(), out.size()));
-    if (!out.empty()) std::memcpy(out.data(), stored.data(), out.size());
-    return;
-  }
-  if (entry.codec == Codec::Lz4) {
-    const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(stored.data()), reinterpret_cast<char*>(out.data()),
-                                      static_cast<int>(stored.size()), static_cast<int>(out.size()));
-    if (n < 0 || static_cast<std::size_t>(n) != out.size()) {
-      throw Error(fmt::format("{}: lz4 data decodes to {} bytes, expected {}", where(), n, out.size()));
-    }
-    return;
-  }
-  throw Error(fmt::format("{}: unknown codec {}", where(), static_cast<int>(entry.codec)));
+  const ChunkCodecUnit* u = unit_of(entry.codec);
+  if (u == nullptr) throw Error(fmt::format("{}: unknown codec {}", ctx.where(), static_cast<int>(entry.codec)));
+  u->decode(ctx, stored, out);
 }
 
 }  // namespace pstream::format

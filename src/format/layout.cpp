@@ -1,3 +1,5 @@
+#include <cmath>
+
 #include <fmt/format.h>
 
 #include "particlestream/format.hpp"
@@ -24,17 +26,48 @@ std::size_t attribute_type_size(AttributeType type) {
   return 0;
 }
 
-std::string_view codec_name(Codec codec) {
+std::string_view frame_codec_name(FrameCodec codec) {
   switch (codec) {
-    case Codec::Raw: return "raw";
-    case Codec::Lz4: return "lz4";
-    case Codec::Zstd: return "zstd";
+    case FrameCodec::Records: return "records";
+    case FrameCodec::Particle: return "particle";
   }
   return "?";
 }
 
 std::uint64_t Metadata::stream_size() const {
+  return frames.empty() ? 0 : frames.back().packet_offset + frames.back().packet_size;
+}
+
+std::uint64_t Metadata::decoded_size() const {
   return frames.empty() ? 0 : frames.back().byte_offset + frames.back().count * record_size;
+}
+
+std::uint64_t Metadata::total_particles() const {
+  std::uint64_t n = 0;
+  for (const FrameEntry& f : frames) n += f.count;
+  return n;
+}
+
+double Metadata::particles_per_chunk() const {
+  const std::uint64_t stored = stream_size(), particles = total_particles();
+  // Stored bytes per particle: the record size, or what the codec made of it.
+  const double per_particle = stored && particles ? double(stored) / double(particles) : double(record_size);
+  return double(chunk_size) / per_particle;
+}
+
+std::uint64_t Metadata::frame_at(double time) const {
+  if (frames.empty()) return 0;
+  const double f = std::round((time - time_of_frame0) * fps);
+  if (!(f > 0.0)) return 0;  // also NaN
+  return static_cast<std::uint64_t>(std::min(f, double(frames.size() - 1)));
+}
+
+std::pair<std::uint64_t, std::uint64_t> Metadata::frame_chunks(std::uint64_t frame) const {
+  const FrameEntry& f = frames[frame];
+  const std::uint64_t last_chunk = chunks.empty() ? 0 : chunks.size() - 1;
+  const std::uint64_t first = std::min(f.packet_offset / chunk_size, last_chunk);
+  if (f.packet_size == 0) return {first, first};
+  return {first, (f.packet_offset + f.packet_size - 1) / chunk_size};
 }
 
 std::uint64_t Metadata::chunk_raw_size(std::uint64_t chunk) const {

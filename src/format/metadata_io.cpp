@@ -12,9 +12,19 @@ namespace {
 
 constexpr char kMagic[8] = {'P', 'S', 'T', 'R', 'E', 'A', 'M', '\0'};
 constexpr std::size_t kAttributeEntrySize = 40;
-constexpr std::size_t kFrameEntrySize = 48;
+constexpr std::size_t kFrameEntrySizeV1 = 48;
+constexpr std::size_t kFrameEntrySize = 64;
+constexpr std::size_t kWordCodingEntrySize = 16;
 constexpr std::size_t kChunkEntrySize = 32;
-constexpr std::size_t kHeaderChecksumAt = 152;
+constexpr std::size_t kHeaderChecksumAtV1 = 152;
+constexpr std::size_t kHeaderChecksumAt = 184;
+constexpr std::uint32_t kFrameFlagKeyframe = 1;
+
+std::size_t header_size_of(std::uint32_t version) { return version == 1 ? kHeaderSizeV1 : kHeaderSize; }
+std::size_t header_checksum_at(std::uint32_t version) {
+  return version == 1 ? kHeaderChecksumAtV1 : kHeaderChecksumAt;
+}
+std::size_t frame_entry_size(std::uint32_t version) { return version == 1 ? kFrameEntrySizeV1 : kFrameEntrySize; }
 
 class Out {
  public:
@@ -79,6 +89,33 @@ class In {
   std::string_view name_;
 };
 
+// The particle codec's word table must describe the record layout: quantised words are float32
+// components with a finite positive step and origin, ids cover the two words of a uint64 "id".
+template <class Fail>
+void validate_word_codings(const Metadata& m, Fail fail) {
+  for (const Attribute& a : m.layout) {
+    for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) {
+      const WordCodingEntry& e = m.codec.words[w];
+      const bool is_float = a.type == AttributeType::Float32;
+      const bool is_id = a.name == "id" && a.type == AttributeType::Uint64;
+      if (e.coding == WordCoding::Quantized) {
+        float origin;
+        std::memcpy(&origin, &e.base, 4);
+        if (!is_float || !(e.step > 0.0f) || !std::isfinite(e.step) || !std::isfinite(origin) ||
+            !(e.error >= 0.0f) || !std::isfinite(e.error)) {
+          fail(fmt::format("record word {} ('{}'): a quantised word needs a float32 attribute, a finite step > 0 and "
+                           "a finite origin (step {}, origin {}, error {})",
+                           w, a.name, e.step, origin, e.error));
+        }
+      }
+      if ((e.coding == WordCoding::Id) != is_id) {
+        fail(fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute", w,
+                         a.name));
+      }
+    }
+  }
+}
+
 std::vector<std::byte> tables_bytes(const Metadata& m) {
   std::vector<std::byte> t;
   Out out(t);
@@ -94,11 +131,24 @@ std::vector<std::byte> tables_bytes(const Metadata& m) {
     out.put(std::uint16_t{0});
     out.put(a.offset);
   }
+  if (m.codec.codec == FrameCodec::Particle) {
+    for (const WordCodingEntry& w : m.codec.words) {
+      out.put(static_cast<std::uint8_t>(w.coding));
+      out.put(std::uint8_t{0});
+      out.put(std::uint16_t{0});
+      out.put(w.step);
+      out.put(w.error);
+      out.put(w.base);
+    }
+  }
   for (const FrameEntry& f : m.frames) {
     out.put(f.count);
     out.put(f.byte_offset);
     out.put(f.time);
     for (float b : f.bounds) out.put(b);
+    out.put(f.packet_offset);
+    out.put(static_cast<std::uint32_t>(f.packet_size));
+    out.put(f.keyframe ? kFrameFlagKeyframe : 0u);
   }
   for (const ChunkEntry& c : m.chunks) {
     out.put(c.file_offset);
@@ -138,6 +188,14 @@ std::vector<std::byte> serialize_header(const Metadata& m, std::uint64_t tables_
   out.put(tables_offset);
   out.put(static_cast<std::uint64_t>(tables.size()));
   out.put(checksum(tables));
+  out.put(static_cast<std::uint32_t>(m.codec.codec));
+  out.put(static_cast<std::uint8_t>(m.codec.order));
+  out.put(static_cast<std::uint8_t>(m.codec.lossless ? 1 : 0));
+  out.put(std::uint16_t{0});
+  out.put(m.codec.keyframe_interval);
+  out.put(std::uint32_t{0});
+  out.put(m.codec.error);
+  out.put(std::uint64_t{0});
   out.put(checksum(std::span(h).first(kHeaderChecksumAt)));
   return h;
 }
@@ -156,24 +214,30 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   if (bytes.size() < sizeof kMagic || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0) {
     throw Error(fmt::format("{}: at offset 0: not a .pstream file (expected the magic \"PSTREAM\\0\")", name));
   }
-  if (bytes.size() < kHeaderSize) {
-    throw Error(fmt::format("{}: truncated: {} bytes, the header alone has {}", name, bytes.size(), kHeaderSize));
+  if (bytes.size() < kHeaderSizeV1) {
+    throw Error(fmt::format("{}: truncated: {} bytes, the header alone has {}", name, bytes.size(), kHeaderSizeV1));
   }
-  In h(bytes.first(kHeaderSize), 0, name);
+  In h(bytes, 0, name);
   h.skip(sizeof kMagic, "magic");
   Header header;
   header.file_size = file_size;
   Metadata& m = header.meta;
   m.version = h.get<std::uint32_t>("version");
-  if (m.version != kVersion)
-    h.fail(fmt::format("unsupported format version {} (this build reads version {})", m.version, kVersion));
+  if (m.version != 1 && m.version != 2)
+    h.fail(fmt::format("unsupported format version {} (this build reads versions 1 and 2)", m.version));
+  const std::size_t expected_header_size = header_size_of(m.version);
   const auto header_size = h.get<std::uint32_t>("header_size");
-  if (header_size != kHeaderSize) h.fail(fmt::format("header_size is {}, expected {}", header_size, kHeaderSize));
+  if (header_size != expected_header_size)
+    h.fail(fmt::format("header_size is {}, expected {} for version {}", header_size, expected_header_size, m.version));
+  if (bytes.size() < expected_header_size) {
+    throw Error(fmt::format("{}: truncated: {} bytes, the version {} header alone has {}", name, bytes.size(),
+                            m.version, expected_header_size));
+  }
+  const std::size_t sum_at = header_checksum_at(m.version);
   std::uint64_t stored_header_sum = 0;
-  std::memcpy(&stored_header_sum, bytes.data() + kHeaderChecksumAt, 8);
-  if (checksum(bytes.first(kHeaderChecksumAt)) != stored_header_sum) {
-    throw Error(
-        fmt::format("{}: at offset {}: header checksum mismatch (the header is corrupted)", name, kHeaderChecksumAt));
+  std::memcpy(&stored_header_sum, bytes.data() + sum_at, 8);
+  if (checksum(bytes.first(sum_at)) != stored_header_sum) {
+    throw Error(fmt::format("{}: at offset {}: header checksum mismatch (the header is corrupted)", name, sum_at));
   }
   m.flags = h.get<std::uint64_t>("flags");
   m.fps = h.get<double>("fps");
@@ -202,7 +266,32 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   header.tables_offset = h.get<std::uint64_t>("tables_offset");
   header.tables_size = h.get<std::uint64_t>("tables_size");
   header.tables_checksum = h.get<std::uint64_t>("tables_checksum");
-  if (header.tables_offset < kHeaderSize || header.tables_offset > file_size ||
+  if (m.version >= 2) {
+    const auto codec = h.get<std::uint32_t>("frame_codec");
+    if (codec > static_cast<std::uint32_t>(FrameCodec::Particle))
+      h.fail(fmt::format("unknown frame codec {} (this build knows 0 records, 1 particle)", codec));
+    m.codec.codec = static_cast<FrameCodec>(codec);
+    const auto order = h.get<std::uint8_t>("frame_order");
+    if (order > static_cast<std::uint8_t>(FrameOrder::Matched)) h.fail(fmt::format("unknown frame order {}", order));
+    m.codec.order = static_cast<FrameOrder>(order);
+    const auto lossless = h.get<std::uint8_t>("lossless");
+    if (lossless > 1) h.fail(fmt::format("lossless is {}, expected 0 or 1", lossless));
+    m.codec.lossless = lossless == 1;
+    if (h.get<std::uint16_t>("reserved") != 0) h.fail("reserved header bytes are not 0");
+    m.codec.keyframe_interval = h.get<std::uint32_t>("keyframe_interval");
+    if (h.get<std::uint32_t>("reserved") != 0) h.fail("reserved header bytes are not 0");
+    m.codec.error = h.get<double>("error");
+    if (h.get<std::uint64_t>("reserved") != 0) h.fail("reserved header bytes are not 0");
+    const bool particle = m.codec.codec == FrameCodec::Particle;
+    if (particle ? (m.codec.keyframe_interval < 1 || m.codec.keyframe_interval > kMaxKeyframeInterval)
+                 : m.codec.keyframe_interval != 1) {
+      h.fail(fmt::format("keyframe_interval is {}, expected {}", m.codec.keyframe_interval,
+                         particle ? fmt::format("1 to {}", kMaxKeyframeInterval) : std::string("1")));
+    }
+    if (!(m.codec.error >= 0.0) || !std::isfinite(m.codec.error))
+      h.fail(fmt::format("error bound is {}, expected a finite number >= 0", m.codec.error));
+  }
+  if (header.tables_offset < expected_header_size || header.tables_offset > file_size ||
       header.tables_size > file_size - header.tables_offset) {
     h.fail(fmt::format("the tables at bytes {}..{} lie outside the file of {} bytes (truncated or corrupted)",
                        header.tables_offset, header.tables_offset + header.tables_size, file_size));
@@ -219,9 +308,12 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
     throw Error(fmt::format("{}: {} table bytes given, the header says {}", name, tables_size, header.tables_size));
   }
   // Counts must fit in the tables before anything is allocated for them.
-  const std::uint64_t fixed = attribute_count * kAttributeEntrySize;
-  if (frame_count > tables_size / kFrameEntrySize || chunk_count > tables_size / kChunkEntrySize ||
-      fixed + frame_count * kFrameEntrySize + chunk_count * kChunkEntrySize > tables_size) {
+  const std::size_t frame_entry = frame_entry_size(m.version);
+  const bool particle = m.codec.codec == FrameCodec::Particle;
+  const std::uint64_t word_entries = particle ? m.record_size / 4 : 0;
+  const std::uint64_t fixed = attribute_count * kAttributeEntrySize + word_entries * kWordCodingEntrySize;
+  if (frame_count > tables_size / frame_entry || chunk_count > tables_size / kChunkEntrySize ||
+      fixed + frame_count * frame_entry + chunk_count * kChunkEntrySize > tables_size) {
     throw Error(
         fmt::format("{}: tables of {} bytes cannot hold {} attributes, {} frames and {} chunks (corrupted counts)",
                     name, tables_size, attribute_count, frame_count, chunk_count));
@@ -258,28 +350,79 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
       L[1].name != "scale" || L[1].type != AttributeType::Float32 || L[1].components != 1 || L[1].offset != 12) {
     t.fail("the record layout must start with position float32x3 at 0 and scale float32 at 12");
   }
-  std::uint64_t expected_offset = 0, min_count = UINT64_MAX, max_count = 0;
+  if (particle) {
+    m.codec.words.resize(word_entries);
+    for (std::uint64_t w = 0; w < word_entries; ++w) {
+      WordCodingEntry& e = m.codec.words[w];
+      const auto coding = t.get<std::uint8_t>("word coding");
+      t.skip(3, "word coding reserved");
+      e.step = t.get<float>("word step");
+      e.error = t.get<float>("word error");
+      e.base = t.get<std::uint32_t>("word base");
+      if (coding > static_cast<std::uint8_t>(WordCoding::Id))
+        t.fail(fmt::format("record word {} has unknown coding {}", w, coding));
+      e.coding = static_cast<WordCoding>(coding);
+    }
+    validate_word_codings(m, [&](const std::string& what) { t.fail(what); });
+  }
+  std::uint64_t expected_offset = 0, expected_packet = 0, min_count = UINT64_MAX, max_count = 0, since_key = 0;
   for (std::uint64_t i = 0; i < frame_count; ++i) {
     FrameEntry f;
     f.count = t.get<std::uint64_t>("frame count");
     f.byte_offset = t.get<std::uint64_t>("frame byte_offset");
     f.time = t.get<double>("frame time");
     for (float& b : f.bounds) b = t.get<float>("frame bounds");
+    if (m.version >= 2) {
+      f.packet_offset = t.get<std::uint64_t>("frame packet_offset");
+      f.packet_size = t.get<std::uint32_t>("frame packet_size");
+      const auto flags = t.get<std::uint32_t>("frame flags");
+      if (flags > kFrameFlagKeyframe) t.fail(fmt::format("frame {} has unknown flags {:#x}", i, flags));
+      f.keyframe = (flags & kFrameFlagKeyframe) != 0;
+    }
     if (f.byte_offset != expected_offset) {
       t.fail(fmt::format("frame {} starts at byte {} of the record stream, expected {} (frame index inconsistent)", i,
                          f.byte_offset, expected_offset));
     }
-    if (f.count > stream_size / m.record_size) {
-      t.fail(fmt::format("frame {} claims {} particles, more than the whole stream holds", i, f.count));
+    if (!std::isfinite(f.time) || (i > 0 && !(f.time > m.frames.back().time))) {
+      t.fail(fmt::format("frame {} has time {}, expected a finite time after the previous frame's", i, f.time));
     }
+    if (particle) {
+      if (f.count > kMaxFrameParticles) {
+        t.fail(fmt::format("frame {} claims {} particles, more than the particle codec's limit of {}", i, f.count,
+                           kMaxFrameParticles));
+      }
+      since_key = f.keyframe ? 0 : since_key + 1;
+      if (since_key >= m.codec.keyframe_interval || (i == 0 && !f.keyframe)) {
+        t.fail(fmt::format("frame {} is {} frames past its keyframe; keyframe_interval is {}", i, since_key,
+                           m.codec.keyframe_interval));
+      }
+    } else {
+      if (f.count > stream_size / m.record_size) {
+        t.fail(fmt::format("frame {} claims {} particles, more than the whole stream holds", i, f.count));
+      }
+      if (m.version == 1) {
+        f.packet_offset = f.byte_offset;
+        f.packet_size = f.count * m.record_size;
+      } else if (f.packet_size != f.count * m.record_size || !f.keyframe) {
+        t.fail(fmt::format("frame {}: with the records codec a packet is the frame's {} bytes of records and a "
+                           "keyframe, not {} bytes{}",
+                           i, f.count * m.record_size, f.packet_size, f.keyframe ? "" : " and a predicted frame"));
+      }
+    }
+    if (f.packet_offset != expected_packet) {
+      t.fail(fmt::format("frame {}'s packet starts at byte {} of the chunked stream, expected {} (frame index "
+                         "inconsistent)",
+                         i, f.packet_offset, expected_packet));
+    }
+    expected_packet += f.packet_size;
     expected_offset += f.count * m.record_size;
     min_count = std::min(min_count, f.count);
     max_count = std::max(max_count, f.count);
     m.frames.push_back(f);
   }
-  if (expected_offset != stream_size) {
+  if (expected_packet != stream_size) {
     throw Error(fmt::format("{}: the frame index covers {} bytes but stream_size is {} (frame index inconsistent)",
-                            name, expected_offset, stream_size));
+                            name, expected_packet, stream_size));
   }
   if (frame_count > 0 && (min_count != m.min_count || max_count != m.max_count)) {
     throw Error(fmt::format("{}: header says {}..{} particles per frame, the frame index says {}..{}", name,
@@ -290,7 +433,7 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
     throw Error(fmt::format("{}: chunk_count is {}, but {} bytes in {}-byte chunks need {}", name, chunk_count,
                             stream_size, m.chunk_size, expected_chunks));
   }
-  const std::uint64_t payload_start = kHeaderSize, payload_end = header.tables_offset;
+  const std::uint64_t payload_start = header_size_of(m.version), payload_end = header.tables_offset;
   for (std::uint64_t i = 0; i < chunk_count; ++i) {
     ChunkEntry c;
     const std::uint64_t at = t.offset();

@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include "base/mapped_file.hpp"
+#include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
@@ -13,6 +14,10 @@ struct Reader::Impl {
   std::span<const std::byte> bytes;
   std::string name;
   Metadata meta;
+  // Decoding state, made on first use (a Reader is not for concurrent use).
+  std::unique_ptr<ChunkDecoder> chunks;
+  std::unique_ptr<FrameDecoder> frames;
+  std::vector<std::byte> packet, scratch, decoded;
 };
 
 Reader::Reader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -54,24 +59,25 @@ void Reader::read_chunk(std::uint64_t chunk, std::span<std::byte> out) const {
   const std::uint64_t raw = m.chunk_raw_size(chunk);
   if (out.size() < raw)
     throw Error(fmt::format("{}: buffer of {} bytes for chunk {} of {} bytes", impl_->name, out.size(), chunk, raw));
-  decode_chunk(m.chunks[chunk], stored_chunk(chunk), out.first(raw),
-               fmt::format("{}: chunk {} (file offset {})", impl_->name, chunk, m.chunks[chunk].file_offset));
+  if (!impl_->chunks) impl_->chunks = std::make_unique<ChunkDecoder>();
+  impl_->chunks->decode(m.chunks[chunk], stored_chunk(chunk), out.first(raw), impl_->name, chunk);
 }
 
-void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const {
+void Reader::read_packet(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const {
   const Metadata& m = impl_->meta;
   if (frame >= m.frame_count()) {
     throw Error(fmt::format("{}: frame {} requested, the file has {}", impl_->name, frame, m.frame_count()));
   }
-  const FrameEntry& f = m.frames[frame];
-  const std::uint64_t size = f.count * m.record_size;
-  if (out.size() < size)
-    throw Error(fmt::format("{}: buffer of {} bytes for frame {} of {} bytes", impl_->name, out.size(), frame, size));
-  std::uint64_t pos = f.byte_offset, done = 0;
-  while (done < size) {
+  const FramePacket p = frame_packet(m, frame);
+  if (out.size() < p.size) {
+    throw Error(fmt::format("{}: buffer of {} bytes for frame {}'s packet of {} bytes", impl_->name, out.size(), frame,
+                            p.size));
+  }
+  std::uint64_t pos = p.offset, done = 0;
+  while (done < p.size) {
     const std::uint64_t chunk = pos / m.chunk_size;
     const std::uint64_t within = pos - chunk * m.chunk_size;
-    const std::uint64_t take = std::min(size - done, m.chunk_raw_size(chunk) - within);
+    const std::uint64_t take = std::min(p.size - done, m.chunk_raw_size(chunk) - within);
     if (scratch.size() < m.chunk_raw_size(chunk)) {
       throw Error(fmt::format("{}: scratch buffer of {} bytes for chunk {} of {} bytes", impl_->name, scratch.size(),
                               chunk, m.chunk_raw_size(chunk)));
@@ -80,6 +86,36 @@ void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out, std::span
     std::memcpy(out.data() + done, scratch.data() + within, take);
     done += take;
     pos += take;
+  }
+}
+
+void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
+  Impl& d = *impl_;
+  const Metadata& m = d.meta;
+  if (frame >= m.frame_count()) {
+    throw Error(fmt::format("{}: frame {} requested, the file has {}", d.name, frame, m.frame_count()));
+  }
+  if (out.size() < m.frames[frame].count * m.record_size) {
+    throw Error(fmt::format("{}: buffer of {} bytes for frame {} of {} bytes", d.name, out.size(), frame,
+                            m.frames[frame].count * m.record_size));
+  }
+  if (!d.frames) {
+    d.frames = std::make_unique<FrameDecoder>(m, d.name);
+    std::uint64_t largest = 0;
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) largest = std::max(largest, frame_packet(m, f).size);
+    d.packet.resize(largest);
+    d.scratch.resize(std::min(m.chunk_size, m.stream_size()));
+    d.decoded.resize(m.max_count * m.record_size);
+  }
+  // Forward from the keyframe, or on from the frame decoded last.
+  std::uint64_t f = keyframe_of(m, frame);
+  if (d.frames->last_decoded() != UINT64_MAX && d.frames->last_decoded() < frame && d.frames->last_decoded() >= f)
+    f = d.frames->last_decoded() + 1;
+  for (; f <= frame; ++f) {
+    const std::uint64_t size = frame_packet(m, f).size;
+    read_packet(f, d.packet, d.scratch);
+    // Frames on the way are decoded aside: they may hold more particles than `out`.
+    d.frames->decode(f, std::span(d.packet).first(size), f == frame ? out : std::span(d.decoded));
   }
 }
 

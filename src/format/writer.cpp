@@ -49,6 +49,7 @@ void Writer::write_at(std::uint64_t offset, std::span<const std::byte> bytes) {
 }
 
 Writer::Writer(std::filesystem::path path, Metadata meta) : path_(std::move(path)), meta_(std::move(meta)) {
+  meta_.version = kVersion;
   meta_.frames.clear();
   meta_.chunks.clear();
   meta_.record_size = record_size_of(meta_.layout);
@@ -69,10 +70,26 @@ Writer::~Writer() {
 }
 
 void Writer::append_frame(std::uint64_t count, double time, std::array<float, 6> bounds) {
+  if (meta_.codec.codec != FrameCodec::Records) {
+    throw Error(fmt::format("{}: a {} frame needs its packet size", path_.string(), frame_codec_name(meta_.codec.codec)));
+  }
+  append_frame(count, time, bounds, count * meta_.record_size, true);
+}
+
+void Writer::append_frame(std::uint64_t count, double time, std::array<float, 6> bounds, std::uint64_t packet_size,
+                          bool keyframe) {
   // A zero bound is stored as +0: whether a min/max meets -0 or +0 first depends on the order
   // particles are visited (SIMD lanes), and the bytes of a cook must not.
   for (float& b : bounds) b += 0.0f;
-  meta_.frames.push_back({count, meta_.stream_size(), time, bounds});
+  FrameEntry f;
+  f.count = count;
+  f.byte_offset = meta_.decoded_size();
+  f.time = time;
+  f.bounds = bounds;
+  f.packet_offset = meta_.stream_size();
+  f.packet_size = packet_size;
+  f.keyframe = keyframe;
+  meta_.frames.push_back(f);
 }
 
 void Writer::append_chunk(const EncodedChunk& chunk) {

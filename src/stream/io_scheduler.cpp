@@ -8,6 +8,10 @@ namespace pstream::stream {
 
 void LoadRequest::execute() {
   using Clock = std::chrono::steady_clock;
+  if (produce) {  // the stream's callback does the work
+    status.store(Done, std::memory_order_release);
+    return;
+  }
   try {
     const auto t0 = Clock::now();
     const bool raw = entry.codec == format::Codec::Raw;

@@ -22,6 +22,7 @@ struct LoadRequest {
   std::size_t slot = 0;
   std::uint64_t seq = 0;
   bool discard = false;  // a seek made this load useless; its slot frees on completion
+  bool produce = false;  // not a load: a turn for the stream's frame decoding on the worker
 
   // Called by the worker right after execute(): the stream marks the slot and chains its next
   // load without waiting for the host's next update().

@@ -1,15 +1,22 @@
-// The chunk cache and its state machine (docs/streaming.md).
+// The chunk cache, the decoded-frame ring and their state machine (docs/streaming.md).
 //
 // Chunks are loaded in playback order. The k-th chunk of that order ("sequence number" k) maps
 // to chunk c0 + k mod N of the playback range [c0, c1] (N chunks; laps repeat it when looping),
 // and lives in slot (slot_base + k - seq_base) mod s. The slots holding sequence numbers
 // [oldest, next) are Loading or Ready; all others are Empty. Because consecutive chunks sit in
-// consecutive slots, a frame is contiguous in the cache except across the ring's wrap.
+// consecutive slots, a frame's packet is contiguous in the cache except across the ring's wrap.
 //
-// Threads: update() (the host's thread) and the IO worker's completion callback share the slot
-// states and the load queue under one mutex, held for a few hundred nanoseconds. The callback
-// marks a finished slot Ready and chains the next load, so loading never waits for the host's
-// next frame; update() releases consumed slots and moves the current frame.
+// Frames are decoded in playback order by the producer, which runs on an IO worker: the frame
+// codec needs each predicted frame's predecessor, so after a seek (and at each lap's start) it
+// decodes from the keyframe at or before the first wanted frame, publishing only wanted frames.
+// It consumes chunks (releasing those before the next frame's packet) and fills the decoded-frame
+// ring; the host releases decoded frames it has passed and shows the target frame when it is
+// ready, keeping the last complete one otherwise (a stall).
+//
+// Threads: update() (the host's thread) and the IO workers share the states under one mutex,
+// held for a few hundred nanoseconds; a frame is decoded with the mutex released (its packet's
+// chunk slots stay pinned, its frame slot marked Decoding). A seek bumps the epoch, so a decode
+// that was under way is thrown away when it ends.
 #include <algorithm>
 #include <cmath>
 #include <condition_variable>
@@ -19,6 +26,7 @@
 
 #include <fmt/format.h>
 
+#include "particlestream/codec.hpp"
 #include "particlestream/stream.hpp"
 #include "stream/load_request.hpp"
 
@@ -31,25 +39,28 @@ struct AlignedDelete {
   void operator()(std::byte* p) const { ::operator delete[](p, std::align_val_t(kCacheAlignment)); }
 };
 
-std::uint64_t first_chunk(const format::Metadata& m, std::uint64_t frame) {
-  return std::min(m.frames[frame].byte_offset / m.chunk_size, m.chunk_count() ? m.chunk_count() - 1 : 0);
+std::unique_ptr<std::byte[], AlignedDelete> aligned_bytes(std::uint64_t n) {
+  return std::unique_ptr<std::byte[], AlignedDelete>(
+      static_cast<std::byte*>(::operator new[](std::max<std::uint64_t>(n, 1), std::align_val_t(kCacheAlignment))));
 }
 
-std::uint64_t last_chunk(const format::Metadata& m, std::uint64_t frame) {
-  const auto& f = m.frames[frame];
-  if (f.count == 0) return first_chunk(m, frame);
-  return (f.byte_offset + f.count * m.record_size - 1) / m.chunk_size;
-}
+struct FrameSlot {
+  enum State : std::uint8_t { Empty, Decoding, Ready };
+  State state = Empty;
+  std::uint64_t seq = 0;  // lap × frame_count + frame
+};
 
 }  // namespace
 
 std::size_t cache_slots(const format::Metadata& m, double seconds) {
   if (m.chunk_count() == 0) return 0;
   const double wanted = std::ceil(seconds * m.fps * double(m.max_count) / m.particles_per_chunk());
-  // Every frame must fit: the most chunks any one frame spans, read from the frame index.
+  // Every frame must fit: the most chunks any one frame's packet spans, read from the frame index.
   std::uint64_t frame_chunks = 1;
-  for (std::uint64_t f = 0; f < m.frame_count(); ++f)
-    frame_chunks = std::max(frame_chunks, last_chunk(m, f) - first_chunk(m, f) + 1);
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    const auto [first, last] = m.frame_chunks(f);
+    frame_chunks = std::max(frame_chunks, last - first + 1);
+  }
   std::uint64_t s = std::max<std::uint64_t>(2, static_cast<std::uint64_t>(std::max(wanted, 0.0)));
   s = std::min<std::uint64_t>(s, m.chunk_count());
   s = std::max<std::uint64_t>(s, frame_chunks);
@@ -63,39 +74,59 @@ struct ParticleStream::Impl {
   std::shared_ptr<MemoryBudget> budget;
   std::string name;
 
+  // The chunk ring.
   std::unique_ptr<std::byte[], AlignedDelete> cache;
   std::size_t slot_count = 0;
-  std::uint64_t chunk_size = 0, cache_bytes = 0;
-
+  std::uint64_t chunk_size = 0, cache_bytes = 0, decode_bytes = 0;
   std::vector<LoadRequest> requests;
   std::vector<std::unique_ptr<format::ChunkDecoder>> decoders;
   std::unique_ptr<std::byte[]> staging;  // one max-stored-size region per request
   std::uint64_t staging_each = 0;
 
-  // Playback range in frames and the chunks covering it (host thread only).
-  std::uint64_t frame_begin = 0, frame_end = 0, c0 = 0, c1 = 0;
-  double speed = 1.0;
-  std::uint64_t lap = 0;
-  std::uint64_t current_frame = 0, current_lap = 0;
+  // The decoded-frame ring and the producer's own state (worker side, one producer at a time).
+  std::unique_ptr<std::byte[], AlignedDelete> decoded;
+  std::uint64_t frame_bytes = 0;
+  std::vector<FrameSlot> frame_slots;
+  std::unique_ptr<format::FrameDecoder> frame_decoder;
+  std::unique_ptr<std::byte[]> packet_staging;  // a packet that wraps the ring, made contiguous
+  LoadRequest produce_request;
 
-  // Shared with the IO worker, under `mutex`.
+  // Playback range in frames and the chunks covering it, from the range's first keyframe.
+  std::uint64_t frame_begin = 0, frame_end = 0, preroll = 0, c0 = 0, c1 = 0;
+  double speed = 1.0;
+  std::uint64_t lap = 0;  // the host's
+  std::size_t current = 0;  // the frame slot shown
+  std::uint64_t current_seq = 0;
+
+  // Shared with the IO workers, under `mutex`.
   mutable std::mutex mutex;
-  std::condition_variable loaded;  // a load finished (blocking mode, close)
+  std::condition_variable loaded;  // a load or a decode finished (blocking mode, close)
   std::vector<SlotInfo> slots;
   mutable std::vector<SlotInfo> slots_snapshot;  // what debug() hands out
   std::uint64_t seq_base = 0, slot_base = 0, oldest = 0, next = 0;
   std::string failure;
-  std::uint64_t loads_done = 0, bytes_read = 0, stalls = 0;
+  std::uint64_t loads_done = 0, bytes_read = 0, stalls = 0, frames_decoded = 0, wrapped_packets = 0;
   std::int64_t io_ns = 0, decode_ns = 0;
   std::uint32_t in_flight = 0;
+  // The producer: the next frame to decode, and from which frame of its first lap to publish.
+  std::uint64_t p_lap = 0, p_frame = 0, p_publish_from = 0, epoch = 0;
+  std::uint64_t host_seq = 0;  // the frame the host wants now (lap × frame_count + frame)
+  std::size_t pin_slot = 0, pin_count = 0;  // chunk slots a decode under way reads
 
   // Flags last, packed together.
   bool blocking = false, playing = false, current_valid = false;  // host thread
   bool loop = false, closing = false, failed = false;             // under `mutex`
+  bool producing = false, produce_again = false, produce_queued = false, producer_done = false;
   bool closed = false;
 
   std::uint64_t range_chunks() const { return c1 - c0 + 1; }
   std::size_t slot_of(std::uint64_t seq) const { return (slot_base + (seq - seq_base)) % slot_count; }
+  std::uint64_t frame_seq(std::uint64_t lap_, std::uint64_t frame) const { return lap_ * meta->frame_count() + frame; }
+  // Chunk sequence numbers of frame f's packet in lap `lap_`.
+  std::pair<std::uint64_t, std::uint64_t> packet_seqs(std::uint64_t lap_, std::uint64_t frame) const {
+    const auto [first, last] = meta->frame_chunks(frame);
+    return {lap_ * range_chunks() + (first - c0), lap_ * range_chunks() + (last - c0)};
+  }
 
   // Starts loads in playback order into Empty slots, up to the allowed number in flight.
   void issue_locked() {
@@ -104,7 +135,7 @@ struct ParticleStream::Impl {
     while (in_flight < requests.size() && next - oldest < slot_count) {
       if (!loop && next >= N) return;  // never past the last chunk unless looping
       const std::size_t slot = slot_of(next);
-      if (slots[slot].state != SlotState::Empty) return;  // still busy with a discarded load
+      if (slots[slot].state != SlotState::Empty) return;  // still busy with a discarded load or decode
       LoadRequest* r = nullptr;
       for (LoadRequest& candidate : requests) {
         if (candidate.status.load(std::memory_order_relaxed) == LoadRequest::Idle) {
@@ -133,18 +164,141 @@ struct ParticleStream::Impl {
     }
   }
 
-  // On the IO worker, after a load: Loading -> Ready (or Empty, or the stream fails), then the
-  // next load.
+  // Asks a worker for a turn of decoding (when the host freed a decoded slot, say).
+  void kick_locked() {
+    if (produce_queued || producing || producer_done || closing || failed) return;
+    produce_queued = true;
+    ++in_flight;
+    scheduler->submit(&produce_request);
+  }
+
+  // Decodes frames while their packets are in and a decoded slot is free.
+  void produce_locked(std::unique_lock<std::mutex>& lock) {
+    if (producing) {
+      produce_again = true;
+      return;
+    }
+    producing = true;
+    do {
+      produce_again = false;
+      while (produce_one(lock)) {
+      }
+    } while (produce_again);
+    producing = false;
+  }
+
+  bool produce_one(std::unique_lock<std::mutex>& lock) {
+    if (closing || failed || producer_done || meta->frame_count() == 0) return false;
+    const std::uint64_t frame = p_frame, lap_ = p_lap;
+    const format::FrameEntry& entry = meta->frames[frame];
+    const auto [k_first, k_last] = packet_seqs(lap_, frame);
+    if (entry.packet_size > 0) {
+      if (k_first < oldest || k_last >= next) return false;
+      for (std::uint64_t k = k_first; k <= k_last; ++k) {
+        if (slots[slot_of(k)].state != SlotState::Ready) return false;
+      }
+    }
+    // Frames before the range, before a seek's target, or behind the frame the host waits for are
+    // decoded only as references: nobody will show them.
+    const bool publish =
+        frame >= frame_begin && (lap_ > 0 || frame >= p_publish_from) && frame_seq(lap_, frame) >= host_seq;
+    // A free decoded slot: the frame lands there (and stays Empty when it is not published).
+    std::size_t target = frame_slots.size();
+    for (std::size_t i = 0; i < frame_slots.size(); ++i) {
+      if (frame_slots[i].state == FrameSlot::Empty) {
+        target = i;
+        break;
+      }
+    }
+    if (target == frame_slots.size()) return false;
+    frame_slots[target].state = FrameSlot::Decoding;
+    const std::uint64_t my_epoch = epoch;
+    pin_slot = slot_of(k_first);
+    pin_count = entry.packet_size > 0 ? static_cast<std::size_t>(k_last - k_first + 1) : 0;
+    // The packet: one span in the ring, or two across its wrap (then copied together).
+    const std::uint64_t within = entry.packet_offset - meta->frame_chunks(frame).first * chunk_size;
+    const std::uint64_t to_end = (slot_count - pin_slot) * chunk_size - within;
+    const std::byte* start = cache.get() + pin_slot * chunk_size + within;
+    const std::uint64_t size = entry.packet_size;
+    if (size > to_end) ++wrapped_packets;
+    lock.unlock();
+    const auto t0 = std::chrono::steady_clock::now();
+    std::string error;
+    try {
+      std::span<const std::byte> packet(start, size);
+      if (size > to_end) {
+        std::memcpy(packet_staging.get(), start, to_end);
+        std::memcpy(packet_staging.get() + to_end, cache.get(), size - to_end);
+        packet = {packet_staging.get(), size};
+      }
+      frame_decoder->decode(frame, packet, {decoded.get() + target * frame_bytes, frame_bytes});
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    const auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0).count();
+    lock.lock();
+    decode_ns += ns;
+    ++frames_decoded;
+    frame_slots[target].state = FrameSlot::Empty;
+    if (my_epoch != epoch) {  // a seek: free what this decode held, start over where it says
+      for (std::size_t i = 0; i < pin_count; ++i) {
+        SlotInfo& slot = slots[(pin_slot + i) % slot_count];
+        if (slot.state == SlotState::Ready && !in_sequence((pin_slot + i) % slot_count)) slot = SlotInfo{};
+      }
+      pin_count = 0;
+      issue_locked();
+      return true;
+    }
+    pin_count = 0;
+    if (!error.empty()) {
+      failed = true;
+      failure = std::move(error);
+      return false;
+    }
+    if (publish) frame_slots[target] = {FrameSlot::Ready, frame_seq(lap_, frame)};
+    // Move on, and give back the chunks before the next packet.
+    if (frame < frame_end) {
+      p_frame = frame + 1;
+    } else if (loop) {
+      p_frame = preroll;
+      ++p_lap;
+    } else {
+      producer_done = true;
+    }
+    const std::uint64_t keep_from = producer_done ? next : packet_seqs(p_lap, p_frame).first;
+    while (oldest < keep_from && oldest < next) {
+      SlotInfo& slot = slots[slot_of(oldest)];
+      if (slot.state == SlotState::Ready) slot = SlotInfo{};  // a Loading one frees on completion
+      ++oldest;
+    }
+    if (next < keep_from) oldest = next = keep_from;
+    issue_locked();
+    loaded.notify_all();
+    return true;
+  }
+
+  // Whether chunk slot `slot` holds a sequence number of the current [oldest, next).
+  bool in_sequence(std::size_t slot) const {
+    for (std::uint64_t k = oldest; k < next; ++k) {
+      if (slot_of(k) == slot) return true;
+    }
+    return false;
+  }
+
+  // On the IO worker, after a load (or a decoding turn): Loading -> Ready (or Empty, or the
+  // stream fails), the next load, and as many frames as can be decoded.
   static void on_done(void* owner, LoadRequest* r) {
     Impl& d = *static_cast<Impl*>(owner);
-    std::lock_guard lock(d.mutex);
+    std::unique_lock lock(d.mutex);
     const int st = r->status.load(std::memory_order_acquire);
     --d.in_flight;
-    if (st == LoadRequest::Failed && !r->discard) {
+    if (r->produce) {
+      d.produce_queued = false;
+    } else if (st == LoadRequest::Failed && !r->discard) {
       d.failed = true;
       d.failure = r->error;
       d.slots[r->slot] = SlotInfo{};
-    } else if (r->discard || r->seq < d.oldest) {  // made useless by a seek or a jump ahead
+    } else if (r->discard || r->seq < d.oldest) {  // made useless by a seek
       d.slots[r->slot] = SlotInfo{};
     } else {
       d.slots[r->slot].state = SlotState::Ready;
@@ -156,7 +310,39 @@ struct ParticleStream::Impl {
     r->discard = false;
     r->status.store(LoadRequest::Idle, std::memory_order_release);
     d.issue_locked();
+    d.produce_locked(lock);
     d.loaded.notify_all();
+  }
+
+  // Playback restarts at `frame` (a seek, or a jump ahead): decoding starts at its keyframe,
+  // the chunk ring at that keyframe's packet. Loads under way free their slots when they end; a
+  // decode under way is thrown away (the epoch changes) and keeps its chunk slots until then.
+  void restart_locked(std::uint64_t frame) {
+    ++epoch;
+    const std::uint64_t key = format::keyframe_of(*meta, frame);
+    std::size_t after = 0;
+    for (LoadRequest& r : requests) {
+      if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) {
+        r.discard = true;
+        after = (r.slot + 1) % slot_count;  // restart the ring after it, so it is reused last
+      }
+    }
+    for (std::size_t i = 0; i < slot_count; ++i) {
+      const bool pinned = pin_count > 0 && (i + slot_count - pin_slot) % slot_count < pin_count;
+      if (slots[i].state == SlotState::Ready && !pinned) slots[i] = SlotInfo{};
+    }
+    for (FrameSlot& f : frame_slots) {
+      if (f.state == FrameSlot::Ready) f = FrameSlot{};
+    }
+    seq_base = oldest = next = meta->frame_chunks(key).first - c0;
+    slot_base = after;
+    p_lap = 0;
+    p_frame = key;
+    p_publish_from = frame;
+    host_seq = 0;
+    producer_done = false;
+    issue_locked();
+    kick_locked();
   }
 };
 
@@ -187,17 +373,29 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   }
   impl->slot_count = slots;
   impl->cache_bytes = slots * m.chunk_size;
-  if (options.budget && !options.budget->try_reserve(impl->cache_bytes)) {
-    throw Error(
-        fmt::format("{}: its cache of {} slots x {} KiB = {:.1f} MiB does not fit the memory budget ({:.1f} of {:.1f} "
-                    "MiB used)",
-                    impl->name, slots, m.chunk_size >> 10, impl->cache_bytes / 1048576.0,
-                    options.budget->used() / 1048576.0, options.budget->total() / 1048576.0));
+  // The decoding side: the ring of decoded frames, the frame decoder's state, a packet's staging.
+  const std::size_t frame_slots = std::max<std::size_t>(2, options.decoded_frames);
+  impl->frame_bytes = (m.max_count * m.record_size + 63) / 64 * 64;
+  std::uint64_t max_packet = 0;
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) max_packet = std::max(max_packet, m.frames[f].packet_size);
+  impl->frame_decoder = std::make_unique<format::FrameDecoder>(s->meta_, impl->name);
+  const std::uint64_t decode_bytes = frame_slots * impl->frame_bytes + max_packet + impl->frame_decoder->state_bytes();
+  const std::uint64_t total_bytes = impl->cache_bytes + decode_bytes;
+  if (options.budget && !options.budget->try_reserve(total_bytes)) {
+    throw Error(fmt::format(
+        "{}: its cache of {} slots x {} KiB plus {} decoded frames and decoding state, {:.1f} MiB in all, does not fit "
+        "the memory budget ({:.1f} of {:.1f} MiB used)",
+        impl->name, slots, m.chunk_size >> 10, frame_slots, total_bytes / 1048576.0, options.budget->used() / 1048576.0,
+        options.budget->total() / 1048576.0));
   }
+  impl->decode_bytes = decode_bytes;
   impl->budget = options.budget;
-  // The cache: one allocation of s x chunk_size bytes, made here and never again.
-  impl->cache.reset(static_cast<std::byte*>(
-      ::operator new[](std::max<std::uint64_t>(impl->cache_bytes, 1), std::align_val_t(kCacheAlignment))));
+  // The cache: one allocation of s x chunk_size bytes, one for the decoded frames, made here and
+  // never again.
+  impl->cache = aligned_bytes(slots * m.chunk_size);
+  impl->decoded = aligned_bytes(frame_slots * impl->frame_bytes);
+  impl->frame_slots.assign(frame_slots, FrameSlot{});
+  impl->packet_staging.reset(new std::byte[std::max<std::uint64_t>(max_packet, 1)]);
   impl->slots.assign(slots, SlotInfo{});
   impl->slots_snapshot.assign(slots, SlotInfo{});
   const unsigned loads = std::max(1u, options.max_loads_in_flight);
@@ -209,7 +407,10 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   }
   impl->staging_each = max_stored;
   impl->staging.reset(new std::byte[std::max<std::uint64_t>(max_stored * loads, 1)]);
-  impl->scheduler->reserve(loads);
+  impl->produce_request.produce = true;
+  impl->produce_request.on_done = &Impl::on_done;
+  impl->produce_request.owner = impl.get();
+  impl->scheduler->reserve(loads + 1);
 
   s->impl_ = std::move(impl);
   s->set_range(m.frame_count() ? m.frames.front().time : 0.0, m.frame_count() ? m.frames.back().time : 0.0);
@@ -224,11 +425,11 @@ void ParticleStream::close() {
   Impl& d = *impl_;
   {
     std::unique_lock lock(d.mutex);
-    d.closing = true;  // no new loads; wait for those in flight, which write into the cache
-    d.loaded.wait(lock, [&] { return d.in_flight == 0; });
+    d.closing = true;  // no new loads or decodes; wait for those under way, which write into the cache
+    d.loaded.wait(lock, [&] { return d.in_flight == 0 && !d.producing; });
   }
-  d.scheduler->release(d.requests.size());
-  if (d.budget) d.budget->release(d.cache_bytes);
+  d.scheduler->release(d.requests.size() + 1);
+  if (d.budget) d.budget->release(d.cache_bytes + d.decode_bytes);
   d.closed = true;
 }
 
@@ -255,6 +456,8 @@ void ParticleStream::set_loop(bool loop) {
   {
     std::lock_guard lock(impl_->mutex);
     impl_->loop = loop;
+    if (loop) impl_->producer_done = false;
+    impl_->kick_locked();
   }
   if (!loop && impl_->lap > 0) seek(time_);  // renumber the chunk sequence from lap 0
 }
@@ -264,16 +467,13 @@ void ParticleStream::set_speed(double speed) { impl_->speed = std::max(0.0, spee
 void ParticleStream::set_range(double start, double end) {
   Impl& d = *impl_;
   if (meta_.frame_count() == 0) return;
-  const auto to_frame = [&](double t) {
-    const double f = std::round((t - meta_.time_of_frame0) * meta_.fps);
-    return static_cast<std::uint64_t>(std::clamp(f, 0.0, double(meta_.frame_count() - 1)));
-  };
   {
     std::lock_guard lock(d.mutex);  // the IO worker reads c0/c1 when it chains loads
-    d.frame_begin = to_frame(std::min(start, end));
-    d.frame_end = to_frame(std::max(start, end));
-    d.c0 = first_chunk(meta_, d.frame_begin);
-    d.c1 = std::max(d.c0, last_chunk(meta_, d.frame_end));
+    d.frame_begin = meta_.frame_at(std::min(start, end));
+    d.frame_end = meta_.frame_at(std::max(start, end));
+    d.preroll = format::keyframe_of(meta_, d.frame_begin);
+    d.c0 = meta_.frame_chunks(d.preroll).first;
+    d.c1 = std::max(d.c0, meta_.frame_chunks(d.frame_end).second);
   }
   seek(std::clamp(time_, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time));
 }
@@ -286,22 +486,9 @@ void ParticleStream::seek(double time) {
   }
   time_ = std::clamp(time, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time);
   d.lap = 0;
-  const std::uint64_t frame = static_cast<std::uint64_t>(
-      std::clamp(std::round((time_ - meta_.time_of_frame0) * meta_.fps), double(d.frame_begin), double(d.frame_end)));
+  const std::uint64_t frame = std::clamp(meta_.frame_at(time_), d.frame_begin, d.frame_end);
   std::lock_guard lock(d.mutex);
-  // Drop the cache. Loads still in flight free their slots when they complete.
-  std::size_t after = 0;
-  for (LoadRequest& r : d.requests) {
-    if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) {
-      r.discard = true;
-      after = (r.slot + 1) % d.slot_count;  // restart the ring after it, so it is reused last
-    }
-  }
-  for (SlotInfo& slot : d.slots) {
-    if (slot.state == SlotState::Ready) slot = SlotInfo{};
-  }
-  d.seq_base = d.oldest = d.next = first_chunk(meta_, frame) - d.c0;
-  d.slot_base = after;
+  d.restart_locked(frame);
   seeking_ = true;
   d.current_valid = false;
 }
@@ -310,19 +497,10 @@ void ParticleStream::update(double dt) {
   if (!impl_ || impl_->closed || state_ == PlayState::Error) return;
   Impl& d = *impl_;
   const format::Metadata& m = meta_;
-  if (m.frame_count() == 0 || m.chunk_count() == 0) {  // nothing to load: every frame is empty
+  if (m.frame_count() == 0) {  // nothing to play
     seeking_ = false;
-    d.current_valid = m.frame_count() > 0;
     return;
   }
-  const std::uint64_t N = d.range_chunks();
-  const auto frame_of = [&](double t) {
-    return static_cast<std::uint64_t>(
-        std::clamp(std::round((t - m.time_of_frame0) * m.fps), double(d.frame_begin), double(d.frame_end)));
-  };
-  const auto seq_range = [&](std::uint64_t lap, std::uint64_t frame) {
-    return std::pair{lap * N + (first_chunk(m, frame) - d.c0), lap * N + (last_chunk(m, frame) - d.c0)};
-  };
 
   // 1. Advance time on the host's clock.
   if (d.playing && dt > 0.0) {
@@ -342,9 +520,8 @@ void ParticleStream::update(double dt) {
       }
     }
   }
-  const std::uint64_t target = frame_of(time_);
-  const auto needed = seq_range(d.lap, target);
-  const std::uint64_t need_first = needed.first, need_last = needed.second;  // named: lambdas capture them
+  const std::uint64_t target = std::clamp(m.frame_at(time_), d.frame_begin, d.frame_end);
+  const std::uint64_t target_seq = d.frame_seq(d.lap, target);
 
   std::unique_lock lock(d.mutex);
   const auto failed = [&] {  // the IO worker reported a fault: the stream stops, the host goes on
@@ -356,46 +533,53 @@ void ParticleStream::update(double dt) {
     return true;
   };
   if (failed()) return;
-  const auto ready = [&] {
-    if (m.frames[target].count == 0) return true;
-    if (need_first < d.oldest || need_last >= d.next) return false;
-    for (std::uint64_t k = need_first; k <= need_last; ++k) {
-      if (d.slots[d.slot_of(k)].state != SlotState::Ready) return false;
+  d.host_seq = target_seq;
+  const auto find = [&](std::uint64_t seq) {
+    for (std::size_t i = 0; i < d.frame_slots.size(); ++i) {
+      if (d.frame_slots[i].state == FrameSlot::Ready && d.frame_slots[i].seq == seq) return i;
     }
-    return true;
+    return d.frame_slots.size();
   };
-  // 2. Release what playback has passed. The current frame is handed out until a newer one is
-  // complete, so its chunks stay held — unless it and the target cannot both fit in the ring
-  // (a long stall): then it is dropped. Chunks no shown frame needs are skipped.
-  std::uint64_t hold_from = need_first;
-  if (d.current_valid) {
-    const std::uint64_t current_first = seq_range(d.current_lap, d.current_frame).first;
-    if (current_first < need_first && need_last >= current_first + d.slot_count) {
-      d.current_valid = false;
-    } else {
-      hold_from = std::min(current_first, need_first);
+  // 2. Release decoded frames playback has passed (the current one stays until a newer one is
+  // shown). When the producer is so far behind that a keyframe lies between it and the target,
+  // it jumps there: the frames in between need not be decoded.
+  for (std::size_t i = 0; i < d.frame_slots.size(); ++i) {
+    FrameSlot& f = d.frame_slots[i];
+    if (f.state == FrameSlot::Ready && f.seq < target_seq && !(d.current_valid && i == d.current)) f = FrameSlot{};
+  }
+  const std::uint64_t producer_seq = d.frame_seq(d.p_lap, d.p_frame);
+  const std::uint64_t target_key = format::keyframe_of(m, target);
+  if (!d.producer_done && producer_seq < d.frame_seq(d.lap, target_key) && target_key > d.frame_begin &&
+      d.packet_seqs(d.lap, target_key).first >= d.next) {
+    const bool keep = d.current_valid;
+    const std::uint64_t kept_seq = d.current_seq;
+    const std::uint64_t lap = d.lap;
+    d.restart_locked(target);
+    d.p_lap = lap;  // the same lap: chunk sequence numbers and frames stay in step
+    d.seq_base = d.oldest = d.next = d.packet_seqs(lap, target_key).first;
+    d.issue_locked();
+    if (keep) {  // the shown frame stays shown until the target is decoded
+      d.frame_slots[d.current] = {FrameSlot::Ready, kept_seq};
     }
   }
-  while (d.oldest < hold_from && d.oldest < d.next) {
-    SlotInfo& slot = d.slots[d.slot_of(d.oldest)];
-    if (slot.state == SlotState::Ready) slot = SlotInfo{};  // a Loading one frees on completion
-    ++d.oldest;
-  }
-  if (d.next < hold_from) d.oldest = d.next = hold_from;
-  // 3. Keep the IO worker busy (it also chains loads by itself as each one completes).
+  // 3. Keep the IO worker busy (it also chains loads and decodes by itself as each one completes).
   d.issue_locked();
+  d.kick_locked();
   // 4. Blocking mode (offline rendering): wait for the frame instead of stalling.
   if (d.blocking) {
-    d.loaded.wait(lock,
-                  [&] { return d.failed || ready() || (d.in_flight == 0 && (d.issue_locked(), d.in_flight == 0)); });
+    d.loaded.wait(lock, [&] { return d.failed || find(target_seq) < d.frame_slots.size() || d.producer_done; });
     if (failed()) return;
   }
-  if (ready()) {
+  const std::size_t ready = find(target_seq);
+  if (ready < d.frame_slots.size()) {
+    if (d.current_valid && d.current != ready && d.frame_slots[d.current].seq < target_seq)
+      d.frame_slots[d.current] = FrameSlot{};
     d.current_valid = true;
-    d.current_frame = target;
-    d.current_lap = d.lap;
+    d.current = ready;
+    d.current_seq = target_seq;
     seeking_ = false;
-  } else if (d.current_valid && !seeking_ && (target != d.current_frame || d.lap != d.current_lap)) {
+    d.kick_locked();  // a slot may have been freed
+  } else if (d.current_valid && !seeking_ && target_seq != d.current_seq) {
     ++d.stalls;  // the last complete frame stays current; playback catches up when data arrives
   }
 }
@@ -404,22 +588,14 @@ FrameView ParticleStream::frame() const {
   FrameView v;
   const Impl& d = *impl_;
   if (!d.current_valid || state_ == PlayState::Error) return v;
-  const format::Metadata& m = meta_;
-  const auto& f = m.frames[d.current_frame];
-  v.frame = d.current_frame;
+  const std::uint64_t frame = d.current_seq % meta_.frame_count();
+  const auto& f = meta_.frames[frame];
+  v.frame = frame;
   v.count = f.count;
   v.time = f.time;
   v.valid = true;
-  if (f.count == 0) return v;
-  // The slots of the current frame are Ready and held: only the host thread releases them.
-  const std::uint64_t seq = d.current_lap * d.range_chunks() + (first_chunk(m, d.current_frame) - d.c0);
-  const std::size_t slot = d.slot_of(seq);
-  const std::uint64_t within = f.byte_offset - first_chunk(m, d.current_frame) * m.chunk_size;
-  const std::uint64_t bytes = f.count * m.record_size;
-  const std::uint64_t to_ring_end = (d.slot_count - slot) * d.chunk_size - within;
-  const std::byte* start = d.cache.get() + slot * d.chunk_size + within;
-  v.first = {start, static_cast<std::size_t>(std::min(bytes, to_ring_end))};
-  if (bytes > to_ring_end) v.second = {d.cache.get(), static_cast<std::size_t>(bytes - to_ring_end)};
+  // The decoded slot is Ready and held: only the host thread releases it.
+  v.first = {d.decoded.get() + d.current * d.frame_bytes, static_cast<std::size_t>(f.count * meta_.record_size)};
   return v;
 }
 
@@ -447,10 +623,16 @@ DebugInfo ParticleStream::debug() const {
   info.io_ms = double(d.io_ns) / 1e6;
   info.decode_ms = double(d.decode_ns) / 1e6;
   info.cache_bytes = d.cache_bytes;
+  info.decode_bytes = d.decode_bytes;
+  info.wrapped_packets = d.wrapped_packets;
   info.seeking = seeking_;
-  if (d.current_valid && meta_.frame_count()) {
-    info.read_offset = meta_.frames[d.current_frame].byte_offset;
-    info.read_slot = d.slot_of(d.current_lap * d.range_chunks() + (first_chunk(meta_, d.current_frame) - d.c0));
+  info.frames_decoded = d.frames_decoded;
+  info.decoded_slots = d.frame_slots.size();
+  for (const FrameSlot& f : d.frame_slots) info.decoded_ready += f.state == FrameSlot::Ready ? 1 : 0;
+  if (meta_.frame_count()) {
+    info.decode_frame = d.p_frame;
+    info.read_offset = meta_.frames[d.p_frame].packet_offset;
+    if (d.slot_count) info.read_slot = d.slot_of(d.packet_seqs(d.p_lap, d.p_frame).first);
   }
   return info;
 }

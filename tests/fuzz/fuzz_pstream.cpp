@@ -18,7 +18,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     std::vector<std::byte> frame;
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
       frame.resize(m.frames[f].count * m.record_size);
-      reader.read_frame(f, frame, scratch);
+      reader.read_frame(f, frame);
     }
   } catch (const pstream::Error&) {
     // A clear error is the expected outcome for malformed input.

@@ -1,0 +1,146 @@
+// Frame codecs: how a frame's particle records are stored in a .pstream (docs/format.md, version 2).
+//
+// A frame codec is a pluggable unit that sees its context: the record layout, the clip's coding
+// parameters (CodecInfo), frame boundaries and the decoder's reference frames. Each frame is one
+// *packet* in the file's chunked stream. Two codecs exist:
+//
+//   records   the packet is the frame's records as they are (version 1's layout); every frame
+//             decodes alone. The chunk codec (raw, LZ4, zstd) compresses chunks of packets.
+//   particle  error-bounded quantisation and temporal prediction. Each frame is ordered so that
+//             particles that persist from the previous frame are predicted from it (by id, or,
+//             without ids, matched by predicted position); new particles are coded spatially;
+//             residuals go to byte planes compressed by zstd. A keyframe every K frames decodes
+//             alone; the others need the frame before them. In lossless mode the source order and
+//             the exact bytes are kept.
+//
+// Decoding is allocation-free after construction (the streaming runtime's rule): a FrameDecoder
+// sizes every buffer from the clip's largest frame once.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "particlestream/format.hpp"
+
+namespace pstream::format {
+
+class FrameUnit;  // a frame codec's decoding half (src/format/frame_unit.hpp)
+
+// ---- Encoding ----------------------------------------------------------------------------------
+
+// What the cook asks of the particle codec.
+struct ParticleCodecOptions {
+  bool lossless = false;
+  // The bound on every decoded position coordinate: absolute (scene units), or relative to the
+  // clip's bounds diagonal. Scale shares the absolute bound; velocity gets bound × fps (per
+  // second); other float attributes the same fraction of their own range. Colours, ids and
+  // integer attributes are always exact.
+  double error = 1e-4;
+  bool error_relative = true;
+  std::uint32_t keyframe_interval = kDefaultKeyframeInterval;
+  int zstd_level = kDefaultParticleZstdLevel;
+};
+
+// Facts about a whole clip that the encoder needs before its first frame: gathered by a pass
+// over the source (ClipStats::add for every frame).
+class ClipStats {
+ public:
+  explicit ClipStats(const std::vector<Attribute>& layout);
+  // One frame's records (count × record size bytes).
+  void add(std::span<const std::byte> records, std::uint64_t count);
+  std::span<const float> min() const { return min_; }  // per float component, in layout order
+  std::span<const float> max() const { return max_; }
+  // Whether every particle of every frame has the same bytes for attribute `a`.
+  bool constant(std::size_t a) const { return constant_[a] != 0; }
+  std::span<const std::byte> constant_value(std::size_t a) const;
+  double diagonal() const;  // of the positions' bounds; 0 when there are none
+  std::uint64_t particles() const { return particles_; }
+
+ private:
+  std::vector<Attribute> layout_;
+  std::uint32_t record_size_ = 0;
+  std::vector<std::size_t> first_component_;  // per attribute: index into min_/max_
+  std::vector<float> min_, max_;
+  std::vector<std::uint8_t> constant_;
+  std::vector<std::byte> value_;  // one record: the constant values
+  std::uint64_t particles_ = 0;
+};
+
+// Chooses the per-attribute coding (quantisation steps, origins, constants) for a clip.
+// Throws pstream::Error when the bound cannot be met in 24-bit grids (too small an error for the
+// clip's extent) or is not a positive finite number.
+CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipStats& stats, double fps,
+                              bool has_ids, const ParticleCodecOptions& options);
+
+// One frame as the encoder takes it: the records in source order, and the ids that order and
+// match particles across frames (whether or not the record keeps them).
+struct SourceFrame {
+  std::span<const std::byte> records;  // count × record size
+  std::span<const std::uint64_t> ids;  // empty, or one per particle (required when CodecInfo::order is Id)
+  std::uint64_t count = 0;
+};
+
+struct EncodedFrame {
+  std::vector<std::byte> packet;
+  bool keyframe = false;
+  std::uint64_t count = 0;
+  std::array<float, 6> bounds{};  // of the decoded positions
+  std::uint64_t matched = 0;      // particles predicted from the previous frame
+  std::uint64_t predictable = 0;  // particles the previous frame could have predicted (min of the counts)
+};
+
+// Encodes a keyframe group: frames[0] becomes a keyframe, the rest are predicted. `before`, the
+// frame preceding the group (or null), only seeds the keyframe's motion state. Groups are
+// independent, so a cook encodes them in parallel; the bytes depend on nothing else.
+// `first_index` numbers frames in errors.
+std::vector<EncodedFrame> encode_group(const CodecInfo& info, const std::vector<Attribute>& layout,
+                                       std::span<const SourceFrame> frames, const SourceFrame* before,
+                                       std::uint64_t first_index);
+
+// ---- Decoding ----------------------------------------------------------------------------------
+
+// Where a frame's bytes lie in the chunked stream, and how it decodes.
+struct FramePacket {
+  std::uint64_t offset = 0, size = 0;
+  bool keyframe = true;
+};
+FramePacket frame_packet(const Metadata& meta, std::uint64_t frame);
+// The keyframe at or before `frame`: decoding frame f costs f - keyframe_of(f) extra decodes.
+std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame);
+
+// Decodes a clip's frames in order. decode() takes a keyframe at any time; any other frame must
+// directly follow the last one decoded (its reference). Errors name the file, the frame, the
+// attribute and the offset in the packet; nothing is ever written outside `out`.
+class FrameDecoder {
+ public:
+  // Allocates all decoding state for the clip's largest frame (the only allocation).
+  FrameDecoder(const Metadata& meta, std::string name);
+  ~FrameDecoder();
+  FrameDecoder(const FrameDecoder&) = delete;
+  FrameDecoder& operator=(const FrameDecoder&) = delete;
+
+  // `packet` is the frame's bytes from the chunked stream; `out` receives count × record_size bytes.
+  void decode(std::uint64_t frame, std::span<const std::byte> packet, std::span<std::byte> out);
+  // Whether decode(frame) can run now (a keyframe, or the successor of the last decoded frame).
+  bool can_decode(std::uint64_t frame) const;
+  void reset();  // forget the reference (after a seek)
+  // The frame whose state is held, or UINT64_MAX.
+  std::uint64_t last_decoded() const { return last_; }
+
+  // The decoding state's size in bytes (fixed at construction).
+  std::uint64_t state_bytes() const { return state_bytes_; }
+
+ private:
+  const Metadata& meta_;
+  std::string name_;
+  std::unique_ptr<FrameUnit> unit_;
+  std::uint64_t state_bytes_ = 0;
+  std::uint64_t last_ = UINT64_MAX;
+};
+
+}  // namespace pstream::format

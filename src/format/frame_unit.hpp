@@ -1,0 +1,28 @@
+// A frame codec's decoding half: a pluggable unit that keeps its own reference state. Units are
+// made by FrameDecoder from the clip's metadata (its layout and CodecInfo); decode() sees the
+// frame's index, whether it is a keyframe, its packet and the output records.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string_view>
+
+#include "particlestream/codec.hpp"
+
+namespace pstream::format {
+
+class FrameUnit {
+ public:
+  virtual ~FrameUnit() = default;
+  // Decodes frame `frame` (the successor of the last one, unless `keyframe`) into `out`
+  // (count × record_size bytes). Throws pstream::Error naming the frame and the offset.
+  virtual void decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet,
+                      std::span<std::byte> out) = 0;
+  virtual void reset() = 0;
+  virtual std::uint64_t state_bytes() const = 0;
+};
+
+std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name);
+
+}  // namespace pstream::format
