@@ -102,6 +102,21 @@ std::vector<EncodedFrame> encode_group(const CodecInfo& info, const std::vector<
                                        std::span<const SourceFrame> frames, const SourceFrame* before,
                                        std::uint64_t first_index);
 
+// ---- Checking ---------------------------------------------------------------------------------
+
+// The largest difference between decoded frames and their source, per record word (float words
+// as values, other words as 0 when equal, +inf when not), and how many particles found no
+// partner. Particles are paired by id when the layout has one, else each decoded particle with
+// the unpaired source particle nearest in every float word (each difference scaled by that word's
+// bound in `codec`, when given: particles may nearly coincide in position and differ in velocity),
+// since the codec may re-order a frame without ids.
+struct FrameComparison {
+  std::vector<double> max_error;  // per record word
+  std::uint64_t particles = 0, unmatched = 0, count_mismatches = 0;
+  void add(const std::vector<Attribute>& layout, std::span<const std::byte> decoded, std::uint64_t decoded_count,
+           std::span<const std::byte> source, std::uint64_t source_count, const CodecInfo* codec = nullptr);
+};
+
 // ---- Decoding ----------------------------------------------------------------------------------
 
 // Where a frame's bytes lie in the chunked stream, and how it decodes.

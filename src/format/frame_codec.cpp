@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <unordered_map>
 
 #include <fmt/format.h>
 
@@ -220,6 +221,137 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
     if (is_float) component += at.components;
   }
   return info;
+}
+
+}  // namespace pstream::format
+
+// ---- Comparison ---------------------------------------------------------------------------------
+
+namespace pstream::format {
+
+void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const std::byte> decoded,
+                          std::uint64_t decoded_count, std::span<const std::byte> source, std::uint64_t source_count,
+                          const CodecInfo* codec) {
+  const std::uint32_t rs = record_size_of(layout), words = rs / 4;
+  if (max_error.size() < words) max_error.resize(words, 0.0);
+  particles += decoded_count;
+  if (decoded_count != source_count) ++count_mismatches;
+  std::vector<bool> is_float(words, false);
+  const Attribute* id = nullptr;
+  for (const Attribute& a : layout) {
+    if (a.name == "id") id = &a;
+    for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) is_float[w] = a.type == AttributeType::Float32;
+  }
+  const auto word = [](std::span<const std::byte> recs, std::uint32_t rsize, std::uint64_t i, std::uint32_t w) {
+    std::uint32_t v;
+    std::memcpy(&v, recs.data() + i * rsize + 4 * w, 4);
+    return v;
+  };
+  const auto pair = [&](std::uint64_t d, std::uint64_t s) {
+    for (std::uint32_t w = 0; w < words; ++w) {
+      const std::uint32_t a = word(decoded, rs, d, w), b = word(source, rs, s, w);
+      double e = 0.0;
+      if (is_float[w]) {
+        const float fa = std::bit_cast<float>(a), fb = std::bit_cast<float>(b);
+        e = (std::isnan(fa) && std::isnan(fb)) ? 0.0 : std::abs(double(fa) - double(fb));
+        if (std::isnan(e)) e = std::numeric_limits<double>::infinity();
+      } else if (a != b) {
+        e = std::numeric_limits<double>::infinity();
+      }
+      max_error[w] = std::max(max_error[w], e);
+    }
+  };
+  std::vector<std::uint64_t> partner(decoded_count, UINT64_MAX);
+  if (id != nullptr) {
+    const auto id_of = [&](std::span<const std::byte> recs, std::uint64_t i) {
+      std::uint64_t v = 0;
+      std::memcpy(&v, recs.data() + i * rs + id->offset, id->size());
+      return v;
+    };
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> by_id(source_count);
+    for (std::uint64_t s = 0; s < source_count; ++s) by_id[s] = {id_of(source, s), s};
+    std::sort(by_id.begin(), by_id.end());
+    std::vector<bool> used(source_count, false);
+    for (std::uint64_t d = 0; d < decoded_count; ++d) {
+      auto it = std::lower_bound(by_id.begin(), by_id.end(), std::pair{id_of(decoded, d), std::uint64_t{0}});
+      while (it != by_id.end() && it->first == id_of(decoded, d) && used[it->second]) ++it;
+      if (it != by_id.end() && it->first == id_of(decoded, d)) {
+        used[it->second] = true;
+        partner[d] = it->second;
+      }
+    }
+  } else {
+    // Nearest unpaired source particle, searched in a grid of the source positions.
+    const auto pos = [&](std::span<const std::byte> recs, std::uint64_t i, int c) {
+      float v;
+      std::memcpy(&v, recs.data() + i * rs + 4 * c, 4);
+      return double(v);
+    };
+    double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    for (int c = 0; c < 3; ++c) {
+      lo[c] = std::numeric_limits<double>::max();
+      hi[c] = -lo[c];
+      for (std::uint64_t s = 0; s < source_count; ++s) {
+        lo[c] = std::min(lo[c], pos(source, s, c));
+        hi[c] = std::max(hi[c], pos(source, s, c));
+      }
+    }
+    // Cells of about one particle spacing, never finer than the positions' bound (a frame of
+    // one particle, or of particles on a plane, has no volume).
+    const double volume = (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]);
+    double cell = std::cbrt(std::max(volume, 0.0) / double(std::max<std::uint64_t>(source_count, 1)));
+    const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 0.0});
+    if (codec && !codec->words.empty() && codec->words[0].coding == WordCoding::Quantized)
+      cell = std::max(cell, 2.0 * double(codec->words[0].error));
+    cell = std::max({cell, extent * 1e-6, 1e-30});
+    const auto cell_of = [&](double v, int c) {
+      const double x = std::floor((v - lo[c]) / cell);
+      return static_cast<std::int64_t>(std::clamp(std::isnan(x) ? 0.0 : x, -1e12, 1e12));
+    };
+    const auto key = [](std::int64_t x, std::int64_t y, std::int64_t z) {
+      return (std::uint64_t(x & 0x1fffff) << 42) | (std::uint64_t(y & 0x1fffff) << 21) | std::uint64_t(z & 0x1fffff);
+    };
+    std::unordered_map<std::uint64_t, std::vector<std::uint64_t>> grid;
+    for (std::uint64_t s = 0; s < source_count; ++s)
+      grid[key(cell_of(pos(source, s, 0), 0), cell_of(pos(source, s, 1), 1), cell_of(pos(source, s, 2), 2))].push_back(s);
+    std::vector<bool> used(source_count, false);
+    for (std::uint64_t d = 0; d < decoded_count; ++d) {
+      const std::int64_t cx = cell_of(pos(decoded, d, 0), 0), cy = cell_of(pos(decoded, d, 1), 1),
+                         cz = cell_of(pos(decoded, d, 2), 2);
+      double best = std::numeric_limits<double>::infinity();
+      for (std::int64_t dx = -1; dx <= 1; ++dx) {
+        for (std::int64_t dy = -1; dy <= 1; ++dy) {
+          for (std::int64_t dz = -1; dz <= 1; ++dz) {
+            const auto it = grid.find(key(cx + dx, cy + dy, cz + dz));
+            if (it == grid.end()) continue;
+            for (const std::uint64_t s : it->second) {
+              if (used[s]) continue;
+              double e = 0.0;
+              for (std::uint32_t w = 0; w < words; ++w) {
+                const bool quantized = codec && w < codec->words.size() &&
+                                       codec->words[w].coding == WordCoding::Quantized && codec->words[w].error > 0;
+                if (!quantized && w >= 3) continue;
+                const double diff = std::abs(double(std::bit_cast<float>(word(decoded, rs, d, w))) -
+                                             double(std::bit_cast<float>(word(source, rs, s, w))));
+                e = std::max(e, quantized ? diff / double(codec->words[w].error) : diff);
+              }
+              if (e < best) {
+                best = e;
+                partner[d] = s;
+              }
+            }
+          }
+        }
+      }
+      if (partner[d] != UINT64_MAX) used[partner[d]] = true;
+    }
+  }
+  for (std::uint64_t d = 0; d < decoded_count; ++d) {
+    if (partner[d] == UINT64_MAX)
+      ++unmatched;
+    else
+      pair(d, partner[d]);
+  }
 }
 
 }  // namespace pstream::format

@@ -108,9 +108,10 @@ void validate_word_codings(const Metadata& m, Fail fail) {
                            w, a.name, e.step, origin, e.error));
         }
       }
-      if ((e.coding == WordCoding::Id) != is_id) {
-        fail(fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute", w,
-                         a.name));
+      if (e.coding == WordCoding::Id && (!is_id || m.codec.order != FrameOrder::Id)) {
+        fail(fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute "
+                         "of a clip ordered by id",
+                         w, a.name));
       }
     }
   }

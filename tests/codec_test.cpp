@@ -1,0 +1,312 @@
+// The particle codec end to end: real caches cooked, every frame decoded and compared with the
+// source's records (the records codec), value by value.
+#include <gtest/gtest.h>
+#include <zstd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "particlestream/codec.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using namespace pstream;
+namespace fs = std::filesystem;
+
+struct Fixture {
+  std::string file, object;
+  std::vector<std::string> attributes;
+};
+
+// The sims and the Alembic fixtures with particles, with the attributes each can give.
+const std::vector<Fixture>& fixtures() {
+  static const std::vector<Fixture> all = {
+      {"sims/blender_flip_pour_small.abc", "", {"velocity"}},
+      {"sims/blender_sparks.abc", "", {"velocity", "id", "age"}},
+      {"sims/blender_sparks.abc", "", {}},  // [x y z scale] + colour, ordered by id without storing it
+      {"alembic/points_varying.abc", "", {"velocity", "id"}},
+      {"alembic/points_large.abc", "", {}},
+      {"alembic/points_xform.abc", "", {}},
+      {"alembic/points_empty_frames.abc", "", {}},
+      {"alembic/points_constant.abc", "", {}},
+      {"alembic/mesh_vertices.abc", "/grid", {}},
+  };
+  return all;
+}
+
+fs::path cook_with(const fs::path& dir, const Fixture& fx, const std::string& name, format::FrameCodec codec,
+                   const format::ParticleCodecOptions& particle = {}, unsigned threads = 0) {
+  cook::Options o;
+  o.input = test::data_path(fx.file);
+  o.object = fx.object;
+  o.attributes = fx.attributes;
+  o.output = dir / (name + ".pstream");
+  o.frame_codec = codec;
+  o.particle = particle;
+  o.chunk_size = format::kMinChunkSize;  // packets straddle chunks
+  o.threads = threads;
+  cook::cook(o);
+  return o.output;
+}
+
+// Every frame of both files decoded; returns the comparison.
+format::FrameComparison compare_files(const fs::path& decoded_file, const fs::path& source_file) {
+  const auto a = format::Reader::open(decoded_file);
+  const auto b = format::Reader::open(source_file);
+  const auto& ma = a.metadata();
+  const auto& mb = b.metadata();
+  EXPECT_EQ(ma.frame_count(), mb.frame_count());
+  std::vector<std::byte> da(ma.max_count * ma.record_size), db(mb.max_count * mb.record_size);
+  format::FrameComparison c;
+  for (std::uint64_t f = 0; f < std::min(ma.frame_count(), mb.frame_count()); ++f) {
+    a.read_frame(f, da);
+    b.read_frame(f, db);
+    c.add(ma.layout, da, ma.frames[f].count, db, mb.frames[f].count, &ma.codec);
+  }
+  return c;
+}
+
+TEST(ParticleCodec, EveryDecodedValueIsWithinItsBoundOnEveryFixture) {
+  const fs::path dir = test::fresh_dir();
+  int n = 0;
+  for (const Fixture& fx : fixtures()) {
+    SCOPED_TRACE(fx.file);
+    const std::string tag = std::to_string(n++);
+    const fs::path raw = cook_with(dir, fx, "raw" + tag, format::FrameCodec::Records);
+    const fs::path lossy = cook_with(dir, fx, "lossy" + tag, format::FrameCodec::Particle);
+    const auto meta = format::Reader::open(lossy).metadata();
+    ASSERT_EQ(meta.codec.codec, format::FrameCodec::Particle);
+    EXPECT_FALSE(meta.codec.lossless);
+    const format::FrameComparison c = compare_files(lossy, raw);
+    EXPECT_EQ(c.count_mismatches, 0u);
+    EXPECT_EQ(c.unmatched, 0u);
+    EXPECT_EQ(c.particles, meta.total_particles());
+    std::uint64_t quantized = 0;
+    for (std::size_t w = 0; w < meta.codec.words.size(); ++w) {
+      const format::WordCodingEntry& e = meta.codec.words[w];
+      if (e.coding == format::WordCoding::Quantized) {
+        ++quantized;
+        EXPECT_LE(c.max_error[w], double(e.error)) << "word " << w;
+        EXPECT_GT(e.error, 0.0f);
+      } else {
+        EXPECT_EQ(c.max_error[w], 0.0) << "word " << w << " must be exact";
+      }
+    }
+    // Positions get the default bound, 1e-4 of the clip's bounds diagonal.
+    if (meta.codec.words[0].coding == format::WordCoding::Quantized) {
+      const auto& b = meta.bounds;
+      const double diagonal = std::sqrt((b[3] - b[0]) * (b[3] - b[0]) + (b[4] - b[1]) * (b[4] - b[1]) +
+                                        (b[5] - b[2]) * (b[5] - b[2]));
+      EXPECT_NEAR(meta.codec.error, 1e-4 * diagonal, 2e-6 * diagonal);
+      EXPECT_GT(quantized, 0u);
+    }
+  }
+}
+
+TEST(ParticleCodec, LosslessModeIsBitExactInTheSourceOrder) {
+  const fs::path dir = test::fresh_dir();
+  format::ParticleCodecOptions lossless;
+  lossless.lossless = true;
+  int n = 0;
+  for (const Fixture& fx : fixtures()) {
+    SCOPED_TRACE(fx.file);
+    const std::string tag = std::to_string(n++);
+    const fs::path raw = cook_with(dir, fx, "raw" + tag, format::FrameCodec::Records);
+    const fs::path exact = cook_with(dir, fx, "exact" + tag, format::FrameCodec::Particle, lossless);
+    const auto a = format::Reader::open(exact);
+    const auto b = format::Reader::open(raw);
+    EXPECT_TRUE(a.metadata().codec.lossless);
+    EXPECT_EQ(a.metadata().codec.order, format::FrameOrder::Source);
+    std::vector<std::byte> da(a.metadata().max_count * a.metadata().record_size), db(da.size());
+    for (std::uint64_t f = 0; f < a.metadata().frame_count(); ++f) {
+      a.read_frame(f, da);
+      b.read_frame(f, db);
+      ASSERT_EQ(a.metadata().frames[f].count, b.metadata().frames[f].count);
+      ASSERT_EQ(std::memcmp(da.data(), db.data(), a.metadata().frames[f].count * a.metadata().record_size), 0)
+          << "frame " << f;
+    }
+  }
+}
+
+TEST(ParticleCodec, FramesWithIdsAreInIdOrderAndIdsAreExact) {
+  const fs::path dir = test::fresh_dir();
+  const Fixture fx{"sims/blender_sparks.abc", "", {"id"}};
+  const fs::path file = cook_with(dir, fx, "sparks", format::FrameCodec::Particle);
+  const auto r = format::Reader::open(file);
+  const auto& m = r.metadata();
+  EXPECT_EQ(m.codec.order, format::FrameOrder::Id);
+  const format::Attribute* id = m.find("id");
+  ASSERT_NE(id, nullptr);
+  EXPECT_EQ(m.codec.words[id->offset / 4].coding, format::WordCoding::Id);
+  std::vector<std::byte> rec(m.max_count * m.record_size);
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    r.read_frame(f, rec);
+    for (std::uint64_t i = 1; i < m.frames[f].count; ++i) {
+      std::uint64_t a, b;
+      std::memcpy(&a, rec.data() + (i - 1) * m.record_size + id->offset, 8);
+      std::memcpy(&b, rec.data() + i * m.record_size + id->offset, 8);
+      ASSERT_LT(a, b) << "frame " << f << " particle " << i;
+    }
+  }
+  // Exactness of the ids themselves: compared by id, every particle finds its partner.
+  const fs::path raw = cook_with(dir, fx, "raw", format::FrameCodec::Records);
+  const auto c = compare_files(file, raw);
+  EXPECT_EQ(c.unmatched, 0u);
+}
+
+// Sizes are deterministic: these pin what the codec reaches at the default bound and keyframe
+// interval (docs/compression.md), so a change that loses ratio shows up here.
+TEST(ParticleCodec, BytesPerParticleOnTheSims) {
+  const fs::path dir = test::fresh_dir();
+  const auto bytes_per_particle = [&](const Fixture& fx, const std::string& name) {
+    cook::Options o;
+    o.input = test::data_path(fx.file);
+    o.output = dir / (name + ".pstream");
+    o.frame_codec = format::FrameCodec::Particle;
+    o.color_from = "none";  // the [x y z scale] record
+    cook::cook(o);
+    const auto m = format::Reader::open(o.output).metadata();
+    return double(m.stream_size()) / double(m.total_particles());
+  };
+  const double sparks = bytes_per_particle({"sims/blender_sparks.abc", "", {}}, "sparks");
+  const double flip = bytes_per_particle({"sims/blender_flip_pour_small.abc", "", {}}, "flip");
+  EXPECT_LE(sparks, 1.2);  // the target for caches with ids
+  EXPECT_LE(flip, 2.3);    // the target is 2.0: missed (docs/compression.md says by how much)
+  EXPECT_GT(flip, 1.0);    // guards the measurement itself
+  RecordProperty("sparks_bytes_per_particle", std::to_string(sparks));
+  RecordProperty("flip_bytes_per_particle", std::to_string(flip));
+}
+
+TEST(ParticleCodec, KeyframesEveryKFramesAndRandomAccess) {
+  const fs::path dir = test::fresh_dir();
+  const Fixture fx{"sims/blender_flip_pour_small.abc", "", {}};
+  format::ParticleCodecOptions every8;
+  every8.keyframe_interval = 8;
+  const fs::path file = cook_with(dir, fx, "k8", format::FrameCodec::Particle, every8);
+  const fs::path raw = cook_with(dir, fx, "raw", format::FrameCodec::Records);
+  const auto r = format::Reader::open(file);
+  const auto ref = format::Reader::open(raw);
+  const auto& m = r.metadata();
+  EXPECT_EQ(m.codec.keyframe_interval, 8u);
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    EXPECT_EQ(m.frames[f].keyframe, f % 8 == 0) << f;
+    EXPECT_EQ(format::keyframe_of(m, f), f / 8 * 8);
+  }
+  // Frames read out of order decode from their keyframe and match the source within the bound.
+  std::vector<std::byte> a(m.max_count * m.record_size), b(a.size());
+  for (const std::uint64_t f : {37u, 3u, 47u, 8u, 9u, 22u}) {
+    r.read_frame(f, a);
+    ref.read_frame(f, b);
+    format::FrameComparison c;
+    c.add(m.layout, a, m.frames[f].count, b, m.frames[f].count);
+    EXPECT_EQ(c.unmatched, 0u);
+    for (int w = 0; w < 3; ++w) EXPECT_LE(c.max_error[std::size_t(w)], double(m.codec.words[std::size_t(w)].error));
+  }
+}
+
+TEST(ParticleCodec, CookIsDeterministicWhateverTheThreads) {
+  const fs::path dir = test::fresh_dir();
+  format::ParticleCodecOptions o;
+  o.keyframe_interval = 8;  // several groups, encoded in parallel with 2 threads
+  for (const Fixture& fx : {fixtures()[0], fixtures()[1]}) {
+    const fs::path one = cook_with(dir, fx, "one", format::FrameCodec::Particle, o, 1);
+    const fs::path two = cook_with(dir, fx, "two", format::FrameCodec::Particle, o, 2);
+    EXPECT_EQ(test::read_bytes(one.string()), test::read_bytes(two.string())) << fx.file;
+  }
+}
+
+TEST(ParticleCodec, AbsoluteBoundAndBoundsThatCannotBeKept) {
+  const fs::path dir = test::fresh_dir();
+  const Fixture fx{"sims/blender_sparks.abc", "", {}};
+  format::ParticleCodecOptions abs;
+  abs.error = 0.002;
+  abs.error_relative = false;
+  const fs::path file = cook_with(dir, fx, "abs", format::FrameCodec::Particle, abs);
+  const auto m = format::Reader::open(file).metadata();
+  EXPECT_DOUBLE_EQ(m.codec.error, 0.002);
+  const auto c = compare_files(file, cook_with(dir, fx, "raw", format::FrameCodec::Records));
+  for (int w = 0; w < 3; ++w) EXPECT_LE(c.max_error[std::size_t(w)], 0.002);
+
+  abs.error = 1e-12;  // far below float precision at metre scale
+  try {
+    cook_with(dir, fx, "tiny", format::FrameCodec::Particle, abs);
+    FAIL() << "a bound below float precision was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("cannot be kept"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("lossless"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(dir / "tiny.pstream"));
+}
+
+// Packets whose zstd frame is valid but whose body lies: every field the decoder trusts is
+// checked, and the error names the file and the frame.
+TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = cook_with(dir, fixtures()[1], "sparks", format::FrameCodec::Particle);
+  const auto r = format::Reader::open(file);
+  const auto& m = r.metadata();
+  std::vector<std::byte> packet(m.frames[5].packet_size), scratch(m.chunk_size);
+  r.read_packet(5, packet, scratch);
+  std::vector<std::byte> body(ZSTD_getFrameContentSize(packet.data(), packet.size()));
+  ASSERT_EQ(ZSTD_decompress(body.data(), body.size(), packet.data(), packet.size()), body.size());
+  const auto decode_with = [&](const std::vector<std::byte>& changed) -> std::string {
+    std::vector<std::byte> z(ZSTD_compressBound(changed.size()));
+    z.resize(ZSTD_compress(z.data(), z.size(), changed.data(), changed.size(), 1));
+    format::FrameDecoder d(m, "clip.pstream");
+    std::vector<std::byte> out(m.max_count * m.record_size), p(m.frames[0].packet_size);
+    for (std::uint64_t f = 0; f < 5; ++f) {
+      p.resize(m.frames[f].packet_size);
+      r.read_packet(f, p, scratch);
+      d.decode(f, p, out);
+    }
+    try {
+      d.decode(5, z, std::span(out).first(m.frames[5].count * m.record_size));
+    } catch (const Error& e) {
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_EQ(decode_with(body), "");  // the re-compressed body itself decodes
+  const auto poke = [&](std::size_t at, std::uint32_t v) {
+    auto b = body;
+    std::memcpy(b.data() + at, &v, 4);
+    return b;
+  };
+  for (const auto& [changed, fragment] : std::vector<std::pair<std::vector<std::byte>, std::string>>{
+           {poke(0, 7), "particles, the frame index says"},
+           {poke(4, 1), "but the previous frame has"},
+           {poke(8, 0xffffffu), "operations for"},
+           {poke(12, 3), "the operations keep"},
+           {poke(16, 0x09u), "residual bytes"},
+           {std::vector<std::byte>(body.begin(), body.end() - 1), "residual planes need"},
+       }) {
+    const std::string e = decode_with(changed);
+    EXPECT_NE(e.find("clip.pstream: frame 5"), std::string::npos) << e;
+    EXPECT_NE(e.find(fragment), std::string::npos) << e;
+  }
+}
+
+TEST(ParticleCodec, VersionOneFilesStillRead) {
+  // Cooked by the version 1 writer (before the particle codec), kept as it was.
+  const auto r = format::Reader::open(test::data_path("pstream_v1/points_varying_lz4.pstream"));
+  const auto& m = r.metadata();
+  EXPECT_EQ(m.version, 1u);
+  EXPECT_EQ(m.codec.codec, format::FrameCodec::Records);
+  const fs::path dir = test::fresh_dir();
+  const fs::path now = cook_with(dir, fixtures()[3], "v2", format::FrameCodec::Records);
+  const auto r2 = format::Reader::open(now);
+  ASSERT_EQ(m.frame_count(), r2.metadata().frame_count());
+  std::vector<std::byte> a(m.max_count * m.record_size), b(a.size());
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    r.read_frame(f, a);
+    r2.read_frame(f, b);
+    ASSERT_EQ(std::memcmp(a.data(), b.data(), m.frames[f].count * m.record_size), 0) << f;
+  }
+}
+
+}  // namespace
