@@ -36,6 +36,21 @@ fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::C
   return o.output;
 }
 
+// The same fixture in the particle codec, a keyframe every `keyframes` frames, 64 KiB chunks (so
+// packets straddle chunks and the ring's wrap).
+fs::path cook_particle(const fs::path& dir, const std::string& fixture, std::vector<std::string> attributes = {},
+                       std::uint32_t keyframes = 8) {
+  cook::Options o;
+  o.input = test::data_path(fixture);
+  o.output = dir / (fs::path(fixture).stem().string() + "-particle.pstream");
+  o.chunk_size = format::kMinChunkSize;
+  o.frame_codec = format::FrameCodec::Particle;
+  o.particle.keyframe_interval = keyframes;
+  o.attributes = std::move(attributes);
+  cook::cook(o);
+  return o.output;
+}
+
 // A synthetic clip: frame f holds `count(f)` records whose floats encode (f, i).
 fs::path synthetic_clip(const fs::path& dir, std::uint64_t frames, double fps,
                         const std::function<std::uint64_t(std::uint64_t)>& count,
@@ -112,7 +127,10 @@ TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
       cook_fixture(dir, "points_empty_frames", format::Codec::Zstd),
       cook_fixture(dir, "points_large", format::Codec::Zstd),
       cook_fixture(dir, "points_xform", format::Codec::Raw),
-      cook_fixture(dir, "mesh_vertices", format::Codec::Lz4, {}, "/grid")};
+      cook_fixture(dir, "mesh_vertices", format::Codec::Lz4, {}, "/grid"),
+      cook_particle(dir, "sims/blender_sparks.abc", {"velocity", "id"}),  // ordered by id
+      cook_particle(dir, "sims/blender_flip_pour_small.abc"),           // matched by position
+      cook_particle(dir, "alembic/points_large.abc")};
   std::uint64_t wraps = 0;
   for (const fs::path& file : files) {
     SCOPED_TRACE(file.filename().string());
@@ -137,7 +155,9 @@ TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
 
 TEST(Stream, LoopingAndSpeed) {
   const fs::path dir = test::fresh_dir();
-  const fs::path file = cook_fixture(dir, "points_varying", format::Codec::Raw);
+  for (const fs::path& file : {cook_fixture(dir, "points_varying", format::Codec::Raw),
+                               cook_particle(dir, "alembic/points_varying.abc", {"velocity", "id"})}) {
+  SCOPED_TRACE(file.filename().string());
   const Reference ref(file);
   const auto& m = ref.reader.metadata();
   const std::uint64_t n = m.frame_count();
@@ -169,29 +189,45 @@ TEST(Stream, LoopingAndSpeed) {
       ASSERT_TRUE(frame_matches(*s, ref, shown)) << "step " << k;
     }
   }
+  }
 }
 
 TEST(Stream, TwoHundredRandomSeeks) {
   const fs::path dir = test::fresh_dir();
-  const fs::path file = cook_fixture(dir, "points_large", format::Codec::Lz4);
-  const Reference ref(file);
-  const auto& m = ref.reader.metadata();
-  auto s = stream::ParticleStream::open(file, tiny_cache());
-  std::mt19937 rng(42);
-  std::uniform_int_distribution<std::uint64_t> pick(0, m.frame_count() - 1);
-  for (int i = 0; i < 200; ++i) {
-    const std::uint64_t f = pick(rng);
-    s->seek(m.frames[f].time + (i % 3 - 1) * 0.2 / m.fps);  // a little off the frame time: nearest
-    EXPECT_TRUE(s->seeking());
-    s->update(0);
-    EXPECT_FALSE(s->seeking());
-    ASSERT_TRUE(frame_matches(*s, ref, f)) << "seek " << i;
+  for (const fs::path& file :
+       {cook_fixture(dir, "points_large", format::Codec::Lz4), cook_particle(dir, "sims/blender_sparks.abc")}) {
+    SCOPED_TRACE(file.filename().string());
+    const Reference ref(file);
+    const auto& m = ref.reader.metadata();
+    stream::StreamOptions o = tiny_cache();
+    o.scheduler = std::make_shared<stream::IoScheduler>(1);  // its own worker: decodes are counted alone
+    auto s = stream::ParticleStream::open(file, std::move(o));
+    std::mt19937 rng(42);
+    std::uniform_int_distribution<std::uint64_t> pick(0, m.frame_count() - 1);
+    for (int i = 0; i < 200; ++i) {
+      const std::uint64_t f = pick(rng);
+      s->seek(m.frames[f].time + (i % 3 - 1) * 0.2 / m.fps);  // a little off the frame time: nearest
+      EXPECT_TRUE(s->seeking());
+      const std::uint64_t before = s->debug().frames_decoded;
+      s->update(0);
+      EXPECT_FALSE(s->seeking());
+      ASSERT_TRUE(frame_matches(*s, ref, f)) << "seek " << i;
+      // The cost of a seek: the frames from the keyframe up to the target, and the decoded ring
+      // filling ahead (3 frames) — never more.
+      const std::uint64_t decoded = s->debug().frames_decoded - before;
+      EXPECT_LE(decoded, f - format::keyframe_of(m, f) + 1 + 3) << "seek " << i << " to frame " << f;
+      if (m.codec.codec == format::FrameCodec::Particle) {
+        EXPECT_LE(f - format::keyframe_of(m, f), 7u);
+      }
+    }
   }
 }
 
 TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
   const fs::path dir = test::fresh_dir();
-  const fs::path file = cook_fixture(dir, "points_varying", format::Codec::Zstd, {"velocity"});
+  for (const fs::path& file : {cook_fixture(dir, "points_varying", format::Codec::Zstd, {"velocity"}),
+                               cook_particle(dir, "alembic/points_varying.abc", {"velocity"})}) {
+  SCOPED_TRACE(file.filename().string());
   const Reference ref(file);
   const auto& m = ref.reader.metadata();
   std::vector<std::byte> gpu_buffer(m.max_count * m.record_size);
@@ -215,6 +251,7 @@ TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
     ASSERT_FALSE(shown.empty());
     EXPECT_EQ(shown.back(), m.frame_count() - 1);
     EXPECT_TRUE(std::is_sorted(shown.begin(), shown.end()));
+  }
   }
 }
 
@@ -332,6 +369,19 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
     EXPECT_FALSE(s->frame().valid);
     s->update(0.1);  // the host keeps running
     s->close();
+    s->close();
+  }
+  {  // a particle-coded clip: a replaced chunk fails its checksum before a packet is decoded
+    const fs::path particle = cook_particle(dir, "sims/blender_sparks.abc");
+    const auto pm = format::Reader::open(particle).metadata();
+    ASSERT_GT(pm.chunk_count(), 2u);
+    stream::StreamOptions o = tiny_cache(true);
+    o.io = std::make_unique<FaultyIo>(stream::open_file(particle), pm.chunks[2].file_offset,
+                                      pm.chunks.back().file_offset + 1, FaultyIo::Fault::Replaced);
+    auto s = stream::ParticleStream::open(particle, std::move(o));
+    play_until_error(*s);
+    ASSERT_EQ(s->state(), stream::PlayState::Error);
+    EXPECT_NE(s->error().find("chunk 2"), std::string::npos) << s->error();
     s->close();
   }
   for (auto fault : {FaultyIo::Fault::ReadError, FaultyIo::Fault::Replaced}) {
