@@ -64,6 +64,7 @@ struct BenchStreamOptions {
   std::string file;  // empty: generate a clip in a temporary folder
   std::uint64_t particles = 1u << 20, frames = 60;
   double fps = 30.0, cache_seconds = 0.5, laps = 2.0;
+  std::string codec = "records";  // of the generated clip: records (raw chunks) or particle
   bool json = false;
 };
 int bench_stream(const BenchStreamOptions& options);
@@ -97,6 +98,16 @@ struct DemoCli {
   bool window = false, headless = false, quiet = false;
 };
 int run_demo(const DemoCli& cli);
+
+struct BenchCodecOptions {
+  std::string file, object;
+  std::vector<std::string> codecs;  // empty: all
+  int zstd_level = 0;                // the particle codec's; 0: its default
+  std::uint64_t frames = 0;  // 0: all
+  int repetitions = 5;
+  bool json = false;
+};
+int bench_codec(const BenchCodecOptions& options);
 
 struct BenchRenderOptions {
   int repetitions = 3;

@@ -246,6 +246,9 @@ class Writer {
   // the producer needs no chunk-sized buffer: append_raw_piece() until end_raw_chunk().
   void append_raw_piece(std::span<const std::byte> bytes);
   void end_raw_chunk();
+  // Bytes of the chunked stream (frame packets, back to back), cut into raw chunks of chunk_size
+  // as they come; commit() ends the last one.
+  void append_stream(std::span<const std::byte> bytes);
   const Metadata& metadata() const { return meta_; }
   // Checks that the chunks cover the frames, fills in counts and bounds, writes the tables and
   // the header, syncs and renames. Returns the file size.

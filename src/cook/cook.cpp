@@ -274,13 +274,6 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   report.error = meta.codec.error;
   report.order = meta.codec.order;
   format::Writer writer(options.output, meta);
-  ChunkCutter cutter(options.chunk_size, kRawPieceSize, [&](std::span<const std::byte> piece, bool ends_chunk) {
-    writer.append_raw_piece(piece);
-    if (ends_chunk) {
-      writer.end_raw_chunk();
-      ++report.chunks;
-    }
-  });
   const std::uint64_t K = meta.codec.keyframe_interval;
   std::vector<std::vector<HeldFrame>> groups;
   std::vector<std::uint64_t> starts;  // each group's first frame
@@ -324,7 +317,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
       for (std::size_t f = 0; f < encoded[g].size(); ++f) {
         const format::EncodedFrame& e = encoded[g][f];
         writer.append_frame(e.count, groups[g][f].time, e.bounds, e.packet.size(), e.keyframe);
-        cutter.write(e.packet.data(), e.packet.size());
+        writer.append_stream(e.packet);
         report.particles += e.count;
         report.keyframes += e.keyframe ? 1 : 0;
         if (!e.keyframe) {
@@ -339,10 +332,10 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
     before = std::move(groups.back().back());
     have_before = true;
   }
-  cutter.finish();
   report.frames = frames;
   report.stream_bytes = writer.metadata().decoded_size();
   report.file_bytes = writer.commit();
+  report.chunks = writer.metadata().chunk_count();
 }
 
 }  // namespace

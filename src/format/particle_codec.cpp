@@ -35,6 +35,7 @@ constexpr std::uint32_t kBlockShift = 10;            // survivors share a bias p
 constexpr std::uint32_t kBlock = 1u << kBlockShift;
 constexpr std::size_t kIdHeader = 4;
 constexpr std::size_t kOpSize = 12;
+constexpr std::uint32_t kTile = 256;  // particles written out at a time
 
 enum Predictor : std::uint8_t { kPrevious = 0, kLinear = 1 };
 
@@ -65,6 +66,17 @@ float as_float(std::uint32_t bits) { return std::bit_cast<float>(bits); }
 struct Op {
   std::uint32_t keep = 0, drop = 0, insert = 0;
 };
+
+// Survivors of one run: q = q1 + (d1 if linear) + bias + residual, and the step taken.
+void predict_run(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
+                 const std::uint32_t* __restrict d1, const std::uint32_t* __restrict r, std::uint32_t n,
+                 std::uint32_t linear_mask, std::uint32_t bias) {
+  for (std::uint32_t t = 0; t < n; ++t) {
+    const std::uint32_t step = (d1[t] & linear_mask) + bias + unzigzag(r[t]);
+    q0[t] = q1[t] + step;
+    d0[t] = step;
+  }
+}
 
 // The coded words of a layout (quantised or exact), and where the id's two words are.
 struct WordPlan {
@@ -148,6 +160,7 @@ class ParticleUnit final : public FrameUnit {
     }
     residual_.assign(n, 0);
     bias_.assign((n + kBlock - 1) >> kBlockShift, 0);
+    tile_.assign(std::size_t(plan_.words) * kTile, 0);
     words_.resize(coded);
     body_.resize(body_capacity(n, coded, plan_.id_word >= 0));
   }
@@ -155,7 +168,7 @@ class ParticleUnit final : public FrameUnit {
 
   void reset() override { count_[cur_ ^ 1] = 0; }
   std::uint64_t state_bytes() const override {
-    std::uint64_t bytes = body_.size() + residual_.size() * 4 + bias_.size() * 4;
+    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size()) * 4;
     for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8;
     return bytes;
   }
@@ -190,10 +203,12 @@ class ParticleUnit final : public FrameUnit {
       std::uint32_t i = 0, j = 0, kt = 0, nt = 0;
       for (std::uint32_t o = 0; o < b.op_count; ++o) {
         const Op op = op_at(b, o);
-        for (std::uint32_t t = 0; t < op.keep; ++t) {
-          const std::uint32_t step = (d1[i + t] & linear) + bias[(kt + t) >> kBlockShift] + unzigzag(r[kt + t]);
-          q0[j + t] = q1[i + t] + step;
-          d0[j + t] = step;
+        // The run in pieces that share a bias (split at block borders), each a vector loop.
+        for (std::uint32_t t = 0; t < op.keep;) {
+          const std::uint32_t block = (kt + t) >> kBlockShift;
+          const std::uint32_t len = std::min(op.keep - t, ((block + 1) << kBlockShift) - (kt + t));
+          predict_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, r + kt + t, len, linear, bias[block]);
+          t += len;
         }
         i += op.keep + op.drop;
         j += op.keep;
@@ -357,37 +372,44 @@ class ParticleUnit final : public FrameUnit {
     }
   }
 
+  // Records are written a tile of particles at a time: each word's values computed into a
+  // column of the tile (vector loops), then the tile's rows copied out whole.
   void write_records(std::uint32_t count, std::span<std::byte> out) {
-    const std::uint32_t rs = meta_.record_size;
+    const std::uint32_t rs = meta_.record_size, words = plan_.words;
     const std::uint64_t n = meta_.max_count;
-    std::size_t k = 0;
-    for (std::uint32_t w = 0; w < plan_.words; ++w) {
-      const WordCodingEntry& e = meta_.codec.words[w];
-      std::byte* dst = out.data() + 4 * w;
-      switch (e.coding) {
-        case WordCoding::Quantized: {
-          const std::uint32_t* q = q_[cur_].data() + k++ * n;
-          const float step = e.step, origin = as_float(e.base);
-          for (std::uint32_t j = 0; j < count; ++j) {
-            const float v = dequantize(q[j], step, origin);
-            std::memcpy(dst + std::size_t(j) * rs, &v, 4);
+    std::uint32_t* tile = tile_.data();
+    for (std::uint32_t j0 = 0; j0 < count; j0 += kTile) {
+      const std::uint32_t len = std::min(kTile, count - j0);
+      std::size_t k = 0;
+      for (std::uint32_t w = 0; w < words; ++w) {
+        const WordCodingEntry& e = meta_.codec.words[w];
+        std::uint32_t* column = tile + std::size_t(w) * kTile;
+        switch (e.coding) {
+          case WordCoding::Quantized: {
+            const std::uint32_t* q = q_[cur_].data() + k++ * n + j0;
+            const float step = e.step, origin = as_float(e.base);
+            for (std::uint32_t t = 0; t < len; ++t) column[t] = std::bit_cast<std::uint32_t>(dequantize(q[t], step, origin));
+            break;
           }
-          break;
-        }
-        case WordCoding::Exact: {
-          const std::uint32_t* q = q_[cur_].data() + k++ * n;
-          for (std::uint32_t j = 0; j < count; ++j) std::memcpy(dst + std::size_t(j) * rs, &q[j], 4);
-          break;
-        }
-        case WordCoding::Constant:
-          for (std::uint32_t j = 0; j < count; ++j) std::memcpy(dst + std::size_t(j) * rs, &e.base, 4);
-          break;
-        case WordCoding::Id:
-          if (std::int64_t(w) == plan_.id_word) {
-            const std::uint64_t* ids = ids_[cur_].data();
-            for (std::uint32_t j = 0; j < count; ++j) std::memcpy(dst + std::size_t(j) * rs, &ids[j], 8);
+          case WordCoding::Exact: std::copy_n(q_[cur_].data() + k++ * n + j0, len, column); break;
+          case WordCoding::Constant: std::fill_n(column, len, e.base); break;
+          case WordCoding::Id: {
+            const std::uint64_t* ids = ids_[cur_].data() + j0;
+            const unsigned half = std::int64_t(w) == plan_.id_word ? 0 : 32;
+            for (std::uint32_t t = 0; t < len; ++t) column[t] = static_cast<std::uint32_t>(ids[t] >> half);
+            break;
           }
-          break;
+        }
+      }
+      std::byte* dst = out.data() + std::size_t(j0) * rs;
+      if (words == 4) {  // the default [x y z scale] record
+        for (std::uint32_t t = 0; t < len; ++t) {
+          const std::uint32_t v[4] = {tile[t], tile[kTile + t], tile[2 * kTile + t], tile[3 * kTile + t]};
+          std::memcpy(dst + std::size_t(t) * 16, v, 16);
+        }
+      } else {
+        for (std::uint32_t t = 0; t < len; ++t)
+          for (std::uint32_t w = 0; w < words; ++w) std::memcpy(dst + std::size_t(t) * rs + 4 * w, &tile[std::size_t(w) * kTile + t], 4);
       }
     }
   }
@@ -396,7 +418,7 @@ class ParticleUnit final : public FrameUnit {
   std::string_view name_;
   WordPlan plan_;
   ZSTD_DCtx* zstd_;
-  std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_;
+  std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_;
   std::vector<std::uint64_t> ids_[2];
   std::uint32_t count_[2] = {0, 0};
   int cur_ = 0;

@@ -114,6 +114,16 @@ void Writer::append_raw_piece(std::span<const std::byte> bytes) {
   raw_->size += bytes.size();
 }
 
+void Writer::append_stream(std::span<const std::byte> bytes) {
+  while (!bytes.empty()) {
+    const std::uint64_t filled = raw_ ? raw_->size : 0;
+    const std::size_t take = static_cast<std::size_t>(std::min<std::uint64_t>(bytes.size(), meta_.chunk_size - filled));
+    append_raw_piece(bytes.first(take));
+    bytes = bytes.subspan(take);
+    if (raw_->size == meta_.chunk_size) end_raw_chunk();
+  }
+}
+
 void Writer::end_raw_chunk() {
   if (!raw_ || raw_->size == 0) throw Error(fmt::format("{}: end_raw_chunk() without a piece", path_.string()));
   end_chunk(std::exchange(raw_->size, 0), Codec::Raw, 0, XXH3_64bits_digest(raw_->hash.get()));
@@ -132,7 +142,9 @@ void Writer::end_chunk(std::uint64_t stored_size, Codec codec, std::uint32_t cod
 }
 
 std::uint64_t Writer::commit() {
-  if (raw_ && raw_->size != 0) throw Error(fmt::format("{}: a raw chunk was not ended", path_.string()));
+  // The stream's last chunk is shorter: append_stream() and raw pieces leave it open. (A chunk
+  // ended too early or too late shows in the count below.)
+  if (raw_ && raw_->size != 0) end_raw_chunk();
   const std::uint64_t expected = (meta_.stream_size() + meta_.chunk_size - 1) / meta_.chunk_size;
   if (meta_.chunks.size() != expected) {
     throw Error(

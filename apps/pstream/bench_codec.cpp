@@ -1,0 +1,435 @@
+// `pstream bench codec FILE`: the particle codec against general and geometry codecs on the same
+// frames of [x y z scale] records, in one run: size, error, encode and decode speed, with a memcpy
+// of the decoded bytes measured beside each decode.
+#include <lz4.h>
+#include <meshoptimizer.h>
+#include <unistd.h>
+#include <zstd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+
+#include <draco/compression/decode.h>
+#include <draco/compression/encode.h>
+#include <draco/point_cloud/point_cloud_builder.h>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "commands.hpp"
+#include "particlestream/codec.hpp"
+#include "particlestream/cook.hpp"
+#include "progress.hpp"
+
+namespace pstream::app {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using format::Attribute;
+
+constexpr std::uint32_t kRecord = 16;  // [x y z scale]
+
+struct Frame {
+  std::vector<std::byte> records;
+  std::vector<std::uint64_t> ids;
+  std::uint64_t count = 0;
+};
+
+// One codec under test: encode every frame, decode every frame in order into `out` (a frame's
+// records, the frame index given).
+struct Contender {
+  std::string name;
+  std::function<std::vector<std::vector<std::byte>>(const std::vector<Frame>&)> encode;
+  std::function<void(const std::vector<std::vector<std::byte>>&, std::size_t, std::span<std::byte>)> decode;
+  bool reorders = false;  // decoded frames are in another order: pair particles by position
+};
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+std::vector<std::byte> zstd_compress(std::span<const std::byte> in, int level) {
+  std::vector<std::byte> out(ZSTD_compressBound(in.size()));
+  const std::size_t n = ZSTD_compress(out.data(), out.size(), in.data(), in.size(), level);
+  if (ZSTD_isError(n)) throw Error(fmt::format("zstd: {}", ZSTD_getErrorName(n)));
+  out.resize(n);
+  return out;
+}
+
+void zstd_decompress(ZSTD_DCtx* ctx, std::span<const std::byte> in, std::span<std::byte> out) {
+  const std::size_t n = ZSTD_decompressDCtx(ctx, out.data(), out.size(), in.data(), in.size());
+  if (ZSTD_isError(n) || n != out.size()) throw Error("zstd: corrupt bench data");
+}
+
+// The source's frames as [x y z scale] records, with ids when it has them (through the cook, so
+// exactly what a cooked clip would hold).
+std::vector<Frame> load_frames(const BenchCodecOptions& o, const std::filesystem::path& temp) {
+  cook::Options c;
+  c.input = o.file;
+  c.object = o.object;
+  c.output = temp / "source.pstream";
+  c.color_from = "none";
+  c.attributes = {"id"};
+  c.threads = 1;
+  try {
+    cook::cook(c);
+  } catch (const Error&) {
+    c.attributes.clear();  // no ids
+    cook::cook(c);
+  }
+  const auto reader = format::Reader::open(c.output);
+  const format::Metadata& m = reader.metadata();
+  const std::uint64_t frames = o.frames ? std::min<std::uint64_t>(o.frames, m.frame_count()) : m.frame_count();
+  std::vector<std::byte> buffer(m.max_count * m.record_size);
+  std::vector<Frame> out(frames);
+  const format::Attribute* id = m.find("id");
+  for (std::uint64_t f = 0; f < frames; ++f) {
+    reader.read_frame(f, buffer);
+    Frame& fr = out[f];
+    fr.count = m.frames[f].count;
+    fr.records.resize(fr.count * kRecord);
+    if (id) fr.ids.resize(fr.count);
+    for (std::uint64_t i = 0; i < fr.count; ++i) {
+      std::memcpy(fr.records.data() + i * kRecord, buffer.data() + i * m.record_size, kRecord);
+      if (id) std::memcpy(&fr.ids[i], buffer.data() + i * m.record_size + id->offset, 8);
+    }
+  }
+  std::filesystem::remove(c.output);
+  return out;
+}
+
+// The grid a quantised coordinate or scale lives on, from the particle codec's plan.
+struct Grid {
+  float step, origin;
+  std::uint32_t quantize(float v) const {
+    return static_cast<std::uint32_t>(std::max(0.0, std::nearbyint((double(v) - origin) / step)));
+  }
+  float dequantize(std::uint32_t q) const { return static_cast<float>(q) * step + origin; }
+};
+
+Grid grid_of(const format::CodecInfo& info, std::size_t word) {
+  const format::WordCodingEntry& e = info.words[word];
+  if (e.coding == format::WordCoding::Quantized) return {e.step, std::bit_cast<float>(e.base)};
+  if (e.coding == format::WordCoding::Constant) return {1.0f, std::bit_cast<float>(e.base)};
+  return {0.0f, 0.0f};
+}
+
+std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::CodecInfo& lossless,
+                                  const std::vector<Attribute>& layout, std::uint64_t max_count) {
+  std::vector<Contender> all;
+  all.push_back({"raw",
+                 [](const std::vector<Frame>& frames) {
+                   std::vector<std::vector<std::byte>> out;
+                   for (const Frame& f : frames) out.push_back(f.records);
+                   return out;
+                 },
+                 [](const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
+                   if (!enc[f].empty()) std::memcpy(out.data(), enc[f].data(), enc[f].size());
+                 }});
+  all.push_back({"lz4",
+                 [](const std::vector<Frame>& frames) {
+                   std::vector<std::vector<std::byte>> out;
+                   for (const Frame& f : frames) {
+                     std::vector<std::byte> z(std::size_t(LZ4_compressBound(int(f.records.size()))));
+                     z.resize(std::size_t(LZ4_compress_default(reinterpret_cast<const char*>(f.records.data()),
+                                                               reinterpret_cast<char*>(z.data()), int(f.records.size()),
+                                                               int(z.size()))));
+                     out.push_back(std::move(z));
+                   }
+                   return out;
+                 },
+                 [](const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
+                   LZ4_decompress_safe(reinterpret_cast<const char*>(enc[f].data()), reinterpret_cast<char*>(out.data()),
+                                       int(enc[f].size()), int(out.size()));
+                 }});
+  for (const int level : {3, 19}) {
+    all.push_back({fmt::format("zstd -{}", level),
+                   [level](const std::vector<Frame>& frames) {
+                     std::vector<std::vector<std::byte>> out;
+                     for (const Frame& f : frames) out.push_back(zstd_compress(f.records, level));
+                     return out;
+                   },
+                   [ctx = std::shared_ptr<ZSTD_DCtx>(ZSTD_createDCtx(), ZSTD_freeDCtx)](
+                       const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
+                     zstd_decompress(ctx.get(), enc[f], out);
+                   }});
+  }
+  // Byte shuffle: the records' bytes by position in the record, then zstd.
+  auto shuffled = std::make_shared<std::vector<std::byte>>(max_count * kRecord);
+  all.push_back({"shuffle + zstd -3",
+                 [](const std::vector<Frame>& frames) {
+                   std::vector<std::vector<std::byte>> out;
+                   std::vector<std::byte> planes;
+                   for (const Frame& f : frames) {
+                     planes.resize(f.records.size());
+                     for (std::uint64_t i = 0; i < f.count; ++i)
+                       for (std::uint32_t b = 0; b < kRecord; ++b) planes[b * f.count + i] = f.records[i * kRecord + b];
+                     out.push_back(zstd_compress(planes, 3));
+                   }
+                   return out;
+                 },
+                 [shuffled, ctx = std::shared_ptr<ZSTD_DCtx>(ZSTD_createDCtx(), ZSTD_freeDCtx)](
+                     const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
+                   const std::size_t n = out.size() / kRecord;
+                   zstd_decompress(ctx.get(), enc[f], std::span(*shuffled).first(out.size()));
+                   for (std::uint32_t b = 0; b < kRecord; ++b) {
+                     const std::byte* plane = shuffled->data() + b * n;
+                     for (std::size_t i = 0; i < n; ++i) out[i * kRecord + b] = plane[i];
+                   }
+                 }});
+  // meshoptimizer's vertex codec on the same grids (16-bit when the grid fits), then zstd.
+  const Grid gx = grid_of(lossy, 0), gy = grid_of(lossy, 1), gz = grid_of(lossy, 2), gs = grid_of(lossy, 3);
+  auto vertices = std::make_shared<std::vector<std::uint16_t>>(max_count * 4);
+  auto packed = std::make_shared<std::vector<std::byte>>(meshopt_encodeVertexBufferBound(max_count, 8));
+  all.push_back({"meshopt + zstd -3",
+                 [=](const std::vector<Frame>& frames) {
+                   std::vector<std::vector<std::byte>> out;
+                   std::vector<std::uint16_t> v;
+                   std::vector<std::byte> buf;
+                   for (const Frame& f : frames) {
+                     v.resize(f.count * 4);
+                     for (std::uint64_t i = 0; i < f.count; ++i) {
+                       float r[4];
+                       std::memcpy(r, f.records.data() + i * kRecord, kRecord);
+                       v[i * 4] = std::uint16_t(gx.quantize(r[0]));
+                       v[i * 4 + 1] = std::uint16_t(gy.quantize(r[1]));
+                       v[i * 4 + 2] = std::uint16_t(gz.quantize(r[2]));
+                       v[i * 4 + 3] = gs.step > 0 ? std::uint16_t(gs.quantize(r[3])) : 0;
+                     }
+                     buf.resize(meshopt_encodeVertexBufferBound(f.count, 8));
+                     buf.resize(meshopt_encodeVertexBuffer(reinterpret_cast<unsigned char*>(buf.data()), buf.size(),
+                                                           v.data(), f.count, 8));
+                     out.push_back(zstd_compress(buf, 3));
+                   }
+                   return out;
+                 },
+                 [=, ctx = std::shared_ptr<ZSTD_DCtx>(ZSTD_createDCtx(), ZSTD_freeDCtx)](
+                     const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
+                   const std::size_t n = out.size() / kRecord;
+                   const std::size_t size = ZSTD_getFrameContentSize(enc[f].data(), enc[f].size());
+                   zstd_decompress(ctx.get(), enc[f], std::span(*packed).first(size));
+                   meshopt_decodeVertexBuffer(vertices->data(), n, 8, reinterpret_cast<const unsigned char*>(packed->data()),
+                                              size);
+                   for (std::size_t i = 0; i < n; ++i) {
+                     const std::uint16_t* q = vertices->data() + i * 4;
+                     const float r[4] = {gx.dequantize(q[0]), gy.dequantize(q[1]), gz.dequantize(q[2]),
+                                         gs.step > 0 ? gs.dequantize(q[3]) : gs.origin};
+                     std::memcpy(out.data() + i * kRecord, r, kRecord);
+                   }
+                 }});
+  // Draco's point-cloud codec, with quantisation bits that keep the same bound.
+  const double bound = lossy.error;
+  all.push_back({"draco",
+                 [bound](const std::vector<Frame>& frames) {
+                   std::vector<std::vector<std::byte>> out;
+                   for (const Frame& f : frames) {
+                     std::vector<float> xyz(f.count * 3), s(f.count);
+                     float lo = INFINITY, hi = -INFINITY;
+                     for (std::uint64_t i = 0; i < f.count; ++i) {
+                       float r[4];
+                       std::memcpy(r, f.records.data() + i * kRecord, kRecord);
+                       std::copy_n(r, 3, &xyz[i * 3]);
+                       s[i] = r[3];
+                       for (int c = 0; c < 3; ++c) lo = std::min(lo, r[c]), hi = std::max(hi, r[c]);
+                     }
+                     draco::PointCloudBuilder b;
+                     b.Start(static_cast<draco::PointIndex::ValueType>(f.count));
+                     const int pos = b.AddAttribute(draco::GeometryAttribute::POSITION, 3, draco::DT_FLOAT32);
+                     const int sc = b.AddAttribute(draco::GeometryAttribute::GENERIC, 1, draco::DT_FLOAT32);
+                     b.SetAttributeValuesForAllPoints(pos, xyz.data(), 12);
+                     b.SetAttributeValuesForAllPoints(sc, s.data(), 4);
+                     std::unique_ptr<draco::PointCloud> pc = b.Finalize(false);
+                     draco::Encoder enc;
+                     // Draco quantises over the largest extent with 2^bits - 1 steps: half a step
+                     // within the bound.
+                     const double range = f.count ? std::max(double(hi - lo), 1e-9) : 1.0;
+                     const int bits = std::clamp(int(std::ceil(std::log2(range / (2.0 * bound) + 1.0))), 1, 30);
+                     enc.SetAttributeQuantization(draco::GeometryAttribute::POSITION, bits);
+                     enc.SetAttributeQuantization(draco::GeometryAttribute::GENERIC, bits);
+                     enc.SetSpeedOptions(5, 5);
+                     draco::EncoderBuffer buffer;
+                     if (!enc.EncodePointCloudToBuffer(*pc, &buffer).ok()) throw Error("draco failed to encode");
+                     const auto* d = reinterpret_cast<const std::byte*>(buffer.data());
+                     out.emplace_back(d, d + buffer.size());
+                   }
+                   return out;
+                 },
+                 [](const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
+                   draco::DecoderBuffer buffer;
+                   buffer.Init(reinterpret_cast<const char*>(enc[f].data()), enc[f].size());
+                   draco::Decoder dec;
+                   auto pc = dec.DecodePointCloudFromBuffer(&buffer);
+                   if (!pc.ok()) throw Error("draco failed to decode");
+                   const draco::PointAttribute* pos = pc.value()->GetNamedAttribute(draco::GeometryAttribute::POSITION);
+                   const draco::PointAttribute* sc = pc.value()->GetNamedAttribute(draco::GeometryAttribute::GENERIC);
+                   const std::size_t n = out.size() / kRecord;
+                   for (std::size_t i = 0; i < n; ++i) {
+                     float r[4] = {0, 0, 0, 0};
+                     const draco::PointIndex p(static_cast<std::uint32_t>(i));
+                     pos->GetMappedValue(p, r);
+                     sc->GetMappedValue(p, r + 3);
+                     std::memcpy(out.data() + i * kRecord, r, kRecord);
+                   }
+                 },
+                 true});
+  // Ours: keyframe groups encoded in order, decoded in order by one FrameDecoder.
+  for (const format::CodecInfo* info : {&lossy, &lossless}) {
+    auto meta = std::make_shared<format::Metadata>();
+    meta->layout = layout;
+    meta->record_size = kRecord;
+    meta->codec = *info;
+    meta->max_count = max_count;
+    auto decoder = std::make_shared<std::unique_ptr<format::FrameDecoder>>();
+    all.push_back({info->lossless ? "particle lossless (ours)" : "particle (ours)",
+                   [=](const std::vector<Frame>& frames) {
+                     std::vector<std::vector<std::byte>> out;
+                     meta->frames.clear();
+                     const std::uint32_t K = info->keyframe_interval;
+                     for (std::size_t g = 0; g < frames.size(); g += K) {
+                       std::vector<format::SourceFrame> views;
+                       for (std::size_t f = g; f < std::min(frames.size(), g + K); ++f)
+                         views.push_back({frames[f].records, frames[f].ids, frames[f].count});
+                       const format::SourceFrame before =
+                           g ? format::SourceFrame{frames[g - 1].records, frames[g - 1].ids, frames[g - 1].count}
+                             : format::SourceFrame{};
+                       for (auto& e : format::encode_group(*info, layout, views, g ? &before : nullptr, g)) {
+                         format::FrameEntry entry;
+                         entry.count = e.count;
+                         entry.keyframe = e.keyframe;
+                         entry.packet_size = e.packet.size();
+                         meta->frames.push_back(entry);
+                         out.push_back(std::move(e.packet));
+                       }
+                     }
+                     *decoder = std::make_unique<format::FrameDecoder>(*meta, "bench");
+                     return out;
+                   },
+                   [=](const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
+                     (*decoder)->decode(f, enc[f], out);
+                   },
+                   !info->lossless});
+  }
+  return all;
+}
+
+}  // namespace
+
+int bench_codec(const BenchCodecOptions& o) {
+  const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-bench-codec-{}", ::getpid());
+  std::filesystem::create_directories(temp);
+  struct Cleanup {
+    std::filesystem::path dir;
+    ~Cleanup() {
+      std::error_code ec;
+      std::filesystem::remove_all(dir, ec);
+    }
+  } cleanup{temp};
+  const std::vector<Frame> frames = load_frames(o, temp);
+  std::uint64_t particles = 0, max_count = 0;
+  for (const Frame& f : frames) {
+    particles += f.count;
+    max_count = std::max(max_count, f.count);
+  }
+  if (particles == 0) throw Error(fmt::format("{}: no particles to compress", o.file));
+  const std::vector<Attribute> layout = format::default_layout();
+  format::ClipStats stats(layout);
+  for (const Frame& f : frames) stats.add(f.records, f.count);
+  format::ParticleCodecOptions po;
+  if (o.zstd_level) po.zstd_level = o.zstd_level;
+  const bool ids = !frames.empty() && !frames.front().ids.empty();
+  const format::CodecInfo lossy = format::plan_particle_codec(layout, stats, 24.0, ids, po);
+  po.lossless = true;
+  const format::CodecInfo lossless = format::plan_particle_codec(layout, stats, 24.0, ids, po);
+
+  const double raw_bytes = double(particles) * kRecord;
+  std::vector<std::byte> out(max_count * kRecord), source(out.size());
+  nlohmann::ordered_json results = nlohmann::ordered_json::array();
+  ProgressBar bar("bench codec", !o.json);
+  auto all = contenders(lossy, lossless, layout, max_count);
+  if (!o.codecs.empty()) {
+    std::erase_if(all, [&](const Contender& c) {
+      return std::find(o.codecs.begin(), o.codecs.end(), c.name) == o.codecs.end();
+    });
+    if (all.empty()) throw Error("--codec names none of the codecs (see the table of a run without --codec)");
+  }
+  std::size_t done = 0;
+  for (const Contender& c : all) {
+    const auto t0 = Clock::now();
+    const std::vector<std::vector<std::byte>> encoded = c.encode(frames);
+    const double encode_s = seconds_since(t0);
+    std::uint64_t bytes = 0;
+    for (const auto& e : encoded) bytes += e.size();
+    // Decode every frame in order, against a memcpy of the same decoded bytes, alternating.
+    std::vector<double> decode_s, copy_s;
+    format::FrameComparison cmp;
+    for (int rep = 0; rep < o.repetitions; ++rep) {
+      auto t = Clock::now();
+      for (std::size_t f = 0; f < frames.size(); ++f) c.decode(encoded, f, std::span(out).first(frames[f].count * kRecord));
+      decode_s.push_back(seconds_since(t));
+      t = Clock::now();
+      for (const Frame& f : frames) {
+        if (f.count) std::memcpy(source.data(), f.records.data(), f.records.size());
+      }
+      copy_s.push_back(seconds_since(t));
+    }
+    for (std::size_t f = 0; f < frames.size(); ++f) {  // the error, frame by frame
+      c.decode(encoded, f, std::span(out).first(frames[f].count * kRecord));
+      cmp.add(layout, out, frames[f].count, frames[f].records, frames[f].count, &lossy);
+    }
+    const double position_error = std::max({cmp.max_error[0], cmp.max_error[1], cmp.max_error[2]});
+    const double d = median(decode_s), m = median(copy_s);
+    results.push_back({{"codec", c.name},
+                       {"bytes_per_particle", double(bytes) / double(particles)},
+                       {"ratio", raw_bytes / double(bytes)},
+                       {"max_error_position", position_error},
+                       {"max_error_scale", cmp.max_error[3]},
+                       {"unmatched", cmp.unmatched},
+                       {"encode_mb_s", raw_bytes / encode_s / 1e6},
+                       {"decode_gb_s", raw_bytes / d / 1e9},
+                       {"memcpy_gb_s", raw_bytes / m / 1e9},
+                       {"decode_vs_memcpy", d / m}});
+    bar.update(++done, all.size(), c.name);
+  }
+  // The decode speed of zstd -3 on the raw records, the baseline for ours.
+  double zstd_gb_s = 0, ours_gb_s = 0;
+  for (const auto& r : results) {
+    if (r["codec"] == "zstd -3") zstd_gb_s = r["decode_gb_s"];
+    if (r["codec"] == "particle (ours)") ours_gb_s = r["decode_gb_s"];
+  }
+  nlohmann::ordered_json report{{"file", std::filesystem::path(o.file).filename().string()},
+                                {"frames", frames.size()},
+                                {"particles", particles},
+                                {"ids", ids},
+                                {"error_bound", lossy.error},
+                                {"keyframe_interval", lossy.keyframe_interval},
+                                {"repetitions", o.repetitions},
+                                {"ours_decode_vs_zstd", zstd_gb_s > 0 ? ours_gb_s / zstd_gb_s : 0.0},
+                                {"codecs", results}};
+  if (o.json) {
+    fmt::print("{}\n", report.dump(1));
+    return 0;
+  }
+  fmt::print("{}: {} frames, {} particles ({} ids), [x y z scale] records; error bound {:.3g} (1e-4 of the diagonal), "
+             "keyframe every {}\n\n",
+             o.file, frames.size(), particles, ids ? "with" : "without", lossy.error, lossy.keyframe_interval);
+  fmt::print("{:<26} {:>9} {:>7} {:>11} {:>11} {:>9} {:>9} {:>9}\n", "codec", "B/p/frame", "ratio", "max err xyz",
+             "max err s", "enc MB/s", "dec GB/s", "/memcpy");
+  for (const auto& r : results) {
+    fmt::print("{:<26} {:>9.3f} {:>7.2f} {:>11.3g} {:>11.3g} {:>9.1f} {:>9.2f} {:>9.2f}\n",
+               r["codec"].get<std::string>(), r["bytes_per_particle"].get<double>(), r["ratio"].get<double>(),
+               r["max_error_position"].get<double>(), r["max_error_scale"].get<double>(), r["encode_mb_s"].get<double>(),
+               r["decode_gb_s"].get<double>(), r["decode_vs_memcpy"].get<double>());
+  }
+  fmt::print("\nparticle (ours) decodes {:.2f}x as fast as zstd -3 on the raw records (one core, medians of {})\n",
+             zstd_gb_s > 0 ? ours_gb_s / zstd_gb_s : 0.0, o.repetitions);
+  return 0;
+}
+
+}  // namespace pstream::app
