@@ -31,7 +31,7 @@ run_target fuzz_alembic $seeds
 
 # .pstream seeds: small fixtures cooked with each codec and the smallest chunks.
 mkdir -p "$work/pstream-seeds"
-for codec in raw lz4 zstd; do
+for codec in raw lz4 zstd particle particle-lossless; do
   for fixture in points_widths_constant points_empty_frames; do
     build-fuzz/apps/pstream/pstream cook -q "tests/data/alembic/$fixture.abc" --chunk-size 64KiB --codec $codec \
       --attributes velocity,id -o "$work/pstream-seeds/$fixture-$codec.pstream" 2>/dev/null ||
@@ -40,3 +40,8 @@ for codec in raw lz4 zstd; do
   done
 done
 run_target fuzz_pstream "$work"/pstream-seeds/*.pstream
+
+# Particle-codec bodies, from the encoder itself.
+mkdir -p "$work/particle-seeds"
+build-fuzz/tests/fuzz/fuzz_particle_seeds "$work/particle-seeds"
+run_target fuzz_particle "$work"/particle-seeds/*

@@ -319,6 +319,49 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
   return all;
 }
 
+// Bytes per particle (log scale) against decode speed, one labelled point per codec.
+std::string svg_scatter(const nlohmann::ordered_json& results, const std::string& title) {
+  const double W = 760, H = 440, L = 70, R = 30, T = 40, B = 50;
+  double xmax = 0, ymin = 1e300, ymax = 0;
+  for (const auto& r : results) {
+    xmax = std::max(xmax, r["decode_gb_s"].get<double>());
+    ymin = std::min(ymin, r["bytes_per_particle"].get<double>());
+    ymax = std::max(ymax, r["bytes_per_particle"].get<double>());
+  }
+  xmax = std::ceil(std::min(xmax, 40.0) + 0.5);
+  const double ly0 = std::floor(std::log10(ymin) * 2) / 2, ly1 = std::ceil(std::log10(ymax) * 2) / 2;
+  const auto px = [&](double x) { return L + std::min(x, xmax) / xmax * (W - L - R); };
+  const auto py = [&](double y) { return H - B - (std::log10(y) - ly0) / (ly1 - ly0) * (H - T - B); };
+  std::string s = fmt::format(
+      R"(<svg xmlns="http://www.w3.org/2000/svg" width="{}" height="{}" font-family="sans-serif" font-size="12">)", W, H);
+  s += fmt::format(R"(<rect width="100%" height="100%" fill="white"/><text x="{}" y="22" font-size="15">{}</text>)", L,
+                   title);
+  for (double x = 0; x <= xmax; x += xmax > 12 ? 5 : 1) {
+    s += fmt::format(
+        R"(<line x1="{0}" y1="{1}" x2="{0}" y2="{2}" stroke="#ddd"/><text x="{0}" y="{3}" text-anchor="middle">{4:g}</text>)",
+        px(x), T, H - B, H - B + 18, x);
+  }
+  for (const double y : {0.5, 1.0, 2.0, 4.0, 8.0, 16.0}) {
+    if (std::log10(y) < ly0 - 1e-9 || std::log10(y) > ly1 + 1e-9) continue;
+    s += fmt::format(
+        R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="#ddd"/><text x="{3}" y="{4}" text-anchor="end">{5:g}</text>)",
+        L, py(y), W - R, L - 6, py(y) + 4, y);
+  }
+  s += fmt::format(R"(<text x="{}" y="{}" text-anchor="middle">decode GB/s of records, one core (right is faster)</text>)",
+                   (L + W - R) / 2, H - 12);
+  s += fmt::format(
+      R"svg(<text x="16" y="{}" transform="rotate(-90 16 {})" text-anchor="middle">bytes per particle per frame (down is smaller)</text>)svg",
+      (T + H - B) / 2, (T + H - B) / 2);
+  for (const auto& r : results) {
+    const std::string name = r["codec"];
+    const bool ours = name.find("ours") != std::string::npos;
+    const double x = px(r["decode_gb_s"].get<double>()), y = py(r["bytes_per_particle"].get<double>());
+    s += fmt::format(R"(<circle cx="{:.1f}" cy="{:.1f}" r="{}" fill="{}"/><text x="{:.1f}" y="{:.1f}">{}</text>)", x, y,
+                     ours ? 6 : 4, ours ? "#d62728" : "#1f77b4", x + 8, y - 6, name);
+  }
+  return s + "</svg>\n";
+}
+
 }  // namespace
 
 int bench_codec(const BenchCodecOptions& o) {
@@ -412,6 +455,12 @@ int bench_codec(const BenchCodecOptions& o) {
                                 {"repetitions", o.repetitions},
                                 {"ours_decode_vs_zstd", zstd_gb_s > 0 ? ours_gb_s / zstd_gb_s : 0.0},
                                 {"codecs", results}};
+  if (!o.svg.empty()) {
+    std::ofstream svg(o.svg);
+    svg << svg_scatter(results, fmt::format("{}: {} frames, error bound 1e-4 of the diagonal",
+                                            std::filesystem::path(o.file).filename().string(), frames.size()));
+    if (!svg.flush()) throw Error(fmt::format("{}: cannot write the plot", o.svg));
+  }
   if (o.json) {
     fmt::print("{}\n", report.dump(1));
     return 0;

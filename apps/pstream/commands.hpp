@@ -19,7 +19,10 @@ struct InfoPstreamOptions {
   bool frames = false;  // with json: per-frame sums
 };
 int info_pstream(const InfoPstreamOptions& options);
-int verify_pstream(const std::string& file, bool json);
+// Checks every checksum and index entry and decodes every frame; with `against` (the source it
+// was cooked from), also compares every decoded value with the source's, per attribute, against
+// the bounds the codec states (exact attributes must be equal).
+int verify_pstream(const std::string& file, bool json, const std::string& against = {});
 
 // True when the file starts with the .pstream magic.
 bool is_pstream_file(const std::string& file);
@@ -103,6 +106,7 @@ struct BenchCodecOptions {
   std::string file, object;
   std::vector<std::string> codecs;  // empty: all
   int zstd_level = 0;                // the particle codec's; 0: its default
+  std::string svg;                   // optional plot: bytes per particle against decode speed
   std::uint64_t frames = 0;  // 0: all
   int repetitions = 5;
   bool json = false;

@@ -25,13 +25,22 @@ std::uint64_t parse_size(const std::string& text) {
 }
 
 void parse_codec(const std::string& text, cook::Options& o) {
-  if (text == "particle" || text == "particle-lossless") {
-    o.frame_codec = format::FrameCodec::Particle;
-    o.particle.lossless = text == "particle-lossless";
-    return;
-  }
   const auto colon = text.find(':');
   const std::string name = text.substr(0, colon);
+  if (name == "particle" || name == "particle-lossless") {
+    o.frame_codec = format::FrameCodec::Particle;
+    o.particle.lossless = name == "particle-lossless";
+    if (colon != std::string::npos) {  // the entropy stage's zstd level
+      const std::string level = text.substr(colon + 1);
+      const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.particle.zstd_level);
+      if (ec != std::errc() || ptr != level.data() + level.size() || o.particle.zstd_level < 1 ||
+          o.particle.zstd_level > 22) {
+        throw Error(fmt::format("--codec '{}': the particle codec's zstd level must be 1..22 (default {})", text,
+                                format::kDefaultParticleZstdLevel));
+      }
+    }
+    return;
+  }
   if (name == "raw")
     o.codec = format::Codec::Raw;
   else if (name == "lz4")
@@ -40,7 +49,8 @@ void parse_codec(const std::string& text, cook::Options& o) {
     o.codec = format::Codec::Zstd;
   else
     throw Error(fmt::format(
-        "--codec '{}': expected particle, particle-lossless, raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL", text));
+        "--codec '{}': expected particle[:LEVEL], particle-lossless[:LEVEL], raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL",
+        text));
   if (colon != std::string::npos) {
     const std::string level = text.substr(colon + 1);
     const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.codec_level);

@@ -6,7 +6,13 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+
 #include "commands.hpp"
+#include "particlestream/cook.hpp"
 #include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
@@ -188,9 +194,87 @@ int info_pstream(const InfoPstreamOptions& options) {
   return 0;
 }
 
-int verify_pstream(const std::string& file, bool as_json) {
+namespace {
+
+// The source cooked again as records with the clip's layout, fps and transforms, every frame
+// compared with the clip's frame of the same time.
+json compare_with_source(const Reader& reader, const std::string& source, std::vector<std::string>& errors) {
+  const Metadata& m = reader.metadata();
+  cook::Options o;
+  o.input = source;
+  o.object = m.source_object.find(',') == std::string::npos ? m.source_object : std::string();
+  o.merge = m.source_object.find(',') != std::string::npos;
+  o.bake_xforms = (m.flags & kFlagXformsBaked) != 0;
+  o.interpolate = (m.flags & kFlagInterpolated) != 0;
+  o.fps = m.fps;
+  o.color_from = m.find("color") ? "Cd" : "none";
+  for (const Attribute& a : m.layout) {
+    if (a.name == "position" || a.name == "scale" || a.name == "color") continue;
+    o.attributes.push_back(a.name == "id" && a.type == AttributeType::Uint32 ? "id32" : a.name);
+  }
+  const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-verify-{}.pstream", ::getpid());
+  o.output = temp;
+  struct Remove {
+    std::filesystem::path p;
+    ~Remove() {
+      std::error_code ec;
+      std::filesystem::remove(p, ec);
+    }
+  } remove{temp};
+  cook::cook(o);
+  const Reader src = Reader::open(temp);
+  const Metadata& sm = src.metadata();
+  if (sm.record_size != m.record_size) {
+    errors.push_back(fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source, sm.record_size,
+                                 m.record_size));
+    return json::object();
+  }
+  std::vector<std::byte> a(m.max_count * m.record_size), b(sm.max_count * sm.record_size);
+  FrameComparison c;
+  std::uint64_t s = 0, compared = 0;
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    while (s < sm.frame_count() && sm.frames[s].time < m.frames[f].time - 0.25 / m.fps) ++s;
+    if (s == sm.frame_count() || std::abs(sm.frames[s].time - m.frames[f].time) > 0.25 / m.fps) {
+      errors.push_back(fmt::format("frame {} (time {}): the source has no frame at that time", f, m.frames[f].time));
+      continue;
+    }
+    reader.read_frame(f, a);
+    src.read_frame(s, b);
+    c.add(m.layout, a, m.frames[f].count, b, sm.frames[s].count, &m.codec);
+    ++compared;
+  }
+  json attributes = json::array();
+  for (const Attribute& at : m.layout) {
+    double worst = 0.0, bound = 0.0;
+    bool exact = true;
+    for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
+      worst = std::max(worst, c.max_error[w]);
+      if (m.codec.codec == FrameCodec::Particle && m.codec.words[w].coding == WordCoding::Quantized) {
+        exact = false;
+        bound = std::max(bound, double(m.codec.words[w].error));
+      }
+    }
+    const bool ok = exact ? worst == 0.0 : worst <= bound;
+    if (!ok) {
+      errors.push_back(fmt::format("attribute '{}': decoded values differ from the source by up to {:.6g}, the bound "
+                                   "is {}",
+                                   at.name, worst, exact ? std::string("0 (exact)") : fmt::format("{:.6g}", bound)));
+    }
+    attributes.push_back({{"name", at.name}, {"max_error", worst}, {"bound", exact ? 0.0 : bound}, {"ok", ok}});
+  }
+  if (c.unmatched || c.count_mismatches) {
+    errors.push_back(fmt::format("{} particles found no partner in the source; {} frames have other particle counts",
+                                 c.unmatched, c.count_mismatches));
+  }
+  return json{{"source", source}, {"frames_compared", compared}, {"particles", c.particles}, {"attributes", attributes}};
+}
+
+}  // namespace
+
+int verify_pstream(const std::string& file, bool as_json, const std::string& against) {
   std::vector<std::string> errors;
   std::uint64_t chunks = 0, frames = 0;
+  json comparison;
   try {
     const Reader reader = Reader::open(file);  // header, tables, frame index, chunk bounds
     const Metadata& m = reader.metadata();
@@ -216,6 +300,7 @@ int verify_pstream(const std::string& file, bool as_json) {
         }
       }
     }
+    if (errors.empty() && !against.empty()) comparison = compare_with_source(reader, against, errors);
   } catch (const Error& e) {
     errors.push_back(e.what());
   }
@@ -223,10 +308,22 @@ int verify_pstream(const std::string& file, bool as_json) {
     fmt::print(
         "{}\n",
         json{
-            {"file", file}, {"ok", errors.empty()}, {"chunks_verified", chunks}, {"frames", frames}, {"errors", errors}}
+            {"file", file},
+            {"ok", errors.empty()},
+            {"chunks_verified", chunks},
+            {"frames", frames},
+            {"errors", errors},
+            {"against", comparison}}
             .dump());
   } else if (errors.empty()) {
-    fmt::print("{}: OK — {} frames, {} chunks, every checksum and index entry verified\n", file, frames, chunks);
+    fmt::print("{}: OK — {} frames, {} chunks, every checksum and index entry verified{}\n", file, frames, chunks,
+               against.empty() ? "" : ", every value within its bound of the source");
+    if (!comparison.is_null() && comparison.contains("attributes")) {
+      for (const auto& a : comparison["attributes"]) {
+        fmt::print("  {:<12} max error {:.6g} (bound {})\n", a["name"].get<std::string>(), a["max_error"].get<double>(),
+                   a["bound"].get<double>() == 0.0 ? std::string("0, exact") : fmt::format("{:.6g}", a["bound"].get<double>()));
+      }
+    }
   } else {
     for (const auto& e : errors) fmt::print(stderr, "{}\n", e);
     fmt::print(stderr, "{}: FAILED — {} problem(s)\n", file, errors.size());

@@ -161,6 +161,9 @@ EncodedChunk encode_chunk(std::span<const std::byte> raw, Codec codec, int level
 // Checks the checksum, then decodes into `out`, which must be exactly the chunk's raw size.
 // `where` names the file and chunk in errors.
 std::uint64_t checksum(std::span<const std::byte> bytes);
+// Whether a stored checksum matches `bytes`. Fuzzing builds (PSTREAM_FUZZ) accept any, so that
+// mutated files reach the parsers and decoders behind the checksums.
+bool checksum_matches(std::span<const std::byte> bytes, std::uint64_t stored);
 
 // A reusable decoder that owns its codec state, so decoding allocates nothing (for the streaming
 // runtime, whose playback must not allocate). decode() checks the checksum, then decodes into

@@ -237,7 +237,7 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   const std::size_t sum_at = header_checksum_at(m.version);
   std::uint64_t stored_header_sum = 0;
   std::memcpy(&stored_header_sum, bytes.data() + sum_at, 8);
-  if (checksum(bytes.first(sum_at)) != stored_header_sum) {
+  if (!checksum_matches(bytes.first(sum_at), stored_header_sum)) {
     throw Error(fmt::format("{}: at offset {}: header checksum mismatch (the header is corrupted)", name, sum_at));
   }
   m.flags = h.get<std::uint64_t>("flags");
@@ -319,7 +319,7 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
         fmt::format("{}: tables of {} bytes cannot hold {} attributes, {} frames and {} chunks (corrupted counts)",
                     name, tables_size, attribute_count, frame_count, chunk_count));
   }
-  if (checksum(tables) != header.tables_checksum) {
+  if (!checksum_matches(tables, header.tables_checksum)) {
     throw Error(fmt::format("{}: at offset {}: tables checksum mismatch (the frame index or chunk table is corrupted)",
                             name, header.tables_offset));
   }

@@ -9,6 +9,7 @@
 // drag of a cohort, a swirl); a new particle as the particle before it in the frame plus a
 // residual (spatial delta). Encoder and decoder keep identical state, so the encoder's
 // reconstruction is the decoder's output, bit for bit.
+#define ZSTD_STATIC_LINKING_ONLY  // ZSTD_c_useBlockSplitter: a parameter value, no static-only symbol
 #include <zstd.h>
 
 #include <algorithm>
@@ -474,6 +475,9 @@ class GroupEncoder {
     ZSTD_CCtx_setParameter(zstd_, ZSTD_c_compressionLevel, info.zstd_level);
     ZSTD_CCtx_setParameter(zstd_, ZSTD_c_contentSizeFlag, 1);
     ZSTD_CCtx_setParameter(zstd_, ZSTD_c_checksumFlag, 0);
+    // Split blocks where the statistics change (between planes): zstd does this by itself only
+    // from level 16 on, and it is most of that level's gain on byte planes.
+    ZSTD_CCtx_setParameter(zstd_, ZSTD_c_useBlockSplitter, ZSTD_ps_enable);
   }
   ~GroupEncoder() { ZSTD_freeCCtx(zstd_); }
   GroupEncoder(const GroupEncoder&) = delete;

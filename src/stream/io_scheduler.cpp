@@ -20,7 +20,7 @@ void LoadRequest::execute() {
     io->read(entry.file_offset, target);
     const auto t1 = Clock::now();
     if (raw) {
-      if (format::checksum(target) != entry.checksum) {
+      if (!format::checksum_matches(target, entry.checksum)) {
         decoder->decode(entry, target, destination, io->name(), chunk);  // raises the checksum error
       }
     } else {

@@ -1,0 +1,54 @@
+// Writes seed inputs for fuzz_particle: real bodies of a keyframe and a predicted frame, for each
+// layout and order the target's selector picks, with births, deaths and moving particles.
+#include <zstd.h>
+
+#include <cmath>
+#include <fstream>
+#include <string>
+
+#include "particle_fuzz_clip.hpp"
+
+int main(int argc, char** argv) {
+  using namespace pstream;
+  if (argc != 2) return 2;
+  for (std::uint8_t selector = 0; selector < 4; ++selector) {
+    for (std::uint64_t n0 : {1u, 20u, 64u}) {
+      const std::uint64_t n1 = n0 > 10 ? n0 - 7 : n0 + 3;  // deaths or births
+      const format::Metadata meta = fuzz::particle_clip(selector, n0, n1);
+      std::vector<std::vector<std::byte>> records(2);
+      std::vector<std::vector<std::uint64_t>> ids(2);
+      for (int f = 0; f < 2; ++f) {
+        const std::uint64_t n = f == 0 ? n0 : n1;
+        records[f].resize(n * meta.record_size);
+        for (std::uint64_t i = 0; i < n; ++i) {
+          const std::uint64_t id = f == 0 ? i * 3 : i * 3 + 2;  // some ids persist, some are new
+          const float r[4] = {0.1f * float(i % 7) + 0.02f * float(f), 0.05f * float(i / 7), 0.3f, 0.02f};
+          std::memcpy(records[f].data() + i * meta.record_size, r, 16);
+          if (meta.record_size > 16) {
+            const std::uint32_t color = 0xff000000u | std::uint32_t(i * 40);
+            std::memcpy(records[f].data() + i * meta.record_size + 16, &color, 4);
+            std::memcpy(records[f].data() + i * meta.record_size + 20, &id, 8);
+          }
+          ids[f].push_back(id);
+        }
+      }
+      const bool by_id = meta.codec.order == format::FrameOrder::Id;
+      const format::SourceFrame frames[2] = {{records[0], by_id ? std::span(ids[0]) : std::span<std::uint64_t>{}, n0},
+                                             {records[1], by_id ? std::span(ids[1]) : std::span<std::uint64_t>{}, n1}};
+      const auto encoded = format::encode_group(meta.codec, meta.layout, frames, nullptr, 0);
+      std::vector<std::byte> bodies[2];
+      for (int f = 0; f < 2; ++f) {
+        bodies[f].resize(ZSTD_getFrameContentSize(encoded[f].packet.data(), encoded[f].packet.size()));
+        ZSTD_decompress(bodies[f].data(), bodies[f].size(), encoded[f].packet.data(), encoded[f].packet.size());
+      }
+      std::ofstream out(std::string(argv[1]) + "/seed-" + std::to_string(selector) + "-" + std::to_string(n0),
+                        std::ios::binary);
+      const auto size = static_cast<std::uint32_t>(bodies[0].size());
+      out.put(static_cast<char>(selector));
+      out.write(reinterpret_cast<const char*>(&size), 4);
+      out.write(reinterpret_cast<const char*>(bodies[0].data()), std::streamsize(bodies[0].size()));
+      out.write(reinterpret_cast<const char*>(bodies[1].data()), std::streamsize(bodies[1].size()));
+    }
+  }
+  return 0;
+}
