@@ -11,6 +11,7 @@ packages=(
   libxxhash-dev libzstd-dev liblz4-dev libhwy-dev
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libimgui-dev libstb-dev  # rendering
   ffmpeg xvfb xauth                  # MP4 output; the viewer's test under a virtual display
+  libmeshoptimizer-dev libdraco-dev  # the particle codec's peers in `pstream bench codec`
 )
 
 missing=()

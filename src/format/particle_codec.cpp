@@ -19,7 +19,6 @@
 #include <limits>
 #include <numeric>
 #include <tuple>
-#include <unordered_map>
 
 #include <fmt/format.h>
 
@@ -612,12 +611,14 @@ class GroupEncoder {
     for (std::uint32_t j = 0; j < n; ++j) {
       for (int a = 0; a < 3; ++a) at[std::size_t(j) * 3 + a] = static_cast<std::int32_t>(source_[std::size_t(position_k_[a])][j]);
     }
-    std::unordered_map<std::uint64_t, std::vector<std::uint32_t>> grid;
-    grid.reserve(n);
+    // This frame's particles sorted by cell: a cell's particles are one range, found by a
+    // binary search.
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> cells(n);
     for (std::uint32_t j = 0; j < n; ++j) {
       const std::int64_t* p = &at[std::size_t(j) * 3];
-      grid[key(floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell))].push_back(j);
+      cells[j] = {key(floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell)), j};
     }
+    std::sort(cells.begin(), cells.end());
     // Candidate pairs within reach of each previous particle, closest first; a pair is taken when
     // both particles are still free (a global greedy matching, deterministic by index on ties).
     struct Pair {
@@ -634,20 +635,35 @@ class GroupEncoder {
         p[a] = static_cast<std::int32_t>(state_.q[k][i]);
       }
       const std::int64_t cx = floordiv(p[0], cell), cy = floordiv(p[1], cell), cz = floordiv(p[2], cell);
+      // The 8 nearest candidates of this previous particle (fewer pairs to sort, the same result
+      // wherever a particle has fewer than 8 rivals nearby).
+      constexpr int kCandidates = 8;
+      Pair best[kCandidates];
+      int found = 0;
       for (std::int64_t dx = -1; dx <= 1; ++dx) {
         for (std::int64_t dy = -1; dy <= 1; ++dy) {
           for (std::int64_t dz = -1; dz <= 1; ++dz) {
-            const auto it = grid.find(key(cx + dx, cy + dy, cz + dz));
-            if (it == grid.end()) continue;
-            for (const std::uint32_t j : it->second) {
+            const std::uint64_t k = key(cx + dx, cy + dy, cz + dz);
+            auto it = std::lower_bound(cells.begin(), cells.end(), std::pair{k, std::uint32_t{0}});
+            for (; it != cells.end() && it->first == k; ++it) {
+              const std::uint32_t j = it->second;
               const std::int64_t* s = &at[std::size_t(j) * 3];
               const std::int64_t e = (s[0] - p[0]) * (s[0] - p[0]) + (s[1] - p[1]) * (s[1] - p[1]) +
                                      (s[2] - p[2]) * (s[2] - p[2]);
-              if (e <= reach) pairs.push_back({e, i, j});
+              if (e > reach) continue;
+              // Insert into the sorted few, dropping the farthest when full.
+              const Pair candidate{e, i, j};
+              int at = found < kCandidates ? found++ : kCandidates;
+              while (at > 0 && std::tie(e, j) < std::tie(best[at - 1].distance, best[at - 1].cur)) {
+                if (at < kCandidates) best[at] = best[at - 1];
+                --at;
+              }
+              if (at < kCandidates) best[at] = candidate;
             }
           }
         }
       }
+      pairs.insert(pairs.end(), best, best + found);
     }
     std::sort(pairs.begin(), pairs.end(), [](const Pair& x, const Pair& y) {
       return std::tie(x.distance, x.prev, x.cur) < std::tie(y.distance, y.prev, y.cur);
