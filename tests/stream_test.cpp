@@ -129,7 +129,7 @@ TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
       cook_fixture(dir, "points_xform", format::Codec::Raw),
       cook_fixture(dir, "mesh_vertices", format::Codec::Lz4, {}, "/grid"),
       cook_particle(dir, "sims/blender_sparks.abc", {"velocity", "id"}),  // ordered by id
-      cook_particle(dir, "sims/blender_flip_pour_small.abc"),           // matched by position
+      cook_particle(dir, "sims/blender_flip_pour_small.abc"),             // matched by position
       cook_particle(dir, "alembic/points_large.abc")};
   std::uint64_t wraps = 0;
   for (const fs::path& file : files) {
@@ -157,38 +157,38 @@ TEST(Stream, LoopingAndSpeed) {
   const fs::path dir = test::fresh_dir();
   for (const fs::path& file : {cook_fixture(dir, "points_varying", format::Codec::Raw),
                                cook_particle(dir, "alembic/points_varying.abc", {"velocity", "id"})}) {
-  SCOPED_TRACE(file.filename().string());
-  const Reference ref(file);
-  const auto& m = ref.reader.metadata();
-  const std::uint64_t n = m.frame_count();
-  {
-    auto s = stream::ParticleStream::open(file, tiny_cache());
-    s->set_loop(true);
-    s->play();
-    s->update(0);
-    for (std::uint64_t k = 0; k < n * 5 / 2; ++k) {
-      if (k > 0) s->update(1.0 / m.fps);
-      ASSERT_TRUE(frame_matches(*s, ref, k % n)) << "step " << k;
+    SCOPED_TRACE(file.filename().string());
+    const Reference ref(file);
+    const auto& m = ref.reader.metadata();
+    const std::uint64_t n = m.frame_count();
+    {
+      auto s = stream::ParticleStream::open(file, tiny_cache());
+      s->set_loop(true);
+      s->play();
+      s->update(0);
+      for (std::uint64_t k = 0; k < n * 5 / 2; ++k) {
+        if (k > 0) s->update(1.0 / m.fps);
+        ASSERT_TRUE(frame_matches(*s, ref, k % n)) << "step " << k;
+      }
     }
-  }
-  {
-    auto s = stream::ParticleStream::open(file, tiny_cache());
-    s->set_loop(true);
-    s->set_speed(2.5);
-    s->play();
-    s->update(0);
-    for (std::uint64_t k = 1; k < 100; ++k) {
-      s->update(1.0 / m.fps);
-      // 2.5 frames a step: every other step lands half-way between frames, where rounding of
-      // the accumulated time may go either way.
-      const double t = std::fmod(2.5 * double(k), double(n));
-      const auto lo = static_cast<std::uint64_t>(std::floor(t + 1e-6)) % n,
-                 hi = static_cast<std::uint64_t>(std::ceil(t - 1e-6)) % n;
-      const auto shown = s->frame().frame;
-      ASSERT_TRUE(shown == lo || shown == hi) << "step " << k << " shows " << shown;
-      ASSERT_TRUE(frame_matches(*s, ref, shown)) << "step " << k;
+    {
+      auto s = stream::ParticleStream::open(file, tiny_cache());
+      s->set_loop(true);
+      s->set_speed(2.5);
+      s->play();
+      s->update(0);
+      for (std::uint64_t k = 1; k < 100; ++k) {
+        s->update(1.0 / m.fps);
+        // 2.5 frames a step: every other step lands half-way between frames, where rounding of
+        // the accumulated time may go either way.
+        const double t = std::fmod(2.5 * double(k), double(n));
+        const auto lo = static_cast<std::uint64_t>(std::floor(t + 1e-6)) % n,
+                   hi = static_cast<std::uint64_t>(std::ceil(t - 1e-6)) % n;
+        const auto shown = s->frame().frame;
+        ASSERT_TRUE(shown == lo || shown == hi) << "step " << k << " shows " << shown;
+        ASSERT_TRUE(frame_matches(*s, ref, shown)) << "step " << k;
+      }
     }
-  }
   }
 }
 
@@ -227,31 +227,31 @@ TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
   const fs::path dir = test::fresh_dir();
   for (const fs::path& file : {cook_fixture(dir, "points_varying", format::Codec::Zstd, {"velocity"}),
                                cook_particle(dir, "alembic/points_varying.abc", {"velocity"})}) {
-  SCOPED_TRACE(file.filename().string());
-  const Reference ref(file);
-  const auto& m = ref.reader.metadata();
-  std::vector<std::byte> gpu_buffer(m.max_count * m.record_size);
-  for (bool blocking : {false, true}) {
-    auto s = stream::ParticleStream::open(file, tiny_cache(blocking));
-    std::vector<std::uint64_t> shown;
-    shown.reserve(1000);
-    const std::uint64_t before = test::allocation_count();
-    s->play();
-    for (int step = 0; step < 400 && s->state() == stream::PlayState::Playing; ++step) {
-      s->update(1.0 / m.fps / 4);  // host frames at 4x the clip's rate
-      const auto v = s->frame();
-      if (v.valid) {
-        s->copy_frame(gpu_buffer);
-        shown.push_back(v.frame);
+    SCOPED_TRACE(file.filename().string());
+    const Reference ref(file);
+    const auto& m = ref.reader.metadata();
+    std::vector<std::byte> gpu_buffer(m.max_count * m.record_size);
+    for (bool blocking : {false, true}) {
+      auto s = stream::ParticleStream::open(file, tiny_cache(blocking));
+      std::vector<std::uint64_t> shown;
+      shown.reserve(1000);
+      const std::uint64_t before = test::allocation_count();
+      s->play();
+      for (int step = 0; step < 400 && s->state() == stream::PlayState::Playing; ++step) {
+        s->update(1.0 / m.fps / 4);  // host frames at 4x the clip's rate
+        const auto v = s->frame();
+        if (v.valid) {
+          s->copy_frame(gpu_buffer);
+          shown.push_back(v.frame);
+        }
+        if (!blocking) std::this_thread::sleep_for(std::chrono::microseconds(500));
       }
-      if (!blocking) std::this_thread::sleep_for(std::chrono::microseconds(500));
+      const std::uint64_t after = test::allocation_count();
+      EXPECT_EQ(after, before) << "blocking=" << blocking << ": playback allocated " << (after - before) << " times";
+      ASSERT_FALSE(shown.empty());
+      EXPECT_EQ(shown.back(), m.frame_count() - 1);
+      EXPECT_TRUE(std::is_sorted(shown.begin(), shown.end()));
     }
-    const std::uint64_t after = test::allocation_count();
-    EXPECT_EQ(after, before) << "blocking=" << blocking << ": playback allocated " << (after - before) << " times";
-    ASSERT_FALSE(shown.empty());
-    EXPECT_EQ(shown.back(), m.frame_count() - 1);
-    EXPECT_TRUE(std::is_sorted(shown.begin(), shown.end()));
-  }
   }
 }
 

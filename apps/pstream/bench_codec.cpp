@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <numeric>
 
 #include <draco/compression/decode.h>
 #include <draco/compression/encode.h>
@@ -105,6 +106,20 @@ std::vector<Frame> load_frames(const BenchCodecOptions& o, const std::filesystem
   return out;
 }
 
+// Particle i against particle i: the largest difference per word.
+void compare_in_order(std::span<const std::byte> decoded, std::span<const std::byte> source, std::uint64_t n,
+                      format::FrameComparison& cmp) {
+  cmp.max_error.resize(std::max<std::size_t>(cmp.max_error.size(), 4), 0.0);
+  cmp.particles += n;
+  for (std::uint64_t i = 0; i < n; ++i) {
+    float a[4], b[4];
+    std::memcpy(a, decoded.data() + i * kRecord, kRecord);
+    std::memcpy(b, source.data() + i * kRecord, kRecord);
+    for (int w = 0; w < 4; ++w)
+      cmp.max_error[std::size_t(w)] = std::max(cmp.max_error[std::size_t(w)], double(std::abs(a[w] - b[w])));
+  }
+}
+
 // The grid a quantised coordinate or scale lives on, from the particle codec's plan.
 struct Grid {
   float step, origin;
@@ -146,8 +161,8 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                    return out;
                  },
                  [](const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
-                   LZ4_decompress_safe(reinterpret_cast<const char*>(enc[f].data()), reinterpret_cast<char*>(out.data()),
-                                       int(enc[f].size()), int(out.size()));
+                   LZ4_decompress_safe(reinterpret_cast<const char*>(enc[f].data()),
+                                       reinterpret_cast<char*>(out.data()), int(enc[f].size()), int(out.size()));
                  }});
   for (const int level : {3, 19}) {
     all.push_back({fmt::format("zstd -{}", level),
@@ -215,8 +230,8 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                    const std::size_t n = out.size() / kRecord;
                    const std::size_t size = ZSTD_getFrameContentSize(enc[f].data(), enc[f].size());
                    zstd_decompress(ctx.get(), enc[f], std::span(*packed).first(size));
-                   meshopt_decodeVertexBuffer(vertices->data(), n, 8, reinterpret_cast<const unsigned char*>(packed->data()),
-                                              size);
+                   meshopt_decodeVertexBuffer(vertices->data(), n, 8,
+                                              reinterpret_cast<const unsigned char*>(packed->data()), size);
                    for (std::size_t i = 0; i < n; ++i) {
                      const std::uint16_t* q = vertices->data() + i * 4;
                      const float r[4] = {gx.dequantize(q[0]), gy.dequantize(q[1]), gz.dequantize(q[2]),
@@ -333,7 +348,8 @@ std::string svg_scatter(const nlohmann::ordered_json& results, const std::string
   const auto px = [&](double x) { return L + std::min(x, xmax) / xmax * (W - L - R); };
   const auto py = [&](double y) { return H - B - (std::log10(y) - ly0) / (ly1 - ly0) * (H - T - B); };
   std::string s = fmt::format(
-      R"(<svg xmlns="http://www.w3.org/2000/svg" width="{}" height="{}" font-family="sans-serif" font-size="12">)", W, H);
+      R"(<svg xmlns="http://www.w3.org/2000/svg" width="{}" height="{}" font-family="sans-serif" font-size="12">)", W,
+      H);
   s += fmt::format(R"(<rect width="100%" height="100%" fill="white"/><text x="{}" y="22" font-size="15">{}</text>)", L,
                    title);
   for (double x = 0; x <= xmax; x += xmax > 12 ? 5 : 1) {
@@ -347,8 +363,9 @@ std::string svg_scatter(const nlohmann::ordered_json& results, const std::string
         R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="#ddd"/><text x="{3}" y="{4}" text-anchor="end">{5:g}</text>)",
         L, py(y), W - R, L - 6, py(y) + 4, y);
   }
-  s += fmt::format(R"(<text x="{}" y="{}" text-anchor="middle">decode GB/s of records, one core (right is faster)</text>)",
-                   (L + W - R) / 2, H - 12);
+  s += fmt::format(
+      R"(<text x="{}" y="{}" text-anchor="middle">decode GB/s of records, one core (right is faster)</text>)",
+      (L + W - R) / 2, H - 12);
   s += fmt::format(
       R"svg(<text x="16" y="{}" transform="rotate(-90 16 {})" text-anchor="middle">bytes per particle per frame (down is smaller)</text>)svg",
       (T + H - B) / 2, (T + H - B) / 2);
@@ -389,6 +406,7 @@ int bench_codec(const BenchCodecOptions& o) {
   const bool ids = !frames.empty() && !frames.front().ids.empty();
   const format::CodecInfo lossy = format::plan_particle_codec(layout, stats, 24.0, ids, po);
   po.lossless = true;
+  po.zstd_level = o.zstd_level;  // 0: the lossless mode's own default
   const format::CodecInfo lossless = format::plan_particle_codec(layout, stats, 24.0, ids, po);
 
   const double raw_bytes = double(particles) * kRecord;
@@ -397,9 +415,8 @@ int bench_codec(const BenchCodecOptions& o) {
   ProgressBar bar("bench codec", !o.json);
   auto all = contenders(lossy, lossless, layout, max_count);
   if (!o.codecs.empty()) {
-    std::erase_if(all, [&](const Contender& c) {
-      return std::find(o.codecs.begin(), o.codecs.end(), c.name) == o.codecs.end();
-    });
+    std::erase_if(
+        all, [&](const Contender& c) { return std::find(o.codecs.begin(), o.codecs.end(), c.name) == o.codecs.end(); });
     if (all.empty()) throw Error("--codec names none of the codecs (see the table of a run without --codec)");
   }
   std::size_t done = 0;
@@ -414,7 +431,8 @@ int bench_codec(const BenchCodecOptions& o) {
     format::FrameComparison cmp;
     for (int rep = 0; rep < o.repetitions; ++rep) {
       auto t = Clock::now();
-      for (std::size_t f = 0; f < frames.size(); ++f) c.decode(encoded, f, std::span(out).first(frames[f].count * kRecord));
+      for (std::size_t f = 0; f < frames.size(); ++f)
+        c.decode(encoded, f, std::span(out).first(frames[f].count * kRecord));
       decode_s.push_back(seconds_since(t));
       t = Clock::now();
       for (const Frame& f : frames) {
@@ -422,9 +440,27 @@ int bench_codec(const BenchCodecOptions& o) {
       }
       copy_s.push_back(seconds_since(t));
     }
-    for (std::size_t f = 0; f < frames.size(); ++f) {  // the error, frame by frame
+    // The error, frame by frame: in-order codecs particle by particle; ours orders a cache with
+    // ids by id (the source sorted so too), and pairs by nearest position only without ids.
+    std::vector<std::byte> sorted;
+    for (std::size_t f = 0; f < frames.size(); ++f) {
       c.decode(encoded, f, std::span(out).first(frames[f].count * kRecord));
-      cmp.add(layout, out, frames[f].count, frames[f].records, frames[f].count, &lossy);
+      const Frame& fr = frames[f];
+      std::span<const std::byte> source = fr.records;
+      if (c.reorders && ids) {
+        std::vector<std::uint64_t> order(fr.count);
+        std::iota(order.begin(), order.end(), std::uint64_t{0});
+        std::stable_sort(order.begin(), order.end(), [&](auto a, auto b) { return fr.ids[a] < fr.ids[b]; });
+        sorted.resize(fr.records.size());
+        for (std::uint64_t i = 0; i < fr.count; ++i)
+          std::memcpy(sorted.data() + i * kRecord, fr.records.data() + order[i] * kRecord, kRecord);
+        source = sorted;
+      }
+      if (c.reorders && (!ids || c.name == "draco")) {
+        cmp.add(layout, out, fr.count, fr.records, fr.count, &lossy);  // nearest, within the bound's cells
+      } else {
+        compare_in_order(out, source, fr.count, cmp);
+      }
     }
     const double position_error = std::max({cmp.max_error[0], cmp.max_error[1], cmp.max_error[2]});
     const double d = median(decode_s), m = median(copy_s);
@@ -465,16 +501,17 @@ int bench_codec(const BenchCodecOptions& o) {
     fmt::print("{}\n", report.dump(1));
     return 0;
   }
-  fmt::print("{}: {} frames, {} particles ({} ids), [x y z scale] records; error bound {:.3g} (1e-4 of the diagonal), "
-             "keyframe every {}\n\n",
-             o.file, frames.size(), particles, ids ? "with" : "without", lossy.error, lossy.keyframe_interval);
+  fmt::print(
+      "{}: {} frames, {} particles ({} ids), [x y z scale] records; error bound {:.3g} (1e-4 of the diagonal), "
+      "keyframe every {}\n\n",
+      o.file, frames.size(), particles, ids ? "with" : "without", lossy.error, lossy.keyframe_interval);
   fmt::print("{:<26} {:>9} {:>7} {:>11} {:>11} {:>9} {:>9} {:>9}\n", "codec", "B/p/frame", "ratio", "max err xyz",
              "max err s", "enc MB/s", "dec GB/s", "/memcpy");
   for (const auto& r : results) {
     fmt::print("{:<26} {:>9.3f} {:>7.2f} {:>11.3g} {:>11.3g} {:>9.1f} {:>9.2f} {:>9.2f}\n",
                r["codec"].get<std::string>(), r["bytes_per_particle"].get<double>(), r["ratio"].get<double>(),
-               r["max_error_position"].get<double>(), r["max_error_scale"].get<double>(), r["encode_mb_s"].get<double>(),
-               r["decode_gb_s"].get<double>(), r["decode_vs_memcpy"].get<double>());
+               r["max_error_position"].get<double>(), r["max_error_scale"].get<double>(),
+               r["encode_mb_s"].get<double>(), r["decode_gb_s"].get<double>(), r["decode_vs_memcpy"].get<double>());
   }
   fmt::print("\nparticle (ours) decodes {:.2f}x as fast as zstd -3 on the raw records (one core, medians of {})\n",
              zstd_gb_s > 0 ? ours_gb_s / zstd_gb_s : 0.0, o.repetitions);

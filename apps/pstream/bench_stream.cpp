@@ -186,9 +186,10 @@ int bench_stream(const BenchStreamOptions& o) {
   } else {
     fmt::print("{} particles a frame ({:.1f} MiB decoded), {} codec, {} frames in real time at {:g} fps\n", m.max_count,
                m.max_count * m.record_size / 1048576.0, format::frame_codec_name(m.codec.codec), total, m.fps);
-    fmt::print("  cache {} x {} MiB = {:.2f} s of the clip; decoded frames and decoder state {:.1f} MiB\n", d.slots.size(),
-               m.chunk_size >> 20, j["cache_seconds"].get<double>(), d.decode_bytes / 1048576.0);
-    fmt::print("  decode on the IO worker  {:.2f} ms a frame\n", d.frames_decoded ? d.decode_ms / d.frames_decoded : 0.0);
+    fmt::print("  cache {} x {} MiB = {:.2f} s of the clip; decoded frames and decoder state {:.1f} MiB\n",
+               d.slots.size(), m.chunk_size >> 20, j["cache_seconds"].get<double>(), d.decode_bytes / 1048576.0);
+    fmt::print("  decode on the IO worker  {:.2f} ms a frame\n",
+               d.frames_decoded ? d.decode_ms / d.frames_decoded : 0.0);
     fmt::print("  update + copy frame   median {:.3f} ms, p99 {:.3f} ms\n", frame_med, percentile(frame_ms, 0.99));
     fmt::print("  memcpy of the frame   median {:.3f} ms\n", copy_med);
     fmt::print("  ratio {:.2f} (target <= 1.3), stalls {}\n", frame_med / copy_med, d.stalls);

@@ -105,13 +105,20 @@ int run_demo(const DemoCli& cli);
 struct BenchCodecOptions {
   std::string file, object;
   std::vector<std::string> codecs;  // empty: all
-  int zstd_level = 0;                // the particle codec's; 0: its default
-  std::string svg;                   // optional plot: bytes per particle against decode speed
-  std::uint64_t frames = 0;  // 0: all
+  int zstd_level = 0;               // the particle codec's; 0: its default
+  std::string svg;                  // optional plot: bytes per particle against decode speed
+  std::uint64_t frames = 0;         // 0: all
   int repetitions = 5;
   bool json = false;
 };
 int bench_codec(const BenchCodecOptions& options);
+
+// `pstream export`: a cooked clip as a PLY sequence (out) or an Alembic file (output).
+struct ExportCli {
+  std::string file, out, output;
+  bool quiet = false;
+};
+int run_export(const ExportCli& cli);
 
 struct BenchRenderOptions {
   int repetitions = 3;

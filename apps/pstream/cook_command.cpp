@@ -35,8 +35,8 @@ void parse_codec(const std::string& text, cook::Options& o) {
       const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.particle.zstd_level);
       if (ec != std::errc() || ptr != level.data() + level.size() || o.particle.zstd_level < 1 ||
           o.particle.zstd_level > 22) {
-        throw Error(fmt::format("--codec '{}': the particle codec's zstd level must be 1..22 (default {})", text,
-                                format::kDefaultParticleZstdLevel));
+        throw Error(fmt::format("--codec '{}': the particle codec's zstd level must be 1..22 (default {}, lossless {})",
+                                text, format::kDefaultParticleZstdLevel, format::kDefaultLosslessParticleZstdLevel));
       }
     }
     return;
@@ -71,9 +71,10 @@ void parse_error(const std::string& text, cook::Options& o) {
   const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), o.particle.error);
   if (ec != std::errc() || ptr != number.data() + number.size() || !(o.particle.error > 0) ||
       !std::isfinite(o.particle.error) || (o.particle.error_relative && o.particle.error >= 1)) {
-    throw Error(fmt::format("--error '{}': expected a fraction of the bounds diagonal such as 1e-4 (or rel:1e-4), "
-                            "or abs:VALUE in scene units",
-                            text));
+    throw Error(
+        fmt::format("--error '{}': expected a fraction of the bounds diagonal such as 1e-4 (or rel:1e-4), "
+                    "or abs:VALUE in scene units",
+                    text));
   }
 }
 

@@ -140,7 +140,8 @@ int run_demo(const DemoCli& cli) {
                     {"error_bound", cr.error},
                     {"keyframes", cr.keyframes},
                     {"chunks", cr.chunks}};
-  say(fmt::format("cooked {} ({:.1f} MiB, {:.2f}x, {:.2f} bytes per particle per frame, positions within {:.3g}) in "
+  say(
+      fmt::format("cooked {} ({:.1f} MiB, {:.2f}x, {:.2f} bytes per particle per frame, positions within {:.3g}) in "
                   "{:.1f} s",
                   co.output.string(), cr.file_bytes / 1048576.0, double(cr.stream_bytes) / double(cr.file_bytes),
                   per_particle, cr.error, cr.seconds));
@@ -226,11 +227,11 @@ int run_demo(const DemoCli& cli) {
   md << fmt::format("| simulate | {} frames at {:g} fps, peak {} particles, {:.2f} s |\n", sim.frame_count(), cli.fps,
                     peak, sim_ms / 1000);
   md << fmt::format("| write Alembic | {:.1f} MiB in {:.2f} s |\n", fs::file_size(abc) / 1048576.0, write_ms / 1000);
-  md << fmt::format("| cook (particle codec) | {:.1f} MiB .pstream, {:.2f}x smaller than the records ({:.2f} bytes per "
-                    "particle per frame, every position within {:.3g} = 1e-4 of the bounds diagonal; zstd level 9), "
-                    "{:.2f} s |\n",
-                    cr.file_bytes / 1048576.0, double(cr.stream_bytes) / double(cr.file_bytes), per_particle, cr.error,
-                    cr.seconds);
+  md << fmt::format(
+      "| cook (particle codec) | {:.1f} MiB .pstream, {:.2f}x smaller than the records ({:.2f} bytes per "
+      "particle per frame, every position within {:.3g} = 1e-4 of the bounds diagonal; zstd level 9), "
+      "{:.2f} s |\n",
+      cr.file_bytes / 1048576.0, double(cr.stream_bytes) / double(cr.file_bytes), per_particle, cr.error, cr.seconds);
   md << fmt::format("| stream (real time) | {:.3f} ms median, {:.3f} ms p99 a frame; {} stalls; cache {:.1f} MiB |\n",
                     med("stream"), p99("stream"), stalls, cache_bytes / 1048576.0);
   md << fmt::format("| sort (back to front) | {:.3f} ms median, {:.3f} ms p99 |\n", med("sort"), p99("sort"));

@@ -12,8 +12,8 @@
 #include <filesystem>
 
 #include "commands.hpp"
-#include "particlestream/cook.hpp"
 #include "particlestream/codec.hpp"
+#include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::app {
@@ -172,9 +172,10 @@ int info_pstream(const InfoPstreamOptions& options) {
   fmt::print("\n  chunks        {} of {} KiB ({:.0f} particles each)", m.chunk_count(), m.chunk_size >> 10,
              m.particles_per_chunk());
   for (const auto& [name, n] : codecs) fmt::print(", {} {}", n, name);
-  fmt::print("\n  size          {:.1f} MiB of records stored in {:.1f} MiB: compression {:.2f}x, {:.2f} bytes per "
-             "particle per frame\n",
-             m.decoded_size() / 1048576.0, stored / 1048576.0, decoded_ratio, bytes_per_particle(m));
+  fmt::print(
+      "\n  size          {:.1f} MiB of records stored in {:.1f} MiB: compression {:.2f}x, {:.2f} bytes per "
+      "particle per frame\n",
+      m.decoded_size() / 1048576.0, stored / 1048576.0, decoded_ratio, bytes_per_particle(m));
   if (m.codec.codec == FrameCodec::Particle) {
     fmt::print("  frame codec   particle{}, keyframe every {} frames, frames ordered by {}\n",
                m.codec.lossless ? " (lossless)" : "", m.codec.keyframe_interval, order_name(m.codec.order));
@@ -225,8 +226,8 @@ json compare_with_source(const Reader& reader, const std::string& source, std::v
   const Reader src = Reader::open(temp);
   const Metadata& sm = src.metadata();
   if (sm.record_size != m.record_size) {
-    errors.push_back(fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source, sm.record_size,
-                                 m.record_size));
+    errors.push_back(
+        fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source, sm.record_size, m.record_size));
     return json::object();
   }
   std::vector<std::byte> a(m.max_count * m.record_size), b(sm.max_count * sm.record_size);
@@ -256,9 +257,10 @@ json compare_with_source(const Reader& reader, const std::string& source, std::v
     }
     const bool ok = exact ? worst == 0.0 : worst <= bound;
     if (!ok) {
-      errors.push_back(fmt::format("attribute '{}': decoded values differ from the source by up to {:.6g}, the bound "
-                                   "is {}",
-                                   at.name, worst, exact ? std::string("0 (exact)") : fmt::format("{:.6g}", bound)));
+      errors.push_back(
+          fmt::format("attribute '{}': decoded values differ from the source by up to {:.6g}, the bound "
+                      "is {}",
+                      at.name, worst, exact ? std::string("0 (exact)") : fmt::format("{:.6g}", bound)));
     }
     attributes.push_back({{"name", at.name}, {"max_error", worst}, {"bound", exact ? 0.0 : bound}, {"ok", ok}});
   }
@@ -266,7 +268,8 @@ json compare_with_source(const Reader& reader, const std::string& source, std::v
     errors.push_back(fmt::format("{} particles found no partner in the source; {} frames have other particle counts",
                                  c.unmatched, c.count_mismatches));
   }
-  return json{{"source", source}, {"frames_compared", compared}, {"particles", c.particles}, {"attributes", attributes}};
+  return json{
+      {"source", source}, {"frames_compared", compared}, {"particles", c.particles}, {"attributes", attributes}};
 }
 
 }  // namespace
@@ -305,23 +308,21 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
     errors.push_back(e.what());
   }
   if (as_json) {
-    fmt::print(
-        "{}\n",
-        json{
-            {"file", file},
-            {"ok", errors.empty()},
-            {"chunks_verified", chunks},
-            {"frames", frames},
-            {"errors", errors},
-            {"against", comparison}}
-            .dump());
+    fmt::print("{}\n", json{{"file", file},
+                            {"ok", errors.empty()},
+                            {"chunks_verified", chunks},
+                            {"frames", frames},
+                            {"errors", errors},
+                            {"against", comparison}}
+                           .dump());
   } else if (errors.empty()) {
     fmt::print("{}: OK — {} frames, {} chunks, every checksum and index entry verified{}\n", file, frames, chunks,
                against.empty() ? "" : ", every value within its bound of the source");
     if (!comparison.is_null() && comparison.contains("attributes")) {
       for (const auto& a : comparison["attributes"]) {
         fmt::print("  {:<12} max error {:.6g} (bound {})\n", a["name"].get<std::string>(), a["max_error"].get<double>(),
-                   a["bound"].get<double>() == 0.0 ? std::string("0, exact") : fmt::format("{:.6g}", a["bound"].get<double>()));
+                   a["bound"].get<double>() == 0.0 ? std::string("0, exact")
+                                                   : fmt::format("{:.6g}", a["bound"].get<double>()));
       }
     }
   } else {

@@ -84,10 +84,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cook_cmd
       ->add_option("--codec", cook.codec,
-                    "particle[:LEVEL]: error-bounded, predicted over time (about 1 byte per particle per frame; "
-                    "LEVEL, zstd's, 1..22, default 16: lower cooks faster, a little larger); particle-lossless: "
-                    "bit-exact, source order kept; raw, lz4[:HC level], zstd[:level]: the records as they are, "
-                    "chunk-compressed")
+                   "particle[:LEVEL]: error-bounded, predicted over time (about 1 byte per particle per frame; "
+                   "LEVEL, zstd's, 1..22, default 16: lower cooks faster, a little larger); particle-lossless: "
+                   "bit-exact, source order kept; raw, lz4[:HC level], zstd[:level]: the records as they are, "
+                   "chunk-compressed")
       ->capture_default_str();
   cook_cmd
       ->add_option("--error", cook.error,
@@ -109,6 +109,20 @@ int main(int argc, char** argv) {
   cook_cmd->add_option("--threads", cook.threads, "Chunk encoding threads (default: one per core)");
   cook_cmd->add_flag("-q,--quiet", cook.quiet, "No progress bar or summary");
   cook_cmd->add_flag("--json", cook.json, "Print the cook report as JSON");
+
+  // export -----------------------------------------------------------------------------------
+  ExportCli export_cli;
+  auto* export_cmd = app.add_subcommand(
+      "export",
+      "Write a cooked clip back out for a DCC: a binary PLY sequence (x y z pscale, vx vy vz, red green blue\n"
+      "alpha, id and float attributes) or an Alembic points cache (P, ids, velocities, widths = 2 x scale, Cd).\n"
+      "Examples:\n"
+      "  pstream export splash.pstream --out splash_ply        # splash_ply/frame.0001.ply ...\n"
+      "  pstream export splash.pstream -o splash_decoded.abc");
+  export_cmd->add_option("file", export_cli.file, "A .pstream file")->required()->check(CLI::ExistingFile);
+  export_cmd->add_option("--out", export_cli.out, "Folder for the PLY sequence");
+  export_cmd->add_option("-o,--output", export_cli.output, "Alembic file to write");
+  export_cmd->add_flag("-q,--quiet", export_cli.quiet, "No progress or summary");
 
   // verify -----------------------------------------------------------------------------------
   std::string verify_file;
@@ -170,10 +184,12 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   bench_codec_cmd->add_option("--object", bench_codec_opts.object, "The points object (default: the only one)");
   bench_codec_cmd->add_option("--frames", bench_codec_opts.frames, "Use the first N frames (default: all)");
-  bench_codec_cmd->add_option("--codec", bench_codec_opts.codecs,
-                              "Only these codecs (names as in the table, e.g. 'particle (ours)', 'zstd -3'); repeatable");
-  bench_codec_cmd->add_option("--zstd-level", bench_codec_opts.zstd_level,
-                              "The particle codec's zstd level (default 16: its entropy stage's trade-off)")
+  bench_codec_cmd->add_option(
+      "--codec", bench_codec_opts.codecs,
+      "Only these codecs (names as in the table, e.g. 'particle (ours)', 'zstd -3'); repeatable");
+  bench_codec_cmd
+      ->add_option("--zstd-level", bench_codec_opts.zstd_level,
+                   "The particle codec's zstd level (default 16: its entropy stage's trade-off)")
       ->check(CLI::Range(1, 22));
   bench_codec_cmd->add_option("--repetitions", bench_codec_opts.repetitions, "Decode runs; medians are reported")
       ->capture_default_str()
@@ -276,6 +292,7 @@ int main(int argc, char** argv) {
     }
     if (cook_cmd->parsed()) return run_cook(cook);
     if (verify_cmd->parsed()) return verify_pstream(verify_file, verify_json, verify_against);
+    if (export_cmd->parsed()) return run_export(export_cli);
     if (read_cmd->parsed()) return bench_read(bench_read_opts);
     if (bench_cook_cmd->parsed()) return bench_cook(bench_cook_opts);
     if (bench_sort_cmd->parsed()) return bench_sort(bench_sort_opts);

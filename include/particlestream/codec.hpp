@@ -43,7 +43,7 @@ struct ParticleCodecOptions {
   double error = 1e-4;
   bool error_relative = true;
   std::uint32_t keyframe_interval = kDefaultKeyframeInterval;
-  int zstd_level = kDefaultParticleZstdLevel;
+  int zstd_level = 0;  // 0: kDefaultParticleZstdLevel, or kDefaultLosslessParticleZstdLevel when lossless
 };
 
 // Facts about a whole clip that the encoder needs before its first frame: gathered by a pass
@@ -74,8 +74,8 @@ class ClipStats {
 // Chooses the per-attribute coding (quantisation steps, origins, constants) for a clip.
 // Throws pstream::Error when the bound cannot be met in 24-bit grids (too small an error for the
 // clip's extent) or is not a positive finite number.
-CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipStats& stats, double fps,
-                              bool has_ids, const ParticleCodecOptions& options);
+CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipStats& stats, double fps, bool has_ids,
+                              const ParticleCodecOptions& options);
 
 // One frame as the encoder takes it: the records in source order, and the ids that order and
 // match particles across frames (whether or not the record keeps them).

@@ -120,18 +120,18 @@ struct SlotInfo {
 };
 
 struct DebugInfo {
-  std::span<const SlotInfo> slots;  // one per cache slot, in ring order
-  std::size_t read_slot = 0;        // the slot holding the next frame to decode's first byte
-  std::uint64_t read_offset = 0;    // where that frame's packet starts in the chunked stream
-  std::uint64_t decode_frame = 0;   // the next frame the IO worker decodes
-  std::uint64_t frames_decoded = 0; // frames decoded since open (seeks decode from a keyframe)
+  std::span<const SlotInfo> slots;                   // one per cache slot, in ring order
+  std::size_t read_slot = 0;                         // the slot holding the next frame to decode's first byte
+  std::uint64_t read_offset = 0;                     // where that frame's packet starts in the chunked stream
+  std::uint64_t decode_frame = 0;                    // the next frame the IO worker decodes
+  std::uint64_t frames_decoded = 0;                  // frames decoded since open (seeks decode from a keyframe)
   std::size_t decoded_ready = 0, decoded_slots = 0;  // decoded frames waiting, of the ring's size
   std::uint32_t loads_in_flight = 0;
   std::uint64_t loads_done = 0, bytes_read = 0, stalls = 0;
   double io_ms = 0.0, decode_ms = 0.0;  // totals on the IO workers (decode: chunk codecs and frames)
-  std::uint64_t cache_bytes = 0;   // the chunk ring: slots × chunk_size
-  std::uint64_t decode_bytes = 0;  // the decoded frames, the frame decoder's state, a packet's staging
-  std::uint64_t wrapped_packets = 0;  // packets decoded from across the ring's wrap (copied together)
+  std::uint64_t cache_bytes = 0;        // the chunk ring: slots × chunk_size
+  std::uint64_t decode_bytes = 0;       // the decoded frames, the frame decoder's state, a packet's staging
+  std::uint64_t wrapped_packets = 0;    // packets decoded from across the ring's wrap (copied together)
   bool seeking = false;
 };
 
@@ -147,7 +147,7 @@ class ParticleStream {
   // Playback. Time only advances through update(dt), with the host's clock.
   void play();
   void pause();
-  void stop();             // pause and go back to the start of the range
+  void stop();  // pause and go back to the start of the range
   // The frame nearest `time` becomes current once it is decoded (from the keyframe at or before
   // it: at most keyframe_interval - 1 extra frame decodes). Invalidates the current FrameView.
   void seek(double time);

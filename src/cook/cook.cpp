@@ -277,7 +277,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   const std::uint64_t K = meta.codec.keyframe_interval;
   std::vector<std::vector<HeldFrame>> groups;
   std::vector<std::uint64_t> starts;  // each group's first frame
-  HeldFrame before;  // the frame before the first group of a batch
+  HeldFrame before;                   // the frame before the first group of a batch
   bool have_before = false;
   for (std::uint64_t g0 = 0; g0 < frames;) {
     // A batch: one group per thread, read in order.

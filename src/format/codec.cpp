@@ -69,8 +69,7 @@ void zstd_encode(std::span<const std::byte> raw, int level, EncodedChunk& out) {
 }
 void zstd_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
   const std::size_t n = ZSTD_decompressDCtx(ctx.zstd, out.data(), out.size(), stored.data(), stored.size());
-  if (ZSTD_isError(n))
-    throw Error(fmt::format("{}: zstd data does not decode: {}", ctx.where(), ZSTD_getErrorName(n)));
+  if (ZSTD_isError(n)) throw Error(fmt::format("{}: zstd data does not decode: {}", ctx.where(), ZSTD_getErrorName(n)));
   if (n != out.size())
     throw Error(fmt::format("{}: zstd data decodes to {} bytes, expected {}", ctx.where(), n, out.size()));
 }

@@ -23,8 +23,8 @@ class RecordsUnit final : public FrameUnit {
               std::span<std::byte> out) override {
     const std::uint64_t size = meta_.frames[frame].count * meta_.record_size;
     if (packet.size() != size || out.size() < size) {
-      throw Error(fmt::format("{}: frame {}: a records packet of {} bytes, expected {}", name_, frame, packet.size(),
-                              size));
+      throw Error(
+          fmt::format("{}: frame {}: a records packet of {} bytes, expected {}", name_, frame, packet.size(), size));
     }
     if (size != 0) std::memcpy(out.data(), packet.data(), size);
   }
@@ -74,8 +74,8 @@ void FrameDecoder::decode(std::uint64_t frame, std::span<const std::byte> packet
                             frame, frame == 0 ? 0 : frame - 1));
   }
   if (out.size() < meta_.frames[frame].count * meta_.record_size) {
-    throw Error(fmt::format("{}: frame {}: {} bytes for {} records", name_, frame, out.size(),
-                            meta_.frames[frame].count));
+    throw Error(
+        fmt::format("{}: frame {}: {} bytes for {} records", name_, frame, out.size(), meta_.frames[frame].count));
   }
   last_ = UINT64_MAX;  // a failed decode leaves no reference
   unit_->decode(frame, meta_.frames[frame].keyframe, packet, out);
@@ -165,10 +165,12 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
   info.codec = FrameCodec::Particle;
   info.lossless = options.lossless;
   info.keyframe_interval = options.keyframe_interval;
-  info.zstd_level = options.zstd_level;
+  info.zstd_level = options.zstd_level != 0    ? options.zstd_level
+                    : options.lossless ? kDefaultLosslessParticleZstdLevel
+                                       : kDefaultParticleZstdLevel;
   if (info.keyframe_interval < 1 || info.keyframe_interval > kMaxKeyframeInterval) {
-    throw Error(fmt::format("the keyframe interval is {}, expected 1 to {}", info.keyframe_interval,
-                            kMaxKeyframeInterval));
+    throw Error(
+        fmt::format("the keyframe interval is {}, expected 1 to {}", info.keyframe_interval, kMaxKeyframeInterval));
   }
   info.order = options.lossless ? FrameOrder::Source : has_ids ? FrameOrder::Id : FrameOrder::Matched;
   const std::uint32_t record_size = record_size_of(layout);
@@ -240,7 +242,8 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
   const Attribute* id = nullptr;
   for (const Attribute& a : layout) {
     if (a.name == "id") id = &a;
-    for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) is_float[w] = a.type == AttributeType::Float32;
+    for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w)
+      is_float[w] = a.type == AttributeType::Float32;
   }
   const auto word = [](std::span<const std::byte> recs, std::uint32_t rsize, std::uint64_t i, std::uint32_t w) {
     std::uint32_t v;
@@ -301,8 +304,11 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
     const double volume = (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]);
     double cell = std::cbrt(std::max(volume, 0.0) / double(std::max<std::uint64_t>(source_count, 1)));
     const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 0.0});
-    if (codec && !codec->words.empty() && codec->words[0].coding == WordCoding::Quantized)
-      cell = std::max(cell, 2.0 * double(codec->words[0].error));
+    if (codec && !codec->words.empty() && codec->words[0].coding == WordCoding::Quantized) {
+      // A partner lies within the bound: cells of a few bounds keep each search small however
+      // dense the particles are.
+      cell = 4.0 * double(codec->words[0].error);
+    }
     cell = std::max({cell, extent * 1e-6, 1e-30});
     const auto cell_of = [&](double v, int c) {
       const double x = std::floor((v - lo[c]) / cell);
@@ -313,7 +319,8 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
     };
     std::unordered_map<std::uint64_t, std::vector<std::uint64_t>> grid;
     for (std::uint64_t s = 0; s < source_count; ++s)
-      grid[key(cell_of(pos(source, s, 0), 0), cell_of(pos(source, s, 1), 1), cell_of(pos(source, s, 2), 2))].push_back(s);
+      grid[key(cell_of(pos(source, s, 0), 0), cell_of(pos(source, s, 1), 1), cell_of(pos(source, s, 2), 2))].push_back(
+          s);
     std::vector<bool> used(source_count, false);
     for (std::uint64_t d = 0; d < decoded_count; ++d) {
       const std::int64_t cx = cell_of(pos(decoded, d, 0), 0), cy = cell_of(pos(decoded, d, 1), 1),

@@ -21,9 +21,7 @@ constexpr std::size_t kHeaderChecksumAt = 184;
 constexpr std::uint32_t kFrameFlagKeyframe = 1;
 
 std::size_t header_size_of(std::uint32_t version) { return version == 1 ? kHeaderSizeV1 : kHeaderSize; }
-std::size_t header_checksum_at(std::uint32_t version) {
-  return version == 1 ? kHeaderChecksumAtV1 : kHeaderChecksumAt;
-}
+std::size_t header_checksum_at(std::uint32_t version) { return version == 1 ? kHeaderChecksumAtV1 : kHeaderChecksumAt; }
 std::size_t frame_entry_size(std::uint32_t version) { return version == 1 ? kFrameEntrySizeV1 : kFrameEntrySize; }
 
 class Out {
@@ -101,17 +99,19 @@ void validate_word_codings(const Metadata& m, Fail fail) {
       if (e.coding == WordCoding::Quantized) {
         float origin;
         std::memcpy(&origin, &e.base, 4);
-        if (!is_float || !(e.step > 0.0f) || !std::isfinite(e.step) || !std::isfinite(origin) ||
-            !(e.error >= 0.0f) || !std::isfinite(e.error)) {
-          fail(fmt::format("record word {} ('{}'): a quantised word needs a float32 attribute, a finite step > 0 and "
-                           "a finite origin (step {}, origin {}, error {})",
-                           w, a.name, e.step, origin, e.error));
+        if (!is_float || !(e.step > 0.0f) || !std::isfinite(e.step) || !std::isfinite(origin) || !(e.error >= 0.0f) ||
+            !std::isfinite(e.error)) {
+          fail(
+              fmt::format("record word {} ('{}'): a quantised word needs a float32 attribute, a finite step > 0 and "
+                          "a finite origin (step {}, origin {}, error {})",
+                          w, a.name, e.step, origin, e.error));
         }
       }
       if (e.coding == WordCoding::Id && (!is_id || m.codec.order != FrameOrder::Id)) {
-        fail(fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute "
-                         "of a clip ordered by id",
-                         w, a.name));
+        fail(
+            fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute "
+                        "of a clip ordered by id",
+                        w, a.name));
       }
     }
   }
@@ -405,15 +405,17 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
         f.packet_offset = f.byte_offset;
         f.packet_size = f.count * m.record_size;
       } else if (f.packet_size != f.count * m.record_size || !f.keyframe) {
-        t.fail(fmt::format("frame {}: with the records codec a packet is the frame's {} bytes of records and a "
-                           "keyframe, not {} bytes{}",
-                           i, f.count * m.record_size, f.packet_size, f.keyframe ? "" : " and a predicted frame"));
+        t.fail(
+            fmt::format("frame {}: with the records codec a packet is the frame's {} bytes of records and a "
+                        "keyframe, not {} bytes{}",
+                        i, f.count * m.record_size, f.packet_size, f.keyframe ? "" : " and a predicted frame"));
       }
     }
     if (f.packet_offset != expected_packet) {
-      t.fail(fmt::format("frame {}'s packet starts at byte {} of the chunked stream, expected {} (frame index "
-                         "inconsistent)",
-                         i, f.packet_offset, expected_packet));
+      t.fail(
+          fmt::format("frame {}'s packet starts at byte {} of the chunked stream, expected {} (frame index "
+                      "inconsistent)",
+                      i, f.packet_offset, expected_packet));
     }
     expected_packet += f.packet_size;
     expected_offset += f.count * m.record_size;

@@ -31,7 +31,7 @@ namespace {
 constexpr std::int64_t kGridLimit = (1 << 24) - 1;  // |q| below this converts to float exactly
 constexpr std::size_t kBodyHeader = 16;             // count, prev_count, op_count, new_count
 constexpr std::size_t kWordHeader = 8;              // predictor, keep/new/motion/bias bytes, reserved
-constexpr std::uint32_t kBlockShift = 10;            // survivors share a bias per block of 64
+constexpr std::uint32_t kBlockShift = 10;           // survivors share a bias per block of 64
 constexpr std::uint32_t kBlock = 1u << kBlockShift;
 constexpr std::size_t kIdHeader = 4;
 constexpr std::size_t kOpSize = 12;
@@ -217,7 +217,8 @@ class ParticleUnit final : public FrameUnit {
           const auto* p = reinterpret_cast<const std::uint8_t*>(w.fresh);
           for (std::uint32_t t = 0; t < op.insert; ++t, ++nt, ++j) {
             std::uint32_t v = 0;
-            for (unsigned byte = 0; byte < w.new_bytes; ++byte) v |= std::uint32_t(p[byte * b.new_count + nt]) << (8 * byte);
+            for (unsigned byte = 0; byte < w.new_bytes; ++byte)
+              v |= std::uint32_t(p[byte * b.new_count + nt]) << (8 * byte);
             q0[j] = (j == 0 ? 0u : q0[j - 1]) + unzigzag(v);
             d0[j] = 0;
           }
@@ -237,6 +238,17 @@ class ParticleUnit final : public FrameUnit {
     return op;
   }
 
+  // "position.y", "color", "velocity.x": the attribute (and component) a record word belongs to.
+  std::string word_name(std::uint32_t w) const {
+    for (const Attribute& a : meta_.layout) {
+      if (w * 4 < a.offset || w * 4 >= a.offset + a.size()) continue;
+      if (a.type != AttributeType::Float32 || a.components == 1) return a.name;
+      const std::uint32_t c = (w * 4 - a.offset) / 4;
+      return a.components <= 4 ? fmt::format("{}.{}", a.name, "xyzw"[c]) : fmt::format("{}[{}]", a.name, c);
+    }
+    return fmt::format("record word {}", w);
+  }
+
   [[noreturn]] void fail(std::uint64_t frame, std::string_view what, std::uint64_t offset) const {
     throw Error(fmt::format("{}: frame {}: particle packet: at body offset {}: {}", name_, frame, offset, what));
   }
@@ -246,8 +258,9 @@ class ParticleUnit final : public FrameUnit {
     if (size == ZSTD_CONTENTSIZE_ERROR || size == ZSTD_CONTENTSIZE_UNKNOWN)
       fail(frame, "not a zstd frame with a content size (corrupted)", 0);
     if (size > body_.size() || size < kBodyHeader) {
-      fail(frame, fmt::format("the body claims {} bytes, expected {}..{} for at most {} particles", size, kBodyHeader,
-                              body_.size(), meta_.max_count),
+      fail(frame,
+           fmt::format("the body claims {} bytes, expected {}..{} for at most {} particles", size, kBodyHeader,
+                       body_.size(), meta_.max_count),
            0);
     }
     const std::size_t got = ZSTD_decompressDCtx(zstd_, body_.data(), body_.size(), packet.data(), packet.size());
@@ -273,8 +286,8 @@ class ParticleUnit final : public FrameUnit {
     if (keyframe && (b.prev_count != 0 || b.op_count != 0 || b.new_count != b.count))
       fail(frame, "a keyframe must code every particle as new, with no operations", 4);
     if (!keyframe && b.prev_count != count_[cur_ ^ 1]) {
-      fail(frame, fmt::format("predicted from {} particles, but the previous frame has {}", b.prev_count,
-                              count_[cur_ ^ 1]),
+      fail(frame,
+           fmt::format("predicted from {} particles, but the previous frame has {}", b.prev_count, count_[cur_ ^ 1]),
            4);
     }
     if (b.op_count > std::uint64_t(b.prev_count) + b.count)
@@ -295,9 +308,11 @@ class ParticleUnit final : public FrameUnit {
       if (w.predictor > kLinear || w.keep_bytes > 4 || w.new_bytes > 4 || w.motion_bytes > 4 || w.bias_bytes > 4 ||
           reserved || (!keyframe && w.motion_bytes != 0) || (keyframe && w.bias_bytes != 0)) {
         fail(frame,
-             fmt::format("record word {}: predictor {} with {}/{}/{} residual bytes (expected a predictor 0..1, "
-                         "0..4 bytes, motion only in keyframes, reserved bytes 0)",
-                         plan_.coded[k], w.predictor, w.keep_bytes, w.new_bytes, w.motion_bytes),
+             fmt::format("{}: predictor {} with {}/{}/{}/{} keep/new/motion/bias residual bytes (expected a "
+                         "predictor 0..1, 0..4 bytes, motion only in keyframes, bias only in predicted frames, "
+                         "reserved bytes 0)",
+                         word_name(plan_.coded[k]), w.predictor, w.keep_bytes, w.new_bytes, w.motion_bytes,
+                         w.bias_bytes),
              at - 8);
       }
     }
@@ -355,7 +370,8 @@ class ParticleUnit final : public FrameUnit {
     const auto* planes = reinterpret_cast<const std::uint8_t*>(b.ids);
     const auto fresh = [&](std::uint32_t j, std::uint32_t nt) {
       std::uint64_t v = 0;
-      for (unsigned byte = 0; byte < b.id_bytes; ++byte) v |= std::uint64_t(planes[byte * b.new_count + nt]) << (8 * byte);
+      for (unsigned byte = 0; byte < b.id_bytes; ++byte)
+        v |= std::uint64_t(planes[byte * b.new_count + nt]) << (8 * byte);
       out[j] = (j == 0 ? 0 : out[j - 1]) + unzigzag64(v);
     };
     if (b.keyframe) {
@@ -388,7 +404,8 @@ class ParticleUnit final : public FrameUnit {
           case WordCoding::Quantized: {
             const std::uint32_t* q = q_[cur_].data() + k++ * n + j0;
             const float step = e.step, origin = as_float(e.base);
-            for (std::uint32_t t = 0; t < len; ++t) column[t] = std::bit_cast<std::uint32_t>(dequantize(q[t], step, origin));
+            for (std::uint32_t t = 0; t < len; ++t)
+              column[t] = std::bit_cast<std::uint32_t>(dequantize(q[t], step, origin));
             break;
           }
           case WordCoding::Exact: std::copy_n(q_[cur_].data() + k++ * n + j0, len, column); break;
@@ -409,7 +426,8 @@ class ParticleUnit final : public FrameUnit {
         }
       } else {
         for (std::uint32_t t = 0; t < len; ++t)
-          for (std::uint32_t w = 0; w < words; ++w) std::memcpy(dst + std::size_t(t) * rs + 4 * w, &tile[std::size_t(w) * kTile + t], 4);
+          for (std::uint32_t w = 0; w < words; ++w)
+            std::memcpy(dst + std::size_t(t) * rs + 4 * w, &tile[std::size_t(w) * kTile + t], 4);
       }
     }
   }
@@ -542,7 +560,8 @@ class GroupEncoder {
       const WordCodingEntry& e = info_.words[w];
       std::vector<std::uint32_t>& v = source_[k];
       v.resize(n);
-      for (std::uint32_t j = 0; j < n; ++j) std::memcpy(&v[j], frame.records.data() + std::size_t(j) * record_size_ + 4 * w, 4);
+      for (std::uint32_t j = 0; j < n; ++j)
+        std::memcpy(&v[j], frame.records.data() + std::size_t(j) * record_size_ + 4 * w, 4);
       if (e.coding != WordCoding::Quantized) continue;
       const float origin = as_float(e.base);
       for (std::uint32_t j = 0; j < n; ++j) {
@@ -563,9 +582,10 @@ class GroupEncoder {
           }
         }
         if (!ok) {
-          throw Error(fmt::format("frame {}: particle {}: record word {} is {}, which the grid (origin {}, step {}) "
-                                  "cannot hold within {} (not finite, or outside the clip's range)",
-                                  index, j, w, x, origin, e.step, e.error));
+          throw Error(
+              fmt::format("frame {}: particle {}: record word {} is {}, which the grid (origin {}, step {}) "
+                          "cannot hold within {} (not finite, or outside the clip's range)",
+                          index, j, w, x, origin, e.step, e.error));
         }
         v[j] = static_cast<std::uint32_t>(q);
       }
@@ -609,7 +629,8 @@ class GroupEncoder {
     const auto floordiv = [](std::int64_t a, std::int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); };
     std::vector<std::int64_t> at(std::size_t(n) * 3);
     for (std::uint32_t j = 0; j < n; ++j) {
-      for (int a = 0; a < 3; ++a) at[std::size_t(j) * 3 + a] = static_cast<std::int32_t>(source_[std::size_t(position_k_[a])][j]);
+      for (int a = 0; a < 3; ++a)
+        at[std::size_t(j) * 3 + a] = static_cast<std::int32_t>(source_[std::size_t(position_k_[a])][j]);
     }
     // This frame's particles sorted by cell: a cell's particles are one range, found by a
     // binary search.
@@ -648,8 +669,8 @@ class GroupEncoder {
             for (; it != cells.end() && it->first == k; ++it) {
               const std::uint32_t j = it->second;
               const std::int64_t* s = &at[std::size_t(j) * 3];
-              const std::int64_t e = (s[0] - p[0]) * (s[0] - p[0]) + (s[1] - p[1]) * (s[1] - p[1]) +
-                                     (s[2] - p[2]) * (s[2] - p[2]);
+              const std::int64_t e =
+                  (s[0] - p[0]) * (s[0] - p[0]) + (s[1] - p[1]) * (s[1] - p[1]) + (s[2] - p[2]) * (s[2] - p[2]);
               if (e > reach) continue;
               // Insert into the sorted few, dropping the farthest when full.
               const Pair candidate{e, i, j};
@@ -780,7 +801,8 @@ class GroupEncoder {
     std::vector<std::uint8_t> is_new(n, 0);
     std::uint32_t cursor = 0;
     const auto add = [&](std::uint32_t keep, std::uint32_t drop, std::uint32_t insert) {
-      if (ops.empty() || (keep && (ops.back().drop || ops.back().insert)) || (drop && ops.back().insert)) ops.push_back({});
+      if (ops.empty() || (keep && (ops.back().drop || ops.back().insert)) || (drop && ops.back().insert))
+        ops.push_back({});
       ops.back().keep += keep;
       ops.back().drop += drop;
       ops.back().insert += insert;
@@ -902,7 +924,6 @@ class GroupEncoder {
   }
 
  public:
-
   std::array<float, 6> bounds() const {
     constexpr float inf = std::numeric_limits<float>::infinity();
     std::array<float, 6> b{inf, inf, inf, -inf, -inf, -inf};

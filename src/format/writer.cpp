@@ -71,7 +71,8 @@ Writer::~Writer() {
 
 void Writer::append_frame(std::uint64_t count, double time, std::array<float, 6> bounds) {
   if (meta_.codec.codec != FrameCodec::Records) {
-    throw Error(fmt::format("{}: a {} frame needs its packet size", path_.string(), frame_codec_name(meta_.codec.codec)));
+    throw Error(
+        fmt::format("{}: a {} frame needs its packet size", path_.string(), frame_codec_name(meta_.codec.codec)));
   }
   append_frame(count, time, bounds, count * meta_.record_size, true);
 }

@@ -94,7 +94,7 @@ struct ParticleStream::Impl {
   // Playback range in frames and the chunks covering it, from the range's first keyframe.
   std::uint64_t frame_begin = 0, frame_end = 0, preroll = 0, c0 = 0, c1 = 0;
   double speed = 1.0;
-  std::uint64_t lap = 0;  // the host's
+  std::uint64_t lap = 0;    // the host's
   std::size_t current = 0;  // the frame slot shown
   std::uint64_t current_seq = 0;
 
@@ -110,7 +110,7 @@ struct ParticleStream::Impl {
   std::uint32_t in_flight = 0;
   // The producer: the next frame to decode, and from which frame of its first lap to publish.
   std::uint64_t p_lap = 0, p_frame = 0, p_publish_from = 0, epoch = 0;
-  std::uint64_t host_seq = 0;  // the frame the host wants now (lap × frame_count + frame)
+  std::uint64_t host_seq = 0;               // the frame the host wants now (lap × frame_count + frame)
   std::size_t pin_slot = 0, pin_count = 0;  // chunk slots a decode under way reads
 
   // Flags last, packed together.

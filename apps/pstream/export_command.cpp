@@ -1,0 +1,202 @@
+// `pstream export clip.pstream --out DIR | -o x.abc`: a cooked clip back into a DCC, as a binary
+// PLY sequence (one file a frame) or an Alembic points cache written by our Alembic writer.
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include <fmt/format.h>
+
+#include "commands.hpp"
+#include "particlestream/alembic_writer.hpp"
+#include "particlestream/codec.hpp"
+#include "progress.hpp"
+
+namespace pstream::app {
+namespace {
+
+using namespace pstream::format;
+namespace fs = std::filesystem;
+
+// One frame's records as columns: what both writers take.
+struct Columns {
+  std::vector<float> position, scale_width, velocity;
+  std::vector<std::uint64_t> id;
+  std::vector<std::uint8_t> color;                 // RGBA8
+  std::vector<std::vector<float>> floats;          // other float attributes
+  std::vector<const Attribute*> float_attributes;  // their layout entries
+};
+
+void split(const Metadata& m, std::span<const std::byte> records, std::uint64_t n, Columns& c) {
+  const auto get = [&](const Attribute& a, std::uint64_t i, std::size_t k, auto& out) {
+    std::memcpy(&out, records.data() + i * m.record_size + a.offset + k * sizeof(out), sizeof(out));
+  };
+  c.position.resize(n * 3);
+  c.scale_width.resize(n);
+  c.velocity.clear();
+  c.id.clear();
+  c.color.clear();
+  c.floats.assign(c.float_attributes.size(), {});
+  for (const Attribute& a : m.layout) {
+    for (std::uint64_t i = 0; i < n; ++i) {
+      if (a.name == "position") {
+        for (std::size_t k = 0; k < 3; ++k) get(a, i, k, c.position[i * 3 + k]);
+      } else if (a.name == "scale") {
+        get(a, i, 0, c.scale_width[i]);
+      } else if (a.name == "velocity") {
+        c.velocity.resize(n * 3);
+        for (std::size_t k = 0; k < 3; ++k) get(a, i, k, c.velocity[i * 3 + k]);
+      } else if (a.name == "id") {
+        c.id.resize(n);
+        if (a.type == AttributeType::Uint64) {
+          get(a, i, 0, c.id[i]);
+        } else {
+          std::uint32_t v;
+          get(a, i, 0, v);
+          c.id[i] = v;
+        }
+      } else if (a.name == "color") {
+        c.color.resize(n * 4);
+        std::memcpy(&c.color[i * 4], records.data() + i * m.record_size + a.offset, 4);
+      }
+    }
+  }
+  for (std::size_t e = 0; e < c.float_attributes.size(); ++e) {
+    const Attribute& a = *c.float_attributes[e];
+    c.floats[e].resize(n * a.components);
+    for (std::uint64_t i = 0; i < n; ++i)
+      for (std::size_t k = 0; k < a.components; ++k) get(a, i, k, c.floats[e][i * a.components + k]);
+  }
+}
+
+// A binary little-endian PLY of one frame, written beside its name and renamed when complete.
+void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::uint64_t n) {
+  bool ids32 = true;
+  for (std::uint64_t v : c.id) ids32 = ids32 && v <= 0xffffffffu;
+  std::string header = fmt::format(
+      "ply\nformat binary_little_endian 1.0\ncomment pstream export of {} {}\n"
+      "element vertex {}\nproperty float x\nproperty float y\nproperty float z\n"
+      "property float pscale\n",
+      m.source_file, m.source_object, n);
+  if (!c.velocity.empty()) header += "property float vx\nproperty float vy\nproperty float vz\n";
+  if (!c.color.empty())
+    header += "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n";
+  if (!c.id.empty()) header += ids32 ? "property uint id\n" : "property double id\n";
+  for (const Attribute* a : c.float_attributes) {
+    for (std::size_t k = 0; k < a->components; ++k)
+      header += a->components == 1 ? fmt::format("property float {}\n", a->name)
+                                   : fmt::format("property float {}_{}\n", a->name, k);
+  }
+  header += "end_header\n";
+  std::vector<char> body;
+  const auto put = [&](const auto& v) {
+    const char* b = reinterpret_cast<const char*>(&v);
+    body.insert(body.end(), b, b + sizeof(v));
+  };
+  for (std::uint64_t i = 0; i < n; ++i) {
+    for (int k = 0; k < 3; ++k) put(c.position[i * 3 + k]);
+    put(c.scale_width[i]);  // pscale is a radius, as the record's scale
+    if (!c.velocity.empty())
+      for (int k = 0; k < 3; ++k) put(c.velocity[i * 3 + k]);
+    if (!c.color.empty())
+      for (int k = 0; k < 4; ++k) put(c.color[i * 4 + k]);
+    if (!c.id.empty()) {
+      if (ids32)
+        put(static_cast<std::uint32_t>(c.id[i]));
+      else
+        put(static_cast<double>(c.id[i]));
+    }
+    for (std::size_t e = 0; e < c.floats.size(); ++e)
+      for (std::size_t k = 0; k < c.float_attributes[e]->components; ++k)
+        put(c.floats[e][i * c.float_attributes[e]->components + k]);
+  }
+  const fs::path temp = fs::path(path) += fmt::format(".tmp-{}", ::getpid());
+  {
+    std::ofstream out(temp, std::ios::binary);
+    out.write(header.data(), std::streamsize(header.size()));
+    out.write(body.data(), std::streamsize(body.size()));
+    out.close();
+    if (!out) {
+      std::error_code ec;
+      fs::remove(temp, ec);
+      throw Error(fmt::format("{}: cannot write (disk full, or no permission?)", path.string()));
+    }
+  }
+  fs::rename(temp, path);
+}
+
+}  // namespace
+
+int run_export(const ExportCli& cli) {
+  if (cli.out.empty() == cli.output.empty())
+    throw Error("export: give either --out DIR (a PLY sequence) or -o FILE.abc (an Alembic cache)");
+  const Reader reader = Reader::open(cli.file);
+  const Metadata& m = reader.metadata();
+  Columns c;
+  for (const Attribute& a : m.layout) {
+    const bool known =
+        a.name == "position" || a.name == "scale" || a.name == "velocity" || a.name == "id" || a.name == "color";
+    if (!known && a.type == AttributeType::Float32) c.float_attributes.push_back(&a);
+  }
+  std::vector<std::byte> records(m.max_count * m.record_size);
+  ProgressBar bar("export", !cli.quiet);
+  if (!cli.out.empty()) {
+    fs::create_directories(cli.out);
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+      reader.read_frame(f, records);
+      split(m, records, m.frames[f].count, c);
+      write_ply(fs::path(cli.out) / fmt::format("frame.{:04}.ply", f + 1), m, c, m.frames[f].count);
+      bar.update(f + 1, m.frame_count(), "frames");
+    }
+    if (!cli.quiet) fmt::print("{} frames -> {}/frame.0001.ply ...\n", m.frame_count(), cli.out);
+    return 0;
+  }
+  // Alembic: widths are diameters (twice the record's radius); colours become Cd (rgb).
+  alembic::PointsWriterOptions po;
+  po.velocities = m.find("velocity") != nullptr;
+  if (m.find("color")) po.float_params.push_back({"Cd", 3});
+  for (const Attribute* a : c.float_attributes) po.float_params.push_back({a->name, a->components});
+  const fs::path temp = fs::path(cli.output) += fmt::format(".tmp-{}", ::getpid());
+  try {
+    alembic::ArchiveWriter writer(temp, "pstream export", fmt::format("{} {}", m.source_file, m.source_object), m.fps,
+                                  m.time_of_frame0, po);
+    std::vector<float> widths, cd;
+    std::vector<std::uint64_t> index_ids;
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+      reader.read_frame(f, records);
+      const std::uint64_t n = m.frames[f].count;
+      split(m, records, n, c);
+      widths.resize(n);
+      for (std::uint64_t i = 0; i < n; ++i) widths[i] = 2.0f * c.scale_width[i];
+      if (c.id.empty()) {  // no ids in the clip: Alembic wants some, the index it is
+        index_ids.resize(n);
+        for (std::uint64_t i = 0; i < n; ++i) index_ids[i] = i;
+      }
+      alembic::PointsSample s;
+      s.positions = c.position;
+      s.ids = c.id.empty() ? std::span<const std::uint64_t>(index_ids) : std::span<const std::uint64_t>(c.id);
+      s.velocities = c.velocity;
+      s.widths = widths;
+      if (!c.color.empty()) {
+        cd.resize(n * 3);
+        for (std::uint64_t i = 0; i < n; ++i)
+          for (int k = 0; k < 3; ++k) cd[i * 3 + k] = float(c.color[i * 4 + k]) / 255.0f;
+        s.params.push_back(cd);
+      }
+      for (const auto& values : c.floats) s.params.push_back(values);
+      writer.write_sample(s);
+      bar.update(f + 1, m.frame_count(), "frames");
+    }
+    writer.close();
+  } catch (...) {
+    std::error_code ec;
+    fs::remove(temp, ec);
+    throw;
+  }
+  fs::rename(temp, cli.output);
+  if (!cli.quiet) fmt::print("{} frames -> {}\n", m.frame_count(), cli.output);
+  return 0;
+}
+
+}  // namespace pstream::app
