@@ -314,7 +314,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                        const format::SourceFrame before =
                            g ? format::SourceFrame{frames[g - 1].records, frames[g - 1].ids, frames[g - 1].count}
                              : format::SourceFrame{};
-                       for (auto& e : format::encode_group(*info, layout, views, g ? &before : nullptr, g)) {
+                       for (auto& e : format::encode_group(*info, views, g ? &before : nullptr, g)) {
                          format::FrameEntry entry;
                          entry.count = e.count;
                          entry.keyframe = e.keyframe;

@@ -87,7 +87,7 @@ void generate_clip(const std::filesystem::path& path, std::uint64_t count, std::
     std::vector<float> before;
     if (g > 0) generated_frame(count, g - 1, fps, before);
     const format::SourceFrame before_view{std::as_bytes(std::span(before)), ids, count};
-    const auto encoded = format::encode_group(meta.codec, meta.layout, views, g > 0 ? &before_view : nullptr, g);
+    const auto encoded = format::encode_group(meta.codec, views, g > 0 ? &before_view : nullptr, g);
     for (std::size_t k = 0; k < encoded.size(); ++k) {
       writer.append_frame(count, double(g + k) / fps, encoded[k].bounds, encoded[k].packet.size(), encoded[k].keyframe);
       writer.append_stream(encoded[k].packet);

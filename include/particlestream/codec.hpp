@@ -94,13 +94,13 @@ struct EncodedFrame {
   std::uint64_t predictable = 0;  // particles the previous frame could have predicted (min of the counts)
 };
 
-// Encodes a keyframe group: frames[0] becomes a keyframe, the rest are predicted. `before`, the
+// Encodes a keyframe group: frames[0] becomes a keyframe, the rest are predicted. The layout is
+// what `info.words` codes (plan_particle_codec made them from it). `before`, the
 // frame preceding the group (or null), only seeds the keyframe's motion state. Groups are
 // independent, so a cook encodes them in parallel; the bytes depend on nothing else.
 // `first_index` numbers frames in errors.
-std::vector<EncodedFrame> encode_group(const CodecInfo& info, const std::vector<Attribute>& layout,
-                                       std::span<const SourceFrame> frames, const SourceFrame* before,
-                                       std::uint64_t first_index);
+std::vector<EncodedFrame> encode_group(const CodecInfo& info, std::span<const SourceFrame> frames,
+                                       const SourceFrame* before, std::uint64_t first_index);
 
 // ---- Checking ---------------------------------------------------------------------------------
 

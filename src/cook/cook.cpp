@@ -303,7 +303,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
             for (const HeldFrame& h : groups[g]) views.push_back(h.view());
             const HeldFrame* prior = g == 0 ? (have_before ? &before : nullptr) : &groups[g - 1].back();
             const format::SourceFrame prior_view = prior ? prior->view() : format::SourceFrame{};
-            encoded[g] = format::encode_group(meta.codec, plan.layout, views, prior ? &prior_view : nullptr, starts[g]);
+            encoded[g] = format::encode_group(meta.codec, views, prior ? &prior_view : nullptr, starts[g]);
           } catch (...) {
             errors[g] = std::current_exception();
           }

@@ -478,13 +478,12 @@ struct EncoderState {
 
 class GroupEncoder {
  public:
-  GroupEncoder(const CodecInfo& info, const std::vector<Attribute>& layout) : info_(info), plan_(info) {
+  explicit GroupEncoder(const CodecInfo& info) : info_(info), plan_(info) {
     record_size_ = static_cast<std::uint32_t>(info.words.size() * 4);
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
       for (int c = 0; c < 3; ++c)
         if (plan_.coded[k] == std::uint32_t(c)) position_k_[c] = static_cast<int>(k);
     }
-    (void)layout;
     state_.q.resize(plan_.coded.size());
     state_.d.resize(plan_.coded.size());
     zstd_ = ZSTD_createCCtx();
@@ -961,10 +960,9 @@ std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_
   return std::make_unique<ParticleUnit>(meta, name);
 }
 
-std::vector<EncodedFrame> encode_group(const CodecInfo& info, const std::vector<Attribute>& layout,
-                                       std::span<const SourceFrame> frames, const SourceFrame* before,
-                                       std::uint64_t first_index) {
-  GroupEncoder encoder(info, layout);
+std::vector<EncodedFrame> encode_group(const CodecInfo& info, std::span<const SourceFrame> frames,
+                                       const SourceFrame* before, std::uint64_t first_index) {
+  GroupEncoder encoder(info);
   if (before != nullptr) (void)encoder.encode(*before, true, first_index - 1);  // seeds the motion state only
   std::vector<EncodedFrame> out;
   out.reserve(frames.size());
