@@ -352,7 +352,9 @@ std::string svg_scatter(const nlohmann::ordered_json& results, const std::string
       H);
   s += fmt::format(R"(<rect width="100%" height="100%" fill="white"/><text x="{}" y="22" font-size="15">{}</text>)", L,
                    title);
-  for (double x = 0; x <= xmax; x += xmax > 12 ? 5 : 1) {
+  const int tick = xmax > 12 ? 5 : 1;
+  for (int k = 0; k * tick <= xmax; ++k) {
+    const double x = k * tick;
     s += fmt::format(
         R"(<line x1="{0}" y1="{1}" x2="{0}" y2="{2}" stroke="#ddd"/><text x="{0}" y="{3}" text-anchor="middle">{4:g}</text>)",
         px(x), T, H - B, H - B + 18, x);
