@@ -58,9 +58,7 @@ std::string_view order_name(FrameOrder o) {
 
 double bytes_per_particle(const Metadata& m) {
   const std::uint64_t n = m.total_particles();
-  std::uint64_t stored = 0;
-  for (const ChunkEntry& c : m.chunks) stored += c.stored_size;
-  return n ? double(stored) / double(n) : 0.0;
+  return n ? double(stored_bytes(m)) / double(n) : 0.0;
 }
 
 // The frame codec and, for the particle codec, how each attribute is coded and its bound.

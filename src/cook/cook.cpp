@@ -262,6 +262,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   Progress state;
   state.frame_count = 2 * frames;  // both passes
   format::ClipStats stats(plan.layout);
+  const std::uint64_t dropped_before = report.dropped_invalid;  // counted by the encoding pass
   for (std::uint64_t k = 0; k < frames; ++k) {
     read(k, frame);
     hold(frame, plan, held);
@@ -269,6 +270,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
     state.frames_done = k + 1;
     if (progress) progress(state);
   }
+  report.dropped_invalid = dropped_before;
   meta.codec = format::plan_particle_codec(plan.layout, stats, meta.fps, plan.request.id && !options.particle.lossless,
                                            options.particle);
   report.error = meta.codec.error;
@@ -389,9 +391,7 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   };
   const auto frame_count = static_cast<std::uint64_t>(last - first);
   if (options.frame_codec == format::FrameCodec::Particle) {
-    report.dropped_invalid = 0;
     cook_particle(options, plan, meta, frame_count, threads, read, progress, report);
-    report.dropped_invalid /= 2;  // both passes counted them
     report.input_bytes = source->input_bytes();
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return report;
