@@ -88,7 +88,10 @@ int info_alembic(const InfoOptions& options) {
   if (!info.user_description.empty()) fmt::print("  description   {}\n", info.user_description);
   if (info.dcc_fps > 0) fmt::print("  scene fps     {:.6g}\n", info.dcc_fps);
   const auto [start, end] = archive.start_end_time();
-  fmt::print("  time range    {:.6g} s .. {:.6g} s\n", start, end);
+  if (start <= end)
+    fmt::print("  time range    {:.6g} s .. {:.6g} s\n", start, end);
+  else
+    fmt::print("  time range    none: no property has a sample\n");
   fmt::print("\nTime samplings:\n");
   for (std::size_t i = 0; i < archive.time_samplings().size(); ++i) {
     const TimeSampling& ts = archive.time_samplings()[i];

@@ -32,6 +32,7 @@ namespace detail {
 struct ArchiveData;
 struct ObjectNode;
 struct PropertyNode;
+struct Access;  // the reader's own way to make handles (src/alembic/archive_data.hpp)
 }  // namespace detail
 
 // ---------------------------------------------------------------------------------------------
@@ -147,6 +148,10 @@ class SampleView {
   double value_f64(std::uint64_t i) const;
   std::int64_t value_i64(std::uint64_t i) const;
   std::uint64_t value_u64(std::uint64_t i) const;
+  // String and wstring samples: every element as UTF-8 (wstrings are stored as UTF-32 code
+  // points), empty strings included; scalar_count() of them. Throws pstream::Error when the
+  // bytes hold fewer terminated strings than that, or a code point that is not Unicode.
+  std::vector<std::string> strings() const;
 
  private:
   Pod pod_ = Pod::Uint8;
@@ -180,6 +185,7 @@ class Property {
  private:
   friend class Archive;
   friend class Object;
+  friend struct detail::Access;
   Property(const detail::ArchiveData* archive, const detail::PropertyNode* node) : archive_(archive), node_(node) {}
   const detail::ArchiveData* archive_ = nullptr;
   const detail::PropertyNode* node_ = nullptr;
@@ -197,6 +203,14 @@ class Object {
   std::size_t child_count() const;
   Object child(std::size_t i) const;
   Property properties() const;  // the object's top compound property
+  // Instances (OObject::addChildInstance): an instance root is presented as its target, with its
+  // own name, path and parent and the target's metadata, properties and children; the objects
+  // below it have instanced paths. As IObject::isInstanceRoot, isInstanceDescendant,
+  // instanceSourcePath ("" unless a root) and getHeader().getFullName() (the stored object).
+  bool is_instance_root() const;
+  bool is_instance_descendant() const;
+  const std::string& instance_source_path() const;
+  const std::string& stored_full_name() const;
 
  private:
   friend class Archive;

@@ -124,6 +124,95 @@ void read_object(const ArchiveData& a, ObjectNode& object, ogawa::Group group,
   }
 }
 
+// ---- Instances ------------------------------------------------------------------------------
+
+// More presented objects than this are refused: nested instances multiply, and a small file could
+// otherwise ask for an exponential number of them.
+constexpr std::size_t kMaxPresentedObjects = 1'000'000;
+
+struct InstanceResolver {
+  const ArchiveData& a;
+  std::size_t presented = 0;
+
+  // The stored object at `path`, walking stored children by name.
+  ObjectNode* find_stored(ObjectNode& top, std::string_view path) {
+    ObjectNode* node = &top;
+    std::size_t at = 1;
+    while (at < path.size()) {
+      const std::size_t slash = std::min(path.find('/', at), path.size());
+      const std::string_view name = path.substr(at, slash - at);
+      ObjectNode* next = nullptr;
+      for (auto& c : node->children) {
+        if (c->name == name) next = c.get();
+      }
+      if (next == nullptr) return nullptr;
+      node = next;
+      at = slash + 1;
+    }
+    return node;
+  }
+
+  // Nodes for `source`'s children under `parent` (an instance root or one of its descendants).
+  void clone_children(const ObjectNode& source, ObjectNode& parent, int depth) {
+    if (depth > detail::kMaxHierarchyDepth) {
+      a.file.fail(0, fmt::format("instances below '{}' nest deeper than {} levels", parent.full_name,
+                                 detail::kMaxHierarchyDepth));
+    }
+    for (const auto& c : source.children) {
+      if (++presented > kMaxPresentedObjects) {
+        a.file.fail(0, fmt::format("instances present more than {} objects (at '{}')", kMaxPresentedObjects,
+                                   parent.full_name));
+      }
+      auto node = std::make_unique<ObjectNode>();
+      node->name = c->name;
+      node->full_name = parent.full_name + "/" + c->name;
+      node->metadata = c->stored->metadata;
+      node->parent = &parent;
+      node->stored = c->stored;
+      node->instance_source = c->instance_source;
+      node->instance_descendant = true;
+      node->resolve = ObjectNode::Resolve::Done;
+      clone_children(*c, *node, depth + 1);
+      parent.children.push_back(std::move(node));
+    }
+  }
+
+  void resolve(ObjectNode& top, ObjectNode& node, int depth) {
+    if (node.resolve == ObjectNode::Resolve::Done) return;
+    if (node.resolve == ObjectNode::Resolve::InProgress) {
+      a.file.fail(0, fmt::format("instance '{}' refers to itself through its instance sources", node.full_name));
+    }
+    node.resolve = ObjectNode::Resolve::InProgress;
+    if (node.metadata.get("isInstance") == "1") {
+      const auto source = detail::Access::property(&a, node.properties.get()).find(".instanceSource");
+      if (!source || source->kind() != PropertyKind::Scalar || source->header().pod != Pod::String ||
+          source->header().num_samples == 0) {
+        a.file.fail(node.properties->group.offset,
+                    fmt::format("instance '{}' has no string property .instanceSource", node.full_name));
+      }
+      const std::vector<std::string> path = source->sample(0).strings();
+      ObjectNode* target = path.empty() ? nullptr : find_stored(top, path[0]);
+      if (target == nullptr || target == &top) {
+        a.file.fail(node.properties->group.offset,
+                    fmt::format("instance '{}' refers to '{}', which is not an object of the archive", node.full_name,
+                                path.empty() ? std::string() : path[0]));
+      }
+      if (depth > detail::kMaxHierarchyDepth)
+        a.file.fail(0, fmt::format("instance '{}' resolves through too many instances", node.full_name));
+      resolve(top, *target, depth + 1);
+      node.stored = target->stored;
+      node.metadata = target->stored->metadata;
+      node.instance_source = target->full_name;
+      node.instance_descendant = true;
+      node.children.clear();
+      clone_children(*target, node, 0);
+    } else {
+      for (auto& c : node.children) resolve(top, *c, depth + 1);
+    }
+    node.resolve = ObjectNode::Resolve::Done;
+  }
+};
+
 std::unique_ptr<ArchiveData> parse(std::unique_ptr<ArchiveData> a) {
   const ogawa::File& file = a->file;
   const ogawa::Group root = file.root();
@@ -144,6 +233,7 @@ std::unique_ptr<ArchiveData> parse(std::unique_ptr<ArchiveData> a) {
 
   std::unordered_set<std::uint64_t> visited;
   read_object(*a, *a->top, file.child_group(root, kTopObject), visited, 0);
+  InstanceResolver{*a}.resolve(*a->top, *a->top, 0);
   return a;
 }
 
@@ -212,8 +302,7 @@ std::pair<double, double> Archive::start_end_time() const {
     start = std::min(start, ts.sample_time(0));
     end = std::max(end, ts.sample_time(ts.max_num_samples - 1));
   }
-  if (start > end) return {0.0, 0.0};
-  return {start, end};
+  return {start, end};  // nothing sampled: +DBL_MAX, -DBL_MAX, as the official library reports
 }
 
 Object Archive::top() const { return Object(d_.get(), d_->top.get()); }
@@ -236,10 +325,14 @@ std::vector<Object> Archive::objects() const {
 
 const std::string& Object::name() const { return node_->name; }
 const std::string& Object::full_name() const { return node_->full_name; }
-const MetaData& Object::metadata() const { return node_->metadata; }
+const MetaData& Object::metadata() const { return node_->stored->metadata; }
 std::size_t Object::child_count() const { return node_->children.size(); }
 Object Object::child(std::size_t i) const { return Object(archive_, node_->children.at(i).get()); }
-Property Object::properties() const { return Property(archive_, node_->properties.get()); }
+Property Object::properties() const { return Property(archive_, node_->stored->properties.get()); }
+bool Object::is_instance_root() const { return !node_->instance_source.empty(); }
+bool Object::is_instance_descendant() const { return node_->instance_descendant; }
+const std::string& Object::instance_source_path() const { return node_->instance_source; }
+const std::string& Object::stored_full_name() const { return node_->stored->full_name; }
 
 std::optional<Object> Object::parent() const {
   if (node_->parent == nullptr) return std::nullopt;

@@ -20,13 +20,21 @@ struct PropertyNode {
   std::vector<std::unique_ptr<PropertyNode>> children;  // compound only
 };
 
+// An object as the official IObject API presents it. A stored object holds its own metadata and
+// properties. An instance (metadata isInstance=1, a `.instanceSource` path) is presented as its
+// target: own name, path and parent, the target's metadata, properties and children; the
+// children are nodes made for the instanced paths, `stored` pointing at the target's nodes.
 struct ObjectNode {
   std::string name;
   std::string full_name;
   MetaData metadata;
   const ObjectNode* parent = nullptr;
-  std::unique_ptr<PropertyNode> properties;  // the top compound; never null
+  std::unique_ptr<PropertyNode> properties;  // the top compound; never null on a stored object
   std::vector<std::unique_ptr<ObjectNode>> children;
+  const ObjectNode* stored = this;  // the stored object whose metadata and properties this presents
+  std::string instance_source;      // an instance root: the target's path
+  bool instance_descendant = false;
+  enum class Resolve : std::uint8_t { No, InProgress, Done } resolve = Resolve::No;
 };
 
 struct ArchiveData {
@@ -40,6 +48,10 @@ struct ArchiveData {
   std::vector<TimeSampling> time_samplings;
   std::vector<MetaData> indexed_metadata;  // [0] is the empty metadata
   std::unique_ptr<ObjectNode> top;
+};
+
+struct Access {
+  static Property property(const ArchiveData* archive, const PropertyNode* node) { return {archive, node}; }
 };
 
 // Parses the property headers of the compound property group `group` (src/alembic/property_headers.cpp).

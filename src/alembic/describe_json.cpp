@@ -62,11 +62,20 @@ json stats(std::uint64_t count, std::size_t extent, bool integer, Value value, N
   return out;
 }
 
+// String STATS: count, the first five, the last; no sum, min or max.
+json string_stats(const std::vector<std::string>& strings) {
+  json first = json::array();
+  for (std::size_t i = 0; i < std::min<std::size_t>(strings.size(), 5); ++i) first.push_back(strings[i]);
+  return json{{"count", strings.size()},
+              {"first", first},
+              {"last", strings.empty() ? json() : json(strings.back())},
+              {"sum", nullptr},
+              {"min", nullptr},
+              {"max", nullptr}};
+}
+
 json sample_stats(const SampleView& v) {
-  if (v.pod() == Pod::String || v.pod() == Pod::WString) {
-    return stats(
-        0, v.extent(), false, [](std::uint64_t) { return json(); }, [](std::uint64_t) { return 0.0; });
-  }
+  if (v.pod() == Pod::String || v.pod() == Pod::WString) return string_stats(v.strings());
   const bool integer = pod_is_integer(v.pod());
   auto value = [&](std::uint64_t i) -> json {
     if (!integer) return v.value_f64(i);
@@ -112,6 +121,16 @@ json param_json(const GeomParam& p, double time) {
     const PropertyHeader& ih = p.indices().header();
     const SampleView idx = ih.num_samples ? p.indices().sample_at(time).first : SampleView(ih.pod, 1, 0, {});
     out["indices"] = sample_stats(idx);
+    if (vals.pod() == Pod::String || vals.pod() == Pod::WString) {
+      const std::vector<std::string> values = vals.strings();
+      std::vector<std::string> expanded;
+      for (std::uint64_t i = 0; i < idx.scalar_count(); ++i) {
+        const std::uint64_t k = idx.value_u64(i);
+        expanded.push_back(k < values.size() ? values[k] : std::string());
+      }
+      out["expanded"] = string_stats(expanded);
+      return out;
+    }
     std::vector<double> expanded;
     expanded.reserve(
         std::min<std::uint64_t>(idx.scalar_count() * vals.extent(), vals.bytes().size() + idx.bytes().size()));
@@ -291,8 +310,14 @@ std::string describe_json(const Archive& archive, const DescribeOptions& options
                        {"schema", o.schema()},
                        {"kind", object_kind(o)},
                        {"metadata", o.metadata().serialize()},
-                       {"children", children},
-                       {"properties", properties_json(o.properties())}});
+                       {"children", children}});
+    if (o.is_instance_descendant()) {
+      objects.back()["is_instance_root"] = o.is_instance_root();
+      objects.back()["is_instance_descendant"] = true;
+      objects.back()["instance_source_path"] = o.instance_source_path();
+      objects.back()["header_full_name"] = o.stored_full_name();
+    }
+    objects.back()["properties"] = properties_json(o.properties());
     const std::string_view kind = object_kind(o);
     if (kind == "points") points.push_back(points_json(o, options));
     if (kind == "polymesh") meshes.push_back(polymesh_json(o, options));

@@ -1,4 +1,5 @@
 // Reading one sample of a scalar or array property out of the mapping.
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -113,6 +114,66 @@ std::uint64_t SampleView::value_u64(std::uint64_t i) const {
   return pod_ == Pod::Uint64 ? at<std::uint64_t>(bytes_, i) : static_cast<std::uint64_t>(value_i64(i));
 }
 
+namespace {
+
+void append_utf8(std::string& out, std::uint32_t cp) {
+  if (cp < 0x80) {
+    out.push_back(static_cast<char>(cp));
+  } else if (cp < 0x800) {
+    out.push_back(static_cast<char>(0xC0 | (cp >> 6)));
+    out.push_back(static_cast<char>(0x80 | (cp & 0x3F)));
+  } else if (cp < 0x10000) {
+    out.push_back(static_cast<char>(0xE0 | (cp >> 12)));
+    out.push_back(static_cast<char>(0x80 | ((cp >> 6) & 0x3F)));
+    out.push_back(static_cast<char>(0x80 | (cp & 0x3F)));
+  } else {
+    out.push_back(static_cast<char>(0xF0 | (cp >> 18)));
+    out.push_back(static_cast<char>(0x80 | ((cp >> 12) & 0x3F)));
+    out.push_back(static_cast<char>(0x80 | ((cp >> 6) & 0x3F)));
+    out.push_back(static_cast<char>(0x80 | (cp & 0x3F)));
+  }
+}
+
+}  // namespace
+
+std::vector<std::string> SampleView::strings() const {
+  if (pod_ != Pod::String && pod_ != Pod::WString)
+    throw Error(fmt::format("a {} sample holds no strings", pod_name(pod_)));
+  const std::uint64_t wanted = scalar_count();
+  std::vector<std::string> out;
+  out.reserve(static_cast<std::size_t>(std::min<std::uint64_t>(wanted, bytes_.size())));
+  std::string current;
+  if (pod_ == Pod::String) {
+    for (std::byte b : bytes_) {
+      if (out.size() == wanted) break;
+      if (b == std::byte{0}) {
+        out.push_back(std::move(current));
+        current.clear();
+      } else {
+        current.push_back(static_cast<char>(b));
+      }
+    }
+  } else {
+    for (std::size_t i = 0; i + 4 <= bytes_.size() && out.size() < wanted; i += 4) {
+      std::uint32_t cp = 0;
+      std::memcpy(&cp, bytes_.data() + i, 4);
+      if (cp == 0) {
+        out.push_back(std::move(current));
+        current.clear();
+      } else if (cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) {
+        throw Error(fmt::format("wstring element {} holds U+{:X}, not a Unicode code point", out.size(), cp));
+      } else {
+        append_utf8(current, cp);
+      }
+    }
+  }
+  if (out.size() != wanted) {
+    throw Error(fmt::format("a {} sample of {} elements holds only {} terminated strings", pod_name(pod_), wanted,
+                            out.size()));
+  }
+  return out;
+}
+
 SampleView Property::sample(std::uint32_t index) const {
   const PropertyHeader& h = node_->header;
   const ogawa::File& file = archive_->file;
@@ -176,9 +237,19 @@ SampleView Property::sample(std::uint32_t index) const {
                             h.name, values.size(), count, elem_bytes));
     }
   }
-  if (is_text && dims.size == 0) count = 0;  // strings: count the NUL terminators instead
-  if (is_text && count == 0) {
-    for (std::byte b : values) count += b == std::byte{0};
+  if (is_text && dims.size == 0) {  // no dimensions: as many strings as terminators
+    count = 0;
+    const std::size_t unit = pod_size(h.pod);
+    for (std::size_t i = 0; i + unit <= values.size(); i += unit) {
+      bool zero = true;
+      for (std::size_t b = 0; b < unit; ++b) zero = zero && values[i + b] == std::byte{0};
+      count += zero ? 1 : 0;
+    }
+    count /= std::max<std::uint64_t>(h.extent, 1);
+  }
+  if (is_text && count * std::max<std::uint64_t>(h.extent, 1) > values.size() / pod_size(h.pod)) {
+    file.fail(data.offset, fmt::format("string array '{}' claims {} strings but has only {} bytes", h.name, count,
+                                       values.size()));
   }
   return SampleView(h.pod, h.extent, count, values);
 }
