@@ -295,7 +295,7 @@ void expect_cook_error(const cook::Options& o, const std::string& fragment) {
   EXPECT_NE(message.find(fragment), std::string::npos) << "message: " << message;
   EXPECT_FALSE(fs::exists(o.output)) << "a failed cook left " << o.output;
   for (const auto& entry : fs::directory_iterator(o.output.parent_path())) {
-    EXPECT_EQ(entry.path().string().find(".tmp-"), std::string::npos) << "temporary file left: " << entry.path();
+    EXPECT_EQ(entry.path().string().find(".partial-"), std::string::npos) << "temporary file left: " << entry.path();
   }
 }
 
@@ -310,7 +310,7 @@ TEST(CookBadInput, MissingObjectNoPointsZeroFramesTooMany) {
   o.input = test::data_path("alembic/mesh_vertices.abc");
   expect_cook_error(o, "holds no points objects");
   o.input = test::data_path("alembic/points_multi.abc");
-  expect_cook_error(o, "--merge");
+  expect_cook_error(o, "cook them together with `merge`");
   o.input = test::data_path("alembic/points_constant.abc");
   o.frame_begin = 5;
   o.frame_end = 5;
@@ -318,13 +318,13 @@ TEST(CookBadInput, MissingObjectNoPointsZeroFramesTooMany) {
   o.frame_begin = 0;
   o.frame_end = -1;
   o.max_particles = 999;
-  expect_cook_error(o, "frame 0 has 1000 particles, more than --max-particles 999");
+  expect_cook_error(o, "frame 0 has 1000 particles, more than `max_particles`, 999");
   o.max_particles = 1000;
   o.chunk_size = 1000;
   expect_cook_error(o, "power of two");
   o.chunk_size = format::kMinChunkSize;
   o.attributes = {"velocity"};
-  expect_cook_error(o, "velocity, but the source has none");
+  expect_cook_error(o, "`attributes` has velocity, but the source has no velocities");
 }
 
 void write_ply(const fs::path& path, const std::vector<std::array<float, 4>>& points, bool binary) {

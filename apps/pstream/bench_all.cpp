@@ -6,13 +6,16 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
+#include <sstream>
+#include <vector>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
+#include "base/output_file.hpp"
 #include "particlestream/alembic_writer.hpp"
+#include "process.hpp"
 #include "progress.hpp"
 
 namespace pstream::app {
@@ -20,17 +23,17 @@ namespace {
 
 using json = nlohmann::ordered_json;
 
-json run_json(const std::string& args) {
-  static const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();  // this pstream binary
-  const std::string command = "'" + self + "' " + args + " --json 2>/dev/null";
-  FILE* pipe = popen(command.c_str(), "r");
-  if (pipe == nullptr) throw Error(fmt::format("cannot run {}", command));
-  std::string out;
-  char buf[4096];
-  std::size_t n;
-  while ((n = fread(buf, 1, sizeof buf, pipe)) > 0) out.append(buf, n);
-  if (pclose(pipe) != 0) throw Error(fmt::format("`pstream {}` failed", args));
-  return json::parse(out);
+// Runs this pstream binary with `args` and --json (no shell), and parses what it prints.
+json run_json(std::vector<std::string> args) {
+  std::string shown = "pstream";
+  for (const std::string& a : args) shown += " " + a;
+  args.insert(args.begin(), self_executable());
+  args.emplace_back("--json");
+  const ProgramResult r = run_program(args, /*capture=*/true, /*quiet=*/true);
+  if (r.exit_code != 0) throw Error(fmt::format("`{}` failed (exit code {})", shown, r.exit_code));
+  const json out = json::parse(r.output, nullptr, /*allow_exceptions=*/false);
+  if (out.is_discarded()) throw Error(fmt::format("`{}` printed no JSON", shown));
+  return out;
 }
 
 // An Alembic clip of `count` particles orbiting a centre, `frames` samples at 24 fps.
@@ -57,6 +60,7 @@ void write_clip(const std::filesystem::path& path, std::uint64_t count, int fram
 
 int bench_all(const BenchAllOptions& o) {
   namespace fs = std::filesystem;
+  check_output(o.out);  // before minutes of work: a missing folder is said now
   const fs::path dir = fs::temp_directory_path() / fmt::format("pstream-bench-all-{}", ::getpid());
   fs::create_directories(dir);
   struct Cleanup {
@@ -73,20 +77,20 @@ int bench_all(const BenchAllOptions& o) {
   write_clip(abc, 1u << 20, 10);
   ::sync();  // no writeback of the fresh clip competing with the benchmarks' own writes
   bar.update(1, steps, "bench read");
-  const json read = run_json(fmt::format("bench read '{}'", abc.string()));
+  const json read = run_json({"bench", "read", abc.string()});
   bar.update(2, steps, "bench cook");
-  const json cook = run_json(fmt::format("bench cook '{}' --repetitions 7", abc.string()));
+  const json cook = run_json({"bench", "cook", abc.string(), "--repetitions", "7"});
   bar.update(3, steps, "bench stream");
-  const json stream = run_json("bench stream");
+  const json stream = run_json({"bench", "stream"});
   bar.update(4, steps, "bench sort");
   const fs::path plot = fs::path(o.out).parent_path() / "benchmarks_sort.svg";
-  const json sort_one = run_json("bench sort --n 1048576");
-  const json sort_table = run_json(fmt::format("bench sort --svg '{}'", plot.string()));
+  const json sort_one = run_json({"bench", "sort", "--n", "1048576"});
+  const json sort_table = run_json({"bench", "sort", "--svg", plot.string()});
   bar.update(5, steps, "bench render");
-  const json render = run_json("bench render");
+  const json render = run_json({"bench", "render"});
   bar.update(6, steps, "done");
 
-  std::ofstream md(o.out);
+  std::ostringstream md;
   md << "# Benchmarks\n\n"
         "Written by `pstream bench all` on this project's machine (2 cores, shared: absolute times drift, so every "
         "stage\n"
@@ -136,6 +140,8 @@ int bench_all(const BenchAllOptions& o) {
   md << "\nRaw results:\n\n```json\n"
      << json{{"read", read}, {"cook", cook}, {"stream", stream}, {"sort", sort_one}, {"render", render}}.dump(1)
      << "\n```\n";
+  write_file(o.out, md.str());
+  if (!std::filesystem::exists(plot)) throw Error(fmt::format("{}: the sort benchmark did not write its plot", plot.string()));
   fmt::print("wrote {} and {}\n", o.out, plot.string());
   return 0;
 }

@@ -11,7 +11,6 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <functional>
 #include <numeric>
 
@@ -21,6 +20,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
@@ -494,10 +494,9 @@ int bench_codec(const BenchCodecOptions& o) {
                                 {"ours_decode_vs_zstd", zstd_gb_s > 0 ? ours_gb_s / zstd_gb_s : 0.0},
                                 {"codecs", results}};
   if (!o.svg.empty()) {
-    std::ofstream svg(o.svg);
-    svg << svg_scatter(results, fmt::format("{}: {} frames, error bound 1e-4 of the diagonal",
-                                            std::filesystem::path(o.file).filename().string(), frames.size()));
-    if (!svg.flush()) throw Error(fmt::format("{}: cannot write the plot", o.svg));
+    write_file(o.svg, svg_scatter(results, fmt::format("{}: {} frames, error bound 1e-4 of the diagonal",
+                                                      std::filesystem::path(o.file).filename().string(),
+                                                      frames.size())));
   }
   if (o.json) {
     fmt::print("{}\n", report.dump(1));

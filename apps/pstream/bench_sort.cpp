@@ -4,13 +4,14 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <fstream>
+#include <sstream>
 #include <map>
 #include <random>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/error.hpp"
 #include "progress.hpp"
@@ -142,10 +143,10 @@ int bench_sort(const BenchSortOptions& o) {
     }
   }
   if (!o.svg.empty()) {
-    std::ofstream(o.svg) << svg_plot(series, "Sorting key-index pairs, random depths (median ms, log-log)");
+    write_file(o.svg, svg_plot(series, "Sorting key-index pairs, random depths (median ms, log-log)"));
   }
   if (!o.markdown.empty()) {
-    std::ofstream md(o.markdown);
+    std::ostringstream md;
     md << "| input | N | memcpy of the pairs |";
     for (const auto& c : bench::contenders()) md << " " << c.name << " |";
     md << " vqsort / ours |\n|---|---:|---:|";
@@ -160,6 +161,7 @@ int bench_sort(const BenchSortOptions& o) {
       }
       md << fmt::format(" {:.2f}× |\n", row["ratio_vs_vqsort"].get<double>());
     }
+    write_file(o.markdown, md.str());
   }
   if (o.n) {
     const auto& r = results[0];

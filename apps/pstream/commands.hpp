@@ -26,6 +26,9 @@ int verify_pstream(const std::string& file, bool json, const std::string& agains
 
 // True when the file starts with the .pstream magic.
 bool is_pstream_file(const std::string& file);
+// Throws pstream::Error saying "cook it first" when `file` is an Alembic archive or a PLY file
+// given where a cooked .pstream is wanted.
+void require_cooked(const std::string& file);
 
 struct BenchReadOptions {
   std::string file;
@@ -44,7 +47,7 @@ struct CookCli {
   std::uint64_t max_particles = 64ull << 20;
   unsigned threads = 0;
   std::uint32_t keyframe_interval = 64;
-  std::string command_line;
+  std::uint64_t max_frames = 100'000;
 };
 int run_cook(const CookCli& cli);
 
@@ -78,6 +81,7 @@ struct RenderCli {
   double fps = 0.0;
   float size_multiplier = 1.0f;
   bool quiet = false;
+  std::uint64_t max_frames = 100'000;  // more images than this are refused (a mistyped --fps)
 };
 struct RenderStats {
   std::vector<double> frame_ms;  // each frame's draw + read-back (PNG writing excluded)

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/cook.hpp"
 #include "progress.hpp"
@@ -17,11 +18,18 @@ std::uint64_t parse_size(const std::string& text) {
   const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
   const std::string unit(ptr, text.data() + text.size());
   if (ec != std::errc() || value == 0)
-    throw Error(fmt::format("--chunk-size '{}': expected a size such as 2MiB", text));
-  if (unit.empty() || unit == "B") return value;
-  if (unit == "K" || unit == "KiB" || unit == "k") return value << 10;
-  if (unit == "M" || unit == "MiB") return value << 20;
-  throw Error(fmt::format("--chunk-size '{}': unknown unit '{}' (B, KiB, MiB)", text, unit));
+    throw Error(fmt::format("--chunk-size '{}': expected a size such as 2MiB (a power of two from 64KiB to 64MiB)",
+                            text));
+  int shift = 0;
+  if (unit == "K" || unit == "KiB" || unit == "k")
+    shift = 10;
+  else if (unit == "M" || unit == "MiB")
+    shift = 20;
+  else if (!unit.empty() && unit != "B")
+    throw Error(fmt::format("--chunk-size '{}': unknown unit '{}' (B, KiB, MiB)", text, unit));
+  if (value > (std::uint64_t{1} << 40) >> shift)  // far past the largest chunk, and no wrap-around below
+    throw Error(fmt::format("--chunk-size '{}': too large; chunks are 64KiB to 64MiB", text));
+  return value << shift;
 }
 
 void parse_codec(const std::string& text, cook::Options& o) {
@@ -41,9 +49,12 @@ void parse_codec(const std::string& text, cook::Options& o) {
     }
     return;
   }
-  if (name == "raw")
+  if (name == "raw") {
     o.codec = format::Codec::Raw;
-  else if (name == "lz4")
+    if (colon != std::string::npos) throw Error(fmt::format("--codec '{}': raw has no level; write raw", text));
+    return;
+  }
+  if (name == "lz4")
     o.codec = format::Codec::Lz4;
   else if (name == "zstd")
     o.codec = format::Codec::Zstd;
@@ -83,8 +94,12 @@ void parse_scale(const std::string& text, cook::Options& o) {
     o.scale_from = cook::ScaleFrom::Widths;
   } else if (text.rfind("constant:", 0) == 0) {
     o.scale_from = cook::ScaleFrom::Constant;
-    o.scale_constant = std::stof(text.substr(9));
-    if (!(o.scale_constant > 0)) throw Error("--scale-from constant:X needs X > 0");
+    const std::string number = text.substr(9);
+    const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), o.scale_constant);
+    if (ec != std::errc() || ptr != number.data() + number.size() || !(o.scale_constant > 0) ||
+        !std::isfinite(o.scale_constant)) {
+      throw Error(fmt::format("--scale-from '{}': expected constant:X with X a positive number (the radius)", text));
+    }
   } else if (text.rfind("attr:", 0) == 0) {
     o.scale_from = cook::ScaleFrom::Attribute;
     o.scale_attribute = text.substr(5);
@@ -94,11 +109,9 @@ void parse_scale(const std::string& text, cook::Options& o) {
 }
 
 void parse_frames(const std::string& text, cook::Options& o) {
-  const auto colon = text.find(':');
-  if (colon == std::string::npos) throw Error(fmt::format("--frames '{}': expected A:B", text));
-  const std::string a = text.substr(0, colon), b = text.substr(colon + 1);
-  o.frame_begin = a.empty() ? 0 : std::stoll(a);
-  o.frame_end = b.empty() ? -1 : std::stoll(b);
+  const auto frames = parse_frame_range(text);
+  o.frame_begin = frames.first;
+  o.frame_end = frames.second;
 }
 
 }  // namespace
@@ -130,7 +143,7 @@ int run_cook(const CookCli& cli) {
   o.drop_invalid = cli.drop_invalid;
   o.max_particles = cli.max_particles;
   o.threads = cli.threads;
-  o.command_line = cli.command_line;
+  o.max_frames = cli.max_frames;
 
   ProgressBar bar("cook", !cli.quiet && !cli.json);
   const cook::Report r = cook::cook(o, [&](const cook::Progress& p) {

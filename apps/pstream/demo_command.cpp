@@ -7,13 +7,15 @@
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
+#include <sstream>
 #include <thread>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/output_file.hpp"
 #include "commands.hpp"
+#include "process.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/demo.hpp"
@@ -126,7 +128,6 @@ int run_demo(const DemoCli& cli) {
   co.output = dir / "demo.pstream";
   co.frame_codec = format::FrameCodec::Particle;  // error-bounded, predicted over time
   co.particle.zstd_level = 9;  // the demo's time budget: ~5x faster cook than the default 16, ~9% larger
-  co.command_line = "pstream demo (cook stage)";
   ProgressBar cook_bar("cook", !cli.quiet);
   const cook::Report cr =
       cook::cook(co, [&](const cook::Progress& p) { cook_bar.update(p.frames_done, p.frame_count, "frames"); });
@@ -194,7 +195,7 @@ int run_demo(const DemoCli& cli) {
   rc.out = (dir / "frames").string();
   rc.size = cli.size;
   rc.quiet = cli.quiet;
-  const bool have_ffmpeg = std::system("command -v ffmpeg >/dev/null 2>&1") == 0;
+  const bool have_ffmpeg = have_program("ffmpeg");
   if (have_ffmpeg) rc.video = (dir / "demo.mp4").string();
   fs::remove_all(rc.out);
   RenderStats rs;
@@ -217,11 +218,11 @@ int run_demo(const DemoCli& cli) {
                        {"frames", rc.out},
                        {"video", have_ffmpeg ? rc.video : ""},
                        {"contact_sheet", (dir / "contact_sheet.png").string()}};
-  std::ofstream(dir / "report.json") << report.dump(2) << "\n";
+  write_file(dir / "report.json", report.dump(2) + "\n");
 
   const auto med = [&](const char* stage) { return report[stage]["frame_ms"]["median"].get<double>(); };
   const auto p99 = [&](const char* stage) { return report[stage]["frame_ms"]["p99"].get<double>(); };
-  std::ofstream md(dir / "report.md");
+  std::ostringstream md;
   md << fmt::format("# pstream demo — {}\n\n![contact sheet](contact_sheet.png)\n\n", cli.preset);
   md << "| stage | figure |\n|---|---|\n";
   md << fmt::format("| simulate | {} frames at {:g} fps, peak {} particles, {:.2f} s |\n", sim.frame_count(), cli.fps,
@@ -240,6 +241,7 @@ int run_demo(const DemoCli& cli) {
   md << fmt::format("| peak RSS | {:.0f} MiB (it counts the pages of the memory-mapped Alembic file the cook read) |\n",
                     usage.ru_maxrss / 1024.0);
   md << "\nEvery figure was measured in this run (report.json has them all).\n";
+  write_file(dir / "report.md", md.str());
   say(fmt::format("report: {} and {}; frames in {}; contact sheet {}", (dir / "report.md").string(),
                   (dir / "report.json").string(), rc.out, (dir / "contact_sheet.png").string()));
   return 0;

@@ -8,6 +8,7 @@
 
 #include <fmt/format.h>
 
+#include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/codec.hpp"
@@ -70,8 +71,8 @@ void split(const Metadata& m, std::span<const std::byte> records, std::uint64_t 
   }
 }
 
-// A binary little-endian PLY of one frame, written beside its name and renamed when complete.
-void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::uint64_t n) {
+// A binary little-endian PLY of one frame, complete or not at all (never over `input`).
+void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::uint64_t n, const fs::path& input) {
   bool ids32 = true;
   for (std::uint64_t v : c.id) ids32 = ids32 && v <= 0xffffffffu;
   std::string header = fmt::format(
@@ -89,9 +90,10 @@ void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::u
                                    : fmt::format("property float {}_{}\n", a->name, k);
   }
   header += "end_header\n";
-  std::vector<char> body;
+  std::vector<std::byte> body(reinterpret_cast<const std::byte*>(header.data()),
+                              reinterpret_cast<const std::byte*>(header.data() + header.size()));
   const auto put = [&](const auto& v) {
-    const char* b = reinterpret_cast<const char*>(&v);
+    const auto* b = reinterpret_cast<const std::byte*>(&v);
     body.insert(body.end(), b, b + sizeof(v));
   };
   for (std::uint64_t i = 0; i < n; ++i) {
@@ -111,19 +113,8 @@ void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::u
       for (std::size_t k = 0; k < c.float_attributes[e]->components; ++k)
         put(c.floats[e][i * c.float_attributes[e]->components + k]);
   }
-  const fs::path temp = fs::path(path) += fmt::format(".tmp-{}", ::getpid());
-  {
-    std::ofstream out(temp, std::ios::binary);
-    out.write(header.data(), std::streamsize(header.size()));
-    out.write(body.data(), std::streamsize(body.size()));
-    out.close();
-    if (!out) {
-      std::error_code ec;
-      fs::remove(temp, ec);
-      throw Error(fmt::format("{}: cannot write (disk full, or no permission?)", path.string()));
-    }
-  }
-  fs::rename(temp, path);
+  const fs::path inputs[] = {input};
+  write_file(path, body, inputs);
 }
 
 }  // namespace
@@ -142,11 +133,13 @@ int run_export(const ExportCli& cli) {
   std::vector<std::byte> records(m.max_count * m.record_size);
   ProgressBar bar("export", !cli.quiet);
   if (!cli.out.empty()) {
+    if (fs::exists(cli.out) && !fs::is_directory(cli.out))
+      throw Error(fmt::format("--out {}: exists and is not a folder", cli.out));
     fs::create_directories(cli.out);
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
       reader.read_frame(f, records);
       split(m, records, m.frames[f].count, c);
-      write_ply(fs::path(cli.out) / fmt::format("frame.{:04}.ply", f + 1), m, c, m.frames[f].count);
+      write_ply(fs::path(cli.out) / fmt::format("frame.{:04}.ply", f + 1), m, c, m.frames[f].count, cli.file);
       bar.update(f + 1, m.frame_count(), "frames");
     }
     if (!cli.quiet) fmt::print("{} frames -> {}/frame.0001.ply ...\n", m.frame_count(), cli.out);
@@ -157,9 +150,11 @@ int run_export(const ExportCli& cli) {
   po.velocities = m.find("velocity") != nullptr;
   if (m.find("color")) po.float_params.push_back({"Cd", 3});
   for (const Attribute* a : c.float_attributes) po.float_params.push_back({a->name, a->components});
-  const fs::path temp = fs::path(cli.output) += fmt::format(".tmp-{}", ::getpid());
-  try {
-    alembic::ArchiveWriter writer(temp, "pstream export", fmt::format("{} {}", m.source_file, m.source_object), m.fps,
+  const fs::path inputs[] = {cli.file};
+  check_output(cli.output, inputs);
+  {
+    // The writer writes a temporary beside the output and renames it at close().
+    alembic::ArchiveWriter writer(cli.output, "pstream export", fmt::format("{} {}", m.source_file, m.source_object), m.fps,
                                   m.time_of_frame0, po);
     std::vector<float> widths, cd;
     std::vector<std::uint64_t> index_ids;
@@ -189,12 +184,7 @@ int run_export(const ExportCli& cli) {
       bar.update(f + 1, m.frame_count(), "frames");
     }
     writer.close();
-  } catch (...) {
-    std::error_code ec;
-    fs::remove(temp, ec);
-    throw;
   }
-  fs::rename(temp, cli.output);
   if (!cli.quiet) fmt::print("{} frames -> {}\n", m.frame_count(), cli.output);
   return 0;
 }

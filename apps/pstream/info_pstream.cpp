@@ -11,6 +11,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "base/mapped_file.hpp"
 #include "commands.hpp"
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
@@ -93,11 +94,35 @@ json bounds_json(const std::array<float, 6>& b) {
 
 }  // namespace
 
-bool is_pstream_file(const std::string& file) {
-  std::ifstream in(file, std::ios::binary);
-  char magic[8] = {};
-  in.read(magic, 8);
-  return in.gcount() == 8 && std::memcmp(magic, "PSTREAM\0", 8) == 0;
+namespace {
+
+// The first bytes of a file (fewer when it is shorter). Refuses FIFOs and other special files
+// (reading one could block forever).
+std::string first_bytes(const std::string& file, std::size_t n) {
+  std::uint64_t size = 0;
+  const int fd = open_regular_file(file, size);
+  std::string out(n, '\0');
+  const ssize_t got = ::pread(fd, out.data(), n, 0);
+  ::close(fd);
+  out.resize(got > 0 ? static_cast<std::size_t>(got) : 0);
+  return out;
+}
+
+}  // namespace
+
+bool is_pstream_file(const std::string& file) { return first_bytes(file, 8) == std::string("PSTREAM\0", 8); }
+
+void require_cooked(const std::string& file) {
+  const std::string magic = first_bytes(file, 8);
+  const bool alembic = magic.starts_with("Ogawa");
+  const bool hdf5 = magic.size() >= 4 && magic.compare(1, 3, "HDF") == 0;
+  const bool ply = magic.starts_with("ply");
+  if (alembic || hdf5 || ply) {
+    const std::filesystem::path p(file);
+    throw Error(fmt::format("{}: is {}, not a cooked clip; cook it first: pstream cook {} -o {}", file,
+                            ply ? "a PLY file" : "an Alembic archive", file,
+                            (p.parent_path() / p.stem()).string() + ".pstream"));
+  }
 }
 
 int info_pstream(const InfoPstreamOptions& options) {

@@ -1,20 +1,19 @@
 // pstream: the ParticleStream command-line tool.
 #include <cstdio>
 #include <exception>
+#include <filesystem>
+#include <new>
 
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
 
+#include "base/mapped_file.hpp"
+#include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/error.hpp"
 
 namespace {
 
-std::string join_args(int argc, char** argv) {
-  std::string s = "pstream";
-  for (int i = 1; i < argc; ++i) s += std::string(" ") + argv[i];
-  return s;
-}
 
 }  // namespace
 
@@ -48,7 +47,6 @@ int main(int argc, char** argv) {
 
   // cook -------------------------------------------------------------------------------------
   CookCli cook;
-  cook.command_line = join_args(argc, argv);
   auto* cook_cmd = app.add_subcommand("cook",
                                       "Cook an Alembic point cache or a numbered PLY sequence into a .pstream\n\n"
                                       "Examples:\n"
@@ -69,7 +67,7 @@ int main(int argc, char** argv) {
   cook_cmd->add_flag("--no-xforms", cook.no_xforms,
                      "Keep positions in object space (default: bake the world transform)");
   cook_cmd->add_option("--fps", cook.fps, "Output frame rate (default: the source's; PLY: 24)")
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cook_cmd->add_flag("--interpolate", cook.interpolate,
                      "Between source samples, blend particles matched by id (default: take the nearest sample)");
   cook_cmd
@@ -105,6 +103,11 @@ int main(int argc, char** argv) {
   cook_cmd->add_flag("--drop-invalid", cook.drop_invalid,
                      "Drop particles with NaN or infinite positions instead of failing");
   cook_cmd->add_option("--max-particles", cook.max_particles, "Largest particle count a frame may have")
+      ->capture_default_str();
+  cook_cmd
+      ->add_option("--max-frames", cook.max_frames,
+                   "Largest number of frames a cook may make (a guard against a mistyped --fps or a source whose "
+                   "time range is absurd)")
       ->capture_default_str();
   cook_cmd->add_option("--threads", cook.threads, "Chunk encoding threads (default: one per core)");
   cook_cmd->add_flag("-q,--quiet", cook.quiet, "No progress bar or summary");
@@ -231,12 +234,19 @@ int main(int argc, char** argv) {
   render_cmd->add_option("--size", render_cli.size, "Image size WIDTHxHEIGHT")->capture_default_str();
   render_cmd->add_option("--camera", render_cli.camera, "auto (frame the clip's bounds) or x,y,z:tx,ty,tz")
       ->capture_default_str();
-  render_cmd->add_option("--fps", render_cli.fps, "Output frame rate (default: the clip's)");
-  render_cmd->add_option("--video", render_cli.video, "Also write an MP4 through ffmpeg");
-  render_cmd->add_option("--blend", render_cli.blend, "alpha (sorted), additive or alphatest")->capture_default_str();
-  render_cmd->add_option("--sort", render_cli.sort, "back (back to front), front, or none")->capture_default_str();
-  render_cmd->add_option("--size-multiplier", render_cli.size_multiplier, "Scale every particle")
+  render_cmd->add_option("--fps", render_cli.fps, "Output frame rate (default: the clip's)")->check(positive_number());
+  render_cmd->add_option("--max-frames", render_cli.max_frames, "Largest number of images a render may write")
       ->capture_default_str();
+  render_cmd->add_option("--video", render_cli.video, "Also write an MP4 through ffmpeg");
+  render_cmd->add_option("--blend", render_cli.blend, "alpha (sorted), additive or alphatest")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"alpha", "additive", "alphatest"}));
+  render_cmd->add_option("--sort", render_cli.sort, "back (back to front), front, or none")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"back", "front", "none"}));
+  render_cmd->add_option("--size-multiplier", render_cli.size_multiplier, "Scale every particle")
+      ->capture_default_str()
+      ->check(positive_number());
   render_cmd->add_option("--texture", render_cli.texture, "A sprite image (PNG) instead of the soft round sprite");
   render_cmd->add_flag("-q,--quiet", render_cli.quiet, "No progress or summary");
 
@@ -285,30 +295,70 @@ int main(int argc, char** argv) {
       ->capture_default_str();
 
   CLI11_PARSE(app, argc, argv);
-  try {
+  if (play_cmd->parsed() && !viewer.screenshot.empty() && viewer.frames_to_run <= 0) {
+    fmt::print(stderr, "pstream: error: --screenshot needs --frames-to-run N (the frame to save; the viewer otherwise "
+                       "runs until its window is closed)\n");
+    return 1;
+  }
+  // Every command that plays or reads a cooked clip: an Alembic or PLY file gets "cook it first".
+  const auto cooked = [](const std::string& file) {
+    require_cooked(file);
+    return file;
+  };
+  const auto dispatch = [&]() -> int {
     if (info_cmd->parsed()) {
-      if (is_pstream_file(info_file)) return info_pstream({info_file, info_json, info_frames});
+      if (is_pstream_file(info_file) || std::filesystem::path(info_file).extension() == ".pstream")
+        return info_pstream({info_file, info_json, info_frames});
       return info_alembic({info_file, info_json});
     }
     if (cook_cmd->parsed()) return run_cook(cook);
-    if (verify_cmd->parsed()) return verify_pstream(verify_file, verify_json, verify_against);
-    if (export_cmd->parsed()) return run_export(export_cli);
+    if (verify_cmd->parsed()) return verify_pstream(cooked(verify_file), verify_json, verify_against);
+    if (export_cmd->parsed()) {
+      cooked(export_cli.file);
+      return run_export(export_cli);
+    }
     if (read_cmd->parsed()) return bench_read(bench_read_opts);
     if (bench_cook_cmd->parsed()) return bench_cook(bench_cook_opts);
     if (bench_sort_cmd->parsed()) return bench_sort(bench_sort_opts);
-    if (bench_stream_cmd->parsed()) return bench_stream(bench_stream_opts);
+    if (bench_stream_cmd->parsed()) {
+      if (!bench_stream_opts.file.empty()) cooked(bench_stream_opts.file);
+      return bench_stream(bench_stream_opts);
+    }
     if (bench_codec_cmd->parsed()) return bench_codec(bench_codec_opts);
-    if (render_cmd->parsed()) return run_render(render_cli);
-    if (play_cmd->parsed()) return run_viewer(viewer);
+    if (render_cmd->parsed()) {
+      cooked(render_cli.file);
+      return run_render(render_cli);
+    }
+    if (play_cmd->parsed()) {
+      for (const std::string& f : viewer.files) cooked(f);
+      return run_viewer(viewer);
+    }
     if (demo_cmd->parsed()) return run_demo(demo);
     if (bench_render_cmd->parsed()) return bench_render(bench_render_opts);
     if (bench_all_cmd->parsed()) return bench_all(bench_all_opts);
+    return 0;
+  };
+  int status = 0;
+  std::string error;
+  try {
+    status = dispatch();
   } catch (const pstream::Error& e) {
-    fmt::print(stderr, "pstream: error: {}\n", e.what());
-    return 1;
+    error = in_cli_terms(e.what());
+    status = 1;
+  } catch (const std::bad_alloc&) {
+    error = "out of memory (an input asks for more than this machine has; see docs/reliability.md for the limits)";
+    status = 1;
   } catch (const std::exception& e) {
     fmt::print(stderr, "pstream: internal error: {}\n", e.what());
-    return 2;
+    status = 2;
   }
-  return 0;
+  // A file truncated under a read: whatever came of it is void, whatever the command said.
+  if (const std::string truncated = pstream::MappedFile::truncated_file(); !truncated.empty()) {
+    fmt::print(stderr, "pstream: error: {}: the file was truncated while it was being read; nothing is written from "
+                       "it\n",
+               truncated);
+    return 1;
+  }
+  if (!error.empty()) fmt::print(stderr, "pstream: error: {}\n", error);
+  return status;
 }

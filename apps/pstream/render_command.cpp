@@ -12,7 +12,9 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "cli_terms.hpp"
 #include "commands.hpp"
+#include "process.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "particlestream/stream.hpp"
@@ -27,15 +29,6 @@ render::Vec3 parse_vec3(const std::string& text) {
   char comma = 0;
   if (!(in >> v[0] >> comma >> v[1] >> comma >> v[2])) throw Error(fmt::format("'{}': expected x,y,z", text));
   return v;
-}
-
-bool have_program(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  std::istringstream dirs(path ? path : "");
-  for (std::string dir; std::getline(dirs, dir, ':');) {
-    if (!dir.empty() && ::access((std::filesystem::path(dir) / name).c_str(), X_OK) == 0) return true;
-  }
-  return false;
 }
 
 }  // namespace
@@ -72,17 +65,27 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   if (m.frame_count() == 0) throw Error(fmt::format("{}: the clip has no frames", cli.file));
   std::int64_t first = 0, last = std::int64_t(m.frame_count());
   if (!cli.frames.empty()) {
-    const auto colon = cli.frames.find(':');
-    if (colon == std::string::npos) throw Error(fmt::format("--frames '{}': expected A:B", cli.frames));
-    if (colon > 0) first = std::stoll(cli.frames.substr(0, colon));
-    if (colon + 1 < cli.frames.size()) last = std::min<std::int64_t>(last, std::stoll(cli.frames.substr(colon + 1)));
+    const auto [a, b] = parse_frame_range(cli.frames);
+    first = a;
+    if (b >= 0) last = std::min(last, b);
   }
-  if (first < 0 || first >= last)
-    throw Error(fmt::format("--frames {}: selects no frames of {}", cli.frames, m.frame_count()));
+  if (first >= last) {
+    throw Error(fmt::format("--frames {}: selects no frames; the clip has {} (0:{})", cli.frames, m.frame_count(),
+                            m.frame_count()));
+  }
   const double fps = cli.fps > 0 ? cli.fps : m.fps;
   const double t0 = m.frames[std::size_t(first)].time, t1 = m.frames[std::size_t(last - 1)].time;
-  const auto outputs = static_cast<std::uint64_t>(std::floor((t1 - t0) * fps + 1e-6)) + 1;
+  // Kept as a double until it is known to be in range (times are validated finite and increasing).
+  const double images = std::floor((t1 - t0) * fps + 1e-6) + 1;
+  if (!(images <= double(cli.max_frames))) {
+    throw Error(fmt::format("{}: rendering {:g} s at {:g} fps makes {:.0f} images, more than --max-frames {}; "
+                            "choose a lower --fps or --frames, or raise --max-frames",
+                            cli.file, t1 - t0, fps, images, cli.max_frames));
+  }
+  const auto outputs = static_cast<std::uint64_t>(images);
 
+  if (std::filesystem::exists(cli.out) && !std::filesystem::is_directory(cli.out))
+    throw Error(fmt::format("--out {}: exists and is not a folder", cli.out));
   std::filesystem::create_directories(cli.out);
   render::HeadlessContext context(width, height);
   render::RendererOptions ro;
@@ -138,17 +141,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   if (!cli.quiet)
     fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
   if (!cli.video.empty()) {
-    if (!have_program("ffmpeg")) {
-      fmt::print(stderr,
-                 "note: --video needs the ffmpeg program, which is not installed (apt-get install ffmpeg; "
-                 "scripts/install-deps.sh installs it). The PNG frames are written.\n");
-      return 0;
-    }
-    const std::string command = fmt::format(
-        "ffmpeg -y -loglevel error -framerate {} -i '{}/frame_%05d.png' -c:v libx264 -pix_fmt yuv420p "
-        "-vf 'pad=ceil(iw/2)*2:ceil(ih/2)*2' '{}'",
-        fps, cli.out, cli.video);
-    if (std::system(command.c_str()) != 0) throw Error(fmt::format("ffmpeg failed to write {}", cli.video));
+    encode_video(cli.out, fps, cli.video);  // no shell; checks the file was written
     if (!cli.quiet) fmt::print("video -> {}\n", cli.video);
   }
   return 0;

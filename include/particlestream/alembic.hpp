@@ -250,8 +250,12 @@ class Archive {
   ArchiveInfo info() const;
   const std::vector<TimeSampling>& time_samplings() const;
   const TimeSampling& time_sampling(std::uint32_t index) const;
-  // Earliest and latest sample time of the archive, as Abc::GetArchiveStartAndEndTime.
+  // Earliest and latest sample time of the archive, as Abc::GetArchiveStartAndEndTime: when no
+  // property has a sample, start = +DBL_MAX and end = -DBL_MAX.
   std::pair<double, double> start_end_time() const;
+  // Throws pstream::Error when the file was truncated while this archive read it (the reads past
+  // the new end saw zeros; see MappedFile). Call it before trusting what was read.
+  void check_intact() const;
 
   Object top() const;
   std::optional<Object> find(std::string_view full_name) const;

@@ -34,7 +34,8 @@ struct PointsSample {
 
 class ArchiveWriter {
  public:
-  // Creates the file (written in place and frozen by close(): readers refuse it until then).
+  // Writes to a temporary beside `path`, renamed over it by close(): until then `path` is untouched,
+  // and an archive that is never closed leaves nothing behind.
   ArchiveWriter(const std::filesystem::path& path, const std::string& application, const std::string& description,
                 double fps, double start_time, const PointsWriterOptions& points);
   ~ArchiveWriter();

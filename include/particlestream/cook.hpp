@@ -14,6 +14,9 @@ namespace pstream::cook {
 
 enum class ScaleFrom { Widths, Constant, Attribute };
 
+// Over an hour at 24 fps: far more than any effect, far less than a mistyped frame rate plans.
+inline constexpr std::uint64_t kDefaultMaxFrames = 100'000;
+
 struct Options {
   std::filesystem::path input;   // .abc, or one file of a numbered PLY sequence (frame.0001.ply)
   std::filesystem::path output;  // .pstream
@@ -36,10 +39,15 @@ struct Options {
   int codec_level = 0;                           // zstd level (default 3 when 0), lz4: 0 fast, > 0 HC
   std::int64_t frame_begin = 0, frame_end = -1;  // output frames [begin, end); -1: to the end
   bool drop_invalid = false;                     // drop NaN/Inf positions instead of failing
-  std::uint64_t max_particles = 64ull << 20;     // per frame
+  std::uint64_t max_particles = 64ull << 20;     // per frame; a larger frame is refused before it is read
+  std::uint64_t max_frames = kDefaultMaxFrames;  // a plan of more output frames is refused (a wrong fps?)
   unsigned threads = 0;                          // chunk encoders; 0: one per core
-  std::string command_line;                      // recorded in the file
 };
+
+// What the file records about how it was made (its "cooked with" string): every setting that
+// changes the bytes, as key=value words, and the input's name and content hash. No paths, so
+// the same input and settings give the same file wherever either is.
+std::string describe_settings(const Options& options, std::uint64_t content_hash);
 
 struct Progress {
   std::uint64_t frames_done = 0, frame_count = 0;

@@ -231,11 +231,13 @@ Metadata parse_metadata(std::span<const std::byte> file, std::string_view name);
 
 // Writes a .pstream in one pass — header placeholder, chunks, then the tables — to a temporary
 // file beside `path`, renamed over `path` only by commit(): a failed or interrupted write never
-// leaves a half-written file at `path`.
+// leaves a half-written file at `path`, and no temporary (src/base/output_file.hpp has the rules:
+// /dev/null is written directly, directories and other special files are refused).
 class Writer {
  public:
   // `meta` gives layout, record size, chunk size, fps and names; frames and chunks are appended.
-  Writer(std::filesystem::path path, Metadata meta);
+  // Refuses an output that is one of `inputs` (the same file), before writing anything.
+  Writer(std::filesystem::path path, Metadata meta, std::span<const std::filesystem::path> inputs = {});
   ~Writer();
   Writer(const Writer&) = delete;
   Writer& operator=(const Writer&) = delete;
@@ -262,13 +264,13 @@ class Writer {
   void write_at(std::uint64_t offset, std::span<const std::byte> bytes);
   // Records the chunk just written at position_ and moves position_ past it.
   void end_chunk(std::uint64_t stored_size, Codec codec, std::uint32_t codec_param, std::uint64_t checksum);
-  std::filesystem::path path_, temp_path_;
+  std::filesystem::path path_;
   Metadata meta_;
-  std::FILE* file_ = nullptr;
+  struct Output;  // the file being written (src/base/output_file.hpp)
+  std::unique_ptr<Output> out_;
   std::uint64_t position_ = 0;  // where the next chunk goes
   struct RawChunk;              // the raw chunk being written in pieces
   std::unique_ptr<RawChunk> raw_;
-  bool committed_ = false;
 };
 
 std::vector<std::byte> serialize_tables(const Metadata& meta);

@@ -39,7 +39,17 @@ std::vector<TimeSampling> read_time_samplings(const ogawa::File& file, ogawa::Da
     }
     ts.stored_times.clear();
     ts.stored_times.reserve(n);
-    for (std::uint32_t i = 0; i < n; ++i) ts.stored_times.push_back(in.f64("time sampling stored time"));
+    for (std::uint32_t i = 0; i < n; ++i) {
+      const std::uint64_t time_at = in.offset();
+      const double t = in.f64("time sampling stored time");
+      // Every lookup by time does arithmetic on these: NaN or infinity would make nonsense of it.
+      if (!std::isfinite(t)) {
+        file.fail(time_at, fmt::format("time sampling {} stores time {} (sample {} of its cycle), expected a finite "
+                                       "number of seconds",
+                                       out.size(), t, i));
+      }
+      ts.stored_times.push_back(t);
+    }
     if (ts.time_per_cycle == TimeSampling::kAcyclicTimePerCycle) {
       ts.type = TimeSamplingType::Acyclic;
       ts.samples_per_cycle = TimeSampling::kAcyclicSamplesPerCycle;
@@ -304,6 +314,8 @@ std::pair<double, double> Archive::start_end_time() const {
   }
   return {start, end};  // nothing sampled: +DBL_MAX, -DBL_MAX, as the official library reports
 }
+
+void Archive::check_intact() const { d_->mapping.check_intact(); }
 
 Object Archive::top() const { return Object(d_.get(), d_->top.get()); }
 

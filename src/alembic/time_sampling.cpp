@@ -11,6 +11,14 @@ namespace {
 constexpr double kEpsilon = std::numeric_limits<double>::epsilon() * 32.0;
 constexpr double kTolerance = kEpsilon * 32.0;
 
+// floor(q) as an index no larger than `last`: NaN and negatives give 0, and values past `last`
+// (huge times, tiny cycles) never reach the integer conversion.
+std::uint64_t clamped_index(double q, std::uint64_t last) {
+  if (!(q > 0.0)) return 0;
+  if (q >= static_cast<double>(last)) return last;
+  return static_cast<std::uint64_t>(q);
+}
+
 }  // namespace
 
 double TimeSampling::sample_time(std::uint64_t index) const {
@@ -40,8 +48,7 @@ std::pair<std::uint64_t, double> TimeSampling::floor_index(double time, std::uin
     return {idx - 1, stored_times[idx - 1]};
   }
   if (type == TimeSamplingType::Uniform) {
-    auto idx = static_cast<std::uint64_t>(std::floor((time - min_time) / time_per_cycle));
-    if (idx >= num_samples) idx = num_samples - 1;
+    std::uint64_t idx = clamped_index(std::floor((time - min_time) / time_per_cycle), num_samples - 1);
     double t = min_time + time_per_cycle * static_cast<double>(idx);
     if (t > time && idx > 0) {  // round-off put us one sample late
       --idx;
@@ -54,7 +61,7 @@ std::pair<std::uint64_t, double> TimeSampling::floor_index(double time, std::uin
   double whole = 0.0;
   const double frac = std::modf(elapsed / time_per_cycle, &whole);
   if (std::abs(1.0 - frac) <= kTolerance) whole += 1.0;
-  const auto cycles = static_cast<std::uint64_t>(whole);
+  const std::uint64_t cycles = clamped_index(whole, (num_samples - 1) / stored_times.size());
   const double block_time = static_cast<double>(cycles) * time_per_cycle;
   const double rem = time - block_time;
   std::uint64_t in_cycle = 0;

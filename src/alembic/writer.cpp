@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 
 #include "alembic/layout.hpp"
+#include "base/output_file.hpp"
 #include "particlestream/alembic.hpp"
 
 namespace pstream::alembic {
@@ -21,16 +22,12 @@ namespace {
 
 using namespace layout;
 
+// Appends through an OutputFile: the archive appears at its path, complete, only at close.
 class OgawaOut {
  public:
-  explicit OgawaOut(const std::filesystem::path& path) : path_(path.string()) {
-    file_ = std::fopen(path_.c_str(), "wb");
-    if (file_ == nullptr) throw Error(fmt::format("{}: cannot create: {}", path_, std::strerror(errno)));
+  explicit OgawaOut(const std::filesystem::path& path) : file_(OutputFile::create(path)) {
     const unsigned char header[kHeaderSize] = {'O', 'g', 'a', 'w', 'a', kNotFrozen, 0, 1};  // root offset set at close
     put(header, sizeof header);
-  }
-  ~OgawaOut() {
-    if (file_ != nullptr) std::fclose(file_);
   }
   std::uint64_t data(const void* bytes, std::uint64_t size) {  // a data block: size, then bytes
     if (size == 0) return kDataBit;
@@ -48,22 +45,19 @@ class OgawaOut {
     return at;
   }
   void finish(std::uint64_t root) {  // the root offset, then the frozen byte: the file is complete
-    bool ok = std::fseek(file_, 8, SEEK_SET) == 0 && std::fwrite(&root, 8, 1, file_) == 1;
-    const unsigned char frozen = kFrozen;
-    ok = ok && std::fflush(file_) == 0 && std::fseek(file_, 5, SEEK_SET) == 0 && std::fwrite(&frozen, 1, 1, file_) == 1;
-    ok = (std::fclose(file_) == 0) && ok;
-    file_ = nullptr;
-    if (!ok) throw Error(fmt::format("{}: write failed: {}", path_, std::strerror(errno)));
+    file_.write_at(8, std::as_bytes(std::span(&root, 1)));
+    const auto frozen = static_cast<std::byte>(kFrozen);
+    file_.write_at(5, std::span(&frozen, 1));
+    file_.commit();
   }
   std::uint64_t position() const { return position_; }
 
  private:
   void put(const void* p, std::uint64_t n) {
-    if (std::fwrite(p, 1, n, file_) != n) throw Error(fmt::format("{}: write failed: {}", path_, std::strerror(errno)));
+    file_.append(p, n);
     position_ += n;
   }
-  std::string path_;
-  std::FILE* file_ = nullptr;
+  OutputFile file_;
   std::uint64_t position_ = 0;
 };
 
@@ -266,7 +260,7 @@ ArchiveWriter::ArchiveWriter(const std::filesystem::path& path, const std::strin
   }
 }
 
-ArchiveWriter::~ArchiveWriter() = default;  // an unclosed file keeps its frozen byte 0: readers refuse it
+ArchiveWriter::~ArchiveWriter() = default;  // an unclosed archive's temporary is removed
 
 std::uint64_t ArchiveWriter::bytes_written() const { return impl_->out.position(); }
 

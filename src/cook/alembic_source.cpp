@@ -4,6 +4,7 @@
 #include <unordered_map>
 
 #include <fmt/format.h>
+#include <xxhash.h>
 
 #include "cook/source.hpp"
 #include "particlestream/alembic.hpp"
@@ -109,10 +110,10 @@ class AlembicSource final : public Source {
       }
       if (objects_.empty()) throw Error(fmt::format("{}: the archive holds no points objects{}", file, object_list()));
       if (objects_.size() > 1 && !options.merge) {
-        throw Error(
-            fmt::format("{}: {} points objects; choose one with --object PATH or cook them together with "
-                        "--merge{}",
-                        file, objects_.size(), object_list()));
+        throw OptionError("object",
+                          fmt::format("{}: {} points objects; choose one with `object` (its full name), or cook "
+                                      "them together with `merge`{}",
+                                      file, objects_.size(), object_list()));
       }
     }
     for (const Cooked& c : objects_) {
@@ -166,6 +167,22 @@ class AlembicSource final : public Source {
       }
       return true;
     });
+  }
+  std::string why_no_ids() const override {
+    for (const Cooked& c : objects_) {
+      if (!c.points || !c.points->has_ids()) {
+        return fmt::format("the cache has no particle ids ('{}' has no .pointIds)", c.object.full_name());
+      }
+    }
+    return "the cache has no particle ids (its .pointIds are empty in every sample, as Blender writes FLIP liquids)";
+  }
+  std::vector<std::filesystem::path> files() const override { return {archive_.name()}; }
+  void check_intact() const override { archive_.check_intact(); }
+  std::uint64_t content_hash() const override {
+    const auto bytes = archive_.bytes();
+    const std::uint64_t h = XXH3_64bits(bytes.data(), bytes.size());
+    archive_.check_intact();
+    return h;
   }
   std::uint32_t float_components(const std::string& name) const override {
     std::uint32_t components = 0;
@@ -316,8 +333,7 @@ class AlembicSource final : public Source {
   void blend(const Cooked& c, std::uint32_t a, std::uint32_t b, double w, double time, const Request& request,
              ParticleFrame& out) {
     if (!c.points || !c.points->has_ids()) {
-      throw Error(fmt::format("{}: --interpolate needs stable particle ids, and '{}' has no .pointIds", archive_.name(),
-                              c.object.full_name()));
+      throw OptionError("interpolate", fmt::format("{}: interpolate: {}", archive_.name(), why_no_interpolation()));
     }
     Request r = request;
     r.id = true;

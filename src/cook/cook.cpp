@@ -12,6 +12,7 @@
 
 #include "cook/chunk_cutter.hpp"
 #include "cook/direct_pack.hpp"
+#include "base/output_file.hpp"
 #include "cook/source.hpp"
 #include "particlestream/cook.hpp"
 
@@ -57,28 +58,34 @@ Plan make_plan(const Options& options, const Source& source, Report& report) {
   }
   plan.layout = format::default_layout();
   if (options.color_from == "Cd" && !source.has_color()) {
-    throw Error(fmt::format("{}: --color-from Cd, but the source has no Cd colours", source.name()));
+    throw OptionError("color_from", fmt::format("{}: `color_from` is Cd, but the source has no Cd colours", source.name()));
   }
   if (options.color_from != "Cd" && options.color_from != "none" && options.color_from != "auto") {
-    throw Error(fmt::format("--color-from must be Cd, none or auto, not '{}'", options.color_from));
+    throw OptionError("color_from", fmt::format("`color_from` must be Cd, none or auto, not '{}'", options.color_from));
+  }
+  if (options.interpolate && !source.can_interpolate()) {
+    throw OptionError("interpolate", fmt::format("{}: `interpolate`: {}", source.name(), source.why_no_interpolation()));
   }
   r.color = options.color_from == "Cd" || (options.color_from == "auto" && source.has_color());
   if (r.color) format::append_attribute(plan.layout, "color", AttributeType::Unorm8, 4);
   for (const std::string& a : options.attributes) {
     if (a == "velocity") {
       if (!source.has_velocity())
-        throw Error(fmt::format("{}: --attributes velocity, but the source has none", source.name()));
+        throw OptionError("attributes",
+                          fmt::format("{}: `attributes` has velocity, but the source has no velocities", source.name()));
       r.velocity = true;
       format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
     } else if (a == "id" || a == "id32") {
       if (!source.has_ids())
-        throw Error(fmt::format("{}: --attributes {}, but the source has no ids", source.name(), a));
+        throw OptionError("attributes", fmt::format("{}: `attributes` has {}, but {}; leave {} out of `attributes`",
+                                                    source.name(), a, source.why_no_ids(), a));
       r.id = true;
       format::append_attribute(plan.layout, "id", a == "id" ? AttributeType::Uint64 : AttributeType::Uint32, 1);
     } else {
       const std::uint32_t components = source.float_components(a);
       if (components == 0)
-        throw Error(fmt::format("{}: --attributes {}: the source has no such attribute", source.name(), a));
+        throw OptionError("attributes",
+                          fmt::format("{}: `attributes` has {}, but the source has no such attribute", source.name(), a));
       r.floats.push_back(a);
       format::append_attribute(plan.layout, a, AttributeType::Float32, static_cast<std::uint8_t>(components));
     }
@@ -136,10 +143,10 @@ std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan,
   const std::uint64_t bad = scan.invalid, first_bad = scan.first_invalid;
   if (bad == 0) return 0;
   if (!options.drop_invalid) {
-    throw Error(
-        fmt::format("{}: frame {}: {} particles have NaN or infinite positions (the first is particle {}); "
-                    "--drop-invalid drops them",
-                    source, frame, bad, first_bad));
+    throw OptionError("drop_invalid",
+                      fmt::format("{}: frame {}: {} particles have NaN or infinite positions (the first is particle "
+                                  "{}); `drop_invalid` drops them",
+                                  source, frame, bad, first_bad));
   }
   std::uint64_t kept = 0;
   for (std::uint64_t i = 0; i < f.count; ++i) {
@@ -251,12 +258,36 @@ bool is_ply(const std::filesystem::path& p) {
   return ext == ".ply";
 }
 
+// Refuses a cook that would not fit on the disk: once enough is written to project the total,
+// the projection is compared with the free space left.
+class SpaceCheck {
+ public:
+  SpaceCheck(const std::filesystem::path& output, std::uint64_t frames) : output_(output), frames_(frames) {}
+  void operator()(std::uint64_t frames_done, std::uint64_t bytes_out) {
+    if (checked_ || frames_done < std::min<std::uint64_t>(frames_, 16) || frames_done == 0) return;
+    checked_ = true;
+    const std::uint64_t free = free_space(output_);
+    const double projected = double(bytes_out) / double(frames_done) * double(frames_);
+    if (projected > double(free) + double(bytes_out)) {
+      throw Error(fmt::format("{}: the cook would write about {:.1f} GB ({} frames at {:.1f} MB each so far), but "
+                              "only {:.1f} GB are free there",
+                              output_.string(), projected / 1e9, frames_, double(bytes_out) / double(frames_done) / 1e6,
+                              double(free) / 1e9));
+    }
+  }
+
+ private:
+  std::filesystem::path output_;
+  std::uint64_t frames_;
+  bool checked_ = false;
+};
+
 // The particle codec's cook: a pass over the source for the clip's statistics (bounds, ranges,
 // constants: what the quantisation grids need), then keyframe groups, read in order and encoded
 // `threads` at a time, their packets written in order as raw chunks.
 void cook_particle(const Options& options, const Plan& plan, format::Metadata meta, std::uint64_t frames,
                    unsigned threads, const std::function<std::array<float, 6>(std::uint64_t, ParticleFrame&)>& read,
-                   const std::function<void(const Progress&)>& progress, Report& report) {
+                   const std::function<void(const Progress&)>& progress, const Source& source, Report& report) {
   ParticleFrame frame;
   HeldFrame held;
   Progress state;
@@ -275,7 +306,8 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
                                            options.particle);
   report.error = meta.codec.error;
   report.order = meta.codec.order;
-  format::Writer writer(options.output, meta);
+  format::Writer writer(options.output, meta, source.files());
+  SpaceCheck space(options.output, frames);
   const std::uint64_t K = meta.codec.keyframe_interval;
   std::vector<std::vector<HeldFrame>> groups;
   std::vector<std::uint64_t> starts;  // each group's first frame
@@ -328,6 +360,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
         }
         state.bytes_out += e.packet.size();
         ++state.frames_done;
+        space(state.frames_done - frames, state.bytes_out);
         if (progress) progress(state);
       }
     }
@@ -336,32 +369,108 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   }
   report.frames = frames;
   report.stream_bytes = writer.metadata().decoded_size();
+  source.check_intact();
   report.file_bytes = writer.commit();
   report.chunks = writer.metadata().chunk_count();
 }
 
+
+// The output frames: how many the source spans at the frame rate, and the selected range.
+struct FramePlan {
+  double fps = 0.0, start = 0.0;
+  std::int64_t first = 0, last = 0;
+};
+
+FramePlan plan_frames(const Options& options, const Source& source) {
+  FramePlan p;
+  p.fps = options.fps > 0 ? options.fps : source.default_fps();
+  if (!std::isfinite(p.fps) || !(p.fps > 0)) {
+    throw OptionError("fps", fmt::format("{}: the frame rate `fps` {} must be a positive number of frames per second",
+                                         source.name(), p.fps));
+  }
+  p.start = source.start_time();
+  const double end = source.end_time();
+  if (!std::isfinite(p.start) || !std::isfinite(end) || end < p.start) {
+    throw Error(fmt::format("{}: the source's time range {} s .. {} s is not a range of finite times", source.name(),
+                            p.start, end));
+  }
+  // Whole frames from start to end, kept as a double until it is known to be in range.
+  const double span = std::floor((end - p.start) * p.fps + 1e-6) + 1.0;
+  const double limit = static_cast<double>(options.max_frames);
+  const double first = static_cast<double>(options.frame_begin);
+  const double last = options.frame_end < 0 ? span : std::min(static_cast<double>(options.frame_end), span);
+  if (options.frame_begin < 0 || !(first < last)) {
+    throw OptionError("frame_begin",
+                      fmt::format("{}: the frame range `frame_begin`:`frame_end` {}:{} selects no frames; the clip has "
+                                  "{:.0f} frames at {:g} fps, numbered from 0",
+                                  source.name(), options.frame_begin,
+                                  options.frame_end < 0 ? std::string("end") : std::to_string(options.frame_end), span,
+                                  p.fps));
+  }
+  if (!(last - first <= limit)) {
+    throw OptionError("max_frames",
+                      fmt::format("{}: the cook would make {:.0f} frames ({:g} s at {:g} fps), more than `max_frames`, "
+                                  "{}. Check the frame rate, choose a frame range, or raise `max_frames` if that many "
+                                  "frames are really wanted",
+                                  source.name(), last - first, (last - first) / p.fps, p.fps, options.max_frames));
+  }
+  p.first = options.frame_begin;
+  p.last = static_cast<std::int64_t>(last);
+  return p;
+}
+
+
+std::string codec_setting(const Options& o) {
+  if (o.frame_codec == format::FrameCodec::Particle) {
+    const int level = o.particle.zstd_level ? o.particle.zstd_level
+                      : o.particle.lossless ? format::kDefaultLosslessParticleZstdLevel
+                                            : format::kDefaultParticleZstdLevel;
+    if (o.particle.lossless) return fmt::format("particle-lossless:{}", level);
+    return fmt::format("particle:{} error={}:{:g} keyframe_interval={}", level, o.particle.error_relative ? "rel" : "abs",
+                       o.particle.error, o.particle.keyframe_interval);
+  }
+  return fmt::format("{}:{}", format::codec_name(o.codec), o.codec_level);
+}
+
 }  // namespace
+
+std::string describe_settings(const Options& o, std::uint64_t content_hash) {
+  std::string attributes;
+  for (const std::string& a : o.attributes) attributes += (attributes.empty() ? "" : ",") + a;
+  const char* scale = o.scale_from == ScaleFrom::Widths     ? "widths"
+                      : o.scale_from == ScaleFrom::Constant ? "constant"
+                                                            : "attr";
+  return fmt::format(
+      "source={} source_xxh3={:016x} object={} merge={} bake_xforms={} fps={:g} interpolate={} scale_from={}{} "
+      "color_from={} attributes={} chunk_size={} codec={} frames={}:{} drop_invalid={}",
+      o.input.filename().string(), content_hash, o.object.empty() ? "auto" : o.object, int(o.merge),
+      int(o.bake_xforms), o.fps, int(o.interpolate), scale,
+      o.scale_from == ScaleFrom::Constant    ? fmt::format(":{:g}", o.scale_constant)
+      : o.scale_from == ScaleFrom::Attribute ? ":" + o.scale_attribute
+                                             : std::string(),
+      o.color_from, attributes.empty() ? "none" : attributes, o.chunk_size, codec_setting(o), o.frame_begin,
+      o.frame_end < 0 ? std::string("end") : std::to_string(o.frame_end), int(o.drop_invalid));
+}
 
 Report cook(const Options& options, const std::function<void(const Progress&)>& progress) {
   const auto t0 = std::chrono::steady_clock::now();
   if (!std::has_single_bit(options.chunk_size) || options.chunk_size < format::kMinChunkSize ||
       options.chunk_size > format::kMaxChunkSize) {
-    throw Error(fmt::format("--chunk-size {} must be a power of two from 64 KiB to 64 MiB", options.chunk_size));
+    throw OptionError("chunk_size", fmt::format("`chunk_size` {} must be a power of two from 64 KiB to 64 MiB",
+                                                options.chunk_size));
+  }
+  if (options.fps != 0 && !(options.fps > 0 && std::isfinite(options.fps))) {
+    throw OptionError("fps", fmt::format("`fps` {} must be a positive number (or 0: the source's)", options.fps));
   }
   const std::unique_ptr<Source> source = is_ply(options.input) ? open_ply_sequence(options) : open_alembic(options);
   Report report;
   report.object = source->object();
   const Plan plan = make_plan(options, *source, report);
-
-  const double fps = options.fps > 0 ? options.fps : source->default_fps();
-  const double start = source->start_time(), end = source->end_time();
-  const auto total_frames = static_cast<std::int64_t>(std::floor((end - start) * fps + 1e-6)) + 1;
-  const std::int64_t first = options.frame_begin;
-  const std::int64_t last = options.frame_end < 0 ? total_frames : std::min(options.frame_end, total_frames);
-  if (first < 0 || first >= last) {
-    throw Error(fmt::format("{}: --frames {}:{} selects no frames (the clip has {} frames at {} fps)", source->name(),
-                            first, options.frame_end, total_frames, fps));
-  }
+  const FramePlan frames = plan_frames(options, *source);
+  const double fps = frames.fps, start = frames.start;
+  const std::int64_t first = frames.first, last = frames.last;
+  const std::vector<std::filesystem::path> inputs = source->files();
+  check_output(options.output, inputs);  // before any long work
 
   format::Metadata meta;
   meta.flags =
@@ -372,7 +481,7 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   meta.layout = plan.layout;
   meta.source_file = std::filesystem::path(source->name()).filename().string();
   meta.source_object = source->object();
-  meta.cooked_with = options.command_line;
+  meta.cooked_with = describe_settings(options, source->content_hash());
   const unsigned threads = options.threads ? options.threads : std::max(1u, std::thread::hardware_concurrency());
 
   // One output frame through the general path: read, scanned, NaN/Inf dropped or refused, the
@@ -384,19 +493,21 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
     const Scan found = scan(frame);
     report.dropped_invalid += drop_invalid(frame, found, plan, options, index, source->name());
     if (frame.count > options.max_particles) {
-      throw Error(fmt::format("{}: frame {} has {} particles, more than --max-particles {}", source->name(), index,
-                              frame.count, options.max_particles));
+      throw OptionError("max_particles", fmt::format("{}: frame {} has {} particles, more than `max_particles`, {}",
+                                                     source->name(), index, frame.count, options.max_particles));
     }
+    source->check_intact();
     return found.bounds;
   };
   const auto frame_count = static_cast<std::uint64_t>(last - first);
   if (options.frame_codec == format::FrameCodec::Particle) {
-    cook_particle(options, plan, meta, frame_count, threads, read, progress, report);
+    cook_particle(options, plan, meta, frame_count, threads, read, progress, *source, report);
     report.input_bytes = source->input_bytes();
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return report;
   }
-  format::Writer writer(options.output, meta);
+  format::Writer writer(options.output, meta, inputs);
+  SpaceCheck space(options.output, static_cast<std::uint64_t>(last - first));
 
   const std::size_t batch_chunks = std::max<std::size_t>(2, threads * 2);
   std::vector<std::vector<std::byte>> batch;  // raw chunks waiting to be encoded together
@@ -441,6 +552,8 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
         report.dropped_invalid += packed.invalid;
         report.particles += packed.packed;
         state.frames_done = index + 1;
+        source->check_intact();
+        space(state.frames_done, state.bytes_out);
         if (progress) progress(state);
         continue;
       }
@@ -450,6 +563,7 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
     pack(frame, plan, cutter);
     report.particles += frame.count;
     state.frames_done = index + 1;
+    space(state.frames_done, state.bytes_out);
     if (progress) progress(state);
   }
   cutter.finish();
@@ -457,6 +571,7 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   report.frames = state.frame_count;
   report.stream_bytes = writer.metadata().stream_size();
   report.input_bytes = source->input_bytes();
+  source->check_intact();
   report.file_bytes = writer.commit();
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return report;

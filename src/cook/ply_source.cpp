@@ -4,11 +4,14 @@
 #include <charconv>
 #include <cmath>
 #include <cstring>
+#include <limits>
+#include <memory>
 #include <map>
 #include <sstream>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
+#include <xxhash.h>
 
 #include "base/mapped_file.hpp"
 #include "cook/source.hpp"
@@ -31,7 +34,10 @@ struct PlyHeader {
   std::size_t vertex_size = 0;
   std::size_t data_offset = 0;
   bool has_elements_before_vertex = false;
+  bool has_elements_after_vertex = false;  // faces and such: bytes after the vertices are theirs
 };
+
+const char* format_name(bool binary) { return binary ? "binary_little_endian" : "ascii"; }
 
 std::size_t type_size(PlyType t) {
   static constexpr std::size_t sizes[] = {1, 1, 2, 2, 4, 4, 4, 8};
@@ -74,12 +80,19 @@ PlyHeader parse_header(std::string_view text, const std::string& file) {
         throw Error(fmt::format("{}: PLY format '{}' is not supported (ascii or binary_little_endian)", file, f));
       }
     } else if (key == "element") {
-      words >> element;
+      std::string count;
+      words >> element >> count;
       if (element == "vertex") {
-        words >> h.vertex_count;
+        const auto [end_of, ec] = std::from_chars(count.data(), count.data() + count.size(), h.vertex_count);
+        if (ec != std::errc() || end_of != count.data() + count.size()) {
+          throw Error(fmt::format("{}: header line '{}': expected a vertex count from 0 to {}", file, line,
+                                  std::numeric_limits<std::uint64_t>::max()));
+        }
         vertex_seen = true;
       } else if (!vertex_seen) {
         h.has_elements_before_vertex = true;
+      } else {
+        h.has_elements_after_vertex = true;
       }
     } else if (key == "property" && element == "vertex") {
       std::string type, name;
@@ -175,7 +188,13 @@ std::vector<SequenceFile> find_sequence(const std::filesystem::path& example) {
     const std::string mid = n.substr(prefix.size(), n.size() - prefix.size() - suffix.size());
     if (!std::all_of(mid.begin(), mid.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); }))
       continue;
-    files.push_back({std::stoll(mid), entry.path()});
+    std::int64_t number = 0;
+    const auto [end_of, ec] = std::from_chars(mid.data(), mid.data() + mid.size(), number);
+    if (ec != std::errc() || end_of != mid.data() + mid.size()) {
+      throw Error(fmt::format("{}: frame number {} is too large (at most {})", entry.path().string(), mid,
+                              std::numeric_limits<std::int64_t>::max()));
+    }
+    files.push_back({number, entry.path()});
   }
   std::sort(files.begin(), files.end(), [](const auto& a, const auto& b) { return a.number < b.number; });
   for (std::size_t i = 1; i < files.size(); ++i) {
@@ -194,7 +213,8 @@ std::vector<SequenceFile> find_sequence(const std::filesystem::path& example) {
 
 class PlySource final : public Source {
  public:
-  explicit PlySource(const Options& options) : files_(find_sequence(options.input)) {
+  explicit PlySource(const Options& options)
+      : files_(find_sequence(options.input)), max_particles_(options.max_particles) {
     fps_ = options.fps > 0 ? options.fps : 24.0;
     const MappedFile first = MappedFile::open(files_.front().path);
     const auto text = std::string_view(reinterpret_cast<const char*>(first.bytes().data()), first.bytes().size());
@@ -217,6 +237,28 @@ class PlySource final : public Source {
   bool has_velocity() const override { return find("vx") >= 0 && find("vy") >= 0 && find("vz") >= 0; }
   bool has_ids() const override { return find("id") >= 0; }
   std::uint32_t float_components(const std::string& name) const override { return find(name) >= 0 ? 1 : 0; }
+  std::string why_no_ids() const override { return "the PLY files have no 'id' vertex property"; }
+  bool can_interpolate() const override { return false; }
+  std::string why_no_interpolation() const override {
+    return "a PLY sequence is cooked file by file, each frame from the nearest file; cook it without `interpolate`";
+  }
+  std::vector<std::filesystem::path> files() const override {
+    std::vector<std::filesystem::path> out;
+    for (const auto& f : files_) out.push_back(f.path);
+    return out;
+  }
+  void check_intact() const override {}  // each file is checked right after it is read
+  std::uint64_t content_hash() const override {
+    const std::unique_ptr<XXH3_state_t, decltype(&XXH3_freeState)> state(XXH3_createState(), &XXH3_freeState);
+    if (!state) throw std::bad_alloc();
+    XXH3_64bits_reset(state.get());
+    for (const auto& f : files_) {
+      const MappedFile mapping = MappedFile::open(f.path);
+      XXH3_64bits_update(state.get(), mapping.bytes().data(), mapping.bytes().size());
+      mapping.check_intact();
+    }
+    return XXH3_64bits_digest(state.get());
+  }
 
   void read(double time, const Request& request, ParticleFrame& out) override {
     const double rel = std::round(time * fps_) - static_cast<double>(files_.front().number);
@@ -227,16 +269,37 @@ class PlySource final : public Source {
     const PlyHeader h = parse_header(text, file);
     std::vector<std::string> names;
     for (const auto& p : h.properties) names.push_back(p.name);
-    if (names != names_ || h.binary != header_.binary) {
+    if (h.binary != header_.binary) {
+      throw Error(fmt::format("{}: is {} PLY, but the sequence's first file {} is {}; every file of a sequence must "
+                              "have one format",
+                              file, format_name(h.binary), files_.front().path.string(), format_name(header_.binary)));
+    }
+    if (names != names_) {
       throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file,
                               fmt::join(names, " "), fmt::join(names_, " ")));
     }
     const std::uint64_t n = h.vertex_count;
-    std::vector<double> values(n * h.properties.size());
+    if (n > max_particles_) {
+      throw OptionError("max_particles", fmt::format("{}: declares {} vertices, more than `max_particles`, {}", file, n,
+                                                     max_particles_));
+    }
+    // The declared count must fit in the file before anything is allocated for it: a binary
+    // vertex takes vertex_size bytes, an ascii value at least one digit and a separator.
+    const std::uint64_t data_bytes = mapping.bytes().size() - std::min(h.data_offset, mapping.bytes().size());
+    const std::uint64_t props = h.properties.size();
+    const std::uint64_t per_vertex = h.binary ? std::max<std::uint64_t>(h.vertex_size, 1) : 2 * props;
+    if (n > data_bytes / per_vertex) {
+      throw Error(fmt::format("{}: the header declares {} vertices of {} bytes{}, but the file has {} bytes of data "
+                              "(truncated, or a wrong count)",
+                              file, n, per_vertex, h.binary ? "" : " or more", data_bytes));
+    }
+    std::vector<double> values(n * props);
     if (h.binary) {
-      if (n > (mapping.bytes().size() - h.data_offset) / std::max<std::size_t>(h.vertex_size, 1)) {
-        throw Error(
-            fmt::format("{}: {} vertices of {} bytes do not fit in the file (truncated)", file, n, h.vertex_size));
+      const std::uint64_t used = n * h.vertex_size;
+      if (used != data_bytes && !h.has_elements_after_vertex) {
+        throw Error(fmt::format("{}: the header declares {} vertices ({} bytes), but {} bytes of data follow it; "
+                                "the vertex count is wrong",
+                                file, n, used, data_bytes));
       }
       const std::byte* p = mapping.bytes().data() + h.data_offset;
       for (std::uint64_t i = 0; i < n; ++i, p += h.vertex_size) {
@@ -256,7 +319,14 @@ class PlySource final : public Source {
         }
         c = r.ptr;
       }
+      while (c < end && std::isspace(static_cast<unsigned char>(*c))) ++c;
+      if (c != end && !h.has_elements_after_vertex) {
+        throw Error(fmt::format("{}: offset {}: more numbers follow the {} vertices the header declares; the vertex "
+                                "count is wrong",
+                                file, c - text.data(), n));
+      }
     }
+    mapping.check_intact();
     const std::size_t stride = h.properties.size();
     const auto column = [&](int k, std::uint64_t i) { return values[i * stride + static_cast<std::size_t>(k)]; };
     const std::uint64_t base = out.count;
@@ -332,6 +402,7 @@ class PlySource final : public Source {
   }
 
   std::vector<SequenceFile> files_;
+  std::uint64_t max_particles_ = 0;
   PlyHeader header_;
   std::vector<std::string> names_;
   double fps_ = 24.0;

@@ -56,6 +56,21 @@ class Source {
   virtual bool has_color() const = 0;
   virtual bool has_velocity() const = 0;
   virtual bool has_ids() const = 0;
+  // Why has_ids() is false, in words for a message ("the cache has no particle ids (...)").
+  virtual std::string why_no_ids() const { return "the source has no particle ids"; }
+  // Whether samples can be blended (particles matched by id), and if not, why and what to do.
+  virtual bool can_interpolate() const { return has_ids(); }
+  virtual std::string why_no_interpolation() const {
+    return why_no_ids() +
+           ", and interpolation matches particles by id between samples. Cook without `interpolate`: each frame "
+           "takes the nearest sample";
+  }
+  // The files read (an output must not be one of them).
+  virtual std::vector<std::filesystem::path> files() const = 0;
+  // XXH3-64 of every input byte, in files() order: what the cook was made from, without a path.
+  virtual std::uint64_t content_hash() const = 0;
+  // Throws pstream::Error when an input file was truncated while it was being read.
+  virtual void check_intact() const = 0;
   // Components of a float attribute, 0 when the source has none by that name.
   virtual std::uint32_t float_components(const std::string& name) const = 0;
   // Appends the particles at `time` to `out` (nearest sample, or blended when interpolating).

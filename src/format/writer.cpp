@@ -10,6 +10,7 @@
 #include <unistd.h>
 #include <xxhash.h>
 
+#include "base/output_file.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
@@ -20,14 +21,18 @@ std::uint64_t align_up(std::uint64_t v, std::uint64_t a) { return (v + a - 1) / 
 // Starts writing a finished chunk to the disk now, without waiting: the disk works while the
 // next chunks are made, the final fsync has little left, and a multi-gigabyte cook does not
 // pile up dirty pages. Linux only; elsewhere the fsync in commit() does it all.
-void start_writeback([[maybe_unused]] std::FILE* file, [[maybe_unused]] std::uint64_t offset,
+void start_writeback([[maybe_unused]] int fd, [[maybe_unused]] std::uint64_t offset,
                      [[maybe_unused]] std::uint64_t size) {
 #ifdef __linux__
-  ::sync_file_range(::fileno(file), static_cast<off_t>(offset), static_cast<off_t>(size), SYNC_FILE_RANGE_WRITE);
+  ::sync_file_range(fd, static_cast<off_t>(offset), static_cast<off_t>(size), SYNC_FILE_RANGE_WRITE);
 #endif
 }
 
 }  // namespace
+
+struct Writer::Output {
+  OutputFile file;
+};
 
 // A raw chunk being written in pieces; it starts at position_ (which moves only when it ends).
 struct Writer::RawChunk {
@@ -35,39 +40,19 @@ struct Writer::RawChunk {
   std::uint64_t size = 0;
 };
 
-void Writer::write_at(std::uint64_t offset, std::span<const std::byte> bytes) {
-  const int fd = ::fileno(file_);
-  while (!bytes.empty()) {
-    const ssize_t n = ::pwrite(fd, bytes.data(), bytes.size(), static_cast<off_t>(offset));
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0)
-      throw Error(
-          fmt::format("{}: write failed: {}", temp_path_.string(), n < 0 ? std::strerror(errno) : "disk full?"));
-    bytes = bytes.subspan(static_cast<std::size_t>(n));
-    offset += static_cast<std::uint64_t>(n);
-  }
-}
+void Writer::write_at(std::uint64_t offset, std::span<const std::byte> bytes) { out_->file.write_at(offset, bytes); }
 
-Writer::Writer(std::filesystem::path path, Metadata meta) : path_(std::move(path)), meta_(std::move(meta)) {
+Writer::Writer(std::filesystem::path path, Metadata meta, std::span<const std::filesystem::path> inputs)
+    : path_(std::move(path)), meta_(std::move(meta)) {
   meta_.version = kVersion;
   meta_.frames.clear();
   meta_.chunks.clear();
   meta_.record_size = record_size_of(meta_.layout);
-  // Same-directory temporary, so the final rename is atomic.
-  temp_path_ = path_;
-  temp_path_ += fmt::format(".tmp-{}", ::getpid());
-  file_ = std::fopen(temp_path_.c_str(), "wb");
-  if (file_ == nullptr) throw Error(fmt::format("{}: cannot create: {}", temp_path_.string(), std::strerror(errno)));
+  out_ = std::make_unique<Output>(Output{OutputFile::create(path_, inputs)});
   position_ = align_up(kHeaderSize, kChunkAlignment);
 }
 
-Writer::~Writer() {
-  if (file_ != nullptr) std::fclose(file_);
-  if (!committed_) {
-    std::error_code ec;
-    std::filesystem::remove(temp_path_, ec);
-  }
-}
+Writer::~Writer() = default;
 
 void Writer::append_frame(std::uint64_t count, double time, std::array<float, 6> bounds) {
   if (meta_.codec.codec != FrameCodec::Records) {
@@ -138,7 +123,7 @@ void Writer::end_chunk(std::uint64_t stored_size, Codec codec, std::uint32_t cod
   e.codec = codec;
   e.codec_param = codec_param;
   meta_.chunks.push_back(e);
-  start_writeback(file_, position_, stored_size);
+  start_writeback(out_->file.descriptor(), position_, stored_size);
   position_ = align_up(position_ + stored_size, kChunkAlignment);
 }
 
@@ -170,12 +155,7 @@ std::uint64_t Writer::commit() {
   const std::vector<std::byte> header = serialize_header(meta_, position_, tables);
   write_at(position_, tables);
   write_at(0, header);
-  bool ok = ::fsync(::fileno(file_)) == 0;
-  ok = (std::fclose(file_) == 0) && ok;
-  file_ = nullptr;
-  if (!ok) throw Error(fmt::format("{}: write failed: {}", temp_path_.string(), std::strerror(errno)));
-  std::filesystem::rename(temp_path_, path_);
-  committed_ = true;
+  out_->file.commit();
   return position_ + tables.size();
 }
 

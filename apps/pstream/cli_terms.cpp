@@ -1,0 +1,85 @@
+#include "cli_terms.hpp"
+
+#include <charconv>
+#include <cmath>
+
+#include <fmt/format.h>
+
+#include "particlestream/error.hpp"
+
+namespace pstream::app {
+
+std::pair<std::int64_t, std::int64_t> parse_frame_range(const std::string& text, const char* flag) {
+  const auto colon = text.find(':');
+  const auto number = [&](std::string_view part, std::int64_t open) {
+    if (part.empty()) return open;
+    std::int64_t v = 0;
+    const auto [ptr, ec] = std::from_chars(part.data(), part.data() + part.size(), v);
+    if (ec != std::errc() || ptr != part.data() + part.size() || v < 0) {
+      throw Error(fmt::format("{} '{}': expected A:B, frame numbers from 0 (A:B is from A up to but not including B; "
+                              "either may be left out)",
+                              flag, text));
+    }
+    return v;
+  };
+  if (colon == std::string::npos) {
+    throw Error(fmt::format("{} '{}': expected A:B (from frame A up to but not including B)", flag, text));
+  }
+  const std::string_view all(text);
+  return {number(all.substr(0, colon), 0), number(all.substr(colon + 1), -1)};
+}
+
+CLI::Validator positive_number_up_to(double max) {
+  return CLI::Validator(
+      [max](std::string& value) -> std::string {
+        double v = 0;
+        const auto [ptr, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+        if (ec != std::errc() || ptr != value.data() + value.size() || !std::isfinite(v) || !(v > 0)) {
+          return fmt::format("'{}' is not a positive number", value);
+        }
+        if (v > max) return fmt::format("{} is more than {:g}", value, max);
+        return {};
+      },
+      fmt::format("POSITIVE (up to {:g})", max));
+}
+
+CLI::Validator positive_number() {
+  return CLI::Validator(
+      [](std::string& value) -> std::string {
+        double v = 0;
+        const auto [ptr, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+        if (ec != std::errc() || ptr != value.data() + value.size() || !std::isfinite(v) || !(v > 0)) {
+          return fmt::format("'{}' is not a positive number", value);
+        }
+        return {};
+      },
+      "POSITIVE");
+}
+
+std::string in_cli_terms(std::string message) {
+  static const std::pair<const char*, const char*> flags[] = {
+      {"`frame_begin`:`frame_end`", "--frames"},
+      {"`drop_invalid`", "--drop-invalid"},
+      {"`max_particles`", "--max-particles"},
+      {"`max_frames`", "--max-frames"},
+      {"`chunk_size`", "--chunk-size"},
+      {"`color_from`", "--color-from"},
+      {"`scale_from`", "--scale-from"},
+      {"`attributes`", "--attributes"},
+      {"`interpolate`", "--interpolate"},
+      {"`object`", "--object"},
+      {"`merge`", "--merge"},
+      {"`fps`", "--fps"},
+      {"`seconds`", "--seconds"},
+      {"`particles`", "--particles"},
+  };
+  for (const auto& [name, flag] : flags) {
+    for (auto at = message.find(name); at != std::string::npos; at = message.find(name, at)) {
+      message.replace(at, std::string_view(name).size(), flag);
+      at += std::string_view(flag).size();
+    }
+  }
+  return message;
+}
+
+}  // namespace pstream::app

@@ -1,0 +1,27 @@
+// What the command line adds to the library: its own spelling of values (frame ranges, numbers
+// checked with a message that says what is wanted) and of settings (flags instead of the
+// library's option names in error messages).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <utility>
+
+#include <CLI/CLI.hpp>
+
+namespace pstream::app {
+
+// "A:B", "A:" or ":B" -> {A, B}; B is -1 when left open. Throws pstream::Error naming `flag`.
+std::pair<std::int64_t, std::int64_t> parse_frame_range(const std::string& text, const char* flag = "--frames");
+
+// A CLI11 check: a finite number > 0 (CLI11's PositiveNumber accepts nan and prints a range of
+// 300 digits).
+CLI::Validator positive_number();
+// A finite number > 0, at most `max`.
+CLI::Validator positive_number_up_to(double max);
+
+// A library message in the command line's terms: each `option` name is replaced by its flag
+// (`drop_invalid` -> --drop-invalid).
+std::string in_cli_terms(std::string message);
+
+}  // namespace pstream::app

@@ -1,0 +1,28 @@
+// Running other programs (ffmpeg, this pstream for `bench all`) without a shell: an argument
+// vector goes straight to posix_spawnp, so no path or option is ever parsed as shell syntax.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace pstream::app {
+
+// Whether `name` is an executable file in one of PATH's folders.
+bool have_program(const std::string& name);
+
+struct ProgramResult {
+  int exit_code = -1;  // -1: it did not start or ended on a signal
+  std::string output;  // its standard output, when captured
+};
+// Runs argv[0] (looked up in PATH) with `argv` and waits. With `capture`, its standard output
+// is returned (standard error is left to ours, or discarded with `quiet`).
+ProgramResult run_program(const std::vector<std::string>& argv, bool capture = false, bool quiet = false);
+
+// This executable's path (to run pstream's own subcommands).
+std::string self_executable();
+
+// Encodes DIR/frame_NNNNN.png into an H.264 MP4 with ffmpeg, then checks the file was written:
+// throws pstream::Error saying what went wrong otherwise.
+void encode_video(const std::string& frames_dir, double fps, const std::string& video);
+
+}  // namespace pstream::app

@@ -1,0 +1,279 @@
+#include "base/output_file.hpp"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/stat.h>
+#include <sys/statvfs.h>
+#include <unistd.h>
+
+#include <array>
+#include <atomic>
+#include <cerrno>
+#include <charconv>
+#include <cstring>
+#include <mutex>
+#include <utility>
+
+#include <fmt/format.h>
+
+#include "particlestream/error.hpp"
+
+namespace pstream {
+namespace {
+
+constexpr std::string_view kPartial = ".partial-";
+constexpr std::size_t kBufferSize = 1 << 20;
+
+// Open temporaries, for the signal handler: fixed storage, read without locks.
+constexpr int kMaxTemporaries = 64;
+std::array<std::array<char, 4096>, kMaxTemporaries> temp_names{};
+std::array<std::atomic<bool>, kMaxTemporaries> temp_used{};
+std::mutex temp_mutex;
+std::atomic<bool> handlers_installed{false};
+
+void on_fatal_signal(int signal) {
+  for (int i = 0; i < kMaxTemporaries; ++i) {
+    if (temp_used[static_cast<std::size_t>(i)].load()) ::unlink(temp_names[static_cast<std::size_t>(i)].data());
+  }
+  ::signal(signal, SIG_DFL);  // then end as the signal would have ended us
+  ::raise(signal);
+}
+
+void install_handlers() {
+  if (handlers_installed.exchange(true)) return;
+  for (const int s : {SIGINT, SIGTERM, SIGHUP}) {
+    struct sigaction old {};
+    ::sigaction(s, nullptr, &old);
+    if (old.sa_handler == SIG_IGN) continue;  // nohup and friends: leave it ignored
+    struct sigaction action {};
+    action.sa_handler = on_fatal_signal;
+    sigemptyset(&action.sa_mask);
+    ::sigaction(s, &action, nullptr);
+  }
+}
+
+int register_temporary(const std::string& name) {
+  std::lock_guard lock(temp_mutex);
+  install_handlers();
+  if (name.size() >= temp_names[0].size()) return -1;
+  for (int i = 0; i < kMaxTemporaries; ++i) {
+    auto& used = temp_used[static_cast<std::size_t>(i)];
+    if (used.load()) continue;
+    std::memcpy(temp_names[static_cast<std::size_t>(i)].data(), name.c_str(), name.size() + 1);
+    used.store(true);
+    return i;
+  }
+  return -1;
+}
+
+void unregister_temporary(int slot) {
+  if (slot < 0) return;
+  std::lock_guard lock(temp_mutex);
+  temp_used[static_cast<std::size_t>(slot)].store(false);
+}
+
+// `.NAME.partial-PID` of a process that is gone: a cook killed with SIGKILL.
+void remove_stale_temporaries(const std::filesystem::path& dir) {
+  std::error_code ec;
+  for (std::filesystem::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    const auto at = name.rfind(kPartial);
+    if (name.empty() || name[0] != '.' || at == std::string::npos) continue;
+    const std::string_view digits = std::string_view(name).substr(at + kPartial.size());
+    pid_t pid = 0;
+    const auto [p, err] = std::from_chars(digits.data(), digits.data() + digits.size(), pid);
+    if (err != std::errc() || p != digits.data() + digits.size() || pid <= 0 || pid == ::getpid()) continue;
+    if (::kill(pid, 0) == 0 || errno != ESRCH) continue;  // still running (or not ours to judge)
+    std::error_code ignored;
+    std::filesystem::remove(it->path(), ignored);
+  }
+}
+
+const char* kind_of(mode_t mode) {
+  return S_ISDIR(mode)    ? "a directory"
+         : S_ISFIFO(mode) ? "a FIFO"
+         : S_ISSOCK(mode) ? "a socket"
+         : S_ISBLK(mode)  ? "a block device"
+                          : "not a regular file";
+}
+
+}  // namespace
+
+void check_output(const std::filesystem::path& path, std::span<const std::filesystem::path> inputs) {
+  const std::string name = path.string();
+  if (name.empty()) throw Error("the output has no name");
+  struct stat st {};
+  if (::stat(name.c_str(), &st) != 0) {
+    if (errno != ENOENT) throw Error(fmt::format("{}: cannot write there: {}", name, std::strerror(errno)));
+    const std::filesystem::path dir = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
+    struct stat d {};
+    if (::stat(dir.c_str(), &d) != 0 || !S_ISDIR(d.st_mode)) {
+      throw Error(fmt::format("{}: the folder {} does not exist", name, dir.string()));
+    }
+    return;
+  }
+  if (S_ISDIR(st.st_mode)) {
+    throw Error(fmt::format("{}: is a directory; give the output a file name (for example {})", name,
+                            (path / "out.pstream").string()));
+  }
+  if (!S_ISREG(st.st_mode) && !S_ISCHR(st.st_mode)) {
+    throw Error(fmt::format("{}: is {}; write to a regular file", name, kind_of(st.st_mode)));
+  }
+  for (const auto& input : inputs) {
+    struct stat in {};
+    if (::stat(input.string().c_str(), &in) == 0 && in.st_dev == st.st_dev && in.st_ino == st.st_ino) {
+      throw Error(fmt::format("{}: is the input {}; writing it would destroy the input. Choose another output", name,
+                              input.string()));
+    }
+  }
+}
+
+OutputFile OutputFile::create(const std::filesystem::path& path, std::span<const std::filesystem::path> inputs) {
+  check_output(path, inputs);
+  OutputFile out;
+  out.path_ = path;
+  const std::string name = path.string();
+  struct stat st {};
+  const bool exists = ::stat(name.c_str(), &st) == 0;
+  out.buffer_.reserve(kBufferSize);
+  if (exists && S_ISCHR(st.st_mode)) {  // /dev/null and the like: no temporary, no rename
+    out.direct_ = true;
+    out.fd_ = ::open(name.c_str(), O_WRONLY | O_CLOEXEC);
+    if (out.fd_ < 0) throw Error(fmt::format("{}: cannot open: {}", name, std::strerror(errno)));
+    return out;
+  }
+  const std::filesystem::path dir = path.parent_path();
+  remove_stale_temporaries(dir);
+  out.temp_ = dir / fmt::format(".{}{}{}", path.filename().string(), kPartial, ::getpid());
+  out.slot_ = register_temporary(out.temp_.string());
+  out.fd_ = ::open(out.temp_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (out.fd_ < 0) {
+    const int err = errno;
+    unregister_temporary(std::exchange(out.slot_, -1));
+    throw Error(fmt::format("{}: cannot create {}: {}", name, out.temp_.string(), std::strerror(err)));
+  }
+  return out;
+}
+
+OutputFile::OutputFile(OutputFile&& other) noexcept
+    : path_(std::move(other.path_)),
+      temp_(std::move(other.temp_)),
+      fd_(std::exchange(other.fd_, -1)),
+      slot_(std::exchange(other.slot_, -1)),
+      direct_(other.direct_),
+      end_(other.end_),
+      flushed_(other.flushed_),
+      buffer_(std::move(other.buffer_)) {}
+
+OutputFile& OutputFile::operator=(OutputFile&& other) noexcept {
+  if (this != &other) {
+    discard();
+    path_ = std::move(other.path_);
+    temp_ = std::move(other.temp_);
+    fd_ = std::exchange(other.fd_, -1);
+    slot_ = std::exchange(other.slot_, -1);
+    direct_ = other.direct_;
+    end_ = other.end_;
+    flushed_ = other.flushed_;
+    buffer_ = std::move(other.buffer_);
+  }
+  return *this;
+}
+
+OutputFile::~OutputFile() { discard(); }
+
+void OutputFile::discard() noexcept {
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+  if (!temp_.empty()) ::unlink(temp_.c_str());
+  temp_.clear();
+  unregister_temporary(std::exchange(slot_, -1));
+}
+
+void OutputFile::write_at(std::uint64_t offset, std::span<const std::byte> bytes) {
+  if (fd_ < 0) throw Error(fmt::format("{}: write after the output was closed", path_.string()));
+  if (offset + bytes.size() > flushed_ && !buffer_.empty()) flush();
+  while (!bytes.empty()) {
+    const ssize_t n = ::pwrite(fd_, bytes.data(), bytes.size(), static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      throw Error(fmt::format("{}: write of {} bytes at offset {} failed: {}", path_.string(), bytes.size(), offset,
+                              n < 0 ? std::strerror(errno) : "no space left on device"));
+    }
+    bytes = bytes.subspan(static_cast<std::size_t>(n));
+    offset += static_cast<std::uint64_t>(n);
+  }
+  end_ = std::max(end_, offset);
+  flushed_ = std::max(flushed_, offset);
+}
+
+void OutputFile::flush() {
+  if (buffer_.empty()) return;
+  std::vector<std::byte> pending;
+  pending.swap(buffer_);
+  const std::uint64_t at = flushed_;
+  buffer_.reserve(kBufferSize);
+  write_at(at, pending);
+}
+
+void OutputFile::append(std::span<const std::byte> bytes) {
+  if (bytes.size() >= kBufferSize) {
+    flush();
+    write_at(end_, bytes);
+    return;
+  }
+  if (buffer_.size() + bytes.size() > kBufferSize) flush();
+  buffer_.insert(buffer_.end(), bytes.begin(), bytes.end());
+  end_ += bytes.size();
+}
+
+std::uint64_t OutputFile::commit() {
+  if (fd_ < 0) throw Error(fmt::format("{}: commit after the output was closed", path_.string()));
+  flush();
+  if (!direct_ && ::fsync(fd_) != 0)
+    throw Error(fmt::format("{}: cannot sync {}: {}", path_.string(), temp_.string(), std::strerror(errno)));
+  const int fd = std::exchange(fd_, -1);
+  if (::close(fd) != 0) throw Error(fmt::format("{}: cannot close: {}", path_.string(), std::strerror(errno)));
+  if (!direct_) {
+    if (::rename(temp_.c_str(), path_.c_str()) != 0) {
+      throw Error(fmt::format("{}: cannot rename {} over it: {}", path_.string(), temp_.string(),
+                              std::strerror(errno)));
+    }
+    temp_.clear();
+    unregister_temporary(std::exchange(slot_, -1));
+  }
+  return end_;
+}
+
+void write_file(const std::filesystem::path& path, std::span<const std::byte> bytes,
+                std::span<const std::filesystem::path> inputs) {
+  OutputFile out = OutputFile::create(path, inputs);
+  out.append(bytes);
+  out.commit();
+}
+
+void write_file(const std::filesystem::path& path, std::string_view text,
+                std::span<const std::filesystem::path> inputs) {
+  write_file(path, std::as_bytes(std::span(text.data(), text.size())), inputs);
+}
+
+std::uint64_t free_space(const std::filesystem::path& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode)) return UINT64_MAX;
+  std::filesystem::path dir = path.parent_path();
+  if (dir.empty()) dir = ".";
+  struct statvfs vfs {};
+  if (::statvfs(dir.c_str(), &vfs) != 0) return UINT64_MAX;
+  return static_cast<std::uint64_t>(vfs.f_bavail) * vfs.f_frsize;
+}
+
+std::vector<std::string> open_temporaries() {
+  std::lock_guard lock(temp_mutex);
+  std::vector<std::string> out;
+  for (int i = 0; i < kMaxTemporaries; ++i) {
+    if (temp_used[static_cast<std::size_t>(i)].load()) out.emplace_back(temp_names[static_cast<std::size_t>(i)].data());
+  }
+  return out;
+}
+
+}  // namespace pstream
