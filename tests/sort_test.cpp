@@ -241,4 +241,25 @@ TEST(DepthSorter, MergedSourcesSortTogether) {
   EXPECT_TRUE(std::all_of(seen.begin(), seen.end(), [](bool b) { return b; }));
 }
 
+// Regression (#12): sort_merged passed no near/far to the 16-bit path, so depths far from [0, 1]
+// all quantised to the same key and the merged order was the input order.
+TEST(DepthSorter, MergedQuantized16UsesNearFar) {
+  std::vector<float> a(400), b(400);  // [x y z scale] records, depths 10..30 in both
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> z(-30.0f, -10.0f);
+  for (std::size_t i = 0; i < 100; ++i) a[i * 4 + 2] = z(rng), b[i * 4 + 2] = z(rng);
+  const std::array<float, 16> identity = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  const DepthSorter::Source sources[2] = {{reinterpret_cast<const std::byte*>(a.data()), 100, 16, identity},
+                                          {reinterpret_cast<const std::byte*>(b.data()), 100, 16, identity}};
+  DepthSorter sorter(200, {.quantize16 = true});
+  const auto order = sorter.sort_merged(sources, SortMode::BackToFront, {10.0f, 30.0f});
+  ASSERT_EQ(order.size(), 200u);
+  const float resolution = 20.0f / 65535.0f;
+  const auto depth = [&](std::uint32_t e) {
+    const std::vector<float>& r = (e >> DepthSorter::kMergedIndexBits) ? b : a;
+    return -r[(e & ((1u << DepthSorter::kMergedIndexBits) - 1)) * 4 + 2];
+  };
+  for (std::size_t i = 1; i < order.size(); ++i) ASSERT_LE(depth(order[i]), depth(order[i - 1]) + resolution) << i;
+}
+
 }  // namespace

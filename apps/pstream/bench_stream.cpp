@@ -134,6 +134,12 @@ int bench_stream(const BenchStreamOptions& o) {
     s->update(0);
     std::this_thread::sleep_for(std::chrono::milliseconds(1));
   }
+  if (s->state() == stream::PlayState::Error) throw Error(s->error());
+  if (!primed()) {
+    throw Error(fmt::format("{}: the cache did not fill within 30 s ({} of {} loads done); the disk is too slow or "
+                            "stalled",
+                            file.string(), s->debug().loads_done, s->debug().slots.size()));
+  }
   s->set_loop(true);
   s->play();
   std::vector<double> frame_ms, memcpy_ms;
@@ -146,6 +152,7 @@ int bench_stream(const BenchStreamOptions& o) {
     std::this_thread::sleep_until(next_tick);  // real time: the IO worker runs between frames
     const auto t0 = Clock::now();
     s->update(k == 0 ? 0.0 : dt);
+    if (s->state() == stream::PlayState::Error) throw Error(s->error());
     const std::size_t bytes = s->copy_frame(gpu);
     const auto t1 = Clock::now();
     const stream::FrameView v = s->frame();  // the same bytes, copied plainly

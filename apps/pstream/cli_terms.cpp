@@ -56,6 +56,11 @@ CLI::Validator positive_number() {
       "POSITIVE");
 }
 
+std::string count_of(std::uint64_t n, std::string_view singular, std::string_view plural) {
+  if (n == 1) return fmt::format("1 {}", singular);
+  return plural.empty() ? fmt::format("{} {}s", n, singular) : fmt::format("{} {}", n, plural);
+}
+
 std::string in_cli_terms(std::string message) {
   static const std::pair<const char*, const char*> flags[] = {
       {"`frame_begin`:`frame_end`", "--frames"},

@@ -20,6 +20,9 @@ CLI::Validator positive_number();
 // A finite number > 0, at most `max`.
 CLI::Validator positive_number_up_to(double max);
 
+// "1 chunk", "2 chunks" (`plural` when it is not singular + "s").
+std::string count_of(std::uint64_t n, std::string_view singular, std::string_view plural = {});
+
 // A library message in the command line's terms: each `option` name is replaced by its flag
 // (`drop_invalid` -> --drop-invalid).
 std::string in_cli_terms(std::string message);

@@ -175,9 +175,8 @@ int run_cook(const CookCli& cli) {
     if (r.dropped_invalid)
       fmt::print(stderr, "note: dropped {} particles with NaN or infinite positions\n", r.dropped_invalid);
     fmt::print(
-        "{} -> {}: {} frames, {} particles, {} chunks, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} "
-        "s\n",
-        r.object, cli.output, r.frames, r.particles, r.chunks, r.file_bytes / 1048576.0, ratio,
+        "{} -> {}: {}, {}, {}, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} s\n", r.object,
+        cli.output, count_of(r.frames, "frame"), count_of(r.particles, "particle"), count_of(r.chunks, "chunk"), r.file_bytes / 1048576.0, ratio,
         r.stream_bytes / 1048576.0, r.seconds);
     if (o.frame_codec == format::FrameCodec::Particle) {
       const double per_particle = r.particles ? double(r.file_bytes) / double(r.particles) : 0.0;

@@ -12,6 +12,7 @@
 #include <filesystem>
 
 #include "base/mapped_file.hpp"
+#include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
@@ -339,7 +340,8 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
                             {"against", comparison}}
                            .dump());
   } else if (errors.empty()) {
-    fmt::print("{}: OK — {} frames, {} chunks, every checksum and index entry verified{}\n", file, frames, chunks,
+    fmt::print("{}: OK — {}, {}, every checksum and index entry verified{}\n", file, count_of(frames, "frame"),
+               count_of(chunks, "chunk"),
                against.empty() ? "" : ", every value within its bound of the source");
     if (!comparison.is_null() && comparison.contains("attributes")) {
       for (const auto& a : comparison["attributes"]) {

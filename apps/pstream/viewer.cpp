@@ -336,8 +336,12 @@ int run_viewer(const ViewerCli& cli) {
       ImGui::Text("%s - frame %llu / %llu", std::filesystem::path(s.file).filename().c_str(),
                   static_cast<unsigned long long>(f.frame),
                   static_cast<unsigned long long>(s.clip->metadata().frame_count()));
-      if (s.clip->state() == stream::PlayState::Error) {
-        ImGui::TextColored({1, 0.35f, 0.3f, 1}, "error: %s", s.clip->error().c_str());
+      if (s.clip->state() == stream::PlayState::Error) {  // wrapped: the whole message, not its first line
+        ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.35f, 0.3f, 1));
+        ImGui::PushTextWrapPos(0.0f);
+        ImGui::TextUnformatted(("error: " + s.clip->error()).c_str());
+        ImGui::PopTextWrapPos();
+        ImGui::PopStyleColor();
       }
       cache_view(*s.clip);
     }
@@ -371,6 +375,10 @@ int run_viewer(const ViewerCli& cli) {
   ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
   glfwDestroyWindow(window);
+  // A clip that failed while playing makes the run fail too (scripts and tests see it).
+  for (auto& s : streams) {
+    if (s.clip->state() == stream::PlayState::Error) throw Error(s.clip->error());
+  }
   return 0;
 }
 

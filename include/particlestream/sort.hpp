@@ -84,7 +84,9 @@ class DepthSorter {
     std::size_t count = 0, stride = 16;
     std::array<float, 16> view_world{};
   };
-  std::span<const std::uint32_t> sort_merged(std::span<const Source> sources, SortMode mode);
+  // `near_far` bounds the depths of every source for 16-bit quantisation, as in sort().
+  std::span<const std::uint32_t> sort_merged(std::span<const Source> sources, SortMode mode,
+                                             std::array<float, 2> near_far = {0.0f, 1.0f});
 
  private:
   struct Helper;

@@ -101,8 +101,10 @@ class AlembicSource final : public Source {
       } else if (PolyMesh::matches(*o)) {
         objects_.push_back({*o, std::nullopt, PolyMesh(*o)});  // its vertices, cooked as points
       } else {
-        throw Error(fmt::format("{}: '{}' is a {} object, not points or a mesh{}", file, options.object,
-                                object_kind(*o), object_list()));
+        const std::string_view kind = object_kind(*o);
+        const bool vowel = !kind.empty() && std::string_view("aeioux").find(kind[0]) != std::string_view::npos;
+        throw Error(fmt::format("{}: '{}' is {} {} object, not points or a mesh{}", file, options.object,
+                                vowel ? "an" : "a", kind, object_list()));
       }
     } else {
       for (const Object& o : archive_.objects()) {

@@ -321,8 +321,8 @@ class PlySource final : public Source {
       }
       while (c < end && std::isspace(static_cast<unsigned char>(*c))) ++c;
       if (c != end && !h.has_elements_after_vertex) {
-        throw Error(fmt::format("{}: offset {}: more numbers follow the {} vertices the header declares; the vertex "
-                                "count is wrong",
+        throw Error(fmt::format("{}: offset {}: more numbers follow the vertices the header declares ({}); the "
+                                "vertex count is wrong",
                                 file, c - text.data(), n));
       }
     }

@@ -179,7 +179,8 @@ std::span<const std::uint32_t> DepthSorter::sort_depths(std::span<const float> d
   return {out, n};
 }
 
-std::span<const std::uint32_t> DepthSorter::sort_merged(std::span<const Source> sources, SortMode mode) {
+std::span<const std::uint32_t> DepthSorter::sort_merged(std::span<const Source> sources, SortMode mode,
+                                                        std::array<float, 2> near_far) {
   if (sources.size() > kMaxMergedSources) throw std::length_error("DepthSorter::sort_merged: too many sources");
   std::size_t base[kMaxMergedSources + 1] = {};
   for (std::size_t k = 0; k < sources.size(); ++k) {
@@ -193,7 +194,7 @@ std::span<const std::uint32_t> DepthSorter::sort_merged(std::span<const Source> 
     compute_depths(sources[k].records, sources[k].count, sources[k].stride, depth_axis(sources[k].view_world),
                    depths_.get() + base[k]);
   }
-  const auto order = sort_depths({depths_.get(), total}, mode);
+  const auto order = sort_depths({depths_.get(), total}, mode, near_far);
   std::uint32_t* out = indices_.get();
   for (std::size_t i = 0; i < order.size(); ++i) {  // global index -> (source, index)
     const std::size_t g = out[i];
