@@ -14,151 +14,11 @@
 #include <xxhash.h>
 
 #include "base/mapped_file.hpp"
+#include "cook/ply_reader.hpp"
 #include "cook/source.hpp"
 
 namespace pstream::cook {
 namespace {
-
-enum class PlyType { Int8, Uint8, Int16, Uint16, Int32, Uint32, Float32, Float64 };
-
-struct PlyProperty {
-  std::string name;
-  PlyType type;
-  std::size_t offset = 0;  // within a binary vertex
-};
-
-struct PlyHeader {
-  bool binary = false;
-  std::uint64_t vertex_count = 0;
-  std::vector<PlyProperty> properties;
-  std::size_t vertex_size = 0;
-  std::size_t data_offset = 0;
-  bool has_elements_before_vertex = false;
-  bool has_elements_after_vertex = false;  // faces and such: bytes after the vertices are theirs
-};
-
-const char* format_name(bool binary) { return binary ? "binary_little_endian" : "ascii"; }
-
-std::size_t type_size(PlyType t) {
-  static constexpr std::size_t sizes[] = {1, 1, 2, 2, 4, 4, 4, 8};
-  return sizes[static_cast<int>(t)];
-}
-
-bool parse_type(const std::string& s, PlyType& t) {
-  static const std::map<std::string, PlyType> types = {
-      {"char", PlyType::Int8},      {"int8", PlyType::Int8},       {"uchar", PlyType::Uint8},
-      {"uint8", PlyType::Uint8},    {"short", PlyType::Int16},     {"int16", PlyType::Int16},
-      {"ushort", PlyType::Uint16},  {"uint16", PlyType::Uint16},   {"int", PlyType::Int32},
-      {"int32", PlyType::Int32},    {"uint", PlyType::Uint32},     {"uint32", PlyType::Uint32},
-      {"float", PlyType::Float32},  {"float32", PlyType::Float32}, {"double", PlyType::Float64},
-      {"float64", PlyType::Float64}};
-  const auto it = types.find(s);
-  if (it == types.end()) return false;
-  t = it->second;
-  return true;
-}
-
-PlyHeader parse_header(std::string_view text, const std::string& file) {
-  PlyHeader h;
-  const auto end = text.find("end_header");
-  if (text.substr(0, 3) != "ply" || end == std::string_view::npos) {
-    throw Error(fmt::format("{}: not a PLY file (expected 'ply' ... 'end_header')", file));
-  }
-  std::istringstream lines{std::string(text.substr(0, end))};
-  std::string line, element;
-  bool vertex_seen = false;
-  while (std::getline(lines, line)) {
-    std::istringstream words(line);
-    std::string key;
-    words >> key;
-    if (key == "format") {
-      std::string f;
-      words >> f;
-      if (f == "binary_little_endian") {
-        h.binary = true;
-      } else if (f != "ascii") {
-        throw Error(fmt::format("{}: PLY format '{}' is not supported (ascii or binary_little_endian)", file, f));
-      }
-    } else if (key == "element") {
-      std::string count;
-      words >> element >> count;
-      if (element == "vertex") {
-        const auto [end_of, ec] = std::from_chars(count.data(), count.data() + count.size(), h.vertex_count);
-        if (ec != std::errc() || end_of != count.data() + count.size()) {
-          throw Error(fmt::format("{}: header line '{}': expected a vertex count from 0 to {}", file, line,
-                                  std::numeric_limits<std::uint64_t>::max()));
-        }
-        vertex_seen = true;
-      } else if (!vertex_seen) {
-        h.has_elements_before_vertex = true;
-      } else {
-        h.has_elements_after_vertex = true;
-      }
-    } else if (key == "property" && element == "vertex") {
-      std::string type, name;
-      words >> type >> name;
-      PlyProperty p{name, PlyType::Float32, h.vertex_size};
-      if (type == "list" || !parse_type(type, p.type)) {
-        throw Error(fmt::format("{}: vertex property '{}' has unsupported type '{}'", file, name, type));
-      }
-      h.vertex_size += type_size(p.type);
-      h.properties.push_back(p);
-    }
-  }
-  if (!vertex_seen) throw Error(fmt::format("{}: the PLY file has no vertex element", file));
-  if (h.has_elements_before_vertex) throw Error(fmt::format("{}: elements before 'vertex' are not supported", file));
-  std::size_t data = end + std::strlen("end_header");
-  if (data < text.size() && text[data] == '\r') ++data;
-  if (data < text.size() && text[data] == '\n') ++data;
-  h.data_offset = data;
-  return h;
-}
-
-double load_binary(const std::byte* p, PlyType t) {
-  switch (t) {
-    case PlyType::Int8: {
-      std::int8_t v;
-      std::memcpy(&v, p, 1);
-      return v;
-    }
-    case PlyType::Uint8: {
-      std::uint8_t v;
-      std::memcpy(&v, p, 1);
-      return v;
-    }
-    case PlyType::Int16: {
-      std::int16_t v;
-      std::memcpy(&v, p, 2);
-      return v;
-    }
-    case PlyType::Uint16: {
-      std::uint16_t v;
-      std::memcpy(&v, p, 2);
-      return v;
-    }
-    case PlyType::Int32: {
-      std::int32_t v;
-      std::memcpy(&v, p, 4);
-      return v;
-    }
-    case PlyType::Uint32: {
-      std::uint32_t v;
-      std::memcpy(&v, p, 4);
-      return v;
-    }
-    case PlyType::Float32: {
-      float v;
-      std::memcpy(&v, p, 4);
-      return v;
-    }
-    case PlyType::Float64: {
-      double v;
-      std::memcpy(&v, p, 8);
-      return v;
-    }
-  }
-  return 0;
-}
 
 struct SequenceFile {
   std::int64_t number;
@@ -218,7 +78,7 @@ class PlySource final : public Source {
     fps_ = options.fps > 0 ? options.fps : 24.0;
     const MappedFile first = MappedFile::open(files_.front().path);
     const auto text = std::string_view(reinterpret_cast<const char*>(first.bytes().data()), first.bytes().size());
-    header_ = parse_header(text, files_.front().path.string());
+    header_ = parse_ply_header(text, files_.front().path.string());
     for (const auto& p : header_.properties) names_.push_back(p.name);
     for (const char* axis : {"x", "y", "z"}) {
       if (find(axis) < 0) throw Error(fmt::format("{}: no '{}' vertex property", files_.front().path.string(), axis));
@@ -265,68 +125,23 @@ class PlySource final : public Source {
     const auto index = static_cast<std::size_t>(std::clamp(rel, 0.0, static_cast<double>(files_.size() - 1)));
     const std::string file = files_[index].path.string();
     const MappedFile mapping = MappedFile::open(files_[index].path);
-    const auto text = std::string_view(reinterpret_cast<const char*>(mapping.bytes().data()), mapping.bytes().size());
-    const PlyHeader h = parse_header(text, file);
+    PlyHeader h;
+    read_ply_vertices(mapping.bytes(), file, max_particles_, h, values_);
+    mapping.check_intact();
     std::vector<std::string> names;
     for (const auto& p : h.properties) names.push_back(p.name);
     if (h.binary != header_.binary) {
       throw Error(fmt::format("{}: is {} PLY, but the sequence's first file {} is {}; every file of a sequence must "
                               "have one format",
-                              file, format_name(h.binary), files_.front().path.string(), format_name(header_.binary)));
+                              file, ply_format_name(h.binary), files_.front().path.string(),
+                              ply_format_name(header_.binary)));
     }
     if (names != names_) {
       throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file,
                               fmt::join(names, " "), fmt::join(names_, " ")));
     }
     const std::uint64_t n = h.vertex_count;
-    if (n > max_particles_) {
-      throw OptionError("max_particles", fmt::format("{}: declares {} vertices, more than `max_particles`, {}", file, n,
-                                                     max_particles_));
-    }
-    // The declared count must fit in the file before anything is allocated for it: a binary
-    // vertex takes vertex_size bytes, an ascii value at least one digit and a separator.
-    const std::uint64_t data_bytes = mapping.bytes().size() - std::min(h.data_offset, mapping.bytes().size());
-    const std::uint64_t props = h.properties.size();
-    const std::uint64_t per_vertex = h.binary ? std::max<std::uint64_t>(h.vertex_size, 1) : 2 * props;
-    if (n > data_bytes / per_vertex) {
-      throw Error(fmt::format("{}: the header declares {} vertices of {} bytes{}, but the file has {} bytes of data "
-                              "(truncated, or a wrong count)",
-                              file, n, per_vertex, h.binary ? "" : " or more", data_bytes));
-    }
-    std::vector<double> values(n * props);
-    if (h.binary) {
-      const std::uint64_t used = n * h.vertex_size;
-      if (used != data_bytes && !h.has_elements_after_vertex) {
-        throw Error(fmt::format("{}: the header declares {} vertices ({} bytes), but {} bytes of data follow it; "
-                                "the vertex count is wrong",
-                                file, n, used, data_bytes));
-      }
-      const std::byte* p = mapping.bytes().data() + h.data_offset;
-      for (std::uint64_t i = 0; i < n; ++i, p += h.vertex_size) {
-        for (std::size_t k = 0; k < h.properties.size(); ++k) {
-          values[i * h.properties.size() + k] = load_binary(p + h.properties[k].offset, h.properties[k].type);
-        }
-      }
-    } else {
-      const char* c = text.data() + h.data_offset;
-      const char* end = text.data() + text.size();
-      for (std::uint64_t i = 0; i < values.size(); ++i) {
-        while (c < end && std::isspace(static_cast<unsigned char>(*c))) ++c;
-        const auto r = std::from_chars(c, end, values[i]);
-        if (r.ec != std::errc()) {
-          throw Error(fmt::format("{}: vertex {}: expected {} numbers per line", file, i / h.properties.size(),
-                                  h.properties.size()));
-        }
-        c = r.ptr;
-      }
-      while (c < end && std::isspace(static_cast<unsigned char>(*c))) ++c;
-      if (c != end && !h.has_elements_after_vertex) {
-        throw Error(fmt::format("{}: offset {}: more numbers follow the vertices the header declares ({}); the "
-                                "vertex count is wrong",
-                                file, c - text.data(), n));
-      }
-    }
-    mapping.check_intact();
+    const std::vector<double>& values = values_;
     const std::size_t stride = h.properties.size();
     const auto column = [&](int k, std::uint64_t i) { return values[i * stride + static_cast<std::size_t>(k)]; };
     const std::uint64_t base = out.count;
@@ -384,7 +199,14 @@ class PlySource final : public Source {
     if (request.id) {
       const int id = find("id");
       ensure_size(out.id, out.count);
-      for (std::uint64_t i = 0; i < n; ++i) out.id[base + i] = static_cast<std::uint64_t>(column(id, i));
+      for (std::uint64_t i = 0; i < n; ++i) {
+        const double v = column(id, i);
+        // 2^64 is exactly representable: below it (and >= 0, whole) the conversion is defined.
+        if (!(v >= 0 && v < 18446744073709551616.0) || v != std::floor(v)) {
+          throw Error(fmt::format("{}: vertex {}: id {} is not a whole number from 0 to 2^64-1", file, i, v));
+        }
+        out.id[base + i] = static_cast<std::uint64_t>(v);
+      }
     }
     for (std::size_t e = 0; e < request.floats.size(); ++e) {
       const int k = find(request.floats[e]);
@@ -403,6 +225,7 @@ class PlySource final : public Source {
 
   std::vector<SequenceFile> files_;
   std::uint64_t max_particles_ = 0;
+  std::vector<double> values_;  // one file's vertex values, kept across frames
   PlyHeader header_;
   std::vector<std::string> names_;
   double fps_ = 24.0;
