@@ -2,6 +2,7 @@
 #include "alembic/layout.hpp"
 
 #include <cstring>
+#include <string_view>
 
 #include <fmt/format.h>
 
@@ -31,6 +32,17 @@ File::File(std::span<const std::byte> bytes, std::string name) : bytes_(bytes), 
         fmt::format("{}: this Alembic archive uses the legacy HDF5 backend, which ParticleStream does not read; "
                     "re-export it with the Ogawa backend (the default of every current exporter)",
                     name_));
+  }
+  const std::string_view start(reinterpret_cast<const char*>(bytes_.data()), std::min<std::size_t>(bytes_.size(), 8));
+  if (start.starts_with("PSTREAM")) {
+    throw Error(fmt::format("{}: is a cooked .pstream clip, not an Alembic archive (it is already cooked: play, "
+                            "render or export it)",
+                            name_));
+  }
+  if (start.starts_with("ply")) {
+    throw Error(fmt::format("{}: is a PLY file, not an Alembic archive (cook reads PLY sequences: name a file whose "
+                            "extension is .ply)",
+                            name_));
   }
   if (bytes_.size() < kHeaderSize) {
     fail(bytes_.size(), fmt::format("truncated header: {} bytes, an Ogawa header has {}", bytes_.size(), kHeaderSize));

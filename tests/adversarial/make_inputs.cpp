@@ -1,0 +1,130 @@
+// Writes the adversarial input tree that tests/adversarial/run.sh feeds to every command: files
+// that claim huge counts, hold impossible times, are cut short, corrupt or empty. The special
+// files (a FIFO, a directory where a file is expected) are made by the script.
+//   make_inputs DATA_DIR OUT_DIR
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "particlestream/alembic_writer.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+using namespace pstream;
+
+std::string read(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void write(const fs::path& p, const std::string& bytes) {
+  std::ofstream out(p, std::ios::binary);
+  out.write(bytes.data(), std::streamsize(bytes.size()));
+}
+
+std::string ply(const std::string& format, const std::string& count, int properties = 3) {
+  std::string h = "ply\nformat " + format + " 1.0\nelement vertex " + count + "\n";
+  const char* names[] = {"x", "y", "z", "pscale"};
+  for (int i = 0; i < properties; ++i) h += std::string("property float ") + names[i] + "\n";
+  return h + "end_header\n";
+}
+
+// Three samples of two points whose time sampling starts at `start` (replaced below).
+constexpr double kMarker = 0.123456789012345;
+void archive_with_start(const fs::path& path, double start) {
+  alembic::PointsWriterOptions o;
+  o.velocities = false;
+  {
+    alembic::ArchiveWriter w(path, "adversarial", "times", 24.0, kMarker, o);
+    const std::vector<float> P = {0, 0, 0, 1, 1, 1};
+    const std::vector<std::uint64_t> ids = {1, 2};
+    const std::vector<float> widths = {0.1f, 0.1f};
+    for (int f = 0; f < 3; ++f) w.write_sample({P, ids, {}, widths, {}});
+    w.close();
+  }
+  std::string bytes = read(path);
+  const std::string needle(reinterpret_cast<const char*>(&kMarker), 8);
+  const auto at = bytes.find(needle);
+  if (at != std::string::npos) std::memcpy(bytes.data() + at, &start, 8);
+  write(path, bytes);
+}
+
+void clip_with_times(const fs::path& path, std::vector<double> times) {
+  format::Metadata meta;
+  meta.fps = 24;
+  meta.chunk_size = format::kMinChunkSize;
+  meta.layout = format::default_layout();
+  format::Writer writer(path, meta);
+  std::vector<float> records;
+  for (double t : times) {
+    writer.append_frame(1, t, {0, 0, 0, 1, 1, 1});
+    records.insert(records.end(), {0.0f, 0.0f, 0.0f, 0.1f});
+  }
+  const auto raw = std::as_bytes(std::span(records));
+  writer.append_chunk(raw, format::Codec::Raw, 0, format::checksum(raw));
+  writer.commit();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc != 3) {
+    std::fprintf(stderr, "usage: make_inputs DATA_DIR OUT_DIR\n");
+    return 2;
+  }
+  const fs::path data = argv[1], out = argv[2];
+  fs::create_directories(out);
+  const double nan = std::numeric_limits<double>::quiet_NaN(), inf = std::numeric_limits<double>::infinity();
+
+  // Counts.
+  write(out / "overflow.0001.ply", ply("ascii", "6148914691236517206") + "1 2 3\n");
+  write(out / "claims.0001.ply", ply("binary_little_endian", "300000000"));
+  write(out / "claims_ascii.0001.ply", ply("ascii", "300000000", 4) + "1 2 3 4\n");
+  write(out / "lots.0001.ply", ply("ascii", "lots") + "1 2 3\n");
+  write(out / "fewer.0001.ply", ply("ascii", "1") + "1 2 3\n4 5 6\n");
+  write(out / "negative.0001.ply", ply("ascii", "-5") + "1 2 3\n");
+  write(out / "nan_values.0001.ply", ply("ascii", "2") + "nan 1 2\ninf -inf 1e999\n");
+  // Times.
+  archive_with_start(out / "nan_time.abc", nan);
+  archive_with_start(out / "inf_time.abc", inf);
+  archive_with_start(out / "huge_time.abc", 1e300);
+  clip_with_times(out / "inf_times.pstream", {0.0, inf, 2.0});
+  clip_with_times(out / "backwards_times.pstream", {0.0, 1.0, 0.5});
+  clip_with_times(out / "negative_times.pstream", {-1e308, -1.0});
+  // Sizes: cut short, corrupt, empty.
+  const std::string abc = read(data / "alembic/points_varying.abc");
+  write(out / "truncated.abc", abc.substr(0, abc.size() / 2));
+  write(out / "empty.abc", "");
+  write(out / "empty.pstream", "");
+  cook::Options o;
+  o.input = data / "alembic/points_varying.abc";
+  o.chunk_size = format::kMinChunkSize;
+  o.attributes = {"velocity", "id"};
+  o.output = out / "good.pstream";
+  cook::cook(o);
+  o.output = out / "good_particle.pstream";
+  o.frame_codec = format::FrameCodec::Particle;
+  cook::cook(o);
+  const std::string clip = read(out / "good_particle.pstream");
+  write(out / "truncated.pstream", clip.substr(0, clip.size() * 2 / 3));
+  std::string corrupt = clip;
+  for (std::size_t i = 300; i < corrupt.size() && i < 400; ++i) corrupt[i] = static_cast<char>(corrupt[i] ^ 0x55);
+  write(out / "corrupt.pstream", corrupt);
+  std::string tables = read(out / "good.pstream");
+  for (std::size_t i = tables.size() - 64; i < tables.size(); ++i) tables[i] = '\xff';
+  write(out / "corrupt_tables.pstream", tables);
+  fs::copy_file(data / "alembic/points_hdf5_backend.abc", out / "hdf5.abc", fs::copy_options::overwrite_existing);
+  fs::copy_file(data / "alembic/points_constant.abc", out / "good.abc", fs::copy_options::overwrite_existing);
+  return 0;
+}

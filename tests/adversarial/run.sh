@@ -1,0 +1,129 @@
+#!/usr/bin/env bash
+# Every pstream command on every input of the adversarial tree (tests/adversarial/make_inputs.cpp,
+# plus special files made here), each under a timeout and, outside sanitizer builds, an
+# address-space limit. Fails when any run
+#   - ends on a signal or hits the timeout (a crash or a hang),
+#   - prints "internal error" or a sanitizer report,
+# or when afterwards a temporary (.NAME.partial-PID) is left anywhere or an input has changed.
+# Also: outputs that are inputs, special outputs, absurd plans, files truncated while they are
+# read, and SIGINT/SIGTERM/SIGHUP during a cook.
+#   run.sh PSTREAM MAKE_INPUTS DATA_DIR plain|sanitized
+set -uo pipefail
+pstream=$1 make_inputs=$2 data=$3 flavour=${4:-plain}
+root=$(mktemp -d /tmp/pstream-adversarial.XXXXXX)
+trap 'rm -rf "$root"' EXIT
+in=$root/inputs out=$root/out
+mkdir -p "$in" "$out"
+"$make_inputs" "$data" "$in" || { echo "make_inputs failed"; exit 1; }
+mkfifo "$in/fifo.abc" "$in/fifo.pstream" "$in/fifo.0001.ply"
+mkdir "$in/folder.pstream" "$in/folder.abc"
+
+failures=0 runs=0
+limit_kb=$((4 * 1024 * 1024))  # 4 GiB of address space: far below what a runaway allocation asks
+timeout_s=60
+[ "$flavour" = sanitized ] && timeout_s=180
+
+# run LABEL ARGS...: one command, checked.
+run() {
+  local label=$1; shift
+  local log=$root/last.log rc
+  runs=$((runs + 1))
+  if [ "$flavour" = plain ]; then
+    (ulimit -v "$limit_kb"; cd "$out" && timeout -k 5 "$timeout_s" "$pstream" "$@") >"$log" 2>&1 </dev/null
+  else
+    (cd "$out" && timeout -k 5 "$timeout_s" "$pstream" "$@") >"$log" 2>&1 </dev/null
+  fi
+  rc=$?
+  local why=""
+  if [ $rc -eq 124 ] || [ $rc -eq 137 ]; then why="timed out (a hang)"
+  elif [ $rc -ge 128 ]; then why="ended by signal $((rc - 128))"
+  elif grep -q "internal error" "$log"; then why="internal error"
+  elif grep -qE "AddressSanitizer|LeakSanitizer|runtime error:" "$log"; then why="sanitizer report"
+  fi
+  if [ -n "$why" ]; then
+    failures=$((failures + 1))
+    echo "FAIL [$label] pstream $* -> rc $rc: $why"
+    head -c 3000 "$log" | sed 's/^/    /'
+  fi
+  return 0
+}
+
+checksums() { (cd "$in" && find . -type f -print0 | sort -z | xargs -0 sha256sum); }
+before=$(checksums)
+
+for f in "$in"/*; do
+  name=$(basename "$f")
+  rm -rf "${out:?}"/*
+  run "$name" info "$f"
+  run "$name" info "$f" --json
+  run "$name" info "$f" --json --frames
+  run "$name" verify "$f"
+  run "$name" verify "$f" --json
+  run "$name" cook "$f" -o "$out/c.pstream" -q
+  run "$name" cook "$f" -o "$out/c.pstream" --codec particle -q
+  run "$name" cook "$f" -o "$out/c.pstream" --interpolate --fps 60 -q
+  run "$name" render "$f" --out "$out/r" --frames 0:3 --size 32x32 -q
+  run "$name" export "$f" --out "$out/e" -q
+  run "$name" export "$f" -o "$out/e.abc" -q
+  run "$name" bench stream "$f" --laps 1 --json
+  run "$name" bench codec "$f" --frames 3 --repetitions 1 --json
+  run "$name" bench read "$f" --repetitions 1 --json
+  run "$name" play "$f" --frames-to-run 2
+done
+
+# Absurd plans and outputs.
+rm -rf "${out:?}"/*
+run plan cook "$in/good.abc" --fps 1e15 -o "$out/c.pstream"
+run plan cook "$in/good.abc" --fps 1e-300 -o "$out/c.pstream"
+run plan cook "$in/good.abc" --frames 0:99999999999999999999 -o "$out/c.pstream"
+run plan render "$in/good.pstream" --fps 1e6 --out "$out/r"
+run output cook "$in/good.abc" -o "$in/good.abc"
+run output cook "$in/good.abc" -o "$in/fifo.pstream"
+run output cook "$in/good.abc" -o "$in/folder.pstream"
+run output cook "$in/good.abc" -o /dev/null -q
+run output export "$in/good.pstream" -o "$in/good.pstream"
+run output export "$in/good.pstream" -o "$in/good.abc"
+run output render "$in/good.pstream" --out "$in/good.abc" --frames 0:1
+run output bench all --out "$out/no/such/folder/b.md"
+if [ ! -c /dev/null ]; then echo "FAIL /dev/null is no longer a character device"; failures=$((failures + 1)); fi
+
+# Files truncated while they are read (a copy each time: these are not inputs of the tree).
+"$pstream" cook "$data/alembic/points_large.abc" -o "$root/race_src.pstream" -q --chunk-size 64KiB
+for delay in 0 0.01 0.02 0.05 0.1; do
+  for what in cook verify info; do
+    cp "$data/alembic/points_large.abc" "$root/race.abc"
+    cp "$root/race_src.pstream" "$root/race.pstream"
+    case $what in
+      cook) args=(cook "$root/race.abc" -o "$out/race_out.pstream" -q --codec zstd) file=$root/race.abc ;;
+      verify) args=(verify "$root/race.pstream") file=$root/race.pstream ;;
+      info) args=(info "$root/race.pstream" --json --frames) file=$root/race.pstream ;;
+    esac
+    ( sleep "$delay"; truncate -s 100000 "$file" ) &
+    run "truncated after ${delay}s" "${args[@]}"
+    wait
+  done
+done
+
+# Signals during a cook: the temporary must go with the process.
+for sig in INT TERM HUP; do
+  cp "$data/alembic/points_large.abc" "$root/sig.abc"
+  (cd "$out" && exec "$pstream" cook "$root/sig.abc" -o "$out/sig.pstream" -q --codec zstd:19) >/dev/null 2>&1 &
+  pid=$!
+  sleep 0.3
+  kill -s "$sig" "$pid" 2>/dev/null
+  wait "$pid"
+  runs=$((runs + 1))
+done
+
+leftovers=$(find "$root" "$PWD" -maxdepth 3 -name '.*.partial-*' 2>/dev/null)
+if [ -n "$leftovers" ]; then
+  echo "FAIL temporaries left behind:"; echo "$leftovers" | sed 's/^/    /'
+  failures=$((failures + 1))
+fi
+after=$(checksums)
+if [ "$before" != "$after" ]; then
+  echo "FAIL an input was modified:"; diff <(echo "$before") <(echo "$after") | sed 's/^/    /'
+  failures=$((failures + 1))
+fi
+echo "adversarial: $runs runs, $failures failures ($(ls "$in" | wc -l) inputs, $flavour build)"
+[ "$failures" -eq 0 ]
