@@ -106,6 +106,10 @@ TEST(AlembicBadInput, NotAnAlembicFile) {
   const std::string text = "ply\nformat ascii 1.0\nelement vertex 0\nend_header\n";
   std::vector<std::byte> bytes(text.size());
   std::memcpy(bytes.data(), text.data(), text.size());
+  expect_error(bytes, "is a PLY file, not an Alembic archive");
+  const std::string other = "GIF89a and then some more bytes";
+  bytes.assign(reinterpret_cast<const std::byte*>(other.data()),
+               reinterpret_cast<const std::byte*>(other.data() + other.size()));
   expect_error(bytes, "not an Alembic file");
 }
 
