@@ -270,4 +270,22 @@ TEST(Demo, SmallSmokeRunProducesEverythingAndMatchingFrames) {
   }
 }
 
+// Regression (#12): a clip that fails while playing made `play` exit 0.
+TEST(Viewer, ACorruptClipFailsTheRun) {
+  if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
+  const fs::path dir = test::fresh_dir();
+  cook::Options o;
+  o.input = test::data_path("alembic/points_large.abc");
+  o.output = dir / "large.pstream";
+  o.chunk_size = 64 << 10;
+  cook::cook(o);
+  std::string bytes = test::read_text(o.output);
+  for (std::size_t i = 100000; i < 100100; ++i) bytes[i] = static_cast<char>(bytes[i] ^ 0x3c);  // inside chunk 1
+  std::ofstream(dir / "corrupt.pstream", std::ios::binary).write(bytes.data(), std::streamsize(bytes.size()));
+  const auto r = test::run_cli_raw("xvfb-run -a -s '-screen 0 640x480x24' " + std::string(PSTREAM_CLI) + " play '" +
+                                   (dir / "corrupt.pstream").string() + "' --width 640 --height 480 --frames-to-run 60");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("checksum"), std::string::npos) << r.output;
+}
+
 }  // namespace
