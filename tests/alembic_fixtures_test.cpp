@@ -14,10 +14,10 @@ namespace {
 using namespace pstream;
 using nlohmann::json;
 
-const char* const kOgawaFixtures[] = {"points_constant",        "points_varying",      "points_xform",
-                                      "points_multi",           "points_empty_frames", "points_large",
-                                      "points_widths_constant", "mesh_vertices",       "strings_attributes",
-                                      "instancing",             "no_samples"};
+const char* const kOgawaFixtures[] = {
+    "points_constant", "points_varying",         "points_xform",  "points_multi",       "points_empty_frames",
+    "points_large",    "points_widths_constant", "mesh_vertices", "strings_attributes", "instancing",
+    "no_samples"};
 
 std::string report(const std::vector<std::string>& diffs) {
   std::string s;

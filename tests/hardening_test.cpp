@@ -111,8 +111,8 @@ TEST(Hardening, TinyPlyClaimingMillionsOfVerticesAllocatesNothing) {
   const std::string limit = "ulimit -v 1048576;";
 #endif
   for (const char* name : {"a.0001.ply", "b.0001.ply"}) {
-    const auto r = test::run_cli_raw(fmt::format("{} {} cook {} -o {} --max-particles 1000000000", limit,
-                                                 PSTREAM_CLI, q(dir / name), q(dir / "out.pstream")));
+    const auto r = test::run_cli_raw(fmt::format("{} {} cook {} -o {} --max-particles 1000000000", limit, PSTREAM_CLI,
+                                                 q(dir / name), q(dir / "out.pstream")));
     expect_error(r, "but the file has");
   }
   expect_no_temporaries(dir);
@@ -216,9 +216,9 @@ TEST(Hardening, PlansBeyondTheFrameLimitAreRefused) {
   expect_error(r, "more than --max-frames, 100000");
   EXPECT_NE(r.output.find("frames (1.95833 s at 1e+15 fps)"), std::string::npos) << r.output;
   // The limit can be raised (and then a plan of the same size fits).
-  EXPECT_EQ(test::run_cli(fmt::format("cook {} --fps 240 --max-frames 500 -o {} -q", abc, q(dir / "o.pstream")))
-                .exit_code,
-            0);
+  EXPECT_EQ(
+      test::run_cli(fmt::format("cook {} --fps 240 --max-frames 500 -o {} -q", abc, q(dir / "o.pstream"))).exit_code,
+      0);
   expect_error(test::run_cli(fmt::format("render {} --fps 1e6 --out {} -q", q(dir / "o.pstream"), q(dir / "f"))),
                "more than --max-frames 100000");
   EXPECT_FALSE(fs::exists(dir / "f" / "frame_00000.png"));
@@ -272,8 +272,9 @@ TEST(Hardening, PathsWithQuotesNeverReachAShell) {
   const std::string evil = (dir / "v'; touch pwned; echo '.mp4").string();
   const std::string frames = (dir / "f'; touch pwned2; echo '").string();
   // (Mesa leaks a little at exit: leak checking is off for GL runs, as in pstream_render_tests.)
-  const auto r = test::run_cli_raw(fmt::format("ASAN_OPTIONS=detect_leaks=0 {} render {} --out \"{}\" --size 64x64 -q --video \"{}\"",
-                                               PSTREAM_CLI, q(dir / "c.pstream"), frames, evil));
+  const auto r = test::run_cli_raw(
+      fmt::format("ASAN_OPTIONS=detect_leaks=0 {} render {} --out \"{}\" --size 64x64 -q --video \"{}\"", PSTREAM_CLI,
+                  q(dir / "c.pstream"), frames, evil));
   EXPECT_FALSE(fs::exists("pwned"));
   EXPECT_FALSE(fs::exists("pwned2"));
   EXPECT_FALSE(fs::exists(dir / "pwned"));
@@ -443,12 +444,12 @@ TEST(Hardening, CachesWithoutIdsSaySo) {
 
 TEST(Hardening, CountsAndArticlesReadRight) {
   const fs::path dir = test::fresh_dir();
-  const auto r = test::run_cli(fmt::format("cook {} -o {} --frames 0:1", q(test::data_path("alembic/points_constant.abc")),
-                                           q(dir / "o.pstream")));
+  const auto r = test::run_cli(fmt::format("cook {} -o {} --frames 0:1",
+                                           q(test::data_path("alembic/points_constant.abc")), q(dir / "o.pstream")));
   EXPECT_NE(r.output.find("1 frame, 1000 particles, 1 chunk,"), std::string::npos) << r.output;
   EXPECT_NE(test::run_cli("verify " + q(dir / "o.pstream")).output.find("OK — 1 frame, 1 chunk,"), std::string::npos);
-  const auto x = test::run_cli(fmt::format("cook {} --object /rig -o {}", q(test::data_path("alembic/points_xform.abc")),
-                                           q(dir / "o.pstream")));
+  const auto x = test::run_cli(
+      fmt::format("cook {} --object /rig -o {}", q(test::data_path("alembic/points_xform.abc")), q(dir / "o.pstream")));
   expect_error(x, "is an xform object");
 }
 

@@ -282,8 +282,9 @@ TEST(Viewer, ACorruptClipFailsTheRun) {
   std::string bytes = test::read_text(o.output);
   for (std::size_t i = 100000; i < 100100; ++i) bytes[i] = static_cast<char>(bytes[i] ^ 0x3c);  // inside chunk 1
   std::ofstream(dir / "corrupt.pstream", std::ios::binary).write(bytes.data(), std::streamsize(bytes.size()));
-  const auto r = test::run_cli_raw("xvfb-run -a -s '-screen 0 640x480x24' " + std::string(PSTREAM_CLI) + " play '" +
-                                   (dir / "corrupt.pstream").string() + "' --width 640 --height 480 --frames-to-run 60");
+  const auto r =
+      test::run_cli_raw("xvfb-run -a -s '-screen 0 640x480x24' " + std::string(PSTREAM_CLI) + " play '" +
+                        (dir / "corrupt.pstream").string() + "' --width 640 --height 480 --frames-to-run 60");
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("checksum"), std::string::npos) << r.output;
 }

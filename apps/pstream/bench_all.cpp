@@ -12,8 +12,8 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
-#include "commands.hpp"
 #include "base/output_file.hpp"
+#include "commands.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "process.hpp"
 #include "progress.hpp"
@@ -141,7 +141,8 @@ int bench_all(const BenchAllOptions& o) {
      << json{{"read", read}, {"cook", cook}, {"stream", stream}, {"sort", sort_one}, {"render", render}}.dump(1)
      << "\n```\n";
   write_file(o.out, md.str());
-  if (!std::filesystem::exists(plot)) throw Error(fmt::format("{}: the sort benchmark did not write its plot", plot.string()));
+  if (!std::filesystem::exists(plot))
+    throw Error(fmt::format("{}: the sort benchmark did not write its plot", plot.string()));
   fmt::print("wrote {} and {}\n", o.out, plot.string());
   return 0;
 }

@@ -494,9 +494,9 @@ int bench_codec(const BenchCodecOptions& o) {
                                 {"ours_decode_vs_zstd", zstd_gb_s > 0 ? ours_gb_s / zstd_gb_s : 0.0},
                                 {"codecs", results}};
   if (!o.svg.empty()) {
-    write_file(o.svg, svg_scatter(results, fmt::format("{}: {} frames, error bound 1e-4 of the diagonal",
-                                                      std::filesystem::path(o.file).filename().string(),
-                                                      frames.size())));
+    write_file(o.svg,
+               svg_scatter(results, fmt::format("{}: {} frames, error bound 1e-4 of the diagonal",
+                                                std::filesystem::path(o.file).filename().string(), frames.size())));
   }
   if (o.json) {
     fmt::print("{}\n", report.dump(1));

@@ -136,9 +136,10 @@ int bench_stream(const BenchStreamOptions& o) {
   }
   if (s->state() == stream::PlayState::Error) throw Error(s->error());
   if (!primed()) {
-    throw Error(fmt::format("{}: the cache did not fill within 30 s ({} of {} loads done); the disk is too slow or "
-                            "stalled",
-                            file.string(), s->debug().loads_done, s->debug().slots.size()));
+    throw Error(
+        fmt::format("{}: the cache did not fill within 30 s ({} of {} loads done); the disk is too slow or "
+                    "stalled",
+                    file.string(), s->debug().loads_done, s->debug().slots.size()));
   }
   s->set_loop(true);
   s->play();

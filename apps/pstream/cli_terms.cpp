@@ -16,9 +16,10 @@ std::pair<std::int64_t, std::int64_t> parse_frame_range(const std::string& text,
     std::int64_t v = 0;
     const auto [ptr, ec] = std::from_chars(part.data(), part.data() + part.size(), v);
     if (ec != std::errc() || ptr != part.data() + part.size() || v < 0) {
-      throw Error(fmt::format("{} '{}': expected A:B, frame numbers from 0 (A:B is from A up to but not including B; "
-                              "either may be left out)",
-                              flag, text));
+      throw Error(
+          fmt::format("{} '{}': expected A:B, frame numbers from 0 (A:B is from A up to but not including B; "
+                      "either may be left out)",
+                      flag, text));
     }
     return v;
   };

@@ -18,8 +18,8 @@ std::uint64_t parse_size(const std::string& text) {
   const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
   const std::string unit(ptr, text.data() + text.size());
   if (ec != std::errc() || value == 0)
-    throw Error(fmt::format("--chunk-size '{}': expected a size such as 2MiB (a power of two from 64KiB to 64MiB)",
-                            text));
+    throw Error(
+        fmt::format("--chunk-size '{}': expected a size such as 2MiB (a power of two from 64KiB to 64MiB)", text));
   int shift = 0;
   if (unit == "K" || unit == "KiB" || unit == "k")
     shift = 10;
@@ -174,10 +174,9 @@ int run_cook(const CookCli& cli) {
     }
     if (r.dropped_invalid)
       fmt::print(stderr, "note: dropped {} particles with NaN or infinite positions\n", r.dropped_invalid);
-    fmt::print(
-        "{} -> {}: {}, {}, {}, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} s\n", r.object,
-        cli.output, count_of(r.frames, "frame"), count_of(r.particles, "particle"), count_of(r.chunks, "chunk"), r.file_bytes / 1048576.0, ratio,
-        r.stream_bytes / 1048576.0, r.seconds);
+    fmt::print("{} -> {}: {}, {}, {}, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} s\n", r.object,
+               cli.output, count_of(r.frames, "frame"), count_of(r.particles, "particle"), count_of(r.chunks, "chunk"),
+               r.file_bytes / 1048576.0, ratio, r.stream_bytes / 1048576.0, r.seconds);
     if (o.frame_codec == format::FrameCodec::Particle) {
       const double per_particle = r.particles ? double(r.file_bytes) / double(r.particles) : 0.0;
       const double match = r.predictable ? 100.0 * double(r.matched) / double(r.predictable) : 100.0;

@@ -15,13 +15,13 @@
 
 #include "base/output_file.hpp"
 #include "commands.hpp"
-#include "process.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/demo.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "particlestream/stream.hpp"
+#include "process.hpp"
 #include "progress.hpp"
 
 namespace pstream::app {

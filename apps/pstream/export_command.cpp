@@ -154,8 +154,8 @@ int run_export(const ExportCli& cli) {
   check_output(cli.output, inputs);
   {
     // The writer writes a temporary beside the output and renames it at close().
-    alembic::ArchiveWriter writer(cli.output, "pstream export", fmt::format("{} {}", m.source_file, m.source_object), m.fps,
-                                  m.time_of_frame0, po);
+    alembic::ArchiveWriter writer(cli.output, "pstream export", fmt::format("{} {}", m.source_file, m.source_object),
+                                  m.fps, m.time_of_frame0, po);
     std::vector<float> widths, cd;
     std::vector<std::uint64_t> index_ids;
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) {

@@ -341,8 +341,7 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
                            .dump());
   } else if (errors.empty()) {
     fmt::print("{}: OK — {}, {}, every checksum and index entry verified{}\n", file, count_of(frames, "frame"),
-               count_of(chunks, "chunk"),
-               against.empty() ? "" : ", every value within its bound of the source");
+               count_of(chunks, "chunk"), against.empty() ? "" : ", every value within its bound of the source");
     if (!comparison.is_null() && comparison.contains("attributes")) {
       for (const auto& a : comparison["attributes"]) {
         fmt::print("  {:<12} max error {:.6g} (bound {})\n", a["name"].get<std::string>(), a["max_error"].get<double>(),

@@ -12,10 +12,7 @@
 #include "commands.hpp"
 #include "particlestream/error.hpp"
 
-namespace {
-
-
-}  // namespace
+namespace {}  // namespace
 
 int main(int argc, char** argv) {
   using namespace pstream::app;
@@ -296,8 +293,9 @@ int main(int argc, char** argv) {
 
   CLI11_PARSE(app, argc, argv);
   if (play_cmd->parsed() && !viewer.screenshot.empty() && viewer.frames_to_run <= 0) {
-    fmt::print(stderr, "pstream: error: --screenshot needs --frames-to-run N (the frame to save; the viewer otherwise "
-                       "runs until its window is closed)\n");
+    fmt::print(stderr,
+               "pstream: error: --screenshot needs --frames-to-run N (the frame to save; the viewer otherwise "
+               "runs until its window is closed)\n");
     return 1;
   }
   // Every command that plays or reads a cooked clip: an Alembic or PLY file gets "cook it first".
@@ -354,8 +352,9 @@ int main(int argc, char** argv) {
   }
   // A file truncated under a read: whatever came of it is void, whatever the command said.
   if (const std::string truncated = pstream::MappedFile::truncated_file(); !truncated.empty()) {
-    fmt::print(stderr, "pstream: error: {}: the file was truncated while it was being read; nothing is written from "
-                       "it\n",
+    fmt::print(stderr,
+               "pstream: error: {}: the file was truncated while it was being read; nothing is written from "
+               "it\n",
                truncated);
     return 1;
   }

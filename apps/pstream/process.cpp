@@ -72,19 +72,19 @@ std::string self_executable() { return std::filesystem::read_symlink("/proc/self
 
 void encode_video(const std::string& frames_dir, double fps, const std::string& video) {
   if (!have_program("ffmpeg")) {
-    throw Error(fmt::format("{}: writing a video needs the ffmpeg program, which is not installed (apt-get install "
-                            "ffmpeg); the PNG frames are in {}",
-                            video, frames_dir));
+    throw Error(
+        fmt::format("{}: writing a video needs the ffmpeg program, which is not installed (apt-get install "
+                    "ffmpeg); the PNG frames are in {}",
+                    video, frames_dir));
   }
   // ffmpeg writes the file in place: give it a temporary beside the video and rename when done.
   const std::filesystem::path out(video);
   const std::filesystem::path temp =
       out.parent_path() / fmt::format(".{}.partial-{}{}", out.stem().string(), ::getpid(), out.extension().string());
-  const ProgramResult r = run_program({"ffmpeg", "-nostdin", "-y", "-loglevel", "error", "-framerate",
-                                       fmt::format("{}", fps), "-i",
-                                       (std::filesystem::path(frames_dir) / "frame_%05d.png").string(), "-c:v",
-                                       "libx264", "-pix_fmt", "yuv420p", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",
-                                       "-f", "mp4", temp.string()});
+  const ProgramResult r =
+      run_program({"ffmpeg", "-nostdin", "-y", "-loglevel", "error", "-framerate", fmt::format("{}", fps), "-i",
+                   (std::filesystem::path(frames_dir) / "frame_%05d.png").string(), "-c:v", "libx264", "-pix_fmt",
+                   "yuv420p", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-f", "mp4", temp.string()});
   struct stat st {};
   const bool written = ::stat(temp.c_str(), &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0;
   if (r.exit_code != 0 || !written) {

@@ -14,10 +14,10 @@
 
 #include "cli_terms.hpp"
 #include "commands.hpp"
-#include "process.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "particlestream/stream.hpp"
+#include "process.hpp"
 #include "progress.hpp"
 
 namespace pstream::app {
@@ -78,9 +78,10 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   // Kept as a double until it is known to be in range (times are validated finite and increasing).
   const double images = std::floor((t1 - t0) * fps + 1e-6) + 1;
   if (!(images <= double(cli.max_frames))) {
-    throw Error(fmt::format("{}: rendering {:g} s at {:g} fps makes {:.0f} images, more than --max-frames {}; "
-                            "choose a lower --fps or --frames, or raise --max-frames",
-                            cli.file, t1 - t0, fps, images, cli.max_frames));
+    throw Error(
+        fmt::format("{}: rendering {:g} s at {:g} fps makes {:.0f} images, more than --max-frames {}; "
+                    "choose a lower --fps or --frames, or raise --max-frames",
+                    cli.file, t1 - t0, fps, images, cli.max_frames));
   }
   const auto outputs = static_cast<std::uint64_t>(images);
 

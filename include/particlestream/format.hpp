@@ -22,8 +22,8 @@ inline constexpr std::uint32_t kVersion = 2;  // what the writer writes; the rea
 inline constexpr std::size_t kHeaderSizeV1 = 160;
 inline constexpr std::size_t kHeaderSize = 192;  // version 2
 inline constexpr std::uint32_t kDefaultKeyframeInterval = 64;
-inline constexpr int kDefaultParticleZstdLevel = 16;          // lossy: the optimal parser pays off on planes
-inline constexpr int kDefaultLosslessParticleZstdLevel = 3;   // lossless: float bits gain little from it
+inline constexpr int kDefaultParticleZstdLevel = 16;         // lossy: the optimal parser pays off on planes
+inline constexpr int kDefaultLosslessParticleZstdLevel = 3;  // lossless: float bits gain little from it
 inline constexpr std::uint32_t kMaxKeyframeInterval = 1024;
 // The most particles one frame of the particle codec may hold: decoders size their state from
 // the largest frame at open, so a file cannot ask for more memory than this bounds.

@@ -170,8 +170,8 @@ struct InstanceResolver {
     }
     for (const auto& c : source.children) {
       if (++presented > kMaxPresentedObjects) {
-        a.file.fail(0, fmt::format("instances present more than {} objects (at '{}')", kMaxPresentedObjects,
-                                   parent.full_name));
+        a.file.fail(
+            0, fmt::format("instances present more than {} objects (at '{}')", kMaxPresentedObjects, parent.full_name));
       }
       auto node = std::make_unique<ObjectNode>();
       node->name = c->name;

@@ -66,12 +66,8 @@ json stats(std::uint64_t count, std::size_t extent, bool integer, Value value, N
 json string_stats(const std::vector<std::string>& strings) {
   json first = json::array();
   for (std::size_t i = 0; i < std::min<std::size_t>(strings.size(), 5); ++i) first.push_back(strings[i]);
-  return json{{"count", strings.size()},
-              {"first", first},
-              {"last", strings.empty() ? json() : json(strings.back())},
-              {"sum", nullptr},
-              {"min", nullptr},
-              {"max", nullptr}};
+  return json{{"count", strings.size()}, {"first", first}, {"last", strings.empty() ? json() : json(strings.back())},
+              {"sum", nullptr},          {"min", nullptr}, {"max", nullptr}};
 }
 
 json sample_stats(const SampleView& v) {

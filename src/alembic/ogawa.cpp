@@ -35,14 +35,16 @@ File::File(std::span<const std::byte> bytes, std::string name) : bytes_(bytes), 
   }
   const std::string_view start(reinterpret_cast<const char*>(bytes_.data()), std::min<std::size_t>(bytes_.size(), 8));
   if (start.starts_with("PSTREAM")) {
-    throw Error(fmt::format("{}: is a cooked .pstream clip, not an Alembic archive (it is already cooked: play, "
-                            "render or export it)",
-                            name_));
+    throw Error(
+        fmt::format("{}: is a cooked .pstream clip, not an Alembic archive (it is already cooked: play, "
+                    "render or export it)",
+                    name_));
   }
   if (start.starts_with("ply")) {
-    throw Error(fmt::format("{}: is a PLY file, not an Alembic archive (cook reads PLY sequences: name a file whose "
-                            "extension is .ply)",
-                            name_));
+    throw Error(
+        fmt::format("{}: is a PLY file, not an Alembic archive (cook reads PLY sequences: name a file whose "
+                    "extension is .ply)",
+                    name_));
   }
   if (bytes_.size() < kHeaderSize) {
     fail(bytes_.size(), fmt::format("truncated header: {} bytes, an Ogawa header has {}", bytes_.size(), kHeaderSize));

@@ -168,8 +168,8 @@ std::vector<std::string> SampleView::strings() const {
     }
   }
   if (out.size() != wanted) {
-    throw Error(fmt::format("a {} sample of {} elements holds only {} terminated strings", pod_name(pod_), wanted,
-                            out.size()));
+    throw Error(
+        fmt::format("a {} sample of {} elements holds only {} terminated strings", pod_name(pod_), wanted, out.size()));
   }
   return out;
 }
@@ -248,8 +248,8 @@ SampleView Property::sample(std::uint32_t index) const {
     count /= std::max<std::uint64_t>(h.extent, 1);
   }
   if (is_text && count * std::max<std::uint64_t>(h.extent, 1) > values.size() / pod_size(h.pod)) {
-    file.fail(data.offset, fmt::format("string array '{}' claims {} strings but has only {} bytes", h.name, count,
-                                       values.size()));
+    file.fail(data.offset,
+              fmt::format("string array '{}' claims {} strings but has only {} bytes", h.name, count, values.size()));
   }
   return SampleView(h.pod, h.extent, count, values);
 }

@@ -143,9 +143,10 @@ void MappedFile::check_intact() const {
   struct stat st {};
   const bool known = ::stat(path_.c_str(), &st) == 0;
   if (known) now = static_cast<std::uint64_t>(st.st_size);
-  throw Error(fmt::format("{}: the file was truncated while it was being read (it had {} bytes{}); nothing read "
-                          "from it after that point was used",
-                          path_, size_, known ? fmt::format(", now {}", now) : std::string()));
+  throw Error(
+      fmt::format("{}: the file was truncated while it was being read (it had {} bytes{}); nothing read "
+                  "from it after that point was used",
+                  path_, size_, known ? fmt::format(", now {}", now) : std::string()));
 }
 
 std::string MappedFile::truncated_file() {

@@ -236,8 +236,8 @@ std::uint64_t OutputFile::commit() {
   if (::close(fd) != 0) throw Error(fmt::format("{}: cannot close: {}", path_.string(), std::strerror(errno)));
   if (!direct_) {
     if (::rename(temp_.c_str(), path_.c_str()) != 0) {
-      throw Error(fmt::format("{}: cannot rename {} over it: {}", path_.string(), temp_.string(),
-                              std::strerror(errno)));
+      throw Error(
+          fmt::format("{}: cannot rename {} over it: {}", path_.string(), temp_.string(), std::strerror(errno)));
     }
     temp_.clear();
     unregister_temporary(std::exchange(slot_, -1));

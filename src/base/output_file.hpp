@@ -20,8 +20,7 @@ class OutputFile {
   // - The same file (device and inode) as one of `inputs`: refused, it would destroy its input.
   // Temporaries of processes that no longer run (a SIGKILL) in the same folder are removed first.
   // SIGINT, SIGTERM and SIGHUP remove every open temporary before the process ends.
-  static OutputFile create(const std::filesystem::path& path,
-                           std::span<const std::filesystem::path> inputs = {});
+  static OutputFile create(const std::filesystem::path& path, std::span<const std::filesystem::path> inputs = {});
 
   OutputFile() = default;
   OutputFile(OutputFile&& other) noexcept;

@@ -10,9 +10,9 @@
 
 #include <fmt/format.h>
 
+#include "base/output_file.hpp"
 #include "cook/chunk_cutter.hpp"
 #include "cook/direct_pack.hpp"
-#include "base/output_file.hpp"
 #include "cook/source.hpp"
 #include "particlestream/cook.hpp"
 
@@ -58,21 +58,23 @@ Plan make_plan(const Options& options, const Source& source, Report& report) {
   }
   plan.layout = format::default_layout();
   if (options.color_from == "Cd" && !source.has_color()) {
-    throw OptionError("color_from", fmt::format("{}: `color_from` is Cd, but the source has no Cd colours", source.name()));
+    throw OptionError("color_from",
+                      fmt::format("{}: `color_from` is Cd, but the source has no Cd colours", source.name()));
   }
   if (options.color_from != "Cd" && options.color_from != "none" && options.color_from != "auto") {
     throw OptionError("color_from", fmt::format("`color_from` must be Cd, none or auto, not '{}'", options.color_from));
   }
   if (options.interpolate && !source.can_interpolate()) {
-    throw OptionError("interpolate", fmt::format("{}: `interpolate`: {}", source.name(), source.why_no_interpolation()));
+    throw OptionError("interpolate",
+                      fmt::format("{}: `interpolate`: {}", source.name(), source.why_no_interpolation()));
   }
   r.color = options.color_from == "Cd" || (options.color_from == "auto" && source.has_color());
   if (r.color) format::append_attribute(plan.layout, "color", AttributeType::Unorm8, 4);
   for (const std::string& a : options.attributes) {
     if (a == "velocity") {
       if (!source.has_velocity())
-        throw OptionError("attributes",
-                          fmt::format("{}: `attributes` has velocity, but the source has no velocities", source.name()));
+        throw OptionError("attributes", fmt::format("{}: `attributes` has velocity, but the source has no velocities",
+                                                    source.name()));
       r.velocity = true;
       format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
     } else if (a == "id" || a == "id32") {
@@ -84,8 +86,8 @@ Plan make_plan(const Options& options, const Source& source, Report& report) {
     } else {
       const std::uint32_t components = source.float_components(a);
       if (components == 0)
-        throw OptionError("attributes",
-                          fmt::format("{}: `attributes` has {}, but the source has no such attribute", source.name(), a));
+        throw OptionError("attributes", fmt::format("{}: `attributes` has {}, but the source has no such attribute",
+                                                    source.name(), a));
       r.floats.push_back(a);
       format::append_attribute(plan.layout, a, AttributeType::Float32, static_cast<std::uint8_t>(components));
     }
@@ -269,10 +271,11 @@ class SpaceCheck {
     const std::uint64_t free = free_space(output_);
     const double projected = double(bytes_out) / double(frames_done) * double(frames_);
     if (projected > double(free) + double(bytes_out)) {
-      throw Error(fmt::format("{}: the cook would write about {:.1f} GB ({} frames at {:.1f} MB each so far), but "
-                              "only {:.1f} GB are free there",
-                              output_.string(), projected / 1e9, frames_, double(bytes_out) / double(frames_done) / 1e6,
-                              double(free) / 1e9));
+      throw Error(
+          fmt::format("{}: the cook would write about {:.1f} GB ({} frames at {:.1f} MB each so far), but "
+                      "only {:.1f} GB are free there",
+                      output_.string(), projected / 1e9, frames_, double(bytes_out) / double(frames_done) / 1e6,
+                      double(free) / 1e9));
     }
   }
 
@@ -374,7 +377,6 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   report.chunks = writer.metadata().chunk_count();
 }
 
-
 // The output frames: how many the source spans at the frame rate, and the selected range.
 struct FramePlan {
   double fps = 0.0, start = 0.0;
@@ -400,12 +402,12 @@ FramePlan plan_frames(const Options& options, const Source& source) {
   const double first = static_cast<double>(options.frame_begin);
   const double last = options.frame_end < 0 ? span : std::min(static_cast<double>(options.frame_end), span);
   if (options.frame_begin < 0 || !(first < last)) {
-    throw OptionError("frame_begin",
-                      fmt::format("{}: the frame range `frame_begin`:`frame_end` {}:{} selects no frames; the clip has "
-                                  "{:.0f} frames at {:g} fps, numbered from 0",
-                                  source.name(), options.frame_begin,
-                                  options.frame_end < 0 ? std::string("end") : std::to_string(options.frame_end), span,
-                                  p.fps));
+    throw OptionError(
+        "frame_begin",
+        fmt::format("{}: the frame range `frame_begin`:`frame_end` {}:{} selects no frames; the clip has "
+                    "{:.0f} frames at {:g} fps, numbered from 0",
+                    source.name(), options.frame_begin,
+                    options.frame_end < 0 ? std::string("end") : std::to_string(options.frame_end), span, p.fps));
   }
   if (!(last - first <= limit)) {
     throw OptionError("max_frames",
@@ -419,15 +421,14 @@ FramePlan plan_frames(const Options& options, const Source& source) {
   return p;
 }
 
-
 std::string codec_setting(const Options& o) {
   if (o.frame_codec == format::FrameCodec::Particle) {
     const int level = o.particle.zstd_level ? o.particle.zstd_level
                       : o.particle.lossless ? format::kDefaultLosslessParticleZstdLevel
                                             : format::kDefaultParticleZstdLevel;
     if (o.particle.lossless) return fmt::format("particle-lossless:{}", level);
-    return fmt::format("particle:{} error={}:{:g} keyframe_interval={}", level, o.particle.error_relative ? "rel" : "abs",
-                       o.particle.error, o.particle.keyframe_interval);
+    return fmt::format("particle:{} error={}:{:g} keyframe_interval={}", level,
+                       o.particle.error_relative ? "rel" : "abs", o.particle.error, o.particle.keyframe_interval);
   }
   return fmt::format("{}:{}", format::codec_name(o.codec), o.codec_level);
 }
@@ -443,8 +444,8 @@ std::string describe_settings(const Options& o, std::uint64_t content_hash) {
   return fmt::format(
       "source={} source_xxh3={:016x} object={} merge={} bake_xforms={} fps={:g} interpolate={} scale_from={}{} "
       "color_from={} attributes={} chunk_size={} codec={} frames={}:{} drop_invalid={}",
-      o.input.filename().string(), content_hash, o.object.empty() ? "auto" : o.object, int(o.merge),
-      int(o.bake_xforms), o.fps, int(o.interpolate), scale,
+      o.input.filename().string(), content_hash, o.object.empty() ? "auto" : o.object, int(o.merge), int(o.bake_xforms),
+      o.fps, int(o.interpolate), scale,
       o.scale_from == ScaleFrom::Constant    ? fmt::format(":{:g}", o.scale_constant)
       : o.scale_from == ScaleFrom::Attribute ? ":" + o.scale_attribute
                                              : std::string(),
@@ -456,8 +457,8 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   const auto t0 = std::chrono::steady_clock::now();
   if (!std::has_single_bit(options.chunk_size) || options.chunk_size < format::kMinChunkSize ||
       options.chunk_size > format::kMaxChunkSize) {
-    throw OptionError("chunk_size", fmt::format("`chunk_size` {} must be a power of two from 64 KiB to 64 MiB",
-                                                options.chunk_size));
+    throw OptionError("chunk_size",
+                      fmt::format("`chunk_size` {} must be a power of two from 64 KiB to 64 MiB", options.chunk_size));
   }
   if (options.fps != 0 && !(options.fps > 0 && std::isfinite(options.fps))) {
     throw OptionError("fps", fmt::format("`fps` {} must be a positive number (or 0: the source's)", options.fps));

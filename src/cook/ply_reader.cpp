@@ -137,18 +137,17 @@ static double load_binary(const std::byte* p, PlyType t) {
   return 0;
 }
 
-
 const char* ply_format_name(bool binary) { return binary ? "binary_little_endian" : "ascii"; }
 
 void read_ply_vertices(std::span<const std::byte> bytes, const std::string& file, std::uint64_t max_vertices,
                        PlyHeader& header, std::vector<double>& values) {
-const auto text = std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size());
-header = parse_ply_header(text, file);
-const PlyHeader& h = header;
+  const auto text = std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+  header = parse_ply_header(text, file);
+  const PlyHeader& h = header;
   const std::uint64_t n = h.vertex_count;
   if (n > max_vertices) {
-    throw OptionError("max_particles", fmt::format("{}: declares {} vertices, more than `max_particles`, {}", file, n,
-                                                   max_vertices));
+    throw OptionError("max_particles",
+                      fmt::format("{}: declares {} vertices, more than `max_particles`, {}", file, n, max_vertices));
   }
   // The declared count must fit in the file before anything is allocated for it: a binary
   // vertex takes vertex_size bytes, an ascii value at least one digit and a separator.
@@ -156,17 +155,19 @@ const PlyHeader& h = header;
   const std::uint64_t props = h.properties.size();
   const std::uint64_t per_vertex = h.binary ? std::max<std::uint64_t>(h.vertex_size, 1) : 2 * props;
   if (n > data_bytes / per_vertex) {
-    throw Error(fmt::format("{}: the header declares {} vertices of {} bytes{}, but the file has {} bytes of data "
-                            "(truncated, or a wrong count)",
-                            file, n, per_vertex, h.binary ? "" : " or more", data_bytes));
+    throw Error(
+        fmt::format("{}: the header declares {} vertices of {} bytes{}, but the file has {} bytes of data "
+                    "(truncated, or a wrong count)",
+                    file, n, per_vertex, h.binary ? "" : " or more", data_bytes));
   }
   values.resize(n * props);
   if (h.binary) {
     const std::uint64_t used = n * h.vertex_size;
     if (used != data_bytes && !h.has_elements_after_vertex) {
-      throw Error(fmt::format("{}: the header declares {} vertices ({} bytes), but {} bytes of data follow it; "
-                              "the vertex count is wrong",
-                              file, n, used, data_bytes));
+      throw Error(
+          fmt::format("{}: the header declares {} vertices ({} bytes), but {} bytes of data follow it; "
+                      "the vertex count is wrong",
+                      file, n, used, data_bytes));
     }
     const std::byte* p = bytes.data() + h.data_offset;
     for (std::uint64_t i = 0; i < n; ++i, p += h.vertex_size) {
@@ -188,9 +189,10 @@ const PlyHeader& h = header;
     }
     while (c < end && std::isspace(static_cast<unsigned char>(*c))) ++c;
     if (c != end && !h.has_elements_after_vertex) {
-      throw Error(fmt::format("{}: offset {}: more numbers follow the vertices the header declares ({}); the "
-                              "vertex count is wrong",
-                              file, c - text.data(), n));
+      throw Error(
+          fmt::format("{}: offset {}: more numbers follow the vertices the header declares ({}); the "
+                      "vertex count is wrong",
+                      file, c - text.data(), n));
     }
   }
 }

@@ -5,8 +5,8 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
-#include <memory>
 #include <map>
+#include <memory>
 #include <sstream>
 
 #include <fmt/format.h>
@@ -131,10 +131,10 @@ class PlySource final : public Source {
     std::vector<std::string> names;
     for (const auto& p : h.properties) names.push_back(p.name);
     if (h.binary != header_.binary) {
-      throw Error(fmt::format("{}: is {} PLY, but the sequence's first file {} is {}; every file of a sequence must "
-                              "have one format",
-                              file, ply_format_name(h.binary), files_.front().path.string(),
-                              ply_format_name(header_.binary)));
+      throw Error(
+          fmt::format("{}: is {} PLY, but the sequence's first file {} is {}; every file of a sequence must "
+                      "have one format",
+                      file, ply_format_name(h.binary), files_.front().path.string(), ply_format_name(header_.binary)));
     }
     if (names != names_) {
       throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file,

@@ -102,7 +102,8 @@ std::vector<std::string> Simulator::presets() {
 
 Simulator::Simulator(SimulationOptions options) : options_(std::move(options)) {
   (void)find_preset(options_.preset);
-  if (!(options_.fps > 0) || !(options_.seconds > 0)) throw OptionError("seconds", "`seconds` and `fps` must be positive");
+  if (!(options_.fps > 0) || !(options_.seconds > 0))
+    throw OptionError("seconds", "`seconds` and `fps` must be positive");
   threads_ = options_.threads ? options_.threads : std::max(1u, std::thread::hardware_concurrency());
 }
 

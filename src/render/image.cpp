@@ -31,9 +31,8 @@ std::vector<std::uint8_t> read_png(const std::filesystem::path& path, int& width
   if (file.bytes().size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))
     throw Error(fmt::format("{}: {} bytes is too large for an image", path.string(), file.bytes().size()));
   int channels = 0;
-  unsigned char* data =
-      stbi_load_from_memory(reinterpret_cast<const stbi_uc*>(file.bytes().data()), static_cast<int>(file.bytes().size()),
-                            &width, &height, &channels, 4);
+  unsigned char* data = stbi_load_from_memory(reinterpret_cast<const stbi_uc*>(file.bytes().data()),
+                                              static_cast<int>(file.bytes().size()), &width, &height, &channels, 4);
   file.check_intact();
   if (data == nullptr) throw Error(fmt::format("{}: cannot read the image: {}", path.string(), stbi_failure_reason()));
   std::vector<std::uint8_t> out(data, data + std::size_t(width) * height * 4);
