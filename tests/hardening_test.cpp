@@ -225,6 +225,42 @@ TEST(Hardening, PlansBeyondTheFrameLimitAreRefused) {
   expect_no_temporaries(dir);
 }
 
+// A small file system of our own (tmpfs), when this machine lets the test mount one (root in CI).
+struct SmallDisk {
+  fs::path dir;
+  bool mounted = false;
+  SmallDisk(const fs::path& where, const char* size) : dir(where) {
+    fs::create_directories(dir);
+    mounted = test::run_cli_raw(fmt::format("mount -t tmpfs -o size={} tmpfs {}", size, q(dir))).exit_code == 0;
+  }
+  ~SmallDisk() {
+    if (mounted) test::run_cli_raw("umount " + q(dir));
+  }
+};
+
+TEST(Hardening, CooksThatCannotFitAreStoppedEarly) {
+  const fs::path dir = test::fresh_dir();
+  const std::string large = q(test::data_path("alembic/points_large.abc"));
+  {
+    // 400 frames of 800 KB do not fit in 64 MiB: refused once 16 frames show the size.
+    SmallDisk disk(dir / "small", "64M");
+    if (!disk.mounted) GTEST_SKIP() << "cannot mount a tmpfs here";
+    const auto r = test::run_cli(fmt::format("cook {} --fps 480 -o {}", large, q(disk.dir / "out.pstream")));
+    expect_error(r, "the cook would write about 0.3 GB");
+    EXPECT_FALSE(fs::exists(disk.dir / "out.pstream"));
+    expect_no_temporaries(disk.dir);
+  }
+  {
+    // A disk that fills up: the error names the output, the previous file survives.
+    SmallDisk disk(dir / "tiny", "2M");
+    write(disk.dir / "out.pstream", "the previous cook");
+    const auto r = test::run_cli(fmt::format("cook {} -o {}", large, q(disk.dir / "out.pstream")));
+    expect_error(r, "No space left on device");
+    EXPECT_EQ(test::read_text(disk.dir / "out.pstream"), "the previous cook");
+    expect_no_temporaries(disk.dir);
+  }
+}
+
 // ---- Data loss and security ---------------------------------------------------------------------
 
 TEST(Hardening, AnOutputThatIsAnInputIsRefused) {
