@@ -18,6 +18,7 @@
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/demo.hpp"
+#include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "particlestream/stream.hpp"
@@ -157,34 +158,27 @@ int run_demo(const DemoCli& cli) {
   std::vector<double> stream_ms, sort_ms;
   std::uint64_t stalls = 0, cache_bytes = 0;
   {
-    auto clip = stream::ParticleStream::open(co.output);
-    const format::Metadata& m = clip->metadata();
+    // The library's playback layer, as a game would use it: never blocking, sorted every frame.
+    const std::filesystem::path files[] = {co.output};
+    const auto player = playback::Player::open(files);
+    const format::Metadata& m = player->clip(0).metadata();
     const render::Camera camera = camera_for("auto", m);
-    sort::DepthSorter sorter(m.max_count);
-    std::vector<std::byte> contiguous(m.max_count * m.record_size);
-    clip->play();
+    player->set_loop(false);
+    player->play();
     const double dt = 1.0 / m.fps;
     auto tick = Clock::now();
     ProgressBar bar("stream + sort (real time)", !cli.quiet);
     for (std::uint64_t k = 0; k < m.frame_count(); ++k) {
       tick += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(dt));
       std::this_thread::sleep_until(tick);
-      auto t0 = Clock::now();
-      clip->update(k == 0 ? 0.0 : dt);
-      const stream::FrameView f = clip->frame();
-      const std::byte* records = f.first.data();
-      if (!f.second.empty()) {
-        clip->copy_frame(contiguous);
-        records = contiguous.data();
-      }
-      stream_ms.push_back(ms_since(t0));
-      t0 = Clock::now();
-      if (f.count) (void)sorter.sort(records, f.count, m.record_size, camera.view(), sort::SortMode::BackToFront);
-      sort_ms.push_back(ms_since(t0));
+      const playback::FrameStats& s = player->advance(k == 0 ? 0.0 : dt, camera.view(), sort::SortMode::BackToFront);
+      player->check();
+      stream_ms.push_back(s.stream_ms);
+      sort_ms.push_back(s.sort_ms);
       bar.update(k + 1, m.frame_count(), "frames");
     }
-    stalls = clip->debug().stalls;
-    cache_bytes = clip->debug().cache_bytes;
+    stalls = player->clip(0).debug().stalls;
+    cache_bytes = player->clip(0).debug().cache_bytes;
   }
   report["stream"] = {{"frame_ms", percentiles(stream_ms)}, {"stalls", stalls}, {"cache_bytes", cache_bytes}};
   report["sort"] = {{"frame_ms", percentiles(sort_ms)}};

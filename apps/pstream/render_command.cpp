@@ -14,6 +14,7 @@
 
 #include "cli_terms.hpp"
 #include "commands.hpp"
+#include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "particlestream/stream.hpp"
@@ -58,10 +59,12 @@ void parse_size(const std::string& text, int& width, int& height) {
 int run_render(const RenderCli& cli, RenderStats* stats) {
   int width = 0, height = 0;
   parse_size(cli.size, width, height);
-  stream::StreamOptions options;
-  options.blocking = true;  // offline: wait for every frame instead of skipping
-  auto clip = stream::ParticleStream::open(cli.file, std::move(options));
-  const format::Metadata& m = clip->metadata();
+  playback::PlayerOptions options;
+  options.stream.blocking = true;  // offline: wait for every frame instead of skipping
+  options.loop = false;
+  const std::filesystem::path files[] = {cli.file};
+  const auto player = playback::Player::open(files, std::move(options));
+  const format::Metadata& m = player->clip(0).metadata();
   if (m.frame_count() == 0) throw Error(fmt::format("{}: the clip has no frames", cli.file));
   std::int64_t first = 0, last = std::int64_t(m.frame_count());
   if (!cli.frames.empty()) {
@@ -90,52 +93,33 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   std::filesystem::create_directories(cli.out);
   render::HeadlessContext context(width, height);
   render::RendererOptions ro;
-  ro.max_bytes_per_frame = std::max<std::uint64_t>(m.max_count * m.record_size, 4096);
+  ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
   const render::Camera camera = camera_for(cli.camera, m);
-  const render::BlendMode blend = render::parse_blend(cli.blend);
-  sort::DepthSorter sorter(m.max_count);
-  std::vector<std::byte> contiguous(m.max_count * m.record_size);  // for sorting a frame split by the ring's wrap
-  const format::Attribute* color = m.find("color");
-  const bool sorted = blend == render::BlendMode::Alpha && cli.sort != "none";
+  playback::DrawStyle style;
+  style.blend = render::parse_blend(cli.blend);
+  style.size_multiplier = cli.size_multiplier;
+  style.texture = cli.texture;
+  const sort::SortMode mode = style.blend != render::BlendMode::Alpha || cli.sort == "none" ? sort::SortMode::None
+                              : cli.sort == "front" ? sort::SortMode::FrontToBack
+                                                    : sort::SortMode::BackToFront;
 
   if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
-  clip->seek(t0);
-  clip->play();
-  clip->update(0);
+  player->seek(t0);
+  player->play();
   ProgressBar bar("render", !cli.quiet);
   for (std::uint64_t k = 0; k < outputs; ++k) {
-    if (k > 0) clip->update(1.0 / fps);
-    if (clip->state() == stream::PlayState::Error) throw Error(clip->error());
-    const stream::FrameView f = clip->frame();
-    render::ParticleBatch batch;
-    batch.first = f.first;
-    batch.second = f.second;
-    batch.count = f.count;
-    batch.record_size = m.record_size;
-    batch.color_offset = color ? std::int32_t(color->offset) : -1;
-    batch.world = clip->world_transform();
-    batch.blend = blend;
-    batch.size_multiplier = cli.size_multiplier;
-    batch.texture = cli.texture;
-    if (sorted && f.count > 0) {
-      const std::byte* records = f.first.data();
-      if (!f.second.empty()) {
-        clip->copy_frame(contiguous);
-        records = contiguous.data();
-      }
-      batch.order = sorter.sort(records, f.count, m.record_size, render::multiply(camera.view(), batch.world),
-                                cli.sort == "front" ? sort::SortMode::FrontToBack : sort::SortMode::BackToFront);
-    }
-    const auto t0 = std::chrono::steady_clock::now();
+    player->advance(k == 0 ? 0.0 : 1.0 / fps, camera.view(), mode);
+    player->check();
+    const auto start = std::chrono::steady_clock::now();
     context.bind();
     renderer.begin_frame(width, height, camera, {0.02f, 0.025f, 0.035f, 1.0f});
-    renderer.draw(batch);
+    player->draw(renderer, style);
     renderer.end_frame();
     const std::vector<std::uint8_t> pixels = context.read_rgba();
     if (stats)
       stats->frame_ms.push_back(
-          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
     render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", k), width, height, pixels);
     bar.update(k + 1, outputs, fmt::format("frames ({}x{})", width, height));
   }

@@ -10,11 +10,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <numbers>
 
 #include <fmt/format.h>
 
 #include "commands.hpp"
+#include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "particlestream/stream.hpp"
@@ -44,14 +46,6 @@ struct Orbit {
   }
 };
 
-struct Playing {
-  std::string file;
-  std::unique_ptr<stream::ParticleStream> clip;
-  std::unique_ptr<sort::DepthSorter> sorter;
-  std::vector<std::byte> contiguous;
-  const format::Attribute* color = nullptr;
-};
-
 struct Ui {
   Orbit orbit;
   bool dragging_left = false, dragging_right = false;
@@ -61,34 +55,33 @@ struct Ui {
   int sort_mode = 1;  // none, back to front, front to back
   int blend = 0;      // alpha, additive, alpha test
   float background[3] = {0.02f, 0.025f, 0.035f};
-  std::vector<Playing>* streams = nullptr;
+  playback::Player* player = nullptr;
 };
 
-void step_frames(std::vector<Playing>& streams, int delta) {
-  for (auto& s : streams) {
-    const auto& m = s.clip->metadata();
+void step_frames(playback::Player& player, int delta) {
+  for (std::size_t i = 0; i < player.clip_count(); ++i) {
+    stream::ParticleStream& clip = player.clip(i);
+    const auto& m = clip.metadata();
     if (m.frame_count() == 0) continue;
-    const auto f = static_cast<std::int64_t>(s.clip->frame().frame) + delta;
+    const auto f = static_cast<std::int64_t>(clip.frame().frame) + delta;
     const auto clamped = static_cast<std::uint64_t>(std::clamp<std::int64_t>(f, 0, std::int64_t(m.frame_count()) - 1));
-    s.clip->pause();
-    s.clip->seek(m.frames[clamped].time);
+    clip.pause();
+    clip.seek(m.frames[clamped].time);
   }
 }
 
 void on_key(GLFWwindow* window, int key, int, int action, int) {
   if (ImGui::GetIO().WantCaptureKeyboard || action == GLFW_RELEASE) return;
   auto& ui = *static_cast<Ui*>(glfwGetWindowUserPointer(window));
-  auto& streams = *ui.streams;
+  playback::Player& player = *ui.player;
   if (key == GLFW_KEY_SPACE) {
-    for (auto& s : streams) {
-      s.clip->state() == stream::PlayState::Playing ? s.clip->pause() : s.clip->play();
-    }
+    player.clip(0).state() == stream::PlayState::Playing ? player.pause() : player.play();
   } else if (key == GLFW_KEY_RIGHT) {
-    step_frames(streams, 1);
+    step_frames(player, 1);
   } else if (key == GLFW_KEY_LEFT) {
-    step_frames(streams, -1);
-  } else if (key == GLFW_KEY_F && !streams.empty()) {
-    ui.orbit.frame(streams.front().clip->metadata());
+    step_frames(player, -1);
+  } else if (key == GLFW_KEY_F) {
+    ui.orbit.frame(player.clip(0).metadata());
   } else if (key == GLFW_KEY_ESCAPE) {
     glfwSetWindowShouldClose(window, GLFW_TRUE);
   }
@@ -154,35 +147,17 @@ int run_viewer(const ViewerCli& cli) {
   glfwMakeContextCurrent(window);
   glfwSwapInterval(cli.frames_to_run > 0 ? 0 : 1);
 
-  std::vector<Playing> streams;
-  for (const auto& file : cli.files) {
-    Playing p;
-    p.file = file;
-    p.clip = stream::ParticleStream::open(file);
-    const auto& m = p.clip->metadata();
-    p.sorter = std::make_unique<sort::DepthSorter>(m.max_count);
-    p.contiguous.resize(m.max_count * m.record_size);
-    p.color = m.find("color");
-    p.clip->set_loop(true);
-    p.clip->play();
-    streams.push_back(std::move(p));
-  }
-  std::uint64_t total_max = 0;
-  for (auto& s : streams) total_max += s.clip->metadata().max_count * s.clip->metadata().record_size;
+  std::vector<std::filesystem::path> files(cli.files.begin(), cli.files.end());
+  const auto player = playback::Player::open(files);  // loops by default
+  player->play();
   render::RendererOptions ro;
-  ro.max_bytes_per_frame = std::max<std::uint64_t>(total_max, 4096);
+  ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   auto renderer = std::make_unique<render::Renderer>(ro);  // destroyed before its context (below)
-  std::uint64_t total_particles = 0;
-  for (auto& s : streams) total_particles += s.clip->metadata().max_count;
-  auto merged_sorter = std::make_unique<sort::DepthSorter>(total_particles);  // all streams' particles at once
-  std::vector<render::ParticleBatch> batches;
-  std::vector<sort::DepthSorter::Source> sources;
-  batches.reserve(streams.size());
-  sources.reserve(streams.size());
+  playback::DrawStyle style;
 
   Ui ui;
-  ui.streams = &streams;
-  if (!streams.empty()) ui.orbit.frame(streams.front().clip->metadata());
+  ui.player = player.get();
+  ui.orbit.frame(player->clip(0).metadata());
   glfwSetWindowUserPointer(window, &ui);
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();
@@ -231,65 +206,23 @@ int run_viewer(const ViewerCli& cli) {
     const render::Camera camera = ui.orbit.camera();
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
     renderer->begin_frame(width, height, camera, {ui.background[0], ui.background[1], ui.background[2], 1});
-    std::uint64_t drawn = 0;
-    double t_stream = 0, t_sort = 0, t_draw = 0;
-    const render::BlendMode blend = ui.blend == 0   ? render::BlendMode::Alpha
-                                    : ui.blend == 1 ? render::BlendMode::Additive
-                                                    : render::BlendMode::AlphaTest;
-    const bool sorting = ui.sort_mode != 0 && blend == render::BlendMode::Alpha;
-    const sort::SortMode mode = ui.sort_mode == 1 ? sort::SortMode::BackToFront : sort::SortMode::FrontToBack;
-    // Several streams sorted as one, so where they overlap they blend in depth order.
-    const bool merge = sorting && streams.size() > 1 && streams.size() <= render::Renderer::kMaxMergedBatches;
-    batches.clear();
-    sources.clear();
-    for (auto& s : streams) {
-      auto t0 = Clock::now();
-      s.clip->set_speed(ui.speed);
-      s.clip->update(dt);
-      const stream::FrameView f = s.clip->frame();
-      auto t1 = Clock::now();
-      render::ParticleBatch b;
-      b.first = f.first;
-      b.second = f.second;
-      b.count = f.count;
-      b.record_size = s.clip->metadata().record_size;
-      b.color_offset = s.color ? std::int32_t(s.color->offset) : -1;
-      b.world = s.clip->world_transform();
-      b.blend = blend;
-      b.size_multiplier = ui.size;
-      if (sorting && f.count > 0) {
-        const std::byte* records = f.first.data();
-        if (!f.second.empty()) {
-          s.clip->copy_frame(s.contiguous);
-          records = s.contiguous.data();
-        }
-        const render::Mat4 view_world = render::multiply(camera.view(), b.world);
-        if (merge) {
-          sources.push_back({records, f.count, b.record_size, view_world});
-        } else {
-          b.order = s.sorter->sort(records, f.count, b.record_size, view_world, mode);
-        }
-      }
-      auto t2 = Clock::now();
-      if (merge) {
-        if (f.count > 0) batches.push_back(b);
-      } else {
-        renderer->draw(b);
-      }
-      auto t3 = Clock::now();
-      drawn += f.count;
-      t_stream += std::chrono::duration<double, std::milli>(t1 - t0).count();
-      t_sort += std::chrono::duration<double, std::milli>(t2 - t1).count();
-      t_draw += std::chrono::duration<double, std::milli>(t3 - t2).count();
-    }
-    if (merge && !batches.empty()) {
-      auto t0 = Clock::now();
-      const auto order = merged_sorter->sort_merged(sources, mode);
-      auto t1 = Clock::now();
-      renderer->draw_merged(batches, order);
-      t_sort += std::chrono::duration<double, std::milli>(t1 - t0).count();
-      t_draw += std::chrono::duration<double, std::milli>(Clock::now() - t1).count();
-    }
+    style.blend = ui.blend == 0   ? render::BlendMode::Alpha
+                  : ui.blend == 1 ? render::BlendMode::Additive
+                                  : render::BlendMode::AlphaTest;
+    style.size_multiplier = ui.size;
+    const bool sorting = ui.sort_mode != 0 && style.blend == render::BlendMode::Alpha;
+    const sort::SortMode mode = !sorting            ? sort::SortMode::None
+                                : ui.sort_mode == 1 ? sort::SortMode::BackToFront
+                                                    : sort::SortMode::FrontToBack;
+    // The library's playback layer: every clip advanced, sorted (several clips together, so where
+    // they overlap they blend in depth order) and drawn.
+    player->set_speed(ui.speed);
+    const playback::FrameStats& frame = player->advance(dt, camera.view(), mode);
+    const auto t_draw0 = Clock::now();
+    player->draw(*renderer, style);
+    const double t_draw = std::chrono::duration<double, std::milli>(Clock::now() - t_draw0).count();
+    const double t_stream = frame.stream_ms, t_sort = frame.sort_ms;
+    const std::uint64_t drawn = frame.particles;
     renderer->end_frame();
     stream_ms = stream_ms * 0.9 + t_stream * 0.1;
     sort_ms = sort_ms * 0.9 + t_sort * 0.1;
@@ -301,25 +234,20 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::SetNextWindowPos({10, 10}, ImGuiCond_FirstUseEver);
     ImGui::SetNextWindowSize({460, 0}, ImGuiCond_FirstUseEver);
     ImGui::Begin("ParticleStream");
-    if (ImGui::Button("Play"))
-      for (auto& s : streams) s.clip->play();
+    if (ImGui::Button("Play")) player->play();
     ImGui::SameLine();
-    if (ImGui::Button("Pause"))
-      for (auto& s : streams) s.clip->pause();
+    if (ImGui::Button("Pause")) player->pause();
     ImGui::SameLine();
-    if (ImGui::Button("Stop"))
-      for (auto& s : streams) s.clip->stop();
+    if (ImGui::Button("Stop")) player->stop();
     ImGui::SameLine();
-    if (ImGui::Checkbox("Loop", &ui.loop))
-      for (auto& s : streams) s.clip->set_loop(ui.loop);
-    if (!streams.empty()) {
-      auto& first = *streams.front().clip;
+    if (ImGui::Checkbox("Loop", &ui.loop)) player->set_loop(ui.loop);
+    {
+      auto& first = player->clip(0);
       const auto& m = first.metadata();
       float t = float(first.time());
       const float t0 = m.frame_count() ? float(m.frames.front().time) : 0,
                   t1 = m.frame_count() ? float(m.frames.back().time) : 0;
-      if (ImGui::SliderFloat("Time", &t, t0, t1, "%.3f s"))
-        for (auto& s : streams) s.clip->seek(t);
+      if (ImGui::SliderFloat("Time", &t, t0, t1, "%.3f s")) player->seek(t);
     }
     ImGui::SliderFloat("Speed", &ui.speed, 0.0f, 4.0f, "%.2fx");
     ImGui::SliderFloat("Particle size", &ui.size, 0.1f, 5.0f, "%.2fx");
@@ -330,20 +258,20 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::Text("%.0f fps | %llu particles drawn", ImGui::GetIO().Framerate, static_cast<unsigned long long>(drawn));
     ImGui::Text("stream %.3f ms | sort %.3f ms | upload + draw %.3f ms", stream_ms, sort_ms, draw_ms);
     ImGui::TextDisabled("%s", render::Renderer::gl_renderer().c_str());
-    for (auto& s : streams) {
+    for (std::size_t i = 0; i < player->clip_count(); ++i) {
+      const stream::ParticleStream& clip = player->clip(i);
       ImGui::Separator();
-      const auto f = s.clip->frame();
-      ImGui::Text("%s - frame %llu / %llu", std::filesystem::path(s.file).filename().c_str(),
-                  static_cast<unsigned long long>(f.frame),
-                  static_cast<unsigned long long>(s.clip->metadata().frame_count()));
-      if (s.clip->state() == stream::PlayState::Error) {  // wrapped: the whole message, not its first line
+      const auto f = clip.frame();
+      ImGui::Text("%s - frame %llu / %llu", files[i].filename().c_str(), static_cast<unsigned long long>(f.frame),
+                  static_cast<unsigned long long>(clip.metadata().frame_count()));
+      if (clip.state() == stream::PlayState::Error) {  // wrapped: the whole message, not its first line
         ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.35f, 0.3f, 1));
         ImGui::PushTextWrapPos(0.0f);
-        ImGui::TextUnformatted(("error: " + s.clip->error()).c_str());
+        ImGui::TextUnformatted(("error: " + clip.error()).c_str());
         ImGui::PopTextWrapPos();
         ImGui::PopStyleColor();
       }
-      cache_view(*s.clip);
+      cache_view(clip);
     }
     ImGui::PushTextWrapPos(0.0f);
     ImGui::TextDisabled("space play/pause, arrows step, F frame, drag orbit/pan, wheel zoom");
@@ -375,10 +303,7 @@ int run_viewer(const ViewerCli& cli) {
   ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
   glfwDestroyWindow(window);
-  // A clip that failed while playing makes the run fail too (scripts and tests see it).
-  for (auto& s : streams) {
-    if (s.clip->state() == stream::PlayState::Error) throw Error(s.clip->error());
-  }
+  player->check();  // a clip that failed while playing makes the run fail too (scripts and tests see it)
   return 0;
 }
 

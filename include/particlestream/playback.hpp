@@ -1,0 +1,107 @@
+// Playback: the per-frame work between the stream and the screen, owned by the library.
+//
+// A Player owns one or more clips (each a stream::ParticleStream: the chunk cache and its
+// playhead), their world transforms, the depth sorters and every scratch buffer. Each host frame
+// the application calls advance(dt, view) and gets the frame ready to draw: per clip, the
+// records contiguous in memory, the draw order, the layout facts a renderer needs and the world
+// transform; several clips are sorted together so that where they overlap they blend in depth
+// order. draw() hands that frame to a render::Renderer. An application is its own argument
+// parsing, window or image output, and these two calls; the viewer, `pstream render` and
+// `pstream demo` are exactly that.
+//
+// Memory is fixed when the Player opens (the clips' caches, the sorters, the scratch for a frame
+// split by a cache ring's wrap); advance() and draw() allocate nothing.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "particlestream/render.hpp"
+#include "particlestream/sort.hpp"
+#include "particlestream/stream.hpp"
+
+namespace pstream::playback {
+
+struct PlayerOptions {
+  // For every clip (`blocking` for offline rendering: no frame skipped); `io` is not used, each clip
+  // reads its own file.
+  stream::StreamOptions stream;
+  sort::SorterOptions sorter;
+  bool loop = true;
+};
+
+// How the frame is drawn.
+struct DrawStyle {
+  render::BlendMode blend = render::BlendMode::Alpha;
+  float size_multiplier = 1.0f;
+  std::string texture;  // a sprite image (PNG); empty: the soft round sprite
+};
+
+// Where the time of a host frame went (milliseconds, this frame).
+struct FrameStats {
+  double stream_ms = 0.0;  // update() of every clip and the copy of a frame split by the ring's wrap
+  double sort_ms = 0.0;
+  std::uint64_t particles = 0;
+  std::size_t failed_clips = 0;  // clips in the Error state (they draw nothing; check() throws their error)
+};
+
+class Player {
+ public:
+  // Opens every clip (each sizes and allocates its cache once) and everything a frame needs.
+  // Throws pstream::Error naming the file that could not be opened.
+  static std::unique_ptr<Player> open(std::span<const std::filesystem::path> files, PlayerOptions options = {});
+  ~Player();
+  Player(const Player&) = delete;
+  Player& operator=(const Player&) = delete;
+
+  std::size_t clip_count() const;
+  stream::ParticleStream& clip(std::size_t i);  // its playhead, state and statistics
+  const stream::ParticleStream& clip(std::size_t i) const;
+  // Object -> world of clip i (column-major, as OpenGL takes it); identity until set.
+  void set_world_transform(std::size_t i, const render::Mat4& world);
+  const render::Mat4& world_transform(std::size_t i) const;
+
+  // The playhead of every clip together.
+  void play();
+  void pause();
+  void stop();
+  void seek(double time);
+  void set_speed(double speed);
+  void set_loop(bool loop);
+
+  // One host frame: advances every clip by `dt` seconds and prepares its records for drawing,
+  // sorted for the camera `view` (world -> view) as `mode` asks (None: stored order; use it for
+  // additive blending). A clip that has failed (a read or decode error) draws nothing from then
+  // on; the frame goes on with the others, and check() reports it.
+  const FrameStats& advance(double dt, const render::Mat4& view, sort::SortMode mode);
+  // Throws pstream::Error with the error of the first clip that failed.
+  void check() const;
+  // The batches advance() prepared (one per clip with particles), for a custom renderer, and
+  // the merged order when several clips were sorted together (entries are
+  // (batch << sort::DepthSorter::kMergedIndexBits) | index), empty otherwise.
+  std::span<const render::ParticleBatch> batches() const;
+  std::span<const std::uint32_t> merged_order() const;
+  // Draws what advance() prepared with `renderer` (between its begin_frame and end_frame).
+  void draw(render::Renderer& renderer, const DrawStyle& style);
+
+  // The bytes every clip's frame can take at most: what a renderer's buffers must hold.
+  std::uint64_t max_frame_bytes() const;
+
+ private:
+  Player() = default;
+  struct Clip;
+  std::vector<Clip> clips_;
+  std::unique_ptr<sort::DepthSorter> merged_sorter_;
+  std::vector<render::ParticleBatch> batches_;  // one slot per clip; the first batch_count_ are this frame's
+  std::size_t batch_count_ = 0;
+  std::vector<Clip*> sorted_by_;  // the clip of each batch
+  std::vector<sort::DepthSorter::Source> sources_;
+  std::span<const std::uint32_t> merged_order_;
+  FrameStats stats_;
+};
+
+}  // namespace pstream::playback

@@ -1,0 +1,168 @@
+#include <chrono>
+#include <utility>
+
+#include <fmt/format.h>
+
+#include "particlestream/playback.hpp"
+
+namespace pstream::playback {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+}  // namespace
+
+struct Player::Clip {
+  std::unique_ptr<stream::ParticleStream> stream;
+  std::unique_ptr<sort::DepthSorter> sorter;
+  std::vector<std::byte> contiguous;  // a frame split by the cache ring's wrap, copied whole
+  std::int32_t color_offset = -1;
+  render::Mat4 world = render::identity();
+};
+
+Player::~Player() = default;
+
+std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> files, PlayerOptions options) {
+  if (files.empty()) throw Error("a player needs at least one clip");
+  std::unique_ptr<Player> p(new Player());
+  std::uint64_t total = 0;
+  for (const auto& file : files) {
+    Clip c;
+    stream::StreamOptions o;  // each clip its own (an IO backend is per file: the default one)
+    o.cache_seconds = options.stream.cache_seconds;
+    o.min_slots = options.stream.min_slots;
+    o.max_slots = options.stream.max_slots;
+    o.max_loads_in_flight = options.stream.max_loads_in_flight;
+    o.decoded_frames = options.stream.decoded_frames;
+    o.blocking = options.stream.blocking;
+    o.scheduler = options.stream.scheduler;
+    o.budget = options.stream.budget;
+    c.stream = stream::ParticleStream::open(file, std::move(o));
+    const format::Metadata& m = c.stream->metadata();
+    c.sorter = std::make_unique<sort::DepthSorter>(m.max_count, options.sorter);
+    c.contiguous.resize(m.max_count * m.record_size);
+    if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
+    c.stream->set_loop(options.loop);
+    total += m.max_count;
+    p->clips_.push_back(std::move(c));
+  }
+  if (p->clips_.size() > 1) p->merged_sorter_ = std::make_unique<sort::DepthSorter>(total, options.sorter);
+  p->batches_.resize(p->clips_.size());
+  p->sorted_by_.resize(p->clips_.size());  // reused every frame (a texture name is not copied again)
+  p->sources_.reserve(p->clips_.size());
+  return p;
+}
+
+std::size_t Player::clip_count() const { return clips_.size(); }
+stream::ParticleStream& Player::clip(std::size_t i) { return *clips_.at(i).stream; }
+const stream::ParticleStream& Player::clip(std::size_t i) const { return *clips_.at(i).stream; }
+void Player::set_world_transform(std::size_t i, const render::Mat4& world) { clips_.at(i).world = world; }
+const render::Mat4& Player::world_transform(std::size_t i) const { return clips_.at(i).world; }
+
+void Player::play() {
+  for (auto& c : clips_) c.stream->play();
+}
+void Player::pause() {
+  for (auto& c : clips_) c.stream->pause();
+}
+void Player::stop() {
+  for (auto& c : clips_) c.stream->stop();
+}
+void Player::seek(double time) {
+  for (auto& c : clips_) c.stream->seek(time);
+}
+void Player::set_speed(double speed) {
+  for (auto& c : clips_) c.stream->set_speed(speed);
+}
+void Player::set_loop(bool loop) {
+  for (auto& c : clips_) c.stream->set_loop(loop);
+}
+
+std::uint64_t Player::max_frame_bytes() const {
+  std::uint64_t total = 0;
+  for (const auto& c : clips_) total += c.stream->metadata().max_count * c.stream->metadata().record_size;
+  return total;
+}
+
+const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::SortMode mode) {
+  stats_ = {};
+  batch_count_ = 0;
+  sources_.clear();
+  merged_order_ = {};
+  const bool sorting = mode != sort::SortMode::None;
+  const bool merge = sorting && merged_sorter_ && clips_.size() <= render::Renderer::kMaxMergedBatches;
+  for (auto& c : clips_) {
+    const auto t0 = Clock::now();
+    c.stream->update(dt);
+    if (c.stream->state() == stream::PlayState::Error) {  // it shows nothing; check() reports it
+      ++stats_.failed_clips;
+      continue;
+    }
+    const stream::FrameView f = c.stream->frame();
+    render::ParticleBatch& b = batches_[batch_count_];
+    b.first = f.first;
+    b.second = {};
+    b.count = f.count;
+    b.order = {};
+    if (!f.second.empty()) {  // one contiguous block, so sorting and drawing see one array
+      c.stream->copy_frame(c.contiguous);
+      b.first = std::span<const std::byte>(c.contiguous).first(f.first.size() + f.second.size());
+    }
+    const auto t1 = Clock::now();
+    stats_.stream_ms += ms(t0, t1);
+    if (f.count == 0) continue;
+    const format::Metadata& m = c.stream->metadata();
+    b.record_size = m.record_size;
+    b.color_offset = c.color_offset;
+    b.world = c.world;
+    stats_.particles += f.count;
+    if (sorting) {
+      const render::Mat4 view_world = render::multiply(view, c.world);
+      if (merge) {
+        sources_.push_back({b.first.data(), f.count, b.record_size, view_world});
+      } else {
+        b.order = c.sorter->sort(b.first.data(), f.count, b.record_size, view_world, mode);
+      }
+    }
+    stats_.sort_ms += ms(t1, Clock::now());
+    sorted_by_[batch_count_] = &c;
+    ++batch_count_;
+  }
+  if (merge && sources_.size() > 1) {
+    const auto t0 = Clock::now();
+    merged_order_ = merged_sorter_->sort_merged(sources_, mode);
+    stats_.sort_ms += ms(t0, Clock::now());
+  } else if (merge && sources_.size() == 1) {  // one clip with particles: its own order
+    const auto t0 = Clock::now();
+    batches_.front().order = sorted_by_[0]->sorter->sort(sources_[0].records, sources_[0].count, sources_[0].stride,
+                                                         sources_[0].view_world, mode);
+    stats_.sort_ms += ms(t0, Clock::now());
+  }
+  return stats_;
+}
+
+void Player::check() const {
+  for (const auto& c : clips_) {
+    if (c.stream->state() == stream::PlayState::Error) throw Error(c.stream->error());
+  }
+}
+
+std::span<const render::ParticleBatch> Player::batches() const { return {batches_.data(), batch_count_}; }
+std::span<const std::uint32_t> Player::merged_order() const { return merged_order_; }
+
+void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
+  const std::span<render::ParticleBatch> batches(batches_.data(), batch_count_);
+  for (auto& b : batches) {
+    b.blend = style.blend;
+    b.size_multiplier = style.size_multiplier;
+    if (b.texture != style.texture) b.texture = style.texture;  // set once: no allocation per frame
+  }
+  if (!merged_order_.empty()) {
+    renderer.draw_merged(batches, merged_order_);
+    return;
+  }
+  for (const auto& b : batches) renderer.draw(b);
+}
+
+}  // namespace pstream::playback
