@@ -476,15 +476,13 @@ TEST(Stream, StreamsShareOneScheduler) {
   }
 }
 
-TEST(Stream, DebugInfoWorldTransformRangeAndStop) {
+TEST(Stream, DebugInfoRangeAndStop) {
   const fs::path dir = test::fresh_dir();
   const fs::path file = synthetic_clip(dir, 100, 25, [](std::uint64_t) { return 3000; });
   auto s = stream::ParticleStream::open(file, tiny_cache());
   const auto d0 = s->debug();
   EXPECT_EQ(d0.slots.size(), stream::cache_slots(s->metadata(), 0.0));
   EXPECT_EQ(d0.cache_bytes, d0.slots.size() * s->metadata().chunk_size);
-  s->set_world_transform({2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0, 1, 2, 3, 1});
-  EXPECT_EQ(s->world_transform()[12], 1.0f);
   s->set_range(s->metadata().frames[40].time, s->metadata().frames[49].time);
   s->set_loop(true);
   s->play();

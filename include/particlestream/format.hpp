@@ -140,6 +140,10 @@ struct Metadata {
   std::uint64_t total_particles() const;
   // The frame nearest `time` (seconds), clamped to the clip: the one rounding of time to frames.
   std::uint64_t frame_at(double time) const;
+  // The frame at or before `time` and how far `time` is towards the next one, in [0, 1): what
+  // interpolation blends. A time within 1e-6 of a frame's is that frame (fraction 0); before the
+  // clip: frame 0, after it: the last frame, both with fraction 0.
+  std::pair<std::uint64_t, double> frame_between(double time) const;
   const Attribute* find(std::string_view name) const;
 };
 

@@ -26,7 +26,15 @@
 
 namespace pstream::playback {
 
+// How a host frame between two cached frames is made (docs/playback.md).
+enum class Interpolation {
+  None,     // the nearest cached frame
+  Linear,   // particles matched by id move in straight lines; births and deaths grow and shrink
+  Hermite,  // the same along cubic Hermite curves through positions and velocities (when present)
+};
+
 struct PlayerOptions {
+  Interpolation interpolation = Interpolation::Hermite;
   // For every clip (`blocking` for offline rendering: no frame skipped); `io` is not used, each clip
   // reads its own file.
   stream::StreamOptions stream;
@@ -45,6 +53,7 @@ struct DrawStyle {
 struct FrameStats {
   double stream_ms = 0.0;  // update() of every clip and the copy of a frame split by the ring's wrap
   double sort_ms = 0.0;
+  double interpolate_ms = 0.0;  // blending two cached frames (when between them)
   std::uint64_t particles = 0;
   std::size_t failed_clips = 0;  // clips in the Error state (they draw nothing; check() throws their error)
 };
@@ -88,7 +97,8 @@ class Player {
   // Draws what advance() prepared with `renderer` (between its begin_frame and end_frame).
   void draw(render::Renderer& renderer, const DrawStyle& style);
 
-  // The bytes every clip's frame can take at most: what a renderer's buffers must hold.
+  // The bytes every clip's frame can take at most (an interpolated frame holds the particles of
+  // both cached frames at most): what a renderer's buffers must hold.
   std::uint64_t max_frame_bytes() const;
 
  private:
@@ -102,6 +112,7 @@ class Player {
   std::vector<sort::DepthSorter::Source> sources_;
   std::span<const std::uint32_t> merged_order_;
   FrameStats stats_;
+  Interpolation interpolation_ = Interpolation::Hermite;
 };
 
 }  // namespace pstream::playback

@@ -100,6 +100,9 @@ struct StreamOptions {
   // Decoded frames held: the current one, the next, and room to decode ahead (at least 2).
   std::size_t decoded_frames = 3;
   bool blocking = false;                   // update() waits for data instead of stalling
+  // Hold the frame at or before the playhead and the one after it (next_frame(), fraction()) for
+  // interpolation, instead of the nearest frame alone.
+  bool interpolate = false;
   std::shared_ptr<IoScheduler> scheduler;  // default: a process-wide one with one worker
   std::shared_ptr<MemoryBudget> budget;    // optional: the cache must fit in it
   std::unique_ptr<IoBackend> io;           // default: pread on the file
@@ -167,10 +170,11 @@ class ParticleStream {
   FrameView frame() const;
   // Copies the current frame's records into `out` (a mapped GPU buffer, say); returns bytes.
   std::size_t copy_frame(std::span<std::byte> out) const;
-
-  // The object -> world transform (column-major 4x4), kept for the renderer.
-  void set_world_transform(const std::array<float, 16>& m) { world_ = m; }
-  const std::array<float, 16>& world_transform() const { return world_; }
+  // With StreamOptions::interpolate: the frame after the current one when it is decoded (invalid
+  // at the end of the clip, or while it is still being decoded), and where the playhead is
+  // between the two, in [0, 1).
+  FrameView next_frame() const;
+  double fraction() const { return fraction_; }
 
   DebugInfo debug() const;
 
@@ -181,9 +185,8 @@ class ParticleStream {
   format::Metadata meta_;
   PlayState state_ = PlayState::Stopped;
   std::string error_;
-  double time_ = 0.0;
+  double time_ = 0.0, fraction_ = 0.0;
   bool seeking_ = false;
-  std::array<float, 16> world_{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
   friend struct LoadRequest;
 };
 

@@ -62,6 +62,19 @@ std::uint64_t Metadata::frame_at(double time) const {
   return static_cast<std::uint64_t>(std::min(f, double(frames.size() - 1)));
 }
 
+std::pair<std::uint64_t, double> Metadata::frame_between(double time) const {
+  if (frames.empty()) return {0, 0.0};
+  const double q = (time - time_of_frame0) * fps;
+  const double last = double(frames.size() - 1);
+  if (!(q > 0.0)) return {0, 0.0};  // also NaN
+  if (q >= last) return {frames.size() - 1, 0.0};
+  double whole = std::floor(q);
+  double fraction = q - whole;
+  if (fraction > 1.0 - 1e-6) whole += 1.0, fraction = 0.0;
+  if (fraction < 1e-6) fraction = 0.0;
+  return {static_cast<std::uint64_t>(whole), fraction};
+}
+
 std::pair<std::uint64_t, std::uint64_t> Metadata::frame_chunks(std::uint64_t frame) const {
   const FrameEntry& f = frames[frame];
   const std::uint64_t last_chunk = chunks.empty() ? 0 : chunks.size() - 1;

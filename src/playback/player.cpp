@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include "particlestream/playback.hpp"
+#include "playback/interpolate.hpp"
 
 namespace pstream::playback {
 namespace {
@@ -19,6 +20,8 @@ struct Player::Clip {
   std::vector<std::byte> contiguous;  // a frame split by the cache ring's wrap, copied whole
   std::int32_t color_offset = -1;
   render::Mat4 world = render::identity();
+  RecordFields fields;
+  std::vector<std::byte> blended;  // an interpolated frame: up to both frames' particles
 };
 
 Player::~Player() = default;
@@ -36,17 +39,22 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     o.max_loads_in_flight = options.stream.max_loads_in_flight;
     o.decoded_frames = options.stream.decoded_frames;
     o.blocking = options.stream.blocking;
+    o.interpolate = options.interpolation != Interpolation::None;
     o.scheduler = options.stream.scheduler;
     o.budget = options.stream.budget;
     c.stream = stream::ParticleStream::open(file, std::move(o));
     const format::Metadata& m = c.stream->metadata();
-    c.sorter = std::make_unique<sort::DepthSorter>(m.max_count, options.sorter);
+    const std::uint64_t most = options.interpolation != Interpolation::None ? 2 * m.max_count : m.max_count;
+    c.sorter = std::make_unique<sort::DepthSorter>(most, options.sorter);
     c.contiguous.resize(m.max_count * m.record_size);
+    c.fields = RecordFields::of(m);
+    if (options.interpolation != Interpolation::None) c.blended.resize(most * m.record_size);
     if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
     c.stream->set_loop(options.loop);
-    total += m.max_count;
+    total += most;
     p->clips_.push_back(std::move(c));
   }
+  p->interpolation_ = options.interpolation;
   if (p->clips_.size() > 1) p->merged_sorter_ = std::make_unique<sort::DepthSorter>(total, options.sorter);
   p->batches_.resize(p->clips_.size());
   p->sorted_by_.resize(p->clips_.size());  // reused every frame (a texture name is not copied again)
@@ -81,7 +89,8 @@ void Player::set_loop(bool loop) {
 
 std::uint64_t Player::max_frame_bytes() const {
   std::uint64_t total = 0;
-  for (const auto& c : clips_) total += c.stream->metadata().max_count * c.stream->metadata().record_size;
+  const std::uint64_t frames = interpolation_ != Interpolation::None ? 2 : 1;
+  for (const auto& c : clips_) total += frames * c.stream->metadata().max_count * c.stream->metadata().record_size;
   return total;
 }
 
@@ -109,20 +118,34 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
       c.stream->copy_frame(c.contiguous);
       b.first = std::span<const std::byte>(c.contiguous).first(f.first.size() + f.second.size());
     }
-    const auto t1 = Clock::now();
+    auto t1 = Clock::now();
     stats_.stream_ms += ms(t0, t1);
-    if (f.count == 0) continue;
     const format::Metadata& m = c.stream->metadata();
+    if (interpolation_ != Interpolation::None && c.stream->fraction() > 0.0) {
+      const stream::FrameView next = c.stream->next_frame();
+      if (next.valid && f.valid) {
+        const std::uint64_t n =
+            interpolate_frames(c.fields, b.first, f.count, next.first, next.count, c.stream->fraction(),
+                               next.time - f.time, interpolation_, c.blended.data());
+        b.first = std::span<const std::byte>(c.blended).first(n * m.record_size);
+        b.count = n;
+        const auto t2 = Clock::now();
+        stats_.interpolate_ms += ms(t1, t2);
+        t1 = t2;
+      }
+    }
+    if (b.count == 0) continue;
+    const std::uint64_t count = b.count;
     b.record_size = m.record_size;
     b.color_offset = c.color_offset;
     b.world = c.world;
-    stats_.particles += f.count;
+    stats_.particles += count;
     if (sorting) {
       const render::Mat4 view_world = render::multiply(view, c.world);
       if (merge) {
-        sources_.push_back({b.first.data(), f.count, b.record_size, view_world});
+        sources_.push_back({b.first.data(), count, b.record_size, view_world});
       } else {
-        b.order = c.sorter->sort(b.first.data(), f.count, b.record_size, view_world, mode);
+        b.order = c.sorter->sort(b.first.data(), count, b.record_size, view_world, mode);
       }
     }
     stats_.sort_ms += ms(t1, Clock::now());

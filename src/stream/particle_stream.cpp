@@ -114,8 +114,8 @@ struct ParticleStream::Impl {
   std::size_t pin_slot = 0, pin_count = 0;  // chunk slots a decode under way reads
 
   // Flags last, packed together.
-  bool blocking = false, playing = false, current_valid = false;  // host thread
-  bool loop = false, closing = false, failed = false;             // under `mutex`
+  bool blocking = false, playing = false, current_valid = false, interpolate = false;  // host thread
+  bool loop = false, closing = false, failed = false;                                  // under `mutex`
   bool producing = false, produce_again = false, produce_queued = false, producer_done = false;
   bool closed = false;
 
@@ -363,6 +363,7 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->meta = &s->meta_;
 
   impl->blocking = options.blocking;
+  impl->interpolate = options.interpolate;
   impl->scheduler = options.scheduler ? options.scheduler : IoScheduler::shared_default();
   impl->chunk_size = m.chunk_size;
   std::size_t slots = cache_slots(m, options.cache_seconds);
@@ -374,7 +375,8 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->slot_count = slots;
   impl->cache_bytes = slots * m.chunk_size;
   // The decoding side: the ring of decoded frames, the frame decoder's state, a packet's staging.
-  const std::size_t frame_slots = std::max<std::size_t>(2, options.decoded_frames);
+  // Interpolating holds two frames and decodes ahead: at least three.
+  const std::size_t frame_slots = std::max<std::size_t>(options.interpolate ? 3 : 2, options.decoded_frames);
   impl->frame_bytes = (m.max_count * m.record_size + 63) / 64 * 64;
   std::uint64_t max_packet = 0;
   for (std::uint64_t f = 0; f < m.frame_count(); ++f) max_packet = std::max(max_packet, m.frames[f].packet_size);
@@ -520,7 +522,13 @@ void ParticleStream::update(double dt) {
       }
     }
   }
-  const std::uint64_t target = std::clamp(m.frame_at(time_), d.frame_begin, d.frame_end);
+  std::uint64_t target = std::clamp(m.frame_at(time_), d.frame_begin, d.frame_end);
+  fraction_ = 0.0;
+  if (d.interpolate) {  // the frame at or before the playhead, and how far towards the next
+    const auto [before, fraction] = m.frame_between(time_);
+    target = std::clamp(before, d.frame_begin, d.frame_end);
+    if (target == before && target < d.frame_end) fraction_ = fraction;
+  }
   const std::uint64_t target_seq = d.frame_seq(d.lap, target);
 
   std::unique_lock lock(d.mutex);
@@ -567,7 +575,11 @@ void ParticleStream::update(double dt) {
   d.kick_locked();
   // 4. Blocking mode (offline rendering): wait for the frame instead of stalling.
   if (d.blocking) {
-    d.loaded.wait(lock, [&] { return d.failed || find(target_seq) < d.frame_slots.size() || d.producer_done; });
+    const bool want_next = fraction_ > 0.0;  // interpolating: the next frame too
+    d.loaded.wait(lock, [&] {
+      return d.failed || d.producer_done ||
+             (find(target_seq) < d.frame_slots.size() && (!want_next || find(target_seq + 1) < d.frame_slots.size()));
+    });
     if (failed()) return;
   }
   const std::size_t ready = find(target_seq);
@@ -596,6 +608,30 @@ FrameView ParticleStream::frame() const {
   v.valid = true;
   // The decoded slot is Ready and held: only the host thread releases it.
   v.first = {d.decoded.get() + d.current * d.frame_bytes, static_cast<std::size_t>(f.count * meta_.record_size)};
+  return v;
+}
+
+FrameView ParticleStream::next_frame() const {
+  FrameView v;
+  const Impl& d = *impl_;
+  if (!d.current_valid || state_ == PlayState::Error || fraction_ <= 0.0) return v;
+  const std::uint64_t seq = d.current_seq + 1;
+  const std::uint64_t frame = seq % meta_.frame_count();
+  if (frame == 0) return v;  // across a loop's end: not interpolated
+  std::size_t slot = d.frame_slots.size();
+  {
+    std::lock_guard lock(d.mutex);
+    for (std::size_t i = 0; i < d.frame_slots.size(); ++i) {
+      if (d.frame_slots[i].state == FrameSlot::Ready && d.frame_slots[i].seq == seq) slot = i;
+    }
+  }
+  if (slot == d.frame_slots.size()) return v;  // still being decoded: the caller shows the current frame
+  const auto& f = meta_.frames[frame];
+  v.frame = frame;
+  v.count = f.count;
+  v.time = f.time;
+  v.valid = true;
+  v.first = {d.decoded.get() + slot * d.frame_bytes, static_cast<std::size_t>(f.count * meta_.record_size)};
   return v;
 }
 
