@@ -51,4 +51,5 @@ mkdir -p "$work/ply-seeds"
 printf 'ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty float pscale\nend_header\n0 1 2 0.1\n3 4 5 0.2\n' >"$work/ply-seeds/ascii.ply"
 printf 'ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty double z\nproperty uchar red\nend_header\n0123456789abcdefg' >"$work/ply-seeds/binary.ply"
 printf 'ply\nformat ascii 1.0\nelement vertex 1\nproperty int x\nproperty short y\nproperty uint z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n1 2 3\n3 0 0 0\n' >"$work/ply-seeds/faces.ply"
+cp tests/fuzz/ply_regressions/* "$work/ply-seeds/"  # inputs that once failed, kept as seeds
 run_target fuzz_ply "$work"/ply-seeds/*

@@ -19,6 +19,7 @@
 
 #include "base/mapped_file.hpp"
 #include "base/output_file.hpp"
+#include "cook/ply_reader.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
@@ -442,6 +443,19 @@ TEST(Hardening, PlyMessages) {
   const auto cook_ply = [&](const fs::path& first) {
     return test::run_cli(fmt::format("cook {} -o {}", q(first), q(dir / "o.pstream")));
   };
+  // Found by fuzz_ply (a division by zero): vertices without a single property.
+  {
+    const std::string none = "ply\nformat ascii 1.0\nelement vertex 2\nend_header\n0 1 2 0.1\n";
+    cook::PlyHeader header;
+    std::vector<double> values;
+    try {
+      cook::read_ply_vertices(std::as_bytes(std::span(none.data(), none.size())), "none.ply", 100, header, values);
+      ADD_FAILURE() << "read";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("declares 2 vertices but no vertex property"), std::string::npos)
+          << e.what();
+    }
+  }
   write(dir / "lots.0001.ply", ply_header("ascii", "lots") + "1 2 3\n");
   expect_error(cook_ply(dir / "lots.0001.ply"), "'element vertex lots': expected a vertex count");
   write(dir / "few.0001.ply", ply_header("ascii", "1") + "1 2 3\n4 5 6\n");

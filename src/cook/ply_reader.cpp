@@ -153,6 +153,9 @@ void read_ply_vertices(std::span<const std::byte> bytes, const std::string& file
   // vertex takes vertex_size bytes, an ascii value at least one digit and a separator.
   const std::uint64_t data_bytes = bytes.size() - std::min(h.data_offset, bytes.size());
   const std::uint64_t props = h.properties.size();
+  if (props == 0 && n > 0) {  // (found by fuzz_ply: a count of values per vertex of zero)
+    throw Error(fmt::format("{}: the header declares {} vertices but no vertex property", file, n));
+  }
   const std::uint64_t per_vertex = h.binary ? std::max<std::uint64_t>(h.vertex_size, 1) : 2 * props;
   if (n > data_bytes / per_vertex) {
     throw Error(
