@@ -485,11 +485,18 @@ TEST(Hardening, PlyMessages) {
 TEST(Hardening, CachesWithoutIdsSaySo) {
   const fs::path dir = test::fresh_dir();
   const std::string flip = q(test::data_path("sims/blender_flip_pour_small.abc"));
-  for (const std::string flags : {"--interpolate --fps 60", "--attributes id"}) {
-    const auto r = test::run_cli(fmt::format("cook {} {} -o {}", flip, flags, q(dir / "o.pstream")));
-    expect_error(r, "the cache has no particle ids (its .pointIds are empty in every sample");
-    EXPECT_EQ(r.output.find("0 ids for"), std::string::npos) << r.output;
-  }
+  const auto r = test::run_cli(fmt::format("cook {} --attributes id -o {}", flip, q(dir / "o.pstream")));
+  expect_error(r, "the cache has no particle ids (its .pointIds are empty in every sample");
+  EXPECT_EQ(r.output.find("0 ids for"), std::string::npos) << r.output;
+  // Interpolating a cache without ids moves particles along their velocities (#13) ...
+  EXPECT_EQ(test::run_cli(fmt::format("cook {} --interpolate --fps 60 -q -o {}", flip, q(dir / "o.pstream"))).exit_code,
+            0);
+  // ... and with neither ids nor velocities, says so.
+  const auto none =
+      test::run_cli(fmt::format("cook {} --interpolate --fps 60 -o {}",
+                                q(test::data_path("alembic/points_widths_constant.abc")), q(dir / "o.pstream")));
+  expect_error(none, "--interpolate: the cache has no particle ids");
+  expect_error(none, "and no velocities");
 }
 
 TEST(Hardening, CountsAndArticlesReadRight) {

@@ -225,9 +225,25 @@ class AlembicSource final : public Source {
     return true;
   }
 
+  // Without ids, interpolation moves the nearest sample along its velocities (when it has some).
+  bool can_interpolate() const override { return has_ids() || has_velocity(); }
+  std::string why_no_interpolation() const override {
+    return why_no_ids() +
+           ", and no velocities: interpolation matches particles by id, or moves them along their velocities. Cook "
+           "without `interpolate`: each frame takes the nearest sample";
+  }
+
   void read(double time, const Request& request, ParticleFrame& out) override {
+    if (request.interpolate && !ids_known_) {
+      ids_usable_ = has_ids();
+      ids_known_ = true;
+    }
     for (const Cooked& c : objects_) {
       const TimeSampling& ts = c.sampling();
+      if (request.interpolate && !ids_usable_) {
+        advect_nearest(c, time, request, out);
+        continue;
+      }
       if (!request.interpolate) {
         read_sample(c, static_cast<std::uint32_t>(ts.near_index(time, c.samples()).first), time, request, out);
         continue;
@@ -370,6 +386,19 @@ class AlembicSource final : public Source {
     append(fa, request, out);
   }
 
+  // The nearest sample, every particle moved along its velocity to `time` (caches without ids).
+  void advect_nearest(const Cooked& c, double time, const Request& request, ParticleFrame& out) {
+    const auto index = static_cast<std::uint32_t>(c.sampling().near_index(time, c.samples()).first);
+    Request r = request;
+    r.velocity = true;
+    ParticleFrame f;
+    f.clear(request.floats.size());
+    read_sample(c, index, time, r, f);
+    const auto dt = static_cast<float>(time - c.sampling().sample_time(index));
+    for (std::uint64_t i = 0; i < f.count * 3; ++i) f.position[i] += f.velocity[i] * dt;
+    append(f, request, out);
+  }
+
   void append(const ParticleFrame& f, const Request& request, ParticleFrame& out) const {
     const std::uint64_t base = out.count;
     out.count += f.count;
@@ -389,6 +418,7 @@ class AlembicSource final : public Source {
   Archive archive_;
   std::vector<Cooked> objects_;
   std::unordered_map<std::uint64_t, std::uint64_t> by_id_;
+  bool ids_known_ = false, ids_usable_ = false;
   std::vector<float> rgb_;  // Cd before conversion to RGBA8
 };
 
