@@ -156,7 +156,7 @@ void read_ply_vertices(std::span<const std::byte> bytes, const std::string& file
   if (props == 0 && n > 0) {  // (found by fuzz_ply: a count of values per vertex of zero)
     throw Error(fmt::format("{}: the header declares {} vertices but no vertex property", file, n));
   }
-  const std::uint64_t per_vertex = h.binary ? std::max<std::uint64_t>(h.vertex_size, 1) : 2 * props;
+  const std::uint64_t per_vertex = std::max<std::uint64_t>(h.binary ? h.vertex_size : 2 * props, 1);
   if (n > data_bytes / per_vertex) {
     throw Error(
         fmt::format("{}: the header declares {} vertices of {} bytes{}, but the file has {} bytes of data "
