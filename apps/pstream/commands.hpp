@@ -75,6 +75,14 @@ struct BenchStreamOptions {
 };
 int bench_stream(const BenchStreamOptions& options);
 
+struct BenchPlaybackOptions {
+  std::string file;  // empty: generate 1M particles with velocities and ids in a temporary folder
+  std::uint64_t particles = 1u << 20, frames = 6;
+  double host_hz = 120.0;
+  bool json = false;
+};
+int bench_playback(const BenchPlaybackOptions& options);
+
 struct RenderCli {
   std::string file, out = "frames", frames, size = "1280x720", camera = "auto", video, blend = "alpha", sort = "back",
                     texture;

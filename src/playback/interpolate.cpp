@@ -40,30 +40,45 @@ void advect(const RecordFields& f, std::byte* r, double seconds, float grow) {
   store(r + 12, load(r + 12) * grow);
 }
 
-void blend(const RecordFields& f, const std::byte* a, const std::byte* b, double t, double dt, Interpolation mode,
+// The Hermite basis at t, computed once per frame pair.
+struct Basis {
+  float t, h00, h10, h01, h11;
+  explicit Basis(double t_, double dt) : t(float(t_)) {
+    const double t2 = t_ * t_, t3 = t2 * t_;
+    h00 = float(2 * t3 - 3 * t2 + 1);
+    h10 = float((t3 - 2 * t2 + t_) * dt);  // the tangents are velocities x dt
+    h01 = float(-2 * t3 + 3 * t2);
+    h11 = float((t3 - t2) * dt);
+  }
+};
+
+void blend(const RecordFields& f, const std::byte* a, const std::byte* b, const Basis& k, bool hermite,
            std::byte* out) {
   std::memcpy(out, a, f.stride);
-  const bool hermite = mode == Interpolation::Hermite && f.velocity >= 0;
-  const double t2 = t * t, t3 = t2 * t;
-  const double h00 = 2 * t3 - 3 * t2 + 1, h10 = t3 - 2 * t2 + t, h01 = -2 * t3 + 3 * t2, h11 = t3 - t2;
-  for (int c = 0; c < 3; ++c) {
-    const double p0 = load(a + 4 * c), p1 = load(b + 4 * c);
-    double p = p0 + (p1 - p0) * t;
-    if (hermite)
-      p = h00 * p0 + h10 * dt * load(a + f.velocity + 4 * c) + h01 * p1 + h11 * dt * load(b + f.velocity + 4 * c);
-    store(out + 4 * c, float(p));
+  float pa[3], pb[3], p[3];
+  std::memcpy(pa, a, 12);
+  std::memcpy(pb, b, 12);
+  if (hermite) {
+    float va[3], vb[3];
+    std::memcpy(va, a + f.velocity, 12);
+    std::memcpy(vb, b + f.velocity, 12);
+    for (int c = 0; c < 3; ++c) p[c] = k.h00 * pa[c] + k.h10 * va[c] + k.h01 * pb[c] + k.h11 * vb[c];
+  } else {
+    for (int c = 0; c < 3; ++c) p[c] = pa[c] + (pb[c] - pa[c]) * k.t;
   }
+  std::memcpy(out, p, 12);
   for (const auto& fl : f.floats) {
-    for (std::uint32_t k = 0; k < fl.count; ++k) {
-      const std::uint32_t o = fl.offset + 4 * k;
-      store(out + o, float(load(a + o) + (load(b + o) - load(a + o)) * t));
+    for (std::uint32_t c = 0; c < fl.count; ++c) {
+      const std::uint32_t o = fl.offset + 4 * c;
+      const float x = load(a + o);
+      store(out + o, x + (load(b + o) - x) * k.t);
     }
   }
   if (f.color >= 0) {
     for (int c = 0; c < 4; ++c) {
-      const auto ca = static_cast<double>(std::to_integer<int>(a[f.color + c]));
-      const auto cb = static_cast<double>(std::to_integer<int>(b[f.color + c]));
-      out[f.color + c] = static_cast<std::byte>(std::lround(ca + (cb - ca) * t));
+      const auto ca = static_cast<float>(std::to_integer<int>(a[f.color + c]));
+      const auto cb = static_cast<float>(std::to_integer<int>(b[f.color + c]));
+      out[f.color + c] = static_cast<std::byte>(int(ca + (cb - ca) * k.t + 0.5f));
     }
   }
 }
@@ -105,6 +120,8 @@ std::uint64_t interpolate_frames(const RecordFields& f, std::span<const std::byt
     }
     return n;
   }
+  const Basis basis(t, dt);
+  const bool hermite = mode == Interpolation::Hermite && f.velocity >= 0;
   std::uint64_t i = 0, j = 0, n = 0;
   while (i < na || j < nb) {
     const std::byte* ra = i < na ? a.data() + i * stride : nullptr;
@@ -112,7 +129,7 @@ std::uint64_t interpolate_frames(const RecordFields& f, std::span<const std::byt
     const std::uint64_t ia = ra ? id_of(f, ra) : UINT64_MAX, ib = rb ? id_of(f, rb) : UINT64_MAX;
     std::byte* o = out + n * stride;
     if (ra && rb && ia == ib) {
-      blend(f, ra, rb, t, dt, mode, o);
+      blend(f, ra, rb, basis, hermite, o);
       ++i, ++j;
     } else if (ra && (!rb || ia < ib)) {  // dies before b: goes on, shrinking out
       std::memcpy(o, ra, stride);
