@@ -124,19 +124,18 @@ std::uint64_t interpolate_frames(const RecordFields& f, std::span<const std::byt
   const bool hermite = mode == Interpolation::Hermite && f.velocity >= 0;
   std::uint64_t i = 0, j = 0, n = 0;
   while (i < na || j < nb) {
-    const std::byte* ra = i < na ? a.data() + i * stride : nullptr;
-    const std::byte* rb = j < nb ? b.data() + j * stride : nullptr;
-    const std::uint64_t ia = ra ? id_of(f, ra) : UINT64_MAX, ib = rb ? id_of(f, rb) : UINT64_MAX;
+    const std::uint64_t ia = i < na ? id_of(f, a.data() + i * stride) : UINT64_MAX;
+    const std::uint64_t ib = j < nb ? id_of(f, b.data() + j * stride) : UINT64_MAX;
     std::byte* o = out + n * stride;
-    if (ra && rb && ia == ib) {
-      blend(f, ra, rb, basis, hermite, o);
+    if (i < na && j < nb && ia == ib) {
+      blend(f, a.data() + i * stride, b.data() + j * stride, basis, hermite, o);
       ++i, ++j;
-    } else if (ra && (!rb || ia < ib)) {  // dies before b: goes on, shrinking out
-      std::memcpy(o, ra, stride);
+    } else if (j >= nb || (i < na && ia < ib)) {  // dies before b: goes on, shrinking out
+      std::memcpy(o, a.data() + i * stride, stride);
       advect(f, o, t * dt, float(1.0 - t));
       ++i;
     } else {  // born after a: comes in, growing
-      std::memcpy(o, rb, stride);
+      std::memcpy(o, b.data() + j * stride, stride);
       advect(f, o, -(1.0 - t) * dt, float(t));
       ++j;
     }
