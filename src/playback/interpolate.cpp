@@ -25,13 +25,6 @@ std::uint64_t id_of(const RecordFields& f, const std::byte* record) {
   return v;
 }
 
-bool ids_ascending(const RecordFields& f, std::span<const std::byte> records, std::uint64_t n) {
-  for (std::uint64_t i = 1; i < n; ++i) {
-    if (id_of(f, records.data() + (i - 1) * f.stride) >= id_of(f, records.data() + i * f.stride)) return false;
-  }
-  return true;
-}
-
 // Moves a record's position by its velocity times `seconds` and scales its size by `grow`.
 void advect(const RecordFields& f, std::byte* r, double seconds, float grow) {
   if (f.velocity >= 0) {
@@ -105,41 +98,65 @@ RecordFields RecordFields::of(const format::Metadata& m) {
   return f;
 }
 
+namespace {
+
+// No matching: the nearer frame, moved along its velocities to the playhead.
+std::uint64_t nearer_advected(const RecordFields& f, std::span<const std::byte> a, std::uint64_t na,
+                              std::span<const std::byte> b, std::uint64_t nb, double t, double dt, std::byte* out) {
+  const bool first = t < 0.5;
+  const std::span<const std::byte> from = first ? a : b;
+  const std::uint64_t n = first ? na : nb;
+  std::memcpy(out, from.data(), n * f.stride);
+  if (f.velocity >= 0) {
+    for (std::uint64_t i = 0; i < n; ++i) advect(f, out + i * f.stride, first ? t * dt : -(1.0 - t) * dt, 1.0f);
+  }
+  return n;
+}
+
+}  // namespace
+
 std::uint64_t interpolate_frames(const RecordFields& f, std::span<const std::byte> a, std::uint64_t na,
                                  std::span<const std::byte> b, std::uint64_t nb, double t, double dt,
                                  Interpolation mode, std::byte* out) {
   const std::size_t stride = f.stride;
-  if (f.id < 0 || !ids_ascending(f, a, na) || !ids_ascending(f, b, nb)) {
-    // No matching: the nearer frame, moved along its velocities to the playhead.
-    const bool first = t < 0.5;
-    const std::span<const std::byte> from = first ? a : b;
-    const std::uint64_t n = first ? na : nb;
-    std::memcpy(out, from.data(), n * stride);
-    if (f.velocity >= 0) {
-      for (std::uint64_t i = 0; i < n; ++i) advect(f, out + i * stride, first ? t * dt : -(1.0 - t) * dt, 1.0f);
-    }
-    return n;
-  }
+  if (f.id < 0) return nearer_advected(f, a, na, b, nb, t, dt, out);
   const Basis basis(t, dt);
   const bool hermite = mode == Interpolation::Hermite && f.velocity >= 0;
+  // One pass: the merge also checks that the ids ascend (a separate check would read both frames
+  // once more); when they do not, the frames cannot be matched this way.
   std::uint64_t i = 0, j = 0, n = 0;
+  std::uint64_t ia = na ? id_of(f, a.data()) : UINT64_MAX, ib = nb ? id_of(f, b.data()) : UINT64_MAX;
+  const auto next_a = [&] {
+    ++i;
+    const std::uint64_t id = i < na ? id_of(f, a.data() + i * stride) : UINT64_MAX;
+    const bool ascending = id > ia || (i >= na);
+    ia = id;
+    return ascending;
+  };
+  const auto next_b = [&] {
+    ++j;
+    const std::uint64_t id = j < nb ? id_of(f, b.data() + j * stride) : UINT64_MAX;
+    const bool ascending = id > ib || (j >= nb);
+    ib = id;
+    return ascending;
+  };
   while (i < na || j < nb) {
-    const std::uint64_t ia = i < na ? id_of(f, a.data() + i * stride) : UINT64_MAX;
-    const std::uint64_t ib = j < nb ? id_of(f, b.data() + j * stride) : UINT64_MAX;
     std::byte* o = out + n * stride;
+    bool ascending = true;
     if (i < na && j < nb && ia == ib) {
       blend(f, a.data() + i * stride, b.data() + j * stride, basis, hermite, o);
-      ++i, ++j;
+      ascending = next_a() && next_b();
     } else if (j >= nb || (i < na && ia < ib)) {  // dies before b: goes on, shrinking out
       std::memcpy(o, a.data() + i * stride, stride);
       advect(f, o, t * dt, float(1.0 - t));
-      ++i;
+      ascending = next_a();
     } else {  // born after a: comes in, growing
       std::memcpy(o, b.data() + j * stride, stride);
       advect(f, o, -(1.0 - t) * dt, float(t));
-      ++j;
+      ascending = next_b();
     }
     ++n;
+    if (!ascending) return nearer_advected(f, a, na, b, nb, t, dt, out);
   }
   return n;
 }
