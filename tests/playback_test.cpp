@@ -137,39 +137,55 @@ TEST(Playback, AHostFrameAllocatesNothing) {
 
 // ---- Interpolation on analytic clips -------------------------------------------------------------
 
-// Ballistic particles under gravity, born and dying at whole frames: particle k lives from frame
-// k % 12 for 18 frames; p(t) = p0 + v0 (t - birth) + g (t - birth)^2 / 2.
-struct Ballistic {
-  static constexpr double fps = 24.0, g = -9.81;
+// Analytic clips: particles born and dying at whole frames (particle k lives from frame k % 12 for
+// 18 frames), moving at constant velocity, ballistically under gravity (p0 + v0 a + g a^2 / 2),
+// or in a rigid rotation about the y axis.
+enum class Motion { Constant, Ballistic, Rotation };
+
+struct Analytic {
+  static constexpr double fps = 24.0, g = -9.81, omega = 2.0;
   static constexpr int frames = 48, particles = 200;
   static int birth(int k) { return k % 12; }
   static bool alive(int k, int f) { return f >= birth(k) && f < birth(k) + 18; }
   static std::array<double, 3> p0(int k) { return {0.01 * k, 1.0, -0.02 * k}; }
   static std::array<double, 3> v0(int k) { return {std::cos(0.3 * k), 4.0 + 0.01 * k, std::sin(0.3 * k)}; }
-  static std::array<double, 3> at(int k, double t) {
+  static std::array<double, 3> at(Motion m, int k, double t) {
     const double a = t - birth(k) / fps;
     const auto p = p0(k), v = v0(k);
-    return {p[0] + v[0] * a, p[1] + v[1] * a + 0.5 * g * a * a, p[2] + v[2] * a};
+    if (m == Motion::Rotation) {
+      const double r = 0.5 + 0.005 * k, phase = 0.1 * k + omega * t;
+      return {r * std::cos(phase), 0.01 * k, r * std::sin(phase)};
+    }
+    const double gravity = m == Motion::Ballistic ? g : 0.0;
+    return {p[0] + v[0] * a, p[1] + v[1] * a + 0.5 * gravity * a * a, p[2] + v[2] * a};
   }
-  static std::array<double, 3> velocity(int k, double t) {
+  static std::array<double, 3> velocity(Motion m, int k, double t) {
+    if (m == Motion::Rotation) {
+      const double r = 0.5 + 0.005 * k, phase = 0.1 * k + omega * t;
+      return {-r * omega * std::sin(phase), 0.0, r * omega * std::cos(phase)};
+    }
     const auto v = v0(k);
-    return {v[0], v[1] + g * (t - birth(k) / fps), v[2]};
+    return {v[0], v[1] + (m == Motion::Ballistic ? g : 0.0) * (t - birth(k) / fps), v[2]};
   }
 };
+using Ballistic = Analytic;
 
-fs::path ballistic_clip(const fs::path& dir) {
-  const fs::path abc = dir / "ballistic.abc";
+fs::path analytic_clip(const fs::path& dir, Motion motion) {
+  const std::string name = motion == Motion::Constant    ? "constant"
+                           : motion == Motion::Ballistic ? "ballistic"
+                                                         : "rotation";
+  const fs::path abc = dir / (name + ".abc");
   {
     alembic::PointsWriterOptions o;
-    alembic::ArchiveWriter w(abc, "playback test", "ballistic", Ballistic::fps, 0.0, o);
-    for (int f = 0; f < Ballistic::frames; ++f) {
-      const double t = f / Ballistic::fps;
+    alembic::ArchiveWriter w(abc, "playback test", name, Analytic::fps, 0.0, o);
+    for (int f = 0; f < Analytic::frames; ++f) {
+      const double t = f / Analytic::fps;
       std::vector<float> P, V, W;
       std::vector<std::uint64_t> ids;
-      for (int k = 0; k < Ballistic::particles; ++k) {
-        if (!Ballistic::alive(k, f)) continue;
-        for (double c : Ballistic::at(k, t)) P.push_back(float(c));
-        for (double c : Ballistic::velocity(k, t)) V.push_back(float(c));
+      for (int k = 0; k < Analytic::particles; ++k) {
+        if (!Analytic::alive(k, f)) continue;
+        for (double c : Analytic::at(motion, k, t)) P.push_back(float(c));
+        for (double c : Analytic::velocity(motion, k, t)) V.push_back(float(c));
         W.push_back(0.02f);
         ids.push_back(std::uint64_t(k));  // ascending in every frame
       }
@@ -179,11 +195,13 @@ fs::path ballistic_clip(const fs::path& dir) {
   }
   cook::Options o;
   o.input = abc;
-  o.output = dir / "ballistic.pstream";
+  o.output = dir / (name + ".pstream");
   o.attributes = {"velocity", "id"};
   cook::cook(o);
   return o.output;
 }
+
+fs::path ballistic_clip(const fs::path& dir) { return analytic_clip(dir, Motion::Ballistic); }
 
 struct Particle {
   std::array<float, 3> p;
@@ -222,33 +240,57 @@ std::vector<std::map<std::uint64_t, Particle>> play(const fs::path& file, playba
   return out;
 }
 
-TEST(Playback, InterpolatedBallisticClipMatchesTheTruth) {
-  const fs::path dir = test::fresh_dir();
-  const fs::path clip = ballistic_clip(dir);
-  const double hz = 120.0;
-  double max_error[2] = {0, 0};
-  const playback::Interpolation modes[2] = {playback::Interpolation::Hermite, playback::Interpolation::Linear};
-  for (int mode = 0; mode < 2; ++mode) {
-    const auto frames = play(clip, modes[mode], hz);
-    ASSERT_GT(frames.size(), 200u);
-    for (std::size_t k = 0; k < frames.size(); ++k) {
-      const double t = double(k) / hz;
-      const int f = int(std::floor(t * Ballistic::fps + 1e-9));
-      for (const auto& [id, particle] : frames[k]) {
-        const int i = int(id);
-        if (!Ballistic::alive(i, f) || !Ballistic::alive(i, f + 1)) continue;  // births and deaths: below
-        const auto truth = Ballistic::at(i, t);
-        for (int c = 0; c < 3; ++c) max_error[mode] = std::max(max_error[mode], std::abs(particle.p[c] - truth[c]));
-      }
+// Max position error against the analytic truth, for particles alive in both cached frames
+// around each host time (births and deaths: the pop test below).
+double max_error(const fs::path& clip, Motion motion, playback::Interpolation mode, double hz) {
+  const auto frames = play(clip, mode, hz);
+  EXPECT_GT(frames.size(), 200u);
+  double worst = 0;
+  for (std::size_t k = 0; k < frames.size(); ++k) {
+    const double t = double(k) / hz;
+    const int f = int(std::floor(t * Analytic::fps + 1e-9));
+    for (const auto& [id, particle] : frames[k]) {
+      const int i = int(id);
+      if (!Analytic::alive(i, f) || !Analytic::alive(i, f + 1)) continue;
+      const auto truth = Analytic::at(motion, i, t);
+      for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(particle.p[c] - truth[c])));
     }
   }
-  // Hermite through exact velocities is exact for a parabola (float rounding remains); a straight
-  // line between frames misses by g dt^2 / 8 = 2.1e-3 at mid-frame.
-  EXPECT_LT(max_error[0], 2e-5) << "Hermite";
-  EXPECT_NEAR(max_error[1], 9.81 / (8 * 24.0 * 24.0), 2e-4) << "linear";
-  EXPECT_GT(max_error[1] / max_error[0], 50.0);
-  std::cout << "ballistic at 120 Hz from 24 fps: max error Hermite " << max_error[0] << ", linear " << max_error[1]
-            << " (" << max_error[1] / max_error[0] << "x)\n";
+  return worst;
+}
+
+TEST(Playback, InterpolatedAnalyticClipsMatchTheTruth) {
+  const fs::path dir = test::fresh_dir();
+  const double hz = 120.0, dt = 1.0 / Analytic::fps;
+  {
+    // Constant velocity: both are exact (float rounding of positions up to ~5 units).
+    const fs::path clip = analytic_clip(dir, Motion::Constant);
+    EXPECT_LT(max_error(clip, Motion::Constant, playback::Interpolation::Hermite, hz), 2e-5);
+    EXPECT_LT(max_error(clip, Motion::Constant, playback::Interpolation::Linear, hz), 2e-5);
+  }
+  {
+    // Ballistic: a cubic through exact tangents reproduces the parabola; a chord misses by g dt^2 / 8.
+    const fs::path clip = analytic_clip(dir, Motion::Ballistic);
+    const double hermite = max_error(clip, Motion::Ballistic, playback::Interpolation::Hermite, hz);
+    const double linear = max_error(clip, Motion::Ballistic, playback::Interpolation::Linear, hz);
+    EXPECT_LT(hermite, 2e-5);
+    EXPECT_NEAR(linear, 9.81 * dt * dt / 8, 2e-4);
+    EXPECT_GT(linear / hermite, 50.0);
+    std::cout << "ballistic at 120 Hz from 24 fps: max error Hermite " << hermite << ", linear " << linear << " ("
+              << linear / hermite << "x)\n";
+  }
+  {
+    // Rigid rotation (radius up to 1.5, 2 rad/s): a chord cuts the arc by r (1 - cos(w dt / 2)).
+    const fs::path clip = analytic_clip(dir, Motion::Rotation);
+    const double hermite = max_error(clip, Motion::Rotation, playback::Interpolation::Hermite, hz);
+    const double linear = max_error(clip, Motion::Rotation, playback::Interpolation::Linear, hz);
+    const double sag = 1.495 * (1 - std::cos(Analytic::omega * dt / 2));
+    EXPECT_LT(hermite, 2e-5);
+    EXPECT_NEAR(linear, sag, 0.1 * sag);
+    EXPECT_GT(linear / hermite, 10.0);
+    std::cout << "rotation at 120 Hz from 24 fps: max error Hermite " << hermite << ", linear " << linear << " ("
+              << linear / hermite << "x)\n";
+  }
 }
 
 TEST(Playback, NoParticlePopsAtFrameBoundaries) {
@@ -266,7 +308,7 @@ TEST(Playback, NoParticlePopsAtFrameBoundaries) {
         continue;
       }
       // Moves no more than its speed allows over one host frame, and changes size smoothly.
-      const auto v = Ballistic::velocity(int(id), double(k) / hz);
+      const auto v = Analytic::velocity(Motion::Ballistic, int(id), double(k) / hz);
       const double speed = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + 9.81 * host_dt;
       double moved = 0;
       for (int c = 0; c < 3; ++c) moved += double(now.p[c] - was->second.p[c]) * (now.p[c] - was->second.p[c]);
