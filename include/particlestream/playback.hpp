@@ -9,8 +9,8 @@
 // parsing, window or image output, and these two calls; the viewer, `pstream render` and
 // `pstream demo` are exactly that.
 //
-// Memory is fixed when the Player opens (the clips' caches, the sorters, the scratch for a frame
-// split by a cache ring's wrap); advance() and draw() allocate nothing.
+// Memory is fixed when the Player opens (the clips' caches, the sorters, the scratch for an
+// interpolated frame); advance() and draw() allocate nothing.
 #pragma once
 
 #include <array>
@@ -51,7 +51,7 @@ struct DrawStyle {
 
 // Where the time of a host frame went (milliseconds, this frame).
 struct FrameStats {
-  double stream_ms = 0.0;  // update() of every clip and the copy of a frame split by the ring's wrap
+  double stream_ms = 0.0;  // update() of every clip
   double sort_ms = 0.0;
   double interpolate_ms = 0.0;  // blending two cached frames (when between them)
   std::uint64_t particles = 0;

@@ -17,7 +17,6 @@ double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::durati
 struct Player::Clip {
   std::unique_ptr<stream::ParticleStream> stream;
   std::unique_ptr<sort::DepthSorter> sorter;
-  std::vector<std::byte> contiguous;  // a frame split by the cache ring's wrap, copied whole
   std::int32_t color_offset = -1;
   render::Mat4 world = render::identity();
   RecordFields fields;
@@ -46,7 +45,6 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     const format::Metadata& m = c.stream->metadata();
     const std::uint64_t most = options.interpolation != Interpolation::None ? 2 * m.max_count : m.max_count;
     c.sorter = std::make_unique<sort::DepthSorter>(most, options.sorter);
-    c.contiguous.resize(m.max_count * m.record_size);
     c.fields = RecordFields::of(m);
     if (options.interpolation != Interpolation::None) c.blended.resize(most * m.record_size);
     if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
@@ -111,13 +109,9 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
     const stream::FrameView f = c.stream->frame();
     render::ParticleBatch& b = batches_[batch_count_];
     b.first = f.first;
-    b.second = {};
+    b.second = {};  // decoded frames are contiguous (stream.hpp): sorting and drawing see one array
     b.count = f.count;
     b.order = {};
-    if (!f.second.empty()) {  // one contiguous block, so sorting and drawing see one array
-      c.stream->copy_frame(c.contiguous);
-      b.first = std::span<const std::byte>(c.contiguous).first(f.first.size() + f.second.size());
-    }
     auto t1 = Clock::now();
     stats_.stream_ms += ms(t0, t1);
     const format::Metadata& m = c.stream->metadata();
