@@ -20,6 +20,7 @@
 #include "base/mapped_file.hpp"
 #include "base/output_file.hpp"
 #include "cook/ply_reader.hpp"
+#include "hostile_inputs.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
@@ -33,12 +34,9 @@ namespace fs = std::filesystem;
 
 std::string q(const fs::path& p) { return fmt::format("'{}'", p.string()); }
 
-void write(const fs::path& p, std::string_view bytes) {
-  std::ofstream out(p, std::ios::binary);
-  out.write(bytes.data(), std::streamsize(bytes.size()));
-}
+void write(const fs::path& p, std::string_view bytes) { test::write_file(p, bytes); }
 
-// No temporary (".NAME.partial-PID") and nothing but `expected` in `dir`.
+// No temporary (".NAME.partial-PID") left in `dir`.
 void expect_no_temporaries(const fs::path& dir) {
   for (const auto& e : fs::directory_iterator(dir)) {
     EXPECT_EQ(e.path().filename().string().find(".partial-"), std::string::npos) << "left behind: " << e.path();
@@ -54,36 +52,7 @@ void expect_error(const test::CommandResult& r, const std::string& fragment) {
   EXPECT_NE(r.output.find(fragment), std::string::npos) << "expected '" << fragment << "' in:\n" << r.output;
 }
 
-std::string ply_header(const std::string& format, const std::string& count, int properties = 3) {
-  std::string h = fmt::format("ply\nformat {} 1.0\nelement vertex {}\n", format, count);
-  const char* names[] = {"x", "y", "z", "pscale"};
-  for (int i = 0; i < properties; ++i) h += fmt::format("property float {}\n", names[i]);
-  return h + "end_header\n";
-}
-
-// An Alembic points cache of 3 samples whose time sampling starts at a recognisable time, so the
-// test can find the stored double and replace it.
-constexpr double kMarkerStart = 0.123456789012345;
-fs::path marked_archive(const fs::path& path) {
-  alembic::PointsWriterOptions o;
-  o.velocities = false;
-  alembic::ArchiveWriter w(path, "hardening test", "time marker", 24.0, kMarkerStart, o);
-  const std::vector<float> P = {0, 0, 0, 1, 1, 1};
-  const std::vector<std::uint64_t> ids = {1, 2};
-  const std::vector<float> widths = {0.1f, 0.1f};
-  for (int f = 0; f < 3; ++f) w.write_sample({P, ids, {}, widths, {}});
-  w.close();
-  return path;
-}
-
-void replace_double(const fs::path& path, double from, double to) {
-  std::string bytes = test::read_text(path);
-  const std::string needle(reinterpret_cast<const char*>(&from), 8);
-  const auto at = bytes.find(needle);
-  ASSERT_NE(at, std::string::npos);
-  std::memcpy(bytes.data() + at, &to, 8);
-  write(path, bytes);
-}
+using test::ply_header;
 
 // ---- Crashes ------------------------------------------------------------------------------------
 
@@ -123,8 +92,8 @@ TEST(Hardening, NonFiniteTimeSamplingIsAFileError) {
   const fs::path dir = test::fresh_dir();
   for (const double bad : {std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity(),
                            -std::numeric_limits<double>::infinity()}) {
-    const fs::path abc = marked_archive(dir / "times.abc");
-    replace_double(abc, kMarkerStart, bad);
+    const fs::path abc = dir / "times.abc";
+    test::write_archive_with_start(abc, bad);
     expect_error(test::run_cli("info " + q(abc)), "expected a finite number of seconds");
     const auto r = test::run_cli(fmt::format("cook {} -o {}", q(abc), q(dir / "out.pstream")));
     expect_error(r, "expected a finite number of seconds");

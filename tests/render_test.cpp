@@ -200,14 +200,20 @@ TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
   EXPECT_EQ(probe.output, "12\n");
 }
 
-TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
-  if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
-  const fs::path dir = test::fresh_dir();
+// The 50k-particle fixture in 64 KiB chunks (frames straddle chunks), for the viewer's runs.
+cook::Options large_clip(const fs::path& dir) {
   cook::Options o;
   o.input = test::data_path("alembic/points_large.abc");
   o.output = dir / "large.pstream";
   o.chunk_size = 64 << 10;
   cook::cook(o);
+  return o;
+}
+
+TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
+  if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
+  const fs::path dir = test::fresh_dir();
+  const cook::Options o = large_clip(dir);
   const fs::path shot = dir / "shot.png";
   const auto r = test::run_cli_raw("xvfb-run -a -s '-screen 0 800x600x24' " + std::string(PSTREAM_CLI) + " play '" +
                                    o.output.string() + "' --width 800 --height 600 --frames-to-run 20 --screenshot '" +
@@ -274,11 +280,7 @@ TEST(Demo, SmallSmokeRunProducesEverythingAndMatchingFrames) {
 TEST(Viewer, ACorruptClipFailsTheRun) {
   if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
   const fs::path dir = test::fresh_dir();
-  cook::Options o;
-  o.input = test::data_path("alembic/points_large.abc");
-  o.output = dir / "large.pstream";
-  o.chunk_size = 64 << 10;
-  cook::cook(o);
+  const cook::Options o = large_clip(dir);
   std::string bytes = test::read_text(o.output);
   for (std::size_t i = 100000; i < 100100; ++i) bytes[i] = static_cast<char>(bytes[i] ^ 0x3c);  // inside chunk 1
   std::ofstream(dir / "corrupt.pstream", std::ios::binary).write(bytes.data(), std::streamsize(bytes.size()));

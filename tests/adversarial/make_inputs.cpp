@@ -4,14 +4,12 @@
 //   make_inputs DATA_DIR OUT_DIR
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <limits>
-#include <sstream>
 #include <string>
 #include <vector>
 
+#include "hostile_inputs.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
@@ -21,44 +19,10 @@ namespace {
 namespace fs = std::filesystem;
 using namespace pstream;
 
-std::string read(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-void write(const fs::path& p, const std::string& bytes) {
-  std::ofstream out(p, std::ios::binary);
-  out.write(bytes.data(), std::streamsize(bytes.size()));
-}
-
-std::string ply(const std::string& format, const std::string& count, int properties = 3) {
-  std::string h = "ply\nformat " + format + " 1.0\nelement vertex " + count + "\n";
-  const char* names[] = {"x", "y", "z", "pscale"};
-  for (int i = 0; i < properties; ++i) h += std::string("property float ") + names[i] + "\n";
-  return h + "end_header\n";
-}
-
-// Three samples of two points whose time sampling starts at `start` (replaced below).
-constexpr double kMarker = 0.123456789012345;
-void archive_with_start(const fs::path& path, double start) {
-  alembic::PointsWriterOptions o;
-  o.velocities = false;
-  {
-    alembic::ArchiveWriter w(path, "adversarial", "times", 24.0, kMarker, o);
-    const std::vector<float> P = {0, 0, 0, 1, 1, 1};
-    const std::vector<std::uint64_t> ids = {1, 2};
-    const std::vector<float> widths = {0.1f, 0.1f};
-    for (int f = 0; f < 3; ++f) w.write_sample({P, ids, {}, widths, {}});
-    w.close();
-  }
-  std::string bytes = read(path);
-  const std::string needle(reinterpret_cast<const char*>(&kMarker), 8);
-  const auto at = bytes.find(needle);
-  if (at != std::string::npos) std::memcpy(bytes.data() + at, &start, 8);
-  write(path, bytes);
-}
+using test::ply_header;
+using test::write_archive_with_start;
+std::string read(const fs::path& p) { return test::read_file(p); }
+void write(const fs::path& p, const std::string& bytes) { test::write_file(p, bytes); }
 
 void clip_with_times(const fs::path& path, std::vector<double> times) {
   format::Metadata meta;
@@ -88,17 +52,17 @@ int main(int argc, char** argv) {
   const double nan = std::numeric_limits<double>::quiet_NaN(), inf = std::numeric_limits<double>::infinity();
 
   // Counts.
-  write(out / "overflow.0001.ply", ply("ascii", "6148914691236517206") + "1 2 3\n");
-  write(out / "claims.0001.ply", ply("binary_little_endian", "300000000"));
-  write(out / "claims_ascii.0001.ply", ply("ascii", "300000000", 4) + "1 2 3 4\n");
-  write(out / "lots.0001.ply", ply("ascii", "lots") + "1 2 3\n");
-  write(out / "fewer.0001.ply", ply("ascii", "1") + "1 2 3\n4 5 6\n");
-  write(out / "negative.0001.ply", ply("ascii", "-5") + "1 2 3\n");
-  write(out / "nan_values.0001.ply", ply("ascii", "2") + "nan 1 2\ninf -inf 1e999\n");
+  write(out / "overflow.0001.ply", ply_header("ascii", "6148914691236517206") + "1 2 3\n");
+  write(out / "claims.0001.ply", ply_header("binary_little_endian", "300000000"));
+  write(out / "claims_ascii.0001.ply", ply_header("ascii", "300000000", 4) + "1 2 3 4\n");
+  write(out / "lots.0001.ply", ply_header("ascii", "lots") + "1 2 3\n");
+  write(out / "fewer.0001.ply", ply_header("ascii", "1") + "1 2 3\n4 5 6\n");
+  write(out / "negative.0001.ply", ply_header("ascii", "-5") + "1 2 3\n");
+  write(out / "nan_values.0001.ply", ply_header("ascii", "2") + "nan 1 2\ninf -inf 1e999\n");
   // Times.
-  archive_with_start(out / "nan_time.abc", nan);
-  archive_with_start(out / "inf_time.abc", inf);
-  archive_with_start(out / "huge_time.abc", 1e300);
+  write_archive_with_start(out / "nan_time.abc", nan);
+  write_archive_with_start(out / "inf_time.abc", inf);
+  write_archive_with_start(out / "huge_time.abc", 1e300);
   clip_with_times(out / "inf_times.pstream", {0.0, inf, 2.0});
   clip_with_times(out / "backwards_times.pstream", {0.0, 1.0, 0.5});
   clip_with_times(out / "negative_times.pstream", {-1e308, -1.0});
