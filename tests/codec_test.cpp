@@ -43,8 +43,10 @@ const std::vector<Fixture>& fixtures() {
 }
 
 fs::path cook_with(const fs::path& dir, const Fixture& fx, const std::string& name, format::FrameCodec codec,
-                   const format::ParticleCodecOptions& particle = {}, unsigned threads = 0) {
+                   const format::ParticleCodecOptions& particle = {}, unsigned threads = 0,
+                   bool keep_source_order = false) {
   cook::Options o;
+  o.keep_source_order = keep_source_order;
   o.input = test::data_path(fx.file);
   o.object = fx.object;
   o.attributes = fx.attributes;
@@ -119,7 +121,7 @@ TEST(ParticleCodec, LosslessModeIsBitExactInTheSourceOrder) {
   for (const Fixture& fx : fixtures()) {
     SCOPED_TRACE(fx.file);
     const std::string tag = std::to_string(n++);
-    const fs::path raw = cook_with(dir, fx, "raw" + tag, format::FrameCodec::Records);
+    const fs::path raw = cook_with(dir, fx, "raw" + tag, format::FrameCodec::Records, {}, 0, true);
     const fs::path exact = cook_with(dir, fx, "exact" + tag, format::FrameCodec::Particle, lossless);
     const auto a = format::Reader::open(exact);
     const auto b = format::Reader::open(raw);
@@ -301,7 +303,8 @@ TEST(ParticleCodec, VersionOneFilesStillRead) {
   EXPECT_EQ(m.version, 1u);
   EXPECT_EQ(m.codec.codec, format::FrameCodec::Records);
   const fs::path dir = test::fresh_dir();
-  const fs::path now = cook_with(dir, fixtures()[3], "v2", format::FrameCodec::Records);
+  // The version 1 writer kept the source's order.
+  const fs::path now = cook_with(dir, fixtures()[3], "v2", format::FrameCodec::Records, {}, 0, true);
   const auto r2 = format::Reader::open(now);
   ASSERT_EQ(m.frame_count(), r2.metadata().frame_count());
   std::vector<std::byte> a(m.max_count * m.record_size), b(a.size());

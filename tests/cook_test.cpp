@@ -206,6 +206,7 @@ TEST(Cook, AttributesColourVelocityIdAndFloats) {
   const alembic::Archive archive = alembic::Archive::open(o.input);
   const alembic::Points points(*archive.find("/particles"));
   std::vector<std::byte> buffer(m.max_count * m.record_size), scratch(m.chunk_size);
+  std::uint64_t reordered = 0;  // particles whose record is not at their source index
   for (std::uint32_t f : {5u, 20u, 59u}) {
     reader.read_frame(f, buffer);
     const std::uint64_t n = points.count(f);
@@ -215,8 +216,15 @@ TEST(Cook, AttributesColourVelocityIdAndFloats) {
     points.read_ids(f, ids);
     points.read_param("Cd", f, cd);
     points.read_param("age", f, ages);
-    for (std::uint64_t i = 0; i < n; ++i) {
-      const std::byte* r = buffer.data() + i * m.record_size;
+    // The frame is written in ascending id order: record k is the source particle with the k-th
+    // smallest id (the source's order is not sorted here).
+    std::vector<std::uint64_t> by_id(n);
+    for (std::uint64_t i = 0; i < n; ++i) by_id[i] = i;
+    std::stable_sort(by_id.begin(), by_id.end(), [&](auto x, auto y) { return ids[x] < ids[y]; });
+    for (std::uint64_t k = 0; k < n; ++k) reordered += by_id[k] != k;
+    for (std::uint64_t k = 0; k < n; ++k) {
+      const std::uint64_t i = by_id[k];
+      const std::byte* r = buffer.data() + k * m.record_size;
       float vel[3], a;
       std::uint64_t pid;
       std::uint8_t rgba[4];
@@ -226,11 +234,16 @@ TEST(Cook, AttributesColourVelocityIdAndFloats) {
       std::memcpy(rgba, r + color->offset, 4);
       ASSERT_EQ(std::memcmp(vel, &v[i * 3], 12), 0) << "frame " << f << " particle " << i;
       ASSERT_EQ(pid, ids[i]);
+      float pos[3];
+      std::memcpy(pos, r, 12);
+      const alembic::SampleView positions = points.positions(f);
+      ASSERT_EQ(std::memcmp(pos, positions.bytes().data() + i * 12, 12), 0) << "frame " << f << " particle " << i;
       ASSERT_EQ(a, ages[i]);
       for (int c = 0; c < 3; ++c) ASSERT_EQ(rgba[c], std::lround(std::clamp(cd[i * 3 + c], 0.0f, 1.0f) * 255.0f));
       ASSERT_EQ(rgba[3], 255);
     }
   }
+  EXPECT_GT(reordered, 0u) << "the fixture's ids are already in order: this test would not see the sort";
 }
 
 TEST(Cook, InterpolationBlendsParticlesMatchedById) {

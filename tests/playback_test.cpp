@@ -13,6 +13,7 @@
 
 #include "alloc_counter.hpp"
 #include "particlestream/alembic_writer.hpp"
+#include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
@@ -359,14 +360,18 @@ void nearest_distances(const std::vector<std::array<float, 3>>& a, std::vector<s
   }
 }
 
-HalfwayError halfway(const fs::path& dir, const std::string& sim, bool ids) {
+HalfwayError halfway(const fs::path& dir, const std::string& sim, bool ids,
+                     format::FrameCodec codec = format::FrameCodec::Records) {
   cook::Options o;
   o.input = test::data_path("sims/" + sim + ".abc");
   o.attributes = ids ? std::vector<std::string>{"velocity", "id"} : std::vector<std::string>{"velocity"};
   o.output = dir / (sim + "_24.pstream");
   cook::cook(o);
-  o.output = dir / (sim + "_12.pstream");
+  const std::string halved =
+      sim + (ids ? "" : "_noids") + (codec == format::FrameCodec::Particle ? "_12_particle" : "_12") + ".pstream";
+  o.output = dir / halved;
   o.fps = 12;
+  o.frame_codec = codec;
   cook::cook(o);
   const format::Reader truth = format::Reader::open(dir / (sim + "_24.pstream"));
   const format::Metadata& tm = truth.metadata();
@@ -381,7 +386,7 @@ HalfwayError halfway(const fs::path& dir, const std::string& sim, bool ids) {
     options.stream.blocking = true;
     options.interpolation = mode;
     options.loop = false;
-    const fs::path files[] = {dir / (sim + "_12.pstream")};
+    const fs::path files[] = {dir / halved};
     const auto player = playback::Player::open(files, std::move(options));
     const double t0 = player->clip(0).metadata().time_of_frame0;
     player->seek(t0);
@@ -432,7 +437,7 @@ HalfwayError halfway(const fs::path& dir, const std::string& sim, bool ids) {
     (mode == playback::Interpolation::None ? e.nearest_mean : e.mean) = sum / double(std::max<std::uint64_t>(n, 1));
     (mode == playback::Interpolation::None ? e.nearest_max : e.max) = max;
   }
-  std::cout << sim << " halfway frames (12 -> 24 fps): interpolated mean " << e.mean << " max " << e.max
+  std::cout << halved << " halfway frames (12 -> 24 fps): interpolated mean " << e.mean << " max " << e.max
             << "; nearest frame mean " << e.nearest_mean << " max " << e.nearest_max << "; bounds diagonal "
             << e.diagonal << "\n";
   return e;
@@ -442,11 +447,151 @@ TEST(Playback, HalfwayFramesOfTheSimulations) {
   const fs::path dir = test::fresh_dir();
   const HalfwayError sparks = halfway(dir, "blender_sparks", true);
   EXPECT_LT(sparks.mean, sparks.nearest_mean / 3);
-  // Without ids the in-between frame is the nearer frame moved along its velocities. On this FLIP
-  // cache that lands further from the real particles than not moving them (docs/playback.md: its
-  // velocities do not describe the motion between frames); it stays within 1% of the diagonal.
+  // Without ids and without a matching (the records codec) the in-between frame is the nearer
+  // frame moved along its velocities. On this FLIP cache that lands further from the real
+  // particles than not moving them (docs/playback.md: its velocities do not describe the motion
+  // between frames); it stays within 1% of the diagonal.
   const HalfwayError flip = halfway(dir, "blender_flip_pour_small", false);
   EXPECT_LT(flip.mean, 0.01 * flip.diagonal);
+  // The particle codec matches particles without ids across frames (by predicted position) and
+  // the player blends the pairs it found. The sparks cooked without their ids show it (sparse
+  // enough for the nearest-real-particle measure to see it): far closer than the nearest frame.
+  const HalfwayError anonymous = halfway(dir, "blender_sparks", false, format::FrameCodec::Particle);
+  EXPECT_LT(anonymous.mean, anonymous.nearest_mean / 3);
+  // On the FLIP liquid every point of the volume lies within about half a particle spacing of
+  // some real particle, so this measure cannot tell the two apart (docs/playback.md); the blend
+  // must not be worse than the nearest frame, and its worst particle comes closer.
+  const HalfwayError matched = halfway(dir, "blender_flip_pour_small", false, format::FrameCodec::Particle);
+  EXPECT_LT(matched.mean, matched.nearest_mean * 1.05);
+  EXPECT_LT(matched.max, matched.nearest_max);
+  // Sparks through the particle codec (id order: the codec's own matching) as well as by id.
+  const HalfwayError sparks_particle = halfway(dir, "blender_sparks", true, format::FrameCodec::Particle);
+  EXPECT_LT(sparks_particle.mean, sparks_particle.nearest_mean / 3);
+}
+
+// match_by_id: the runs pair equal ids, drop the ids that end and insert the ones that begin, and
+// refuse what a linear merge cannot match.
+TEST(Playback, MatchingByIdPairsEqualIds) {
+  format::Metadata m;
+  m.layout = format::default_layout();
+  m.record_size = format::append_attribute(m.layout, "id", format::AttributeType::Uint64, 1);
+  const auto frame = [&](std::vector<std::uint64_t> ids) {
+    std::vector<std::byte> out(ids.size() * m.record_size);
+    for (std::size_t i = 0; i < ids.size(); ++i) std::memcpy(out.data() + i * m.record_size + 16, &ids[i], 8);
+    return out;
+  };
+  const auto a = frame({1, 2, 3, 5, 8, 9}), b = frame({0, 2, 3, 4, 8, 9, 12});
+  std::vector<format::MatchRun> runs(8);
+  const std::size_t n = format::match_by_id(m, a, 6, b, 7, runs);
+  ASSERT_NE(n, format::kNoMatching);
+  // Expand to pairs: previous index -> this index, and the ends and beginnings.
+  std::vector<std::pair<int, int>> pairs;
+  std::vector<int> dropped, inserted;
+  int i = 0, j = 0;
+  for (std::size_t r = 0; r < n; ++r) {
+    for (std::uint32_t k = 0; k < runs[r].keep; ++k) pairs.emplace_back(i++, j++);
+    for (std::uint32_t k = 0; k < runs[r].drop; ++k) dropped.push_back(i++);
+    for (std::uint32_t k = 0; k < runs[r].insert; ++k) inserted.push_back(j++);
+  }
+  EXPECT_EQ(i, 6);
+  EXPECT_EQ(j, 7);
+  EXPECT_EQ(pairs, (std::vector<std::pair<int, int>>{{1, 1}, {2, 2}, {4, 4}, {5, 5}}));
+  EXPECT_EQ(dropped, (std::vector<int>{0, 3}));      // ids 1 and 5 end
+  EXPECT_EQ(inserted, (std::vector<int>{0, 3, 6}));  // ids 0, 4 and 12 begin
+  // Ids that do not ascend, no id attribute, or more runs than room: no matching.
+  const auto unordered = frame({1, 3, 2});
+  EXPECT_EQ(format::match_by_id(m, unordered, 3, b, 7, runs), format::kNoMatching);
+  EXPECT_EQ(format::match_by_id(m, a, 6, unordered, 3, runs), format::kNoMatching);
+  EXPECT_EQ(format::match_by_id(m, a, 6, b, 7, std::span(runs).first(1)), format::kNoMatching);
+  format::Metadata no_ids;
+  no_ids.layout = format::default_layout();
+  no_ids.record_size = 16;
+  EXPECT_EQ(format::match_by_id(no_ids, a, 6, b, 6, runs), format::kNoMatching);
+  // Identical frames: one run keeping everything.
+  EXPECT_EQ(format::match_by_id(m, a, 6, a, 6, runs), 1u);
+  EXPECT_EQ(runs[0].keep, 6u);
+}
+
+// Retiming: slow motion within a range, looping, at a host rate the cache does not divide. Every
+// host frame inside the range shows the analytic truth at the retimed source time, positions and
+// velocities (the Hermite curve's derivative); speed 0 holds an in-between moment still.
+TEST(Playback, RetimedPlaybackFollowsTheRetimedClock) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = analytic_clip(dir, Motion::Ballistic);
+  playback::PlayerOptions options;
+  options.stream.blocking = true;
+  options.loop = true;
+  const fs::path files[] = {clip};
+  const auto player = playback::Player::open(files, std::move(options));
+  const format::Metadata& m = player->clip(0).metadata();
+  const format::Attribute* id = m.find("id");
+  const format::Attribute* velocity = m.find("velocity");
+  ASSERT_TRUE(id && velocity);
+  const double fps = Analytic::fps, start = 5 / fps, end = 20 / fps, speed = 0.3, hz = 144.0;
+  player->set_range(start, end);
+  player->seek(start);
+  player->set_speed(speed);
+  player->play();
+  const auto snapshot = [&] {
+    std::map<std::uint64_t, std::array<float, 6>> out;  // position, velocity
+    for (const auto& b : player->batches()) {
+      for (std::uint64_t i = 0; i < b.count; ++i) {
+        const std::byte* r = b.first.data() + i * b.record_size;
+        std::uint64_t key = 0;
+        std::memcpy(&key, r + id->offset, 8);
+        std::array<float, 6> pv;
+        std::memcpy(pv.data(), r, 12);
+        std::memcpy(pv.data() + 3, r + velocity->offset, 12);
+        out[key] = pv;
+      }
+    }
+    return out;
+  };
+  // Two laps of the range: (end - start + 1/fps) / speed seconds each.
+  const double period = end - start + 1 / fps;
+  const int steps = int(2 * period / speed * hz);
+  double source = start, worst_p = 0, worst_v = 0;
+  int compared = 0, laps = 0;
+  for (int k = 0; k <= steps; ++k) {
+    const double dt = k == 0 ? 0.0 : 1.0 / hz;
+    player->advance(dt, render::identity(), sort::SortMode::None);
+    player->check();
+    source += dt * speed;
+    if (source > end + 0.5 / fps) source -= period, ++laps;
+    EXPECT_NEAR(player->clip(0).time(), source, 1e-9);
+    if (source < start || source > end) continue;  // the loop's seam: the end frame holds
+    const int f = int(std::floor(source * fps + 1e-9));
+    for (const auto& [key, pv] : snapshot()) {
+      const int i = int(key);
+      if (!Analytic::alive(i, f) || !Analytic::alive(i, f + 1)) continue;
+      const auto p = Analytic::at(Motion::Ballistic, i, source), v = Analytic::velocity(Motion::Ballistic, i, source);
+      for (int c = 0; c < 3; ++c) {
+        worst_p = std::max(worst_p, double(std::abs(pv[c] - p[c])));
+        worst_v = std::max(worst_v, double(std::abs(pv[3 + c] - v[c])));
+      }
+      ++compared;
+    }
+  }
+  EXPECT_EQ(laps, 2);
+  EXPECT_GT(compared, 1000);
+  EXPECT_LT(worst_p, 2e-5);
+  EXPECT_LT(worst_v, 2e-4);  // velocities of ~4 units/s
+  std::cout << "retimed (x" << speed << ", " << hz << " Hz, range 5..20, looping): max error position " << worst_p
+            << ", velocity " << worst_v << " over " << compared << " particles\n";
+  // Speed 0 between two cached frames: the frame stays exactly where it is.
+  player->seek(10.4 / fps);
+  player->set_speed(1.0);
+  player->advance(0.0, render::identity(), sort::SortMode::None);
+  player->set_speed(0.0);
+  player->advance(1.0 / hz, render::identity(), sort::SortMode::None);
+  const auto held = snapshot();
+  ASSERT_FALSE(held.empty());
+  for (int k = 0; k < 10; ++k) {
+    player->advance(1.0 / hz, render::identity(), sort::SortMode::None);
+    EXPECT_EQ(snapshot(), held);
+  }
+  EXPECT_NEAR(player->clip(0).time(), 10.4 / fps, 1e-12);
+  EXPECT_GT(player->clip(0).fraction(), 0.3);  // held between frames 10 and 11, interpolated
 }
 
 }  // namespace

@@ -200,6 +200,39 @@ TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
   EXPECT_EQ(probe.output, "12\n");
 }
 
+// Slow motion: `render --speed 0.25` on a 24 fps cache makes four images per cached frame, each
+// interpolated, so no two follow-on images are the same; with --interpolation none they repeat.
+TEST(RenderCommand, SlowMotionRendersInterpolatedImages) {
+  const fs::path dir = test::fresh_dir();
+  cook::Options o;
+  o.input = test::data_path("sims/blender_sparks.abc");
+  o.output = dir / "sparks.pstream";
+  o.attributes = {"velocity", "id"};
+  cook::cook(o);
+  const auto images = [&](const std::string& interpolation) {
+    const fs::path out = dir / interpolation;
+    const auto r = test::run_cli("render -q '" + o.output.string() + "' --out '" + out.string() +
+                                 "' --frames 30:33 --size 160x96 --speed 0.25 --interpolation " + interpolation);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    std::vector<std::vector<std::uint8_t>> frames;
+    for (int k = 0;; ++k) {
+      const fs::path png = out / fmt::format("frame_{:05d}.png", k);
+      if (!fs::exists(png)) break;
+      int w = 0, h = 0;
+      frames.push_back(read_png(png, w, h));
+    }
+    return frames;
+  };
+  const auto smooth = images("hermite");
+  ASSERT_EQ(smooth.size(), 9u);  // 2 cached frame steps at 0.25 speed, 24 images a second, and the last
+  for (std::size_t k = 1; k < smooth.size(); ++k) EXPECT_NE(smooth[k], smooth[k - 1]) << "image " << k;
+  const auto stepped = images("none");
+  ASSERT_EQ(stepped.size(), 9u);
+  std::size_t repeats = 0;
+  for (std::size_t k = 1; k < stepped.size(); ++k) repeats += stepped[k] == stepped[k - 1];
+  EXPECT_GE(repeats, 5u);
+}
+
 // The 50k-particle fixture in 64 KiB chunks (frames straddle chunks), for the viewer's runs.
 cook::Options large_clip(const fs::path& dir) {
   cook::Options o;

@@ -66,6 +66,7 @@ std::string in_cli_terms(std::string message) {
   static const std::pair<const char*, const char*> flags[] = {
       {"`frame_begin`:`frame_end`", "--frames"},
       {"`drop_invalid`", "--drop-invalid"},
+      {"`keep_source_order`", "--keep-order"},
       {"`max_particles`", "--max-particles"},
       {"`max_frames`", "--max-frames"},
       {"`chunk_size`", "--chunk-size"},

@@ -42,7 +42,8 @@ int bench_read(const BenchReadOptions& options);
 struct CookCli {
   std::string input, output, object, scale_from = "widths", color_from = "auto", attributes, chunk_size = "2MiB",
                                      codec = "raw", frames, error = "1e-4";
-  bool merge = false, no_xforms = false, interpolate = false, drop_invalid = false, quiet = false, json = false;
+  bool merge = false, no_xforms = false, interpolate = false, drop_invalid = false, keep_order = false, quiet = false,
+       json = false;
   double fps = 0.0;
   std::uint64_t max_particles = 64ull << 20;
   unsigned threads = 0;
@@ -85,8 +86,8 @@ int bench_playback(const BenchPlaybackOptions& options);
 
 struct RenderCli {
   std::string file, out = "frames", frames, size = "1280x720", camera = "auto", video, blend = "alpha", sort = "back",
-                    texture;
-  double fps = 0.0;
+                    texture, interpolation = "hermite";
+  double fps = 0.0, speed = 1.0;
   float size_multiplier = 1.0f;
   bool quiet = false;
   std::uint64_t max_frames = 100'000;  // more images than this are refused (a mistyped --fps)

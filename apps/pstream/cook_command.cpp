@@ -141,6 +141,7 @@ int run_cook(const CookCli& cli) {
   o.particle.keyframe_interval = cli.keyframe_interval;
   if (!cli.frames.empty()) parse_frames(cli.frames, o);
   o.drop_invalid = cli.drop_invalid;
+  o.keep_source_order = cli.keep_order;
   o.max_particles = cli.max_particles;
   o.threads = cli.threads;
   o.max_frames = cli.max_frames;

@@ -97,6 +97,10 @@ int main(int argc, char** argv) {
       ->capture_default_str()
       ->check(CLI::Range(1, 1024));
   cook_cmd->add_option("--frames", cook.frames, "Output frames A:B (from A up to but not including B)");
+  cook_cmd->add_flag("--keep-order", cook.keep_order,
+                     "Keep each frame's particles in the source's order (records codec). By default a clip with "
+                     "ids is written in ascending id order, so players match particles between frames by a "
+                     "linear merge and interpolate them");
   cook_cmd->add_flag("--drop-invalid", cook.drop_invalid,
                      "Drop particles with NaN or infinite positions instead of failing");
   cook_cmd->add_option("--max-particles", cook.max_particles, "Largest particle count a frame may have")
@@ -238,7 +242,8 @@ int main(int argc, char** argv) {
       "Examples:\n"
       "  pstream render splash.pstream --out frames\n"
       "  pstream render splash.pstream --out frames --frames 0:48 --size 1920x1080 --video splash.mp4\n"
-      "  pstream render fx.pstream --out f --camera 4,3,6:0,1,0 --blend additive");
+      "  pstream render fx.pstream --out f --camera 4,3,6:0,1,0 --blend additive\n"
+      "  pstream render fx.pstream --out slow --fps 120 --speed 0.25   (slow motion, every image interpolated)");
   render_cmd->add_option("file", render_cli.file, "A .pstream file")->required()->check(CLI::ExistingFile);
   render_cmd->add_option("--out", render_cli.out, "Folder for frame_NNNNN.png")->capture_default_str();
   render_cmd->add_option("--frames", render_cli.frames, "Clip frames A:B (from A up to but not including B)");
@@ -246,6 +251,17 @@ int main(int argc, char** argv) {
   render_cmd->add_option("--camera", render_cli.camera, "auto (frame the clip's bounds) or x,y,z:tx,ty,tz")
       ->capture_default_str();
   render_cmd->add_option("--fps", render_cli.fps, "Output frame rate (default: the clip's)")->check(positive_number());
+  render_cmd
+      ->add_option("--speed", render_cli.speed,
+                   "Clip seconds per output second: 0.25 renders slow motion, each image interpolated "
+                   "between the cached frames")
+      ->capture_default_str()
+      ->check(positive_number());
+  render_cmd
+      ->add_option("--interpolation", render_cli.interpolation,
+                   "Images between cached frames: hermite (along velocities), linear, or none (the nearest frame)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"hermite", "linear", "none"}));
   render_cmd->add_option("--max-frames", render_cli.max_frames, "Largest number of images a render may write")
       ->capture_default_str();
   render_cmd->add_option("--video", render_cli.video, "Also write an MP4 through ffmpeg");

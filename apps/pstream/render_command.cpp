@@ -62,6 +62,9 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   playback::PlayerOptions options;
   options.stream.blocking = true;  // offline: wait for every frame instead of skipping
   options.loop = false;
+  options.interpolation = cli.interpolation == "none"     ? playback::Interpolation::None
+                          : cli.interpolation == "linear" ? playback::Interpolation::Linear
+                                                          : playback::Interpolation::Hermite;
   const std::filesystem::path files[] = {cli.file};
   const auto player = playback::Player::open(files, std::move(options));
   const format::Metadata& m = player->clip(0).metadata();
@@ -79,12 +82,12 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   const double fps = cli.fps > 0 ? cli.fps : m.fps;
   const double t0 = m.frames[std::size_t(first)].time, t1 = m.frames[std::size_t(last - 1)].time;
   // Kept as a double until it is known to be in range (times are validated finite and increasing).
-  const double images = std::floor((t1 - t0) * fps + 1e-6) + 1;
+  const double images = std::floor((t1 - t0) / cli.speed * fps + 1e-6) + 1;
   if (!(images <= double(cli.max_frames))) {
     throw Error(
         fmt::format("{}: rendering {:g} s at {:g} fps makes {:.0f} images, more than --max-frames {}; "
                     "choose a lower --fps or --frames, or raise --max-frames",
-                    cli.file, t1 - t0, fps, images, cli.max_frames));
+                    cli.file, (t1 - t0) / cli.speed, fps, images, cli.max_frames));
   }
   const auto outputs = static_cast<std::uint64_t>(images);
 
@@ -105,7 +108,9 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
                                                     : sort::SortMode::BackToFront;
 
   if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
+  player->set_range(t0, t1);
   player->seek(t0);
+  player->set_speed(cli.speed);
   player->play();
   ProgressBar bar("render", !cli.quiet);
   for (std::uint64_t k = 0; k < outputs; ++k) {

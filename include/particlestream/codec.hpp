@@ -128,6 +128,28 @@ FramePacket frame_packet(const Metadata& meta, std::uint64_t frame);
 // The keyframe at or before `frame`: decoding frame f costs f - keyframe_of(f) extra decodes.
 std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame);
 
+// ---- Matching --------------------------------------------------------------------------------
+
+// Which particles of a frame are the same particles as in the frame before it, as runs walked
+// with i (previous frame) and j (this frame) from 0: `keep` particles pair up one to one
+// (previous i+t with this j+t), then `drop` particles of the previous frame end, then `insert`
+// particles of this frame begin. The runs cover both frames exactly. The particle codec's
+// operations are such runs (frames ordered by id or matched, not source order); for other clips
+// with ascending ids, match_by_id() makes them. Interpolating players blend kept particles and let
+// dropped ones die and inserted ones be born (docs/playback.md).
+struct MatchRun {
+  std::uint32_t keep = 0, drop = 0, insert = 0;
+};
+// What decode() and match_by_id() return when they give no matching.
+constexpr std::size_t kNoMatching = SIZE_MAX;
+
+// The runs pairing `prev` (prev_count records) with `cur` (cur_count records) by the uint64 or
+// uint32 attribute named `id` of `meta`'s layout, written to `out`. Returns how many, or
+// kNoMatching when the layout has no id, a frame's ids do not strictly ascend, or the runs do not
+// fit `out`. One linear merge, no allocation.
+std::size_t match_by_id(const Metadata& meta, std::span<const std::byte> prev, std::uint64_t prev_count,
+                        std::span<const std::byte> cur, std::uint64_t cur_count, std::span<MatchRun> out);
+
 // Decodes a clip's frames in order. decode() takes a keyframe at any time; any other frame must
 // directly follow the last one decoded (its reference). Errors name the file, the frame, the
 // attribute and the offset in the packet; nothing is ever written outside `out`.
@@ -140,7 +162,12 @@ class FrameDecoder {
   FrameDecoder& operator=(const FrameDecoder&) = delete;
 
   // `packet` is the frame's bytes from the chunked stream; `out` receives count × record_size bytes.
-  void decode(std::uint64_t frame, std::span<const std::byte> packet, std::span<std::byte> out);
+  // When the codec knows which particles continue from the frame before (a predicted frame of a
+  // particle clip ordered by id or matched), it writes that matching to `matching` and returns the
+  // number of runs; otherwise (a keyframe, the records codec, source order, or more runs than
+  // `matching` holds) kNoMatching.
+  std::size_t decode(std::uint64_t frame, std::span<const std::byte> packet, std::span<std::byte> out,
+                     std::span<MatchRun> matching = {});
   // Whether decode(frame) can run now (a keyframe, or the successor of the last decoded frame).
   bool can_decode(std::uint64_t frame) const;
   void reset();  // forget the reference (after a seek)

@@ -39,6 +39,10 @@ struct Options {
   int codec_level = 0;                           // zstd level (default 3 when 0), lz4: 0 fast, > 0 HC
   std::int64_t frame_begin = 0, frame_end = -1;  // output frames [begin, end); -1: to the end
   bool drop_invalid = false;                     // drop NaN/Inf positions instead of failing
+  // Records codec: frames with ids are written in ascending id order (so that players match
+  // particles across frames by a linear merge) unless this keeps the source's order. The particle
+  // codec orders frames itself (by id, matched, or source order in lossless mode).
+  bool keep_source_order = false;
   std::uint64_t max_particles = 64ull << 20;     // per frame; a larger frame is refused before it is read
   std::uint64_t max_frames = kDefaultMaxFrames;  // a plan of more output frames is refused (a wrong fps?)
   unsigned threads = 0;                          // chunk encoders; 0: one per core

@@ -56,6 +56,9 @@ struct FrameStats {
   double interpolate_ms = 0.0;  // blending two cached frames (when between them)
   std::uint64_t particles = 0;
   std::size_t failed_clips = 0;  // clips in the Error state (they draw nothing; check() throws their error)
+  // Clips between two frames whose particles the stream could not match (no ids and no codec
+  // matching, or too many changes): they show the nearer frame moved along its velocities.
+  std::size_t unmatched_clips = 0;
 };
 
 class Player {
@@ -74,13 +77,17 @@ class Player {
   void set_world_transform(std::size_t i, const render::Mat4& world);
   const render::Mat4& world_transform(std::size_t i) const;
 
-  // The playhead of every clip together.
+  // The playhead of every clip together (clip times, seconds). Retiming: `speed` scales the host
+  // clock (0 holds the current, possibly in-between, moment; 0.25 is slow motion, interpolated
+  // at any host rate; negative speeds are not supported and count as 0); play stays within
+  // [start, end] of set_range, and at its end either loops to its start or holds its last frame.
   void play();
   void pause();
   void stop();
   void seek(double time);
   void set_speed(double speed);
   void set_loop(bool loop);
+  void set_range(double start, double end);
 
   // One host frame: advances every clip by `dt` seconds and prepares its records for drawing,
   // sorted for the camera `view` (world -> view) as `mode` asks (None: stored order; use it for

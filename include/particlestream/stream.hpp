@@ -19,6 +19,7 @@
 #include <thread>
 #include <vector>
 
+#include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::stream {
@@ -99,7 +100,7 @@ struct StreamOptions {
   unsigned max_loads_in_flight = 1;
   // Decoded frames held: the current one, the next, and room to decode ahead (at least 2).
   std::size_t decoded_frames = 3;
-  bool blocking = false;                   // update() waits for data instead of stalling
+  bool blocking = false;  // update() waits for data instead of stalling
   // Hold the frame at or before the playhead and the one after it (next_frame(), fraction()) for
   // interpolation, instead of the nearest frame alone.
   bool interpolate = false;
@@ -114,6 +115,11 @@ struct FrameView {
   double time = 0.0;                         // the frame's time, seconds
   std::span<const std::byte> first, second;  // the records (decoded frames are contiguous: second is empty)
   bool valid = false;                        // false until the first frame is ready
+  // With StreamOptions::interpolate: which particles continue from the frame before (frame - 1)
+  // when that is known (format::MatchRun: from the particle codec, or by id), for next_frame()'s
+  // interpolation. `matched` false: nothing is known (a keyframe without ids, say).
+  std::span<const format::MatchRun> matching;
+  bool matched = false;
   std::uint64_t bytes() const { return first.size() + second.size(); }
 };
 

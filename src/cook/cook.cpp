@@ -190,6 +190,29 @@ void pack_record(const ParticleFrame& f, const Plan& plan, std::uint64_t i, std:
   }
 }
 
+// With ids, a frame is written in ascending id order (a stable sort when the source's is not), so
+// that a player matches particles across frames by one linear merge (format::match_by_id).
+void order_by_id(ParticleFrame& f, const Plan& plan) {
+  if (!plan.request.id || f.id.size() < f.count) return;
+  const auto ids = std::span(f.id).first(f.count);
+  if (std::is_sorted(ids.begin(), ids.end())) return;
+  std::vector<std::uint64_t> order(f.count);
+  for (std::uint64_t i = 0; i < f.count; ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](std::uint64_t a, std::uint64_t b) { return ids[a] < ids[b]; });
+  const auto permute = [&](auto& v, std::size_t k) {
+    if (v.size() < f.count * k) return;
+    auto copy = v;
+    for (std::uint64_t i = 0; i < f.count; ++i)
+      std::copy_n(copy.begin() + std::ptrdiff_t(order[i] * k), k, v.begin() + std::ptrdiff_t(i * k));
+  };
+  permute(f.position, 3);
+  permute(f.scale, 1);
+  if (plan.request.color) permute(f.color, 4);
+  if (plan.request.velocity) permute(f.velocity, 3);
+  permute(f.id, 1);
+  for (std::size_t e = 0; e < f.extra.size(); ++e) permute(f.extra[e], plan.floats[e]->components);
+}
+
 // Every attribute size is a multiple of 4 and records are packed without gaps, so every byte of a
 // record is written and the output is deterministic.
 void pack(const ParticleFrame& f, const Plan& plan, ChunkCutter& out) {
@@ -443,14 +466,15 @@ std::string describe_settings(const Options& o, std::uint64_t content_hash) {
                                                             : "attr";
   return fmt::format(
       "source={} source_xxh3={:016x} object={} merge={} bake_xforms={} fps={:g} interpolate={} scale_from={}{} "
-      "color_from={} attributes={} chunk_size={} codec={} frames={}:{} drop_invalid={}",
+      "color_from={} attributes={} chunk_size={} codec={} frames={}:{} drop_invalid={} keep_source_order={}",
       o.input.filename().string(), content_hash, o.object.empty() ? "auto" : o.object, int(o.merge), int(o.bake_xforms),
       o.fps, int(o.interpolate), scale,
       o.scale_from == ScaleFrom::Constant    ? fmt::format(":{:g}", o.scale_constant)
       : o.scale_from == ScaleFrom::Attribute ? ":" + o.scale_attribute
                                              : std::string(),
       o.color_from, attributes.empty() ? "none" : attributes, o.chunk_size, codec_setting(o), o.frame_begin,
-      o.frame_end < 0 ? std::string("end") : std::to_string(o.frame_end), int(o.drop_invalid));
+      o.frame_end < 0 ? std::string("end") : std::to_string(o.frame_end), int(o.drop_invalid),
+      int(o.keep_source_order));
 }
 
 Report cook(const Options& options, const std::function<void(const Progress&)>& progress) {
@@ -560,6 +584,7 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
       }
     }
     const std::array<float, 6> bounds = read(index, frame);
+    if (!options.keep_source_order) order_by_id(frame, plan);
     writer.append_frame(frame.count, time, bounds);
     pack(frame, plan, cutter);
     report.particles += frame.count;

@@ -1,6 +1,7 @@
 // A frame codec's decoding half: a pluggable unit that keeps its own reference state. Units are
 // made by FrameDecoder from the clip's metadata (its layout and CodecInfo); decode() sees the
-// frame's index, whether it is a keyframe, its packet and the output records.
+// frame's index, whether it is a keyframe, its packet and the output records, and hands back the
+// matching to the frame before when it has one.
 #pragma once
 
 #include <cstdint>
@@ -17,8 +18,9 @@ class FrameUnit {
   virtual ~FrameUnit() = default;
   // Decodes frame `frame` (the successor of the last one, unless `keyframe`) into `out`
   // (count × record_size bytes). Throws pstream::Error naming the frame and the offset.
-  virtual void decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet,
-                      std::span<std::byte> out) = 0;
+  // Returns the runs it wrote to `matching` (codec.hpp), or kNoMatching.
+  virtual std::size_t decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet,
+                             std::span<std::byte> out, std::span<MatchRun> matching) = 0;
   virtual void reset() = 0;
   virtual std::uint64_t state_bytes() const = 0;
 };

@@ -173,8 +173,8 @@ class ParticleUnit final : public FrameUnit {
     return bytes;
   }
 
-  void decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet,
-              std::span<std::byte> out) override {
+  std::size_t decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet, std::span<std::byte> out,
+                     std::span<MatchRun> matching) override {
     const Body b = parse(frame, keyframe, packet);
     const int prev = cur_ ^ 1;
     const std::uint64_t n = meta_.max_count;
@@ -229,6 +229,12 @@ class ParticleUnit final : public FrameUnit {
     write_records(b.count, out);
     count_[cur_] = b.count;
     cur_ ^= 1;
+    // The operations pair survivors with the particles they continue (in id or matched order;
+    // in source order particle i is only predicted from particle i, which may be another one).
+    if (b.keyframe || meta_.codec.order == FrameOrder::Source || b.op_count > matching.size()) return kNoMatching;
+    static_assert(sizeof(Op) == sizeof(MatchRun));
+    if (b.op_count != 0) std::memcpy(matching.data(), b.ops, std::size_t(b.op_count) * kOpSize);
+    return b.op_count;
   }
 
  private:

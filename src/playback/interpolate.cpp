@@ -7,6 +7,9 @@
 namespace pstream::playback {
 namespace {
 
+// What a lane (a 4-byte word of a record) is.
+enum Lane : std::uint8_t { kCopy, kLerp, kPosition, kVelocity };
+
 float load(const std::byte* p) {
   float v;
   std::memcpy(&v, p, 4);
@@ -14,149 +17,118 @@ float load(const std::byte* p) {
 }
 void store(std::byte* p, float v) { std::memcpy(p, &v, 4); }
 
-std::uint64_t id_of(const RecordFields& f, const std::byte* record) {
-  if (f.id64) {
-    std::uint64_t v;
-    std::memcpy(&v, record + f.id, 8);
-    return v;
+}  // namespace
+
+FrameBlender::FrameBlender(const format::Metadata& m) : stride_(m.record_size) {
+  const std::size_t words = stride_ / 4;  // records are whole words (format.md)
+  kind_.assign(words, kCopy);
+  for (std::size_t w = 0; w < 3; ++w) kind_[w] = kPosition;
+  for (const format::Attribute& a : m.layout) {
+    if (a.name == "position") continue;
+    if (a.name == "velocity" && a.type == format::AttributeType::Float32 && a.components == 3) {
+      velocity_ = std::int32_t(a.offset);
+      for (std::size_t c = 0; c < 3; ++c) kind_[a.offset / 4 + c] = kVelocity;
+    } else if (a.name == "color" && a.type == format::AttributeType::Unorm8 && a.components == 4) {
+      color_ = std::int32_t(a.offset);
+    } else if (a.type == format::AttributeType::Float32) {
+      for (std::size_t c = 0; c < a.components; ++c) kind_[a.offset / 4 + c] = kLerp;  // scale and any float
+    }
   }
-  std::uint32_t v;
-  std::memcpy(&v, record + f.id, 4);
-  return v;
+  plan_.words = words;
+  plan_.shift = velocity_ >= 0 ? std::size_t(velocity_) / 4 : 0;
+  plan_.period = words * LanePlan::kMaxVectorLanes;
+  for (auto* v : {&plan_.sa, &plan_.sb, &plan_.pa, &plan_.pb, &plan_.ma, &plan_.mb}) v->assign(plan_.period, 0.0f);
+  for (auto* v : {&plan_.copy, &plan_.plus, &plan_.minus}) v->assign(plan_.period, 0u);
+}
+
+void FrameBlender::set_fraction(double t, double dt, bool hermite) {
+  if (t == plan_t_ && dt == plan_dt_ && hermite == plan_hermite_) return;
+  plan_t_ = t, plan_dt_ = dt, plan_hermite_ = hermite;
+  const double t2 = t * t, t3 = t2 * t;
+  // The cubic Hermite basis (tangents are velocity x dt) and its derivative over time.
+  const double h00 = 2 * t3 - 3 * t2 + 1, h10 = (t3 - 2 * t2 + t) * dt, h01 = -2 * t3 + 3 * t2, h11 = (t3 - t2) * dt;
+  const double d00 = (6 * t2 - 6 * t) / dt, d10 = 3 * t2 - 4 * t + 1, d01 = (6 * t - 6 * t2) / dt, d11 = 3 * t2 - 2 * t;
+  LanePlan& p = plan_;
+  for (std::size_t k = 0; k < p.period; ++k) {
+    Lane kind = Lane(kind_[k % p.words]);
+    if (!hermite && (kind == kPosition || kind == kVelocity)) kind = kLerp;
+    p.sa[k] = p.sb[k] = p.pa[k] = p.pb[k] = p.ma[k] = p.mb[k] = 0.0f;
+    p.copy[k] = p.plus[k] = p.minus[k] = 0;
+    switch (kind) {
+      case kCopy: p.copy[k] = ~0u; break;
+      case kLerp: p.sa[k] = float(1.0 - t), p.sb[k] = float(t); break;
+      case kPosition:
+        p.sa[k] = float(h00), p.sb[k] = float(h01), p.pa[k] = float(h10), p.pb[k] = float(h11), p.plus[k] = ~0u;
+        break;
+      case kVelocity:
+        p.sa[k] = float(d10), p.sb[k] = float(d11), p.ma[k] = float(d00), p.mb[k] = float(d01), p.minus[k] = ~0u;
+        break;
+    }
+  }
 }
 
 // Moves a record's position by its velocity times `seconds` and scales its size by `grow`.
-void advect(const RecordFields& f, std::byte* r, double seconds, float grow) {
-  if (f.velocity >= 0) {
-    for (int c = 0; c < 3; ++c) store(r + 4 * c, float(load(r + 4 * c) + seconds * load(r + f.velocity + 4 * c)));
+void FrameBlender::advect(std::byte* r, double seconds, float grow) const {
+  if (velocity_ >= 0) {
+    for (int c = 0; c < 3; ++c) store(r + 4 * c, float(load(r + 4 * c) + seconds * load(r + velocity_ + 4 * c)));
   }
   store(r + 12, load(r + 12) * grow);
 }
 
-// The Hermite basis at t, computed once per frame pair.
-struct Basis {
-  float t, h00, h10, h01, h11;
-  explicit Basis(double t_, double dt) : t(float(t_)) {
-    const double t2 = t_ * t_, t3 = t2 * t_;
-    h00 = float(2 * t3 - 3 * t2 + 1);
-    h10 = float((t3 - 2 * t2 + t_) * dt);  // the tangents are velocities x dt
-    h01 = float(-2 * t3 + 3 * t2);
-    h11 = float((t3 - t2) * dt);
-  }
-};
-
-void blend(const RecordFields& f, const std::byte* a, const std::byte* b, const Basis& k, bool hermite,
-           std::byte* out) {
-  std::memcpy(out, a, f.stride);
-  float pa[3], pb[3], p[3];
-  std::memcpy(pa, a, 12);
-  std::memcpy(pb, b, 12);
-  if (hermite) {
-    float va[3], vb[3];
-    std::memcpy(va, a + f.velocity, 12);
-    std::memcpy(vb, b + f.velocity, 12);
-    for (int c = 0; c < 3; ++c) p[c] = k.h00 * pa[c] + k.h10 * va[c] + k.h01 * pb[c] + k.h11 * vb[c];
-  } else {
-    for (int c = 0; c < 3; ++c) p[c] = pa[c] + (pb[c] - pa[c]) * k.t;
-  }
-  std::memcpy(out, p, 12);
-  for (const auto& fl : f.floats) {
-    for (std::uint32_t c = 0; c < fl.count; ++c) {
-      const std::uint32_t o = fl.offset + 4 * c;
-      const float x = load(a + o);
-      store(out + o, x + (load(b + o) - x) * k.t);
-    }
-  }
-  if (f.color >= 0) {
-    for (int c = 0; c < 4; ++c) {
-      const auto ca = static_cast<float>(std::to_integer<int>(a[f.color + c]));
-      const auto cb = static_cast<float>(std::to_integer<int>(b[f.color + c]));
-      out[f.color + c] = static_cast<std::byte>(int(ca + (cb - ca) * k.t + 0.5f));
+void FrameBlender::blend_colors(const std::byte* a, const std::byte* b, std::size_t records, float t,
+                                std::byte* out) const {
+  for (std::size_t i = 0; i < records; ++i) {
+    const std::size_t o = i * stride_ + std::size_t(color_);
+    for (std::size_t c = 0; c < 4; ++c) {
+      const auto ca = static_cast<float>(std::to_integer<int>(a[o + c]));
+      const auto cb = static_cast<float>(std::to_integer<int>(b[o + c]));
+      out[o + c] = static_cast<std::byte>(int(ca + (cb - ca) * t + 0.5f));
     }
   }
 }
-
-}  // namespace
-
-RecordFields RecordFields::of(const format::Metadata& m) {
-  RecordFields f;
-  f.stride = m.record_size;
-  for (const format::Attribute& a : m.layout) {
-    if (a.name == "position") continue;
-    if (a.name == "velocity" && a.type == format::AttributeType::Float32 && a.components == 3) {
-      f.velocity = std::int32_t(a.offset);
-      f.floats.push_back({a.offset, 3});  // blended linearly too
-    } else if (a.name == "id" && (a.type == format::AttributeType::Uint64 || a.type == format::AttributeType::Uint32)) {
-      f.id = std::int32_t(a.offset);
-      f.id64 = a.type == format::AttributeType::Uint64;
-    } else if (a.name == "color" && a.type == format::AttributeType::Unorm8 && a.components == 4) {
-      f.color = std::int32_t(a.offset);
-    } else if (a.type == format::AttributeType::Float32) {
-      f.floats.push_back({a.offset, a.components});  // scale and any float attribute
-    }
-  }
-  return f;
-}
-
-namespace {
 
 // No matching: the nearer frame, moved along its velocities to the playhead.
-std::uint64_t nearer_advected(const RecordFields& f, std::span<const std::byte> a, std::uint64_t na,
-                              std::span<const std::byte> b, std::uint64_t nb, double t, double dt, std::byte* out) {
+std::uint64_t FrameBlender::nearer_advected(std::span<const std::byte> a, std::uint64_t na,
+                                            std::span<const std::byte> b, std::uint64_t nb, double t, double dt,
+                                            std::byte* out) const {
   const bool first = t < 0.5;
   const std::span<const std::byte> from = first ? a : b;
   const std::uint64_t n = first ? na : nb;
-  std::memcpy(out, from.data(), n * f.stride);
-  if (f.velocity >= 0) {
-    for (std::uint64_t i = 0; i < n; ++i) advect(f, out + i * f.stride, first ? t * dt : -(1.0 - t) * dt, 1.0f);
+  std::memcpy(out, from.data(), n * stride_);
+  if (velocity_ >= 0) {
+    for (std::uint64_t i = 0; i < n; ++i) advect(out + i * stride_, first ? t * dt : -(1.0 - t) * dt, 1.0f);
   }
   return n;
 }
 
-}  // namespace
-
-std::uint64_t interpolate_frames(const RecordFields& f, std::span<const std::byte> a, std::uint64_t na,
-                                 std::span<const std::byte> b, std::uint64_t nb, double t, double dt,
-                                 Interpolation mode, std::byte* out) {
-  const std::size_t stride = f.stride;
-  if (f.id < 0) return nearer_advected(f, a, na, b, nb, t, dt, out);
-  const Basis basis(t, dt);
-  const bool hermite = mode == Interpolation::Hermite && f.velocity >= 0;
-  // One pass: the merge also checks that the ids ascend (a separate check would read both frames
-  // once more); when they do not, the frames cannot be matched this way.
+std::uint64_t FrameBlender::blend(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b,
+                                  std::uint64_t nb, const std::span<const format::MatchRun>* matching, double t,
+                                  double dt, Interpolation mode, std::byte* out) {
+  if (matching == nullptr) return nearer_advected(a, na, b, nb, t, dt, out);
+  // The runs must cover both frames exactly (the stream's are; a caller's might not be).
+  std::uint64_t covers_a = 0, covers_b = 0;
+  for (const format::MatchRun& r : *matching)
+    covers_a += std::uint64_t(r.keep) + r.drop, covers_b += std::uint64_t(r.keep) + r.insert;
+  if (covers_a != na || covers_b != nb) return nearer_advected(a, na, b, nb, t, dt, out);
+  set_fraction(t, dt, mode == Interpolation::Hermite && velocity_ >= 0);
+  const std::size_t stride = stride_;
+  const std::byte* pa = a.data();
+  const std::byte* pb = b.data();
   std::uint64_t i = 0, j = 0, n = 0;
-  std::uint64_t ia = na ? id_of(f, a.data()) : UINT64_MAX, ib = nb ? id_of(f, b.data()) : UINT64_MAX;
-  const auto next_a = [&] {
-    ++i;
-    const std::uint64_t id = i < na ? id_of(f, a.data() + i * stride) : UINT64_MAX;
-    const bool ascending = id > ia || (i >= na);
-    ia = id;
-    return ascending;
-  };
-  const auto next_b = [&] {
-    ++j;
-    const std::uint64_t id = j < nb ? id_of(f, b.data() + j * stride) : UINT64_MAX;
-    const bool ascending = id > ib || (j >= nb);
-    ib = id;
-    return ascending;
-  };
-  while (i < na || j < nb) {
-    std::byte* o = out + n * stride;
-    bool ascending = true;
-    if (i < na && j < nb && ia == ib) {
-      blend(f, a.data() + i * stride, b.data() + j * stride, basis, hermite, o);
-      ascending = next_a() && next_b();
-    } else if (j >= nb || (i < na && ia < ib)) {  // dies before b: goes on, shrinking out
-      std::memcpy(o, a.data() + i * stride, stride);
-      advect(f, o, t * dt, float(1.0 - t));
-      ascending = next_a();
-    } else {  // born after a: comes in, growing
-      std::memcpy(o, b.data() + j * stride, stride);
-      advect(f, o, -(1.0 - t) * dt, float(t));
-      ascending = next_b();
+  for (const format::MatchRun& r : *matching) {
+    if (r.keep != 0) {  // the same particles in both frames, in the same order: one kernel
+      blend_matched(plan_, pa + i * stride, pb + j * stride, r.keep, out + n * stride);
+      if (color_ >= 0) blend_colors(pa + i * stride, pb + j * stride, r.keep, float(t), out + n * stride);
+      i += r.keep, j += r.keep, n += r.keep;
     }
-    ++n;
-    if (!ascending) return nearer_advected(f, a, na, b, nb, t, dt, out);
+    for (std::uint32_t k = 0; k < r.drop; ++k, ++i, ++n) {  // dies before b: goes on, shrinking out
+      std::memcpy(out + n * stride, pa + i * stride, stride);
+      advect(out + n * stride, t * dt, float(1.0 - t));
+    }
+    for (std::uint32_t k = 0; k < r.insert; ++k, ++j, ++n) {  // born after a: comes in, growing
+      std::memcpy(out + n * stride, pb + j * stride, stride);
+      advect(out + n * stride, -(1.0 - t) * dt, float(t));
+    }
   }
   return n;
 }

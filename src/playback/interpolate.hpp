@@ -6,36 +6,70 @@
 #include <span>
 #include <vector>
 
+#include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
 
 namespace pstream::playback {
 
-// Where the fields interpolation needs are in a record, from the clip's layout.
-struct RecordFields {
-  std::uint32_t stride = 16;
-  std::int32_t velocity = -1;  // float32 x3
-  std::int32_t id = -1;        // uint64 or uint32
-  bool id64 = true;
-  std::int32_t color = -1;  // unorm8 x4
-  struct Floats {
-    std::uint32_t offset, count;
-  };
-  std::vector<Floats> floats;  // every other float32 attribute, blended linearly (scale included)
-  static RecordFields of(const format::Metadata& m);
+// How each 4-byte word ("lane") of a matched particle's record is made from that particle's
+// records `a` and `b` in the two frames. A lane is either copied from `a` (ids, colours, other
+// integers) or is the weighted sum
+//   sa*a[w] + sb*b[w] + pa*a[w+shift] + pb*b[w+shift] + ma*a[w-shift] + mb*b[w-shift]
+// where `shift` is the distance from position to velocity in words: a position lane reaches its
+// velocity (the Hermite tangents), a velocity lane its position (the curve's derivative). The
+// coefficients depend only on the fraction, so they are set once per frame pair; the tables repeat
+// every `period` words (a whole number of records and of SIMD vectors), so one vector loop runs
+// over a whole run of matched records as if it were one array of floats.
+struct LanePlan {
+  static constexpr std::size_t kMaxVectorLanes = 16;  // AVX-512 floats; the period fits any target
+  std::size_t words = 0;                              // per record
+  std::size_t shift = 0;                              // velocity offset - position offset, in words (0: none)
+  std::size_t period = 0;                             // words * kMaxVectorLanes
+  std::vector<float> sa, sb, pa, pb, ma, mb;          // `period` entries each
+  std::vector<std::uint32_t> copy, plus, minus;       // all ones where a lane copies / uses [+shift] / [-shift]
 };
 
-// The particles at `t` (0..1) of the way from frame `a` (na records) to frame `b` (nb records),
-// `dt` seconds apart, written to `out` (room for na + nb records). Returns how many.
-// - Ids in both frames, ascending: matched by a linear merge. A particle in both moves along the
-//   cubic Hermite curve of its positions and velocities (`mode` Hermite, velocities present) or
-//   the straight line; other floats and colours blend linearly. One only in `a` dies: it goes on
-//   along its velocity and shrinks to nothing by `b`. One only in `b` is born: it comes in along
-//   its velocity from where it would have been, growing from nothing.
-// - No ids (or not ascending): the nearer frame, moved along its velocities to `t` when the clip
-//   has velocities, as it is otherwise.
-std::uint64_t interpolate_frames(const RecordFields& fields, std::span<const std::byte> a, std::uint64_t na,
-                                 std::span<const std::byte> b, std::uint64_t nb, double t, double dt,
-                                 Interpolation mode, std::byte* out);
+// Blends `records` matched records (`a` and `b` hold them in the same order, `out` receives them)
+// lane by lane as `plan` says (SIMD: Highway, the best target chosen at run time). Colours are not
+// touched (copied from `a` as every copy lane is): the caller blends them.
+void blend_matched(const LanePlan& plan, const std::byte* a, const std::byte* b, std::size_t records, std::byte* out);
+
+// Interpolates a clip's frames: built once when the clip opens (every table allocated then), used
+// every host frame between two cached frames with no allocation.
+class FrameBlender {
+ public:
+  explicit FrameBlender(const format::Metadata& meta);
+
+  // The particles at `t` (0..1) of the way from frame `a` (na records) to frame `b` (nb records),
+  // `dt` seconds apart, written to `out` (room for na + nb records). Returns how many.
+  // - With `matching` (the runs pairing b's particles with a's, codec.hpp): a particle in both
+  //   moves along the cubic Hermite curve of its positions and velocities (`mode` Hermite,
+  //   velocities present) and its velocity becomes the curve's derivative, or it moves along the
+  //   straight line; other floats and colours blend linearly, ids and other integers are a's. One
+  //   only in `a` dies: it goes on along its velocity and shrinks to nothing by `b`. One only in
+  //   `b` is born: it comes in along its velocity from where it would have been, growing from
+  //   nothing.
+  // - Without (or with runs that do not cover both frames): the nearer frame, moved along its
+  //   velocities to `t` when the clip has velocities, as it is otherwise.
+  std::uint64_t blend(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b, std::uint64_t nb,
+                      const std::span<const format::MatchRun>* matching, double t, double dt, Interpolation mode,
+                      std::byte* out);
+
+ private:
+  void set_fraction(double t, double dt, bool hermite);
+  std::uint64_t nearer_advected(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b,
+                                std::uint64_t nb, double t, double dt, std::byte* out) const;
+  void advect(std::byte* record, double seconds, float grow) const;
+  void blend_colors(const std::byte* a, const std::byte* b, std::size_t records, float t, std::byte* out) const;
+
+  std::uint32_t stride_ = 16;
+  std::int32_t velocity_ = -1;      // float32 x3
+  std::int32_t color_ = -1;         // unorm8 x4
+  std::vector<std::uint8_t> kind_;  // per word of a record: what its lane is (interpolate.cpp)
+  LanePlan plan_;
+  double plan_t_ = -1.0, plan_dt_ = 0.0;
+  bool plan_hermite_ = false;
+};
 
 }  // namespace pstream::playback

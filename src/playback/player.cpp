@@ -19,8 +19,8 @@ struct Player::Clip {
   std::unique_ptr<sort::DepthSorter> sorter;
   std::int32_t color_offset = -1;
   render::Mat4 world = render::identity();
-  RecordFields fields;
-  std::vector<std::byte> blended;  // an interpolated frame: up to both frames' particles
+  std::unique_ptr<FrameBlender> blender;  // with interpolation
+  std::vector<std::byte> blended;         // an interpolated frame: up to both frames' particles
 };
 
 Player::~Player() = default;
@@ -45,8 +45,10 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     const format::Metadata& m = c.stream->metadata();
     const std::uint64_t most = options.interpolation != Interpolation::None ? 2 * m.max_count : m.max_count;
     c.sorter = std::make_unique<sort::DepthSorter>(most, options.sorter);
-    c.fields = RecordFields::of(m);
-    if (options.interpolation != Interpolation::None) c.blended.resize(most * m.record_size);
+    if (options.interpolation != Interpolation::None) {
+      c.blender = std::make_unique<FrameBlender>(m);
+      c.blended.resize(most * m.record_size);
+    }
     if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
     c.stream->set_loop(options.loop);
     total += most;
@@ -84,6 +86,9 @@ void Player::set_speed(double speed) {
 void Player::set_loop(bool loop) {
   for (auto& c : clips_) c.stream->set_loop(loop);
 }
+void Player::set_range(double start, double end) {
+  for (auto& c : clips_) c.stream->set_range(start, end);
+}
 
 std::uint64_t Player::max_frame_bytes() const {
   std::uint64_t total = 0;
@@ -118,9 +123,12 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
     if (interpolation_ != Interpolation::None && c.stream->fraction() > 0.0) {
       const stream::FrameView next = c.stream->next_frame();
       if (next.valid && f.valid) {
+        // The stream matched the next frame's particles to this one's (by the codec or by id).
+        const bool matched = next.matched && next.frame == f.frame + 1;
+        if (!matched) ++stats_.unmatched_clips;
         const std::uint64_t n =
-            interpolate_frames(c.fields, b.first, f.count, next.first, next.count, c.stream->fraction(),
-                               next.time - f.time, interpolation_, c.blended.data());
+            c.blender->blend(b.first, f.count, next.first, next.count, matched ? &next.matching : nullptr,
+                             c.stream->fraction(), next.time - f.time, interpolation_, c.blended.data());
         b.first = std::span<const std::byte>(c.blended).first(n * m.record_size);
         b.count = n;
         const auto t2 = Clock::now();

@@ -48,6 +48,9 @@ struct FrameSlot {
   enum State : std::uint8_t { Empty, Decoding, Ready };
   State state = Empty;
   std::uint64_t seq = 0;  // lap × frame_count + frame
+  // Runs pairing the frame's particles with the frame before it (format::MatchRun), or
+  // kNoMatching; they lie in the slot's part of Impl::matching.
+  std::size_t runs = format::kNoMatching;
 };
 
 }  // namespace
@@ -90,6 +93,13 @@ struct ParticleStream::Impl {
   std::unique_ptr<format::FrameDecoder> frame_decoder;
   std::unique_ptr<std::byte[]> packet_staging;  // a packet that wraps the ring, made contiguous
   LoadRequest produce_request;
+  // With interpolation: per decoded slot, room for the runs matching its frame to the one before.
+  std::unique_ptr<format::MatchRun[]> matching;
+  std::size_t match_capacity = 0;
+  // The slot the producer decoded its last frame into and that frame's sequence number (so the
+  // next frame can be matched to it by id when the codec has no matching of its own).
+  std::size_t p_prev_slot = SIZE_MAX;
+  std::uint64_t p_prev_seq = 0;
 
   // Playback range in frames and the chunks covering it, from the range's first keyframe.
   std::uint64_t frame_begin = 0, frame_end = 0, preroll = 0, c0 = 0, c1 = 0;
@@ -120,6 +130,12 @@ struct ParticleStream::Impl {
   bool closed = false;
 
   std::uint64_t range_chunks() const { return c1 - c0 + 1; }
+  // A Ready slot's runs are written before it became Ready and read only while it is held.
+  void set_matching(std::size_t slot, FrameView& v) const {
+    const std::size_t runs = frame_slots[slot].runs;
+    v.matched = runs != format::kNoMatching;
+    if (v.matched) v.matching = {matching.get() + slot * match_capacity, runs};
+  }
   std::size_t slot_of(std::uint64_t seq) const { return (slot_base + (seq - seq_base)) % slot_count; }
   std::uint64_t frame_seq(std::uint64_t lap_, std::uint64_t frame) const { return lap_ * meta->frame_count() + frame; }
   // Chunk sequence numbers of frame f's packet in lap `lap_`.
@@ -203,11 +219,12 @@ struct ParticleStream::Impl {
     const bool publish =
         frame >= frame_begin && (lap_ > 0 || frame >= p_publish_from) && frame_seq(lap_, frame) >= host_seq;
     // A free decoded slot: the frame lands there (and stays Empty when it is not published).
+    // The one holding the frame decoded last is taken only when no other is free: the new frame
+    // may be matched to it.
     std::size_t target = frame_slots.size();
     for (std::size_t i = 0; i < frame_slots.size(); ++i) {
-      if (frame_slots[i].state == FrameSlot::Empty) {
+      if (frame_slots[i].state == FrameSlot::Empty && (target == frame_slots.size() || target == p_prev_slot)) {
         target = i;
-        break;
       }
     }
     if (target == frame_slots.size()) return false;
@@ -221,9 +238,14 @@ struct ParticleStream::Impl {
     const std::byte* start = cache.get() + pin_slot * chunk_size + within;
     const std::uint64_t size = entry.packet_size;
     if (size > to_end) ++wrapped_packets;
+    // The frame decoded just before, when it is this one's predecessor and still in its slot.
+    const bool after_prev = match_capacity > 0 && frame > 0 && p_prev_slot != target &&
+                            p_prev_slot < frame_slots.size() && p_prev_seq + 1 == frame_seq(lap_, frame);
+    const std::size_t prev_slot = p_prev_slot;
     lock.unlock();
     const auto t0 = std::chrono::steady_clock::now();
     std::string error;
+    std::size_t runs = format::kNoMatching;
     try {
       std::span<const std::byte> packet(start, size);
       if (size > to_end) {
@@ -231,7 +253,13 @@ struct ParticleStream::Impl {
         std::memcpy(packet_staging.get() + to_end, cache.get(), size - to_end);
         packet = {packet_staging.get(), size};
       }
-      frame_decoder->decode(frame, packet, {decoded.get() + target * frame_bytes, frame_bytes});
+      std::byte* out = decoded.get() + target * frame_bytes;
+      const std::span<format::MatchRun> match(matching.get() + target * match_capacity, match_capacity);
+      runs = frame_decoder->decode(frame, packet, {out, frame_bytes}, match);
+      if (runs == format::kNoMatching && after_prev) {  // only the producer writes decoded slots
+        runs = format::match_by_id(*meta, {decoded.get() + prev_slot * frame_bytes, frame_bytes},
+                                   meta->frames[frame - 1].count, {out, frame_bytes}, entry.count, match);
+      }
     } catch (const std::exception& e) {
       error = e.what();
     }
@@ -255,7 +283,9 @@ struct ParticleStream::Impl {
       failure = std::move(error);
       return false;
     }
-    if (publish) frame_slots[target] = {FrameSlot::Ready, frame_seq(lap_, frame)};
+    if (publish) frame_slots[target] = {FrameSlot::Ready, frame_seq(lap_, frame), runs};
+    p_prev_slot = target;
+    p_prev_seq = frame_seq(lap_, frame);
     // Move on, and give back the chunks before the next packet.
     if (frame < frame_end) {
       p_frame = frame + 1;
@@ -339,6 +369,7 @@ struct ParticleStream::Impl {
     p_lap = 0;
     p_frame = key;
     p_publish_from = frame;
+    p_prev_slot = SIZE_MAX;
     host_seq = 0;
     producer_done = false;
     issue_locked();
@@ -381,7 +412,12 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   std::uint64_t max_packet = 0;
   for (std::uint64_t f = 0; f < m.frame_count(); ++f) max_packet = std::max(max_packet, m.frames[f].packet_size);
   impl->frame_decoder = std::make_unique<format::FrameDecoder>(s->meta_, impl->name);
-  const std::uint64_t decode_bytes = frame_slots * impl->frame_bytes + max_packet + impl->frame_decoder->state_bytes();
+  // Interpolating, each decoded frame also keeps how its particles continue the frame before: room
+  // for runs of one particle in eight changing (more than that: the pair is not matched).
+  impl->match_capacity = options.interpolate ? std::size_t(m.max_count / 8 + 64) : 0;
+  const std::uint64_t decode_bytes =
+      frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) + max_packet +
+      impl->frame_decoder->state_bytes();
   const std::uint64_t total_bytes = impl->cache_bytes + decode_bytes;
   if (options.budget && !options.budget->try_reserve(total_bytes)) {
     throw Error(fmt::format(
@@ -396,6 +432,7 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   // never again.
   impl->cache = aligned_bytes(slots * m.chunk_size);
   impl->decoded = aligned_bytes(frame_slots * impl->frame_bytes);
+  impl->matching.reset(new format::MatchRun[std::max<std::size_t>(frame_slots * impl->match_capacity, 1)]);
   impl->frame_slots.assign(frame_slots, FrameSlot{});
   impl->packet_staging.reset(new std::byte[std::max<std::uint64_t>(max_packet, 1)]);
   impl->slots.assign(slots, SlotInfo{});
@@ -608,6 +645,7 @@ FrameView ParticleStream::frame() const {
   v.valid = true;
   // The decoded slot is Ready and held: only the host thread releases it.
   v.first = {d.decoded.get() + d.current * d.frame_bytes, static_cast<std::size_t>(f.count * meta_.record_size)};
+  d.set_matching(d.current, v);
   return v;
 }
 
@@ -632,6 +670,7 @@ FrameView ParticleStream::next_frame() const {
   v.time = f.time;
   v.valid = true;
   v.first = {d.decoded.get() + slot * d.frame_bytes, static_cast<std::size_t>(f.count * meta_.record_size)};
+  d.set_matching(slot, v);
   return v;
 }
 
