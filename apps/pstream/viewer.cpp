@@ -168,7 +168,8 @@ int run_viewer(const ViewerCli& cli) {
   glfwSetKeyCallback(window, on_key);  // after ImGui's, which it chains
 
   double last = glfwGetTime();
-  double stream_ms = 0, sort_ms = 0, draw_ms = 0;
+  double stream_ms = 0, sort_ms = 0, draw_ms = 0, interpolate_ms = 0;
+  std::size_t unmatched = 0;
   int frame_number = 0;
   while (!glfwWindowShouldClose(window)) {
     glfwPollEvents();
@@ -226,6 +227,8 @@ int run_viewer(const ViewerCli& cli) {
     renderer->end_frame();
     stream_ms = stream_ms * 0.9 + t_stream * 0.1;
     sort_ms = sort_ms * 0.9 + t_sort * 0.1;
+    interpolate_ms = interpolate_ms * 0.9 + frame.interpolate_ms * 0.1;
+    unmatched = frame.unmatched_clips;
     draw_ms = draw_ms * 0.9 + t_draw * 0.1;
 
     ImGui_ImplOpenGL3_NewFrame();
@@ -249,14 +252,16 @@ int run_viewer(const ViewerCli& cli) {
                   t1 = m.frame_count() ? float(m.frames.back().time) : 0;
       if (ImGui::SliderFloat("Time", &t, t0, t1, "%.3f s")) player->seek(t);
     }
-    ImGui::SliderFloat("Speed", &ui.speed, 0.0f, 4.0f, "%.2fx");
+    ImGui::SliderFloat("Speed", &ui.speed, -2.0f, 4.0f, "%.2fx");  // below 0: backwards
     ImGui::SliderFloat("Particle size", &ui.size, 0.1f, 5.0f, "%.2fx");
     ImGui::Combo("Sort", &ui.sort_mode, "None\0Back to front\0Front to back\0");
     ImGui::Combo("Blend", &ui.blend, "Alpha\0Additive\0Alpha test\0");
     ImGui::ColorEdit3("Background", ui.background);
     ImGui::Separator();
     ImGui::Text("%.0f fps | %llu particles drawn", ImGui::GetIO().Framerate, static_cast<unsigned long long>(drawn));
-    ImGui::Text("stream %.3f ms | sort %.3f ms | upload + draw %.3f ms", stream_ms, sort_ms, draw_ms);
+    ImGui::Text("stream %.3f ms | interpolate %.3f ms | sort %.3f ms | upload + draw %.3f ms", stream_ms,
+                interpolate_ms, sort_ms, draw_ms);
+    if (unmatched != 0) ImGui::TextDisabled("%zu clip(s) between unmatched frames: nearest frame shown", unmatched);
     ImGui::TextDisabled("%s", render::Renderer::gl_renderer().c_str());
     for (std::size_t i = 0; i < player->clip_count(); ++i) {
       const stream::ParticleStream& clip = player->clip(i);

@@ -79,8 +79,9 @@ class Player {
 
   // The playhead of every clip together (clip times, seconds). Retiming: `speed` scales the host
   // clock (0 holds the current, possibly in-between, moment; 0.25 is slow motion, interpolated
-  // at any host rate; negative speeds are not supported and count as 0); play stays within
-  // [start, end] of set_range, and at its end either loops to its start or holds its last frame.
+  // at any host rate; negative plays backwards, interpolated too, at the cost stream.hpp gives);
+  // play stays within [start, end] of set_range, and at its end either loops to the other end or
+  // holds the last frame shown.
   void play();
   void pause();
   void stop();

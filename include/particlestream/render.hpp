@@ -38,10 +38,14 @@ BlendMode parse_blend(const std::string& name);  // "alpha", "additive", "alphat
 
 // One stream's frame, as the stream hands it out.
 struct ParticleBatch {
-  std::span<const std::byte> first, second;  // the records (second: across the cache ring's wrap)
+  std::span<const std::byte> first, second;  // the records (second: a second part, when not contiguous)
   std::uint64_t count = 0;
   std::uint32_t record_size = 16;
-  std::int32_t color_offset = -1;        // an RGBA8 attribute in the record, or -1
+  std::int32_t color_offset = -1;  // an RGBA8 attribute in the record, or -1
+  // A float32 x3 velocity (units per second) in the record, or -1: as cooked, and between cached
+  // frames the derivative of the interpolated motion (playback.hpp), for motion blur and
+  // stretched sprites.
+  std::int32_t velocity_offset = -1;
   Mat4 world = identity();               // object -> world
   std::span<const std::uint32_t> order;  // draw order (back to front); empty: stored order
   BlendMode blend = BlendMode::Alpha;

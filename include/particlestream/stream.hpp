@@ -161,13 +161,17 @@ class ParticleStream {
   // it: at most keyframe_interval - 1 extra frame decodes). Invalidates the current FrameView.
   void seek(double time);
   void set_loop(bool loop);
-  void set_speed(double speed);  // 0, fractional, > 1 (frames are skipped, never chunks)
+  // 0, fractional, > 1 (frames are skipped, never chunks), or negative: reverse. Decoding only runs
+  // forwards, so in reverse each cached frame restarts it at that frame's keyframe (records clips:
+  // the frame alone; particle clips: up to keyframe_interval frames each; cook with a short
+  // --keyframe-interval for clips meant to play backwards).
+  void set_speed(double speed);
   void set_range(double start, double end);
   void update(double dt);
 
   PlayState state() const { return state_; }
   const std::string& error() const { return error_; }  // set in the Error state
-  double time() const { return time_; }
+  double time() const;                                 // the playhead, clip seconds
   bool seeking() const { return seeking_; }
   const format::Metadata& metadata() const { return meta_; }
   std::span<const format::Attribute> layout() const { return meta_.layout; }
@@ -180,7 +184,7 @@ class ParticleStream {
   // at the end of the clip, or while it is still being decoded), and where the playhead is
   // between the two, in [0, 1).
   FrameView next_frame() const;
-  double fraction() const { return fraction_; }
+  double fraction() const;
 
   DebugInfo debug() const;
 
@@ -191,7 +195,6 @@ class ParticleStream {
   format::Metadata meta_;
   PlayState state_ = PlayState::Stopped;
   std::string error_;
-  double time_ = 0.0, fraction_ = 0.0;
   bool seeking_ = false;
   friend struct LoadRequest;
 };

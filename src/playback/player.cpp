@@ -17,7 +17,7 @@ double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::durati
 struct Player::Clip {
   std::unique_ptr<stream::ParticleStream> stream;
   std::unique_ptr<sort::DepthSorter> sorter;
-  std::int32_t color_offset = -1;
+  std::int32_t color_offset = -1, velocity_offset = -1;
   render::Mat4 world = render::identity();
   std::unique_ptr<FrameBlender> blender;  // with interpolation
   std::vector<std::byte> blended;         // an interpolated frame: up to both frames' particles
@@ -50,6 +50,9 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
       c.blended.resize(most * m.record_size);
     }
     if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
+    const format::Attribute* v = m.find("velocity");
+    if (v && v->type == format::AttributeType::Float32 && v->components == 3)
+      c.velocity_offset = std::int32_t(v->offset);
     c.stream->set_loop(options.loop);
     total += most;
     p->clips_.push_back(std::move(c));
@@ -140,6 +143,7 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
     const std::uint64_t count = b.count;
     b.record_size = m.record_size;
     b.color_offset = c.color_offset;
+    b.velocity_offset = c.velocity_offset;
     b.world = c.world;
     stats_.particles += count;
     if (sorting) {

@@ -29,6 +29,7 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/stream.hpp"
 #include "stream/load_request.hpp"
+#include "stream/playhead.hpp"
 
 namespace pstream::stream {
 namespace {
@@ -46,8 +47,9 @@ std::unique_ptr<std::byte[], AlignedDelete> aligned_bytes(std::uint64_t n) {
 
 struct FrameSlot {
   enum State : std::uint8_t { Empty, Decoding, Ready };
+  static constexpr std::uint64_t kHeld = UINT64_MAX;  // shown, but not a frame of the sequence
   State state = Empty;
-  std::uint64_t seq = 0;  // lap × frame_count + frame
+  std::uint64_t seq = 0;  // lap × frame_count + frame, or kHeld
   // Runs pairing the frame's particles with the frame before it (format::MatchRun), or
   // kNoMatching; they lie in the slot's part of Impl::matching.
   std::size_t runs = format::kNoMatching;
@@ -103,8 +105,7 @@ struct ParticleStream::Impl {
 
   // Playback range in frames and the chunks covering it, from the range's first keyframe.
   std::uint64_t frame_begin = 0, frame_end = 0, preroll = 0, c0 = 0, c1 = 0;
-  double speed = 1.0;
-  std::uint64_t lap = 0;    // the host's
+  Playhead playhead;        // the host's clock (host thread)
   std::size_t current = 0;  // the frame slot shown
   std::uint64_t current_seq = 0;
 
@@ -124,8 +125,8 @@ struct ParticleStream::Impl {
   std::size_t pin_slot = 0, pin_count = 0;  // chunk slots a decode under way reads
 
   // Flags last, packed together.
-  bool blocking = false, playing = false, current_valid = false, interpolate = false;  // host thread
-  bool loop = false, closing = false, failed = false;                                  // under `mutex`
+  bool blocking = false, current_valid = false, interpolate = false;  // host thread
+  bool loop = false, closing = false, failed = false;                 // under `mutex`
   bool producing = false, produce_again = false, produce_queued = false, producer_done = false;
   bool closed = false;
 
@@ -475,13 +476,13 @@ void ParticleStream::close() {
 void ParticleStream::play() {
   if (state_ == PlayState::Error) return;
   state_ = PlayState::Playing;
-  impl_->playing = true;
+  impl_->playhead.playing = true;
 }
 
 void ParticleStream::pause() {
   if (state_ == PlayState::Error) return;
   state_ = PlayState::Paused;
-  impl_->playing = false;
+  impl_->playhead.playing = false;
 }
 
 void ParticleStream::stop() {
@@ -498,10 +499,12 @@ void ParticleStream::set_loop(bool loop) {
     if (loop) impl_->producer_done = false;
     impl_->kick_locked();
   }
-  if (!loop && impl_->lap > 0) seek(time_);  // renumber the chunk sequence from lap 0
+  if (!loop && impl_->playhead.lap > 0) seek(impl_->playhead.time);  // renumber the chunk sequence from lap 0
 }
 
-void ParticleStream::set_speed(double speed) { impl_->speed = std::max(0.0, speed); }
+void ParticleStream::set_speed(double speed) { impl_->playhead.speed = std::isfinite(speed) ? speed : 0.0; }
+double ParticleStream::time() const { return impl_->playhead.time; }
+double ParticleStream::fraction() const { return impl_->playhead.fraction; }
 
 void ParticleStream::set_range(double start, double end) {
   Impl& d = *impl_;
@@ -514,18 +517,18 @@ void ParticleStream::set_range(double start, double end) {
     d.c0 = meta_.frame_chunks(d.preroll).first;
     d.c1 = std::max(d.c0, meta_.frame_chunks(d.frame_end).second);
   }
-  seek(std::clamp(time_, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time));
+  seek(std::clamp(d.playhead.time, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time));
 }
 
 void ParticleStream::seek(double time) {
   Impl& d = *impl_;
   if (state_ == PlayState::Error || meta_.frame_count() == 0) {
-    time_ = time;
+    d.playhead.time = time;
     return;
   }
-  time_ = std::clamp(time, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time);
-  d.lap = 0;
-  const std::uint64_t frame = std::clamp(meta_.frame_at(time_), d.frame_begin, d.frame_end);
+  d.playhead.time = std::clamp(time, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time);
+  d.playhead.lap = 0;
+  const std::uint64_t frame = std::clamp(meta_.frame_at(d.playhead.time), d.frame_begin, d.frame_end);
   std::lock_guard lock(d.mutex);
   d.restart_locked(frame);
   seeking_ = true;
@@ -541,39 +544,17 @@ void ParticleStream::update(double dt) {
     return;
   }
 
-  // 1. Advance time on the host's clock.
-  if (d.playing && dt > 0.0) {
-    time_ += dt * d.speed;
-    const double start = m.frames[d.frame_begin].time, end = m.frames[d.frame_end].time;
-    if (time_ > end + 0.5 / m.fps) {
-      if (d.loop) {
-        const double period = end - start + 1.0 / m.fps;
-        while (time_ > end + 0.5 / m.fps) {
-          time_ -= period;
-          ++d.lap;
-        }
-      } else {
-        time_ = end;
-        d.playing = false;
-        state_ = PlayState::Paused;
-      }
-    }
-  }
-  std::uint64_t target = std::clamp(m.frame_at(time_), d.frame_begin, d.frame_end);
-  fraction_ = 0.0;
-  if (d.interpolate) {  // the frame at or before the playhead, and how far towards the next
-    const auto [before, fraction] = m.frame_between(time_);
-    target = std::clamp(before, d.frame_begin, d.frame_end);
-    if (target == before && target < d.frame_end) fraction_ = fraction;
-  }
-  const std::uint64_t target_seq = d.frame_seq(d.lap, target);
+  // 1. Advance time on the host's clock, and pick the frame to hold.
+  if (!d.playhead.advance(m, d.frame_begin, d.frame_end, d.loop, dt)) state_ = PlayState::Paused;
+  const std::uint64_t target = d.playhead.target(m, d.frame_begin, d.frame_end, d.interpolate);
+  std::uint64_t target_seq = d.frame_seq(d.playhead.lap, target);
 
   std::unique_lock lock(d.mutex);
   const auto failed = [&] {  // the IO worker reported a fault: the stream stops, the host goes on
     if (!d.failed) return false;
     state_ = PlayState::Error;
     error_ = d.failure;
-    d.playing = false;
+    d.playhead.playing = false;
     d.current_valid = false;
     return true;
   };
@@ -585,6 +566,28 @@ void ParticleStream::update(double dt) {
     }
     return d.frame_slots.size();
   };
+  // Backwards (reverse speed, or a host clock that went back): the producer only decodes forwards,
+  // so once the playhead is before everything it holds, decoding restarts at the target's
+  // keyframe (at most keyframe_interval - 1 extra decodes a frame; records clips need none). The
+  // frame shown stays shown until the target is decoded.
+  {
+    // The producer will not bring the target: it has decoded past it, or it decodes it only as a
+    // reference (before where a restart asked it to publish from).
+    const bool passed = d.frame_seq(d.p_lap, d.p_frame) > target_seq ||
+                        (d.p_lap == 0 && d.playhead.lap == 0 && target < d.p_publish_from);
+    if (passed && !seeking_ && find(target_seq) == d.frame_slots.size()) {
+      const bool keep = d.current_valid;
+      const std::uint64_t kept_frame = d.current_seq % m.frame_count();
+      const std::size_t kept_runs = d.frame_slots[d.current].runs;
+      d.playhead.lap = 0;  // sequence numbers restart with the decoding
+      target_seq = target;
+      d.restart_locked(target);
+      // Held for display only: a sequence number no lookup matches (the frame is decoded again
+      // after its predecessor, matched to it).
+      if (keep) d.frame_slots[d.current] = {FrameSlot::Ready, FrameSlot::kHeld, kept_runs};
+      d.current_seq = kept_frame;
+    }
+  }
   // 2. Release decoded frames playback has passed (the current one stays until a newer one is
   // shown). When the producer is so far behind that a keyframe lies between it and the target,
   // it jumps there: the frames in between need not be decoded.
@@ -594,17 +597,18 @@ void ParticleStream::update(double dt) {
   }
   const std::uint64_t producer_seq = d.frame_seq(d.p_lap, d.p_frame);
   const std::uint64_t target_key = format::keyframe_of(m, target);
-  if (!d.producer_done && producer_seq < d.frame_seq(d.lap, target_key) && target_key > d.frame_begin &&
-      d.packet_seqs(d.lap, target_key).first >= d.next) {
+  if (!d.producer_done && producer_seq < d.frame_seq(d.playhead.lap, target_key) && target_key > d.frame_begin &&
+      d.packet_seqs(d.playhead.lap, target_key).first >= d.next) {
     const bool keep = d.current_valid;
     const std::uint64_t kept_seq = d.current_seq;
-    const std::uint64_t lap = d.lap;
+    const std::size_t kept_runs = d.frame_slots[d.current].runs;
+    const std::uint64_t lap = d.playhead.lap;
     d.restart_locked(target);
     d.p_lap = lap;  // the same lap: chunk sequence numbers and frames stay in step
     d.seq_base = d.oldest = d.next = d.packet_seqs(lap, target_key).first;
     d.issue_locked();
     if (keep) {  // the shown frame stays shown until the target is decoded
-      d.frame_slots[d.current] = {FrameSlot::Ready, kept_seq};
+      d.frame_slots[d.current] = {FrameSlot::Ready, kept_seq, kept_runs};
     }
   }
   // 3. Keep the IO worker busy (it also chains loads and decodes by itself as each one completes).
@@ -612,7 +616,7 @@ void ParticleStream::update(double dt) {
   d.kick_locked();
   // 4. Blocking mode (offline rendering): wait for the frame instead of stalling.
   if (d.blocking) {
-    const bool want_next = fraction_ > 0.0;  // interpolating: the next frame too
+    const bool want_next = d.playhead.fraction > 0.0;  // interpolating: the next frame too
     d.loaded.wait(lock, [&] {
       return d.failed || d.producer_done ||
              (find(target_seq) < d.frame_slots.size() && (!want_next || find(target_seq + 1) < d.frame_slots.size()));
@@ -621,7 +625,8 @@ void ParticleStream::update(double dt) {
   }
   const std::size_t ready = find(target_seq);
   if (ready < d.frame_slots.size()) {
-    if (d.current_valid && d.current != ready && d.frame_slots[d.current].seq < target_seq)
+    const std::uint64_t shown = d.frame_slots[d.current].seq;
+    if (d.current_valid && d.current != ready && (shown < target_seq || shown == FrameSlot::kHeld))
       d.frame_slots[d.current] = FrameSlot{};
     d.current_valid = true;
     d.current = ready;
@@ -652,7 +657,7 @@ FrameView ParticleStream::frame() const {
 FrameView ParticleStream::next_frame() const {
   FrameView v;
   const Impl& d = *impl_;
-  if (!d.current_valid || state_ == PlayState::Error || fraction_ <= 0.0) return v;
+  if (!d.current_valid || state_ == PlayState::Error || d.playhead.fraction <= 0.0) return v;
   const std::uint64_t seq = d.current_seq + 1;
   const std::uint64_t frame = seq % meta_.frame_count();
   if (frame == 0) return v;  // across a loop's end: not interpolated
