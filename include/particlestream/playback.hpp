@@ -35,9 +35,11 @@ enum class Interpolation {
 
 struct PlayerOptions {
   Interpolation interpolation = Interpolation::Hermite;
-  // For every clip (`blocking` for offline rendering: no frame skipped); `io` is not used, each clip
-  // reads its own file.
+  // For every clip (`blocking` for offline rendering: no frame skipped); `io` is not used: see below.
   stream::StreamOptions stream;
+  // Where each clip's bytes come from (an engine's file system, a pak), one per clip; empty (or a
+  // null entry): the clip's file.
+  std::vector<std::unique_ptr<stream::IoBackend>> io;
   sort::SorterOptions sorter;
   bool loop = true;
 };
@@ -101,6 +103,10 @@ class Player {
   // the merged order when several clips were sorted together (entries are
   // (batch << sort::DepthSorter::kMergedIndexBits) | index), empty otherwise.
   std::span<const render::ParticleBatch> batches() const;
+  // The batch of clip i in batches(), or -1 when it has none this frame (no particles, failed).
+  std::ptrdiff_t batch_of(std::size_t clip) const;
+  // What the last advance() measured.
+  const FrameStats& stats() const { return stats_; }
   std::span<const std::uint32_t> merged_order() const;
   // Draws what advance() prepared with `renderer` (between its begin_frame and end_frame).
   void draw(render::Renderer& renderer, const DrawStyle& style);

@@ -13,6 +13,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -44,10 +45,16 @@ class IoScheduler;
 struct LoadRequest;
 
 // IO worker threads shared by streams: at most `workers` loads in flight across all of them
-// (one per device, as in the seed design).
+// (one per device, as in the seed design). Or no threads of its own: each load (read, verify,
+// decode) and each frame-decoding turn is handed to the host's job system as a job, `run(job)`.
 class IoScheduler {
  public:
   explicit IoScheduler(unsigned workers = 1);
+  // `submit` is called with a stream's lock held: it must queue the job and return, never run
+  // it there; the job may run on any thread, and every job must run (closing a stream waits for
+  // its jobs).
+  using HostSubmit = std::function<void(void (*run)(void* job), void* job)>;
+  explicit IoScheduler(HostSubmit submit);
   ~IoScheduler();
   IoScheduler(const IoScheduler&) = delete;
   IoScheduler& operator=(const IoScheduler&) = delete;
@@ -61,9 +68,11 @@ class IoScheduler {
 
  private:
   void run();
+  static void run_job(void* request);
   struct Queue;
   std::unique_ptr<Queue> queue_;
   std::vector<std::thread> threads_;
+  HostSubmit host_;
 };
 
 // Memory that several streams' caches must fit in together.

@@ -29,7 +29,8 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
   if (files.empty()) throw Error("a player needs at least one clip");
   std::unique_ptr<Player> p(new Player());
   std::uint64_t total = 0;
-  for (const auto& file : files) {
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    const std::filesystem::path& file = files[i];
     Clip c;
     stream::StreamOptions o;  // each clip its own (an IO backend is per file: the default one)
     o.cache_seconds = options.stream.cache_seconds;
@@ -41,6 +42,7 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     o.interpolate = options.interpolation != Interpolation::None;
     o.scheduler = options.stream.scheduler;
     o.budget = options.stream.budget;
+    if (i < options.io.size()) o.io = std::move(options.io[i]);
     c.stream = stream::ParticleStream::open(file, std::move(o));
     const format::Metadata& m = c.stream->metadata();
     const std::uint64_t most = options.interpolation != Interpolation::None ? 2 * m.max_count : m.max_count;
@@ -180,18 +182,11 @@ void Player::check() const {
 std::span<const render::ParticleBatch> Player::batches() const { return {batches_.data(), batch_count_}; }
 std::span<const std::uint32_t> Player::merged_order() const { return merged_order_; }
 
-void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
-  const std::span<render::ParticleBatch> batches(batches_.data(), batch_count_);
-  for (auto& b : batches) {
-    b.blend = style.blend;
-    b.size_multiplier = style.size_multiplier;
-    if (b.texture != style.texture) b.texture = style.texture;  // set once: no allocation per frame
+std::ptrdiff_t Player::batch_of(std::size_t clip) const {
+  for (std::size_t b = 0; b < batch_count_; ++b) {
+    if (sorted_by_[b] == &clips_.at(clip)) return static_cast<std::ptrdiff_t>(b);
   }
-  if (!merged_order_.empty()) {
-    renderer.draw_merged(batches, merged_order_);
-    return;
-  }
-  for (const auto& b : batches) renderer.draw(b);
+  return -1;
 }
 
 }  // namespace pstream::playback

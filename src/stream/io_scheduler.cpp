@@ -48,6 +48,16 @@ IoScheduler::IoScheduler(unsigned workers) : queue_(std::make_unique<Queue>()) {
   for (unsigned i = 0; i < std::max(workers, 1u); ++i) threads_.emplace_back([this] { run(); });
 }
 
+IoScheduler::IoScheduler(HostSubmit submit) : queue_(std::make_unique<Queue>()), host_(std::move(submit)) {
+  if (!host_) throw Error("an IO scheduler on the host's jobs needs a submit function");
+}
+
+void IoScheduler::run_job(void* request) {
+  auto* r = static_cast<LoadRequest*>(request);
+  r->execute();
+  if (r->on_done != nullptr) r->on_done(r->owner, r);  // must be the last use of r here
+}
+
 IoScheduler::~IoScheduler() {
   {
     std::lock_guard lock(queue_->mutex);
@@ -81,6 +91,10 @@ void IoScheduler::release(std::size_t requests) {
 
 void IoScheduler::submit(LoadRequest* request) {
   request->status.store(LoadRequest::Pending, std::memory_order_relaxed);
+  if (host_) {
+    host_(&IoScheduler::run_job, request);
+    return;
+  }
   {
     std::lock_guard lock(queue_->mutex);
     Queue& q = *queue_;
@@ -102,8 +116,7 @@ void IoScheduler::run() {
       q.head = (q.head + 1) % q.ring.size();
       --q.count;
     }
-    r->execute();
-    if (r->on_done != nullptr) r->on_done(r->owner, r);  // must be the last use of r here
+    run_job(r);
   }
 }
 

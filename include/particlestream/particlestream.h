@@ -1,0 +1,281 @@
+/* ParticleStream C API (C99): the library behind a stable C ABI, for engines (native plugins,
+ * GDExtension, in-house engines) and any language with a C FFI.
+ *
+ * Handles are opaque. Every function that can fail returns a pstream_result; on failure the
+ * message (file, frame or offset, and what was expected, as the C++ library words it) is kept
+ * per thread and read with pstream_last_error(). No C++ exception ever crosses this boundary.
+ * Functions that take a handle accept NULL and return PSTREAM_ERROR_ARGUMENT.
+ *
+ * Memory: a handle allocates when it opens (the player: every cache, sorter and buffer, once)
+ * and pstream_player_update() allocates nothing.
+ *
+ * ABI rules (docs/sdk.md): within a major version, functions are only added, enumerators only
+ * appended, and option structs only grow at their end; each option struct starts with its
+ * `struct_size` (set it with sizeof), so a library reads what the caller's version wrote and
+ * defaults the rest. Handles never expose their layout. The shared library's SONAME carries the
+ * major version.
+ *
+ *   pstream_player* player = NULL;
+ *   const char* clips[] = {"splash.pstream"};
+ *   pstream_player_options options;
+ *   pstream_player_options_init(&options);
+ *   if (pstream_player_open(clips, 1, &options, &player) != PSTREAM_OK)
+ *     fprintf(stderr, "%s\n", pstream_last_error());
+ *   pstream_player_play(player);
+ *   each host frame:
+ *     pstream_player_update(player, dt, view_matrix);       // stream, interpolate, sort
+ *     pstream_frame frame;
+ *     pstream_player_frame(player, 0, &frame);              // records in draw order
+ *   pstream_player_close(player);
+ */
+#ifndef PARTICLESTREAM_H
+#define PARTICLESTREAM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define PSTREAM_VERSION_MAJOR 0
+#define PSTREAM_VERSION_MINOR 1
+#define PSTREAM_VERSION_PATCH 0
+/* major * 10000 + minor * 100 + patch: what this header describes. */
+#define PSTREAM_VERSION (PSTREAM_VERSION_MAJOR * 10000 + PSTREAM_VERSION_MINOR * 100 + PSTREAM_VERSION_PATCH)
+
+#if defined(_WIN32)
+#define PSTREAM_API __declspec(dllimport)
+#elif defined(__GNUC__)
+#define PSTREAM_API __attribute__((visibility("default")))
+#else
+#define PSTREAM_API
+#endif
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- Results and errors ---------------------------------------------------------------- */
+
+typedef enum pstream_result {
+  PSTREAM_OK = 0,
+  PSTREAM_ERROR_ARGUMENT = 1, /* a NULL handle or pointer, an index out of range, a bad option */
+  PSTREAM_ERROR_IO = 2,       /* a file could not be opened, read or written */
+  PSTREAM_ERROR_FORMAT = 3,   /* not an Alembic archive / .pstream, or corrupt (a checksum, a frame) */
+  PSTREAM_ERROR_BUDGET = 4,   /* the memory budget or a limit (particles, frames) was exceeded */
+  PSTREAM_ERROR_STATE = 5,    /* the handle cannot do that now (a clip in its error state) */
+  PSTREAM_ERROR_INTERNAL = 6  /* anything else; the message says what */
+} pstream_result;
+
+/* The library's version, PSTREAM_VERSION as it was built (compare with the header's). */
+PSTREAM_API uint32_t pstream_version(void);
+/* The message of the last failure on this thread ("" when none); valid until the next call
+ * that fails on this thread. */
+PSTREAM_API const char* pstream_last_error(void);
+/* "PSTREAM_OK", "PSTREAM_ERROR_IO", ... */
+PSTREAM_API const char* pstream_result_name(pstream_result result);
+
+/* ---- Record layout --------------------------------------------------------------------- */
+
+typedef enum pstream_attribute_type {
+  PSTREAM_FLOAT32 = 0,
+  PSTREAM_UNORM8 = 1,
+  PSTREAM_UINT32 = 2,
+  PSTREAM_UINT64 = 3
+} pstream_attribute_type;
+
+/* One attribute of a particle record: "position" (float32 x3 at 0) and "scale" (float32 at 12)
+ * always come first; "color", "velocity", "id" and source attributes follow. */
+typedef struct pstream_attribute {
+  const char* name; /* valid while the handle is open */
+  int32_t type;     /* a pstream_attribute_type */
+  uint32_t components;
+  uint32_t offset; /* bytes from the record's start */
+} pstream_attribute;
+
+/* ---- Alembic archives (our reader) ----------------------------------------------------- */
+
+typedef struct pstream_archive pstream_archive;
+
+PSTREAM_API pstream_result pstream_archive_open(const char* path, pstream_archive** out);
+PSTREAM_API void pstream_archive_close(pstream_archive* archive);
+/* The archive's points objects (AbcGeom_Points_v1), in depth-first order. */
+PSTREAM_API pstream_result pstream_archive_points_count(const pstream_archive* archive, size_t* count);
+/* Object `index`'s full name ("/fx/sparks"; valid while the archive is open) and its samples. */
+PSTREAM_API pstream_result pstream_archive_points_info(const pstream_archive* archive, size_t index,
+                                                       const char** full_name, uint32_t* samples);
+/* Particles in sample `sample` of object `index`, and the sample's time in seconds. */
+PSTREAM_API pstream_result pstream_archive_points_sample(const pstream_archive* archive, size_t index, uint32_t sample,
+                                                         uint64_t* count, double* time);
+/* Copies the sample's positions (float32 x3 per particle, object space) into `out`, which holds
+ * `capacity` floats (at least 3 x count). */
+PSTREAM_API pstream_result pstream_archive_read_positions(const pstream_archive* archive, size_t index, uint32_t sample,
+                                                          float* out, uint64_t capacity);
+
+/* ---- Cooking (.abc or a PLY sequence -> .pstream) ------------------------------------ */
+
+typedef enum pstream_codec {
+  PSTREAM_CODEC_RAW = 0,      /* records in raw chunks */
+  PSTREAM_CODEC_LZ4 = 1,      /* records in LZ4 chunks */
+  PSTREAM_CODEC_ZSTD = 2,     /* records in zstd chunks */
+  PSTREAM_CODEC_PARTICLE = 3, /* the particle codec, error-bounded (`error`) */
+  PSTREAM_CODEC_PARTICLE_LOSSLESS = 4
+} pstream_codec;
+
+/* Called after each cooked frame; return non-zero to cancel (the cook then fails with
+ * PSTREAM_ERROR_STATE and writes nothing). */
+typedef int (*pstream_progress_fn)(void* user, uint64_t frames_done, uint64_t frame_count);
+
+typedef struct pstream_cook_options {
+  size_t struct_size;     /* sizeof(pstream_cook_options) */
+  const char* input;      /* .abc, or one file of a numbered PLY sequence */
+  const char* output;     /* .pstream; written to a temporary and renamed when complete */
+  const char* object;     /* the points object's full name; NULL: the only one */
+  const char* attributes; /* comma-separated: "velocity,id,age"; NULL: none beyond position, scale, colour */
+  double fps;             /* output frame rate; 0: the source's */
+  int32_t codec;          /* a pstream_codec (a fixed-size field: enums' sizes differ between compilers) */
+  double error;           /* particle codec: the bound, a fraction of the clip's bounds diagonal (default 1e-4) */
+  int interpolate;        /* resample between samples (by id, or along velocities) instead of the nearest */
+  pstream_progress_fn progress;
+  void* progress_user;
+} pstream_cook_options;
+
+typedef struct pstream_cook_report {
+  uint64_t frames, particles, file_bytes;
+  double seconds;
+} pstream_cook_report;
+
+PSTREAM_API void pstream_cook_options_init(pstream_cook_options* options);
+/* `report` may be NULL. */
+PSTREAM_API pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_report* report);
+
+/* ---- Reading a .pstream directly ------------------------------------------------------ */
+
+typedef struct pstream_clip pstream_clip;
+
+typedef struct pstream_clip_info {
+  uint64_t frame_count, max_count; /* frames; the most particles a frame has */
+  uint32_t record_size;            /* bytes per particle */
+  uint32_t attribute_count;
+  double fps, start_time, end_time;
+  float bounds[6]; /* min xyz, max xyz over every frame */
+} pstream_clip_info;
+
+PSTREAM_API pstream_result pstream_clip_open(const char* path, pstream_clip** out);
+PSTREAM_API void pstream_clip_close(pstream_clip* clip);
+PSTREAM_API pstream_result pstream_clip_info_get(const pstream_clip* clip, pstream_clip_info* out);
+PSTREAM_API pstream_result pstream_clip_attribute(const pstream_clip* clip, uint32_t index, pstream_attribute* out);
+/* Frame `frame`'s particle count and time. */
+PSTREAM_API pstream_result pstream_clip_frame_info(const pstream_clip* clip, uint64_t frame, uint64_t* count,
+                                                   double* time);
+/* Decodes frame `frame`'s records into `out` (`capacity` bytes, at least count x record_size). */
+PSTREAM_API pstream_result pstream_clip_read_frame(pstream_clip* clip, uint64_t frame, void* out, uint64_t capacity);
+
+/* ---- Playback -------------------------------------------------------------------------- */
+
+typedef struct pstream_player pstream_player;
+
+typedef enum pstream_interpolation {
+  PSTREAM_INTERPOLATION_NONE = 0,   /* the nearest cached frame */
+  PSTREAM_INTERPOLATION_LINEAR = 1, /* matched particles along straight lines */
+  PSTREAM_INTERPOLATION_HERMITE = 2 /* along cubic curves through their velocities (default) */
+} pstream_interpolation;
+
+typedef enum pstream_sort {
+  PSTREAM_SORT_NONE = 0, /* stored order (additive blending) */
+  PSTREAM_SORT_BACK_TO_FRONT = 1,
+  PSTREAM_SORT_FRONT_TO_BACK = 2
+} pstream_sort;
+
+/* Where a clip's bytes come from, instead of the file: an engine's own file system or pak.
+ * `read` runs on the library's IO thread and must fill `size` bytes at `offset` (return 0), or
+ * return non-zero (the clip then goes to its error state with `name` in the message). */
+typedef struct pstream_io {
+  void* user;
+  int (*read)(void* user, uint64_t offset, void* out, uint64_t size);
+  uint64_t size;    /* the clip's size in bytes */
+  const char* name; /* for messages */
+} pstream_io;
+
+/* The host's job system, instead of the library's IO thread: every chunk load (read, verify,
+ * decompress) and every frame-decoding turn becomes a job. `submit` is called with a clip's lock
+ * held: it must queue `run(job)` for a worker and return, never run it inline. Every submitted
+ * job must run; pstream_player_close() waits for them. */
+typedef struct pstream_tasks {
+  void* user;
+  void (*submit)(void* user, void (*run)(void* job), void* job);
+} pstream_tasks;
+
+typedef struct pstream_player_options {
+  size_t struct_size;     /* sizeof(pstream_player_options) */
+  double cache_seconds;   /* stored bytes held ahead per clip (default 1) */
+  uint64_t memory_budget; /* bytes all clips' caches must fit in together; 0: no limit */
+  int32_t interpolation;  /* a pstream_interpolation */
+  int32_t sort;           /* a pstream_sort */
+  int blocking;           /* non-zero: update() waits for data (offline rendering) instead of skipping */
+  int loop;               /* default 1 */
+  /* Optional, one per clip (NULL: read the files named in pstream_player_open). */
+  const pstream_io* io;
+  /* Optional: run the IO and decoding on the host's jobs (NULL: the library's IO thread). */
+  const pstream_tasks* tasks;
+} pstream_player_options;
+
+/* A clip's frame as update() prepared it, valid until the next update() or close(). */
+typedef struct pstream_frame {
+  const void* records; /* count x record_size bytes */
+  uint64_t count;
+  uint32_t record_size;
+  int32_t color_offset;    /* RGBA8 in the record, or -1 */
+  int32_t velocity_offset; /* float32 x3 (units per second), or -1 */
+  const uint32_t* order;   /* draw order (indices into records), or NULL: stored order */
+  uint64_t frame;          /* the cached frame at or before the playhead */
+  double time;             /* the playhead, clip seconds */
+  double fraction;         /* how far towards the next cached frame (interpolated when > 0) */
+} pstream_frame;
+
+typedef struct pstream_player_stats {
+  double stream_ms, interpolate_ms, sort_ms; /* the last update() */
+  uint64_t particles;
+  uint64_t stalls;       /* frames a clip could not show in time, since open (all clips) */
+  uint64_t cache_bytes;  /* memory held by all clips (chunk caches and decoded frames) */
+  uint32_t failed_clips; /* clips in their error state (pstream_player_check() returns the error) */
+} pstream_player_stats;
+
+PSTREAM_API void pstream_player_options_init(pstream_player_options* options);
+/* Opens `count` clips. With options->io, `paths` may be NULL. `options` may be NULL (defaults). */
+PSTREAM_API pstream_result pstream_player_open(const char* const* paths, size_t count,
+                                               const pstream_player_options* options, pstream_player** out);
+PSTREAM_API void pstream_player_close(pstream_player* player);
+
+PSTREAM_API pstream_result pstream_player_play(pstream_player* player);
+PSTREAM_API pstream_result pstream_player_pause(pstream_player* player);
+PSTREAM_API pstream_result pstream_player_seek(pstream_player* player, double time);
+/* 0 holds, 0.25 slow motion, negative plays backwards. */
+PSTREAM_API pstream_result pstream_player_set_speed(pstream_player* player, double speed);
+PSTREAM_API pstream_result pstream_player_set_loop(pstream_player* player, int loop);
+PSTREAM_API pstream_result pstream_player_set_range(pstream_player* player, double start, double end);
+/* A clip's object -> world transform (column-major 4x4). */
+PSTREAM_API pstream_result pstream_player_set_transform(pstream_player* player, size_t clip, const float world[16]);
+
+/* One host frame: advances every clip by `dt` seconds, interpolates, and sorts for `view`
+ * (world -> view, column-major; NULL: identity) as the options' `sort` says. Allocates nothing. */
+PSTREAM_API pstream_result pstream_player_update(pstream_player* player, double dt, const float view[16]);
+/* PSTREAM_OK, or the error of the first clip that failed (its file, chunk and cause). */
+PSTREAM_API pstream_result pstream_player_check(const pstream_player* player);
+
+PSTREAM_API size_t pstream_player_clip_count(const pstream_player* player);
+/* Clip `clip`'s current frame (count 0 when it has none yet). */
+PSTREAM_API pstream_result pstream_player_frame(const pstream_player* player, size_t clip, pstream_frame* out);
+/* With several clips sorted together (they blend in depth order where they overlap), the order
+ * across them: entries are (batch << 28) | index, batch counting the clips that have particles
+ * this frame in clip order; each clip's pstream_frame.order is then NULL. Empty (count 0)
+ * otherwise. Valid until the next update(). */
+PSTREAM_API pstream_result pstream_player_merged_order(const pstream_player* player, const uint32_t** order,
+                                                       uint64_t* count);
+PSTREAM_API pstream_result pstream_player_clip_info(const pstream_player* player, size_t clip, pstream_clip_info* out);
+PSTREAM_API pstream_result pstream_player_attribute(const pstream_player* player, size_t clip, uint32_t index,
+                                                    pstream_attribute* out);
+PSTREAM_API pstream_result pstream_player_stats_get(const pstream_player* player, pstream_player_stats* out);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* PARTICLESTREAM_H */

@@ -1,0 +1,319 @@
+// Python bindings (pybind11, numpy): module `particlestream`.
+//
+//   Archive(path)       an Alembic archive through our reader; points objects' samples as numpy
+//                       arrays that view the mapped file (no copy; read-only; they keep the
+//                       archive open)
+//   cook(input, output, ...)   the cook, with a progress callable; returns its report
+//   Clip(path)          a .pstream: layout, a structured numpy dtype, frames as numpy arrays
+//   Player(paths, ...)  playback; frame(i) views the player's memory (valid until the next update)
+//
+// Errors are particlestream.Error (a RuntimeError) with the library's message.
+#include <pybind11/functional.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+#include <pybind11/stl/filesystem.h>
+
+#include <cstring>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "particlestream/alembic.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+#include "particlestream/playback.hpp"
+
+namespace py = pybind11;
+using namespace pstream;
+
+namespace {
+
+// The archive and its points objects, shared by the arrays that view its mapping.
+struct PyArchive {
+  alembic::Archive archive;
+  std::vector<alembic::Object> points;
+  explicit PyArchive(const std::filesystem::path& path) : archive(alembic::Archive::open(path)) {
+    for (const alembic::Object& o : archive.objects()) {
+      if (alembic::Points::matches(o)) points.push_back(o);
+    }
+  }
+  alembic::Points find(const std::string& name) const {
+    for (const alembic::Object& o : points) {
+      if (o.full_name() == name) return alembic::Points(o);
+    }
+    throw Error(archive.name() + ": no points object '" + name + "'");
+  }
+  // The object, checked to have sample `s`.
+  alembic::Points find(const std::string& name, std::uint32_t s) const {
+    alembic::Points p = find(name);
+    if (s >= p.num_samples())
+      throw Error(archive.name() + ": " + name + " has no sample " + std::to_string(s) + " (it has " +
+                  std::to_string(p.num_samples()) + ")");
+    return p;
+  }
+};
+
+// A read-only array over `view`'s bytes (`columns` values a row; 0: one dimension), owned by
+// `owner` (no copy). Stored values that are not the dtype's size are copied instead.
+template <class T>
+py::array view_array(const alembic::SampleView& view, std::size_t columns, const py::object& owner) {
+  const std::size_t n = static_cast<std::size_t>(view.scalar_count());
+  std::vector<py::ssize_t> shape = {py::ssize_t(columns ? n / columns : n)};
+  if (columns) shape.push_back(py::ssize_t(columns));
+  if (view.bytes().size() != n * sizeof(T)) {  // another stored type: converted, a copy
+    py::array_t<T> out(shape);
+    T* dst = out.mutable_data();
+    for (std::size_t i = 0; i < n; ++i)
+      dst[i] = std::is_floating_point_v<T> ? T(view.value_f64(i)) : T(view.value_u64(i));
+    return out;
+  }
+  py::array a(py::dtype::of<T>(), shape, {}, view.bytes().data(), owner);
+  py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+  return a;
+}
+
+// The numpy dtype of a clip's records: one field per attribute, at its offset.
+py::dtype record_dtype(const format::Metadata& m) {
+  py::list names, formats, offsets;
+  for (const format::Attribute& a : m.layout) {
+    const char* base = a.type == format::AttributeType::Float32  ? "<f4"
+                       : a.type == format::AttributeType::Unorm8 ? "u1"
+                       : a.type == format::AttributeType::Uint32 ? "<u4"
+                                                                 : "<u8";
+    names.append(a.name);
+    formats.append(a.components == 1 ? py::str(base) : py::str(std::to_string(a.components) + base));
+    offsets.append(a.offset);
+  }
+  py::dict spec;
+  spec["names"] = names;
+  spec["formats"] = formats;
+  spec["offsets"] = offsets;
+  spec["itemsize"] = m.record_size;
+  return py::dtype::from_args(spec);
+}
+
+py::list layout_of(const format::Metadata& m) {
+  py::list out;
+  for (const format::Attribute& a : m.layout)
+    out.append(py::make_tuple(a.name, std::string(format::attribute_type_name(a.type)), a.components, a.offset));
+  return out;
+}
+
+struct PyClip {
+  format::Reader reader;
+  std::vector<std::byte> buffer;
+  explicit PyClip(const std::filesystem::path& path) : reader(format::Reader::open(path)) {
+    buffer.resize(std::max<std::uint64_t>(reader.metadata().max_count * reader.metadata().record_size, 1));
+  }
+};
+
+struct PyPlayer {
+  std::unique_ptr<playback::Player> player;
+  sort::SortMode sort = sort::SortMode::None;
+};
+
+}  // namespace
+
+PYBIND11_MODULE(particlestream, m) {
+  m.doc() = "ParticleStream: read Alembic point caches, cook them to .pstream, play them back.";
+  static py::exception<Error> error(m, "Error", PyExc_RuntimeError);
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const Error& e) {
+      error(e.what());
+    }
+  });
+  m.attr("__version__") = "0.1.0";
+
+  py::class_<PyArchive, std::shared_ptr<PyArchive>>(m, "Archive", "An Alembic archive (our reader), mapped.")
+      .def(py::init<std::filesystem::path>(), py::arg("path"))
+      .def_property_readonly("name", [](const PyArchive& a) { return a.archive.name(); })
+      .def_property_readonly("start_end_time", [](const PyArchive& a) { return a.archive.start_end_time(); })
+      .def(
+          "points",
+          [](const PyArchive& a) {
+            std::vector<std::string> names;
+            for (const auto& o : a.points) names.push_back(o.full_name());
+            return names;
+          },
+          "The full names of the points objects.")
+      .def("num_samples", [](const PyArchive& a, const std::string& name) { return a.find(name).num_samples(); })
+      .def("count",
+           [](const PyArchive& a, const std::string& name, std::uint32_t s) { return a.find(name, s).count(s); })
+      .def("time",
+           [](const PyArchive& a, const std::string& name, std::uint32_t s) { return a.find(name, s).sample_time(s); })
+      .def(
+          "positions",
+          [](py::object self, const std::string& name, std::uint32_t s) {
+            return view_array<float>(self.cast<const PyArchive&>().find(name, s).positions(s), 3, self);
+          },
+          "Positions (N, 3) float32, object space: a view of the file (read-only, no copy).")
+      .def(
+          "ids",
+          [](py::object self, const std::string& name, std::uint32_t s) {
+            return view_array<std::uint64_t>(self.cast<const PyArchive&>().find(name, s).ids(s), 0, self);
+          },
+          "Ids (N,) uint64 (empty when the object has none).")
+      .def(
+          "velocities",
+          [](py::object self, const std::string& name, std::uint32_t s) {
+            const alembic::Points p = self.cast<const PyArchive&>().find(name, s);
+            if (!p.has_velocities()) return py::array(py::array_t<float>(std::vector<py::ssize_t>{0, 3}));
+            return view_array<float>(p.velocities(s), 3, self);
+          },
+          "Velocities (N, 3) float32 (empty when the object has none).");
+
+  m.def(
+      "cook",
+      [](const std::filesystem::path& input, const std::filesystem::path& output, double fps, const std::string& codec,
+         std::vector<std::string> attributes, const std::string& object, bool interpolate,
+         const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
+        cook::Options o;
+        o.input = input;
+        o.output = output;
+        o.fps = fps;
+        o.object = object;
+        o.attributes = std::move(attributes);
+        o.interpolate = interpolate;
+        if (codec == "raw")
+          o.codec = format::Codec::Raw;
+        else if (codec == "lz4")
+          o.codec = format::Codec::Lz4;
+        else if (codec == "zstd")
+          o.codec = format::Codec::Zstd;
+        else if (codec == "particle" || codec == "particle-lossless") {
+          o.frame_codec = format::FrameCodec::Particle;
+          o.particle.lossless = codec == "particle-lossless";
+        } else {
+          throw Error("codec '" + codec + "': expected raw, lz4, zstd, particle or particle-lossless");
+        }
+        std::function<void(const cook::Progress&)> report;
+        if (progress) {
+          report = [&](const cook::Progress& p) {
+            py::gil_scoped_acquire gil;
+            progress(p.frames_done, p.frame_count);
+          };
+        }
+        cook::Report r;
+        {
+          py::gil_scoped_release release;
+          r = cook::cook(o, report);
+        }
+        py::dict d;
+        d["frames"] = r.frames;
+        d["particles"] = r.particles;
+        d["file_bytes"] = r.file_bytes;
+        d["seconds"] = r.seconds;
+        return d;
+      },
+      py::arg("input"), py::arg("output"), py::arg("fps") = 0.0, py::arg("codec") = "raw",
+      py::arg("attributes") = std::vector<std::string>{}, py::arg("object") = "", py::arg("interpolate") = false,
+      py::arg("progress") = nullptr,
+      "Cooks an Alembic archive (or a PLY sequence) into a .pstream. progress(frames_done, frame_count) is "
+      "called after each frame. Returns the report (frames, particles, file_bytes, seconds).");
+
+  py::class_<PyClip>(m, "Clip", "A .pstream read directly.")
+      .def(py::init<std::filesystem::path>(), py::arg("path"))
+      .def_property_readonly("frame_count", [](const PyClip& c) { return c.reader.metadata().frame_count(); })
+      .def_property_readonly("fps", [](const PyClip& c) { return c.reader.metadata().fps; })
+      .def_property_readonly("record_size", [](const PyClip& c) { return c.reader.metadata().record_size; })
+      .def_property_readonly(
+          "layout", [](const PyClip& c) { return layout_of(c.reader.metadata()); },
+          "[(name, type, components, offset)]")
+      .def_property_readonly("dtype", [](const PyClip& c) { return record_dtype(c.reader.metadata()); })
+      .def("count",
+           [](const PyClip& c, std::uint64_t f) {
+             if (f >= c.reader.metadata().frame_count())
+               throw Error(c.reader.name() + ": no frame " + std::to_string(f));
+             return c.reader.metadata().frames[f].count;
+           })
+      .def("time",
+           [](const PyClip& c, std::uint64_t f) {
+             if (f >= c.reader.metadata().frame_count())
+               throw Error(c.reader.name() + ": no frame " + std::to_string(f));
+             return c.reader.metadata().frames[f].time;
+           })
+      .def(
+          "read_frame",
+          [](PyClip& c, std::uint64_t f) {
+            const format::Metadata& meta = c.reader.metadata();
+            if (f >= meta.frame_count()) throw Error(c.reader.name() + ": no frame " + std::to_string(f));
+            c.reader.read_frame(f, c.buffer);
+            const std::uint64_t n = meta.frames[f].count;
+            py::array out(record_dtype(meta), std::vector<py::ssize_t>{py::ssize_t(n)});
+            if (n) std::memcpy(out.mutable_data(), c.buffer.data(), n * meta.record_size);
+            return out;
+          },
+          "Frame f's records as a structured array (its own copy).");
+
+  py::class_<PyPlayer>(m, "Player", "Playback of one or more clips (the C++ playback::Player).")
+      .def(py::init([](std::vector<std::filesystem::path> paths, const std::string& interpolation, bool blocking,
+                       bool loop, const std::string& sort, double cache_seconds) {
+             playback::PlayerOptions o;
+             if (interpolation == "none")
+               o.interpolation = playback::Interpolation::None;
+             else if (interpolation == "linear")
+               o.interpolation = playback::Interpolation::Linear;
+             else if (interpolation == "hermite")
+               o.interpolation = playback::Interpolation::Hermite;
+             else
+               throw Error("interpolation '" + interpolation + "': expected none, linear or hermite");
+             o.stream.blocking = blocking;
+             o.stream.cache_seconds = cache_seconds;
+             o.loop = loop;
+             auto p = std::make_unique<PyPlayer>();
+             if (sort == "none")
+               p->sort = sort::SortMode::None;
+             else if (sort == "back")
+               p->sort = sort::SortMode::BackToFront;
+             else if (sort == "front")
+               p->sort = sort::SortMode::FrontToBack;
+             else
+               throw Error("sort '" + sort + "': expected none, back or front");
+             p->player = playback::Player::open(paths, std::move(o));
+             return p;
+           }),
+           py::arg("paths"), py::arg("interpolation") = "hermite", py::arg("blocking") = true, py::arg("loop") = true,
+           py::arg("sort") = "none", py::arg("cache_seconds") = 1.0)
+      .def("play", [](PyPlayer& p) { p.player->play(); })
+      .def("pause", [](PyPlayer& p) { p.player->pause(); })
+      .def("seek", [](PyPlayer& p, double t) { p.player->seek(t); })
+      .def("set_speed", [](PyPlayer& p, double s) { p.player->set_speed(s); })
+      .def("set_loop", [](PyPlayer& p, bool l) { p.player->set_loop(l); })
+      .def("set_range", [](PyPlayer& p, double a, double b) { p.player->set_range(a, b); })
+      .def_property_readonly("clip_count", [](const PyPlayer& p) { return p.player->clip_count(); })
+      .def(
+          "time", [](const PyPlayer& p, std::size_t i) { return p.player->clip(i).time(); }, py::arg("clip") = 0)
+      .def(
+          "update",
+          [](PyPlayer& p, double dt) {
+            const playback::FrameStats& s = p.player->advance(dt, render::identity(), p.sort);
+            p.player->check();
+            py::dict d;
+            d["stream_ms"] = s.stream_ms;
+            d["interpolate_ms"] = s.interpolate_ms;
+            d["sort_ms"] = s.sort_ms;
+            d["particles"] = s.particles;
+            return d;
+          },
+          "Advances every clip by dt seconds (interpolated, sorted); raises the error of a clip that failed.")
+      .def(
+          "frame",
+          [](py::object self, std::size_t clip) {
+            const PyPlayer& p = self.cast<const PyPlayer&>();
+            if (clip >= p.player->clip_count()) throw Error("no clip " + std::to_string(clip));
+            const format::Metadata& meta = p.player->clip(clip).metadata();
+            const std::ptrdiff_t b = p.player->batch_of(clip);
+            if (b < 0) return py::array(record_dtype(meta), std::vector<py::ssize_t>{0});
+            const render::ParticleBatch& batch = p.player->batches()[std::size_t(b)];
+            py::array a(record_dtype(meta), std::vector<py::ssize_t>{py::ssize_t(batch.count)}, {}, batch.first.data(),
+                        self);
+            py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+            return a;
+          },
+          py::arg("clip") = 0,
+          "Clip i's records as update() left them: a read-only view of the player's memory (no copy), valid "
+          "until the next update().");
+}

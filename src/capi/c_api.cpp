@@ -1,0 +1,523 @@
+// The C API (include/particlestream/particlestream.h) over the C++ library: opaque handles, error
+// codes, per-thread messages; every exception is caught here.
+#include "particlestream/particlestream.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <new>
+#include <string>
+#include <vector>
+
+#include "particlestream/alembic.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+#include "particlestream/playback.hpp"
+
+namespace {
+
+using namespace pstream;
+
+thread_local std::string g_last_error;
+
+pstream_result fail(pstream_result code, std::string message) {
+  g_last_error = std::move(message);
+  return code;
+}
+
+// Runs `body`, turning what it throws into a result and this thread's message. `code` is what a
+// pstream::Error means where it is thrown from (a corrupt input, say).
+template <class F>
+pstream_result guarded(pstream_result code, F&& body) {
+  try {
+    return body();
+  } catch (const OptionError& e) {
+    const bool limit = e.option().rfind("max_", 0) == 0;
+    return fail(limit ? PSTREAM_ERROR_BUDGET : PSTREAM_ERROR_ARGUMENT, e.what());
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    if (what.find("memory budget") != std::string::npos) return fail(PSTREAM_ERROR_BUDGET, what);
+    return fail(code, what);
+  } catch (const std::bad_alloc&) {
+    return fail(PSTREAM_ERROR_BUDGET, "out of memory");
+  } catch (const std::exception& e) {
+    return fail(PSTREAM_ERROR_INTERNAL, e.what());
+  } catch (...) {
+    return fail(PSTREAM_ERROR_INTERNAL, "unknown error");
+  }
+}
+
+// A file that cannot be read is an IO error, whatever the reader would have said about it.
+pstream_result check_readable(const char* path) {
+  if (path == nullptr) return fail(PSTREAM_ERROR_ARGUMENT, "a path is NULL");
+  struct stat st {};
+  if (::stat(path, &st) != 0) return fail(PSTREAM_ERROR_IO, std::string(path) + ": " + std::strerror(errno));
+  if (::access(path, R_OK) != 0) return fail(PSTREAM_ERROR_IO, std::string(path) + ": " + std::strerror(errno));
+  return PSTREAM_OK;
+}
+
+pstream_result null_argument(const char* what) { return fail(PSTREAM_ERROR_ARGUMENT, std::string(what) + " is NULL"); }
+
+void fill_attribute(const format::Attribute& a, pstream_attribute* out) {
+  out->name = a.name.c_str();
+  out->type = static_cast<int32_t>(a.type);
+  out->components = a.components;
+  out->offset = a.offset;
+}
+
+void fill_info(const format::Metadata& m, pstream_clip_info* out) {
+  out->frame_count = m.frame_count();
+  out->max_count = m.max_count;
+  out->record_size = m.record_size;
+  out->attribute_count = static_cast<std::uint32_t>(m.layout.size());
+  out->fps = m.fps;
+  out->start_time = m.frame_count() ? m.frames.front().time : 0.0;
+  out->end_time = m.frame_count() ? m.frames.back().time : 0.0;
+  for (int i = 0; i < 6; ++i) out->bounds[i] = m.bounds[static_cast<std::size_t>(i)];
+}
+
+// A pstream_io as the stream's IoBackend.
+class CallbackIo final : public stream::IoBackend {
+ public:
+  explicit CallbackIo(const pstream_io& io) : io_(io), name_(io.name ? io.name : "pstream_io") {}
+  void read(std::uint64_t offset, std::span<std::byte> out) override {
+    if (offset > io_.size || out.size() > io_.size - offset)
+      throw Error(name_ + ": a read of " + std::to_string(out.size()) + " bytes at " + std::to_string(offset) +
+                  " is past its end (" + std::to_string(io_.size) + " bytes)");
+    if (io_.read(io_.user, offset, out.data(), out.size()) != 0)
+      throw Error(name_ + ": the read callback failed for " + std::to_string(out.size()) + " bytes at offset " +
+                  std::to_string(offset));
+  }
+  std::uint64_t size() const override { return io_.size; }
+  const std::string& name() const override { return name_; }
+
+ private:
+  pstream_io io_;
+  std::string name_;
+};
+
+}  // namespace
+
+struct pstream_archive {
+  alembic::Archive archive;
+  std::vector<alembic::Object> points;
+};
+
+struct pstream_clip {
+  format::Reader reader;
+};
+
+struct pstream_player {
+  std::unique_ptr<playback::Player> player;
+  sort::SortMode sort = sort::SortMode::BackToFront;
+  std::uint64_t cache_bytes = 0;
+};
+
+extern "C" {
+
+uint32_t pstream_version(void) { return PSTREAM_VERSION; }
+const char* pstream_last_error(void) { return g_last_error.c_str(); }
+
+const char* pstream_result_name(pstream_result result) {
+  switch (result) {
+    case PSTREAM_OK: return "PSTREAM_OK";
+    case PSTREAM_ERROR_ARGUMENT: return "PSTREAM_ERROR_ARGUMENT";
+    case PSTREAM_ERROR_IO: return "PSTREAM_ERROR_IO";
+    case PSTREAM_ERROR_FORMAT: return "PSTREAM_ERROR_FORMAT";
+    case PSTREAM_ERROR_BUDGET: return "PSTREAM_ERROR_BUDGET";
+    case PSTREAM_ERROR_STATE: return "PSTREAM_ERROR_STATE";
+    case PSTREAM_ERROR_INTERNAL: return "PSTREAM_ERROR_INTERNAL";
+  }
+  return "PSTREAM_ERROR_UNKNOWN";
+}
+
+// ---- Archives ----------------------------------------------------------------------------
+
+pstream_result pstream_archive_open(const char* path, pstream_archive** out) {
+  if (out == nullptr) return null_argument("out");
+  *out = nullptr;
+  if (const pstream_result r = check_readable(path); r != PSTREAM_OK) return r;
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    auto a = std::make_unique<pstream_archive>(pstream_archive{alembic::Archive::open(path), {}});
+    for (const alembic::Object& o : a->archive.objects()) {
+      if (alembic::Points::matches(o)) a->points.push_back(o);
+    }
+    *out = a.release();
+    return PSTREAM_OK;
+  });
+}
+
+void pstream_archive_close(pstream_archive* archive) { delete archive; }
+
+pstream_result pstream_archive_points_count(const pstream_archive* archive, size_t* count) {
+  if (archive == nullptr || count == nullptr) return null_argument("the archive or count");
+  *count = archive->points.size();
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_archive_points_info(const pstream_archive* archive, size_t index, const char** full_name,
+                                           uint32_t* samples) {
+  if (archive == nullptr) return null_argument("the archive");
+  if (index >= archive->points.size())
+    return fail(PSTREAM_ERROR_ARGUMENT,
+                "points object " + std::to_string(index) + " of " + std::to_string(archive->points.size()));
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    if (full_name) *full_name = archive->points[index].full_name().c_str();
+    if (samples) *samples = alembic::Points(archive->points[index]).num_samples();
+    return PSTREAM_OK;
+  });
+}
+
+pstream_result pstream_archive_points_sample(const pstream_archive* archive, size_t index, uint32_t sample,
+                                             uint64_t* count, double* time) {
+  if (archive == nullptr) return null_argument("the archive");
+  if (index >= archive->points.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no points object " + std::to_string(index));
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    const alembic::Points points(archive->points[index]);
+    if (sample >= points.num_samples())
+      return fail(PSTREAM_ERROR_ARGUMENT,
+                  "sample " + std::to_string(sample) + " of " + std::to_string(points.num_samples()));
+    if (count) *count = points.count(sample);
+    if (time) *time = points.sample_time(sample);
+    return PSTREAM_OK;
+  });
+}
+
+pstream_result pstream_archive_read_positions(const pstream_archive* archive, size_t index, uint32_t sample, float* out,
+                                              uint64_t capacity) {
+  if (archive == nullptr || out == nullptr) return null_argument("the archive or out");
+  if (index >= archive->points.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no points object " + std::to_string(index));
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    const alembic::Points points(archive->points[index]);
+    if (sample >= points.num_samples()) return fail(PSTREAM_ERROR_ARGUMENT, "no sample " + std::to_string(sample));
+    const alembic::SampleView p = points.positions(sample);
+    const std::uint64_t floats = p.bytes().size() / 4;
+    if (capacity < floats)
+      return fail(PSTREAM_ERROR_ARGUMENT,
+                  "the buffer holds " + std::to_string(capacity) + " floats, the sample has " + std::to_string(floats));
+    if (floats != 0) std::memcpy(out, p.bytes().data(), floats * 4);
+    archive->archive.check_intact();
+    return PSTREAM_OK;
+  });
+}
+
+// ---- Cooking ------------------------------------------------------------------------------
+
+void pstream_cook_options_init(pstream_cook_options* options) {
+  if (options == nullptr) return;
+  *options = pstream_cook_options{};
+  options->struct_size = sizeof(pstream_cook_options);
+  options->codec = PSTREAM_CODEC_RAW;
+  options->error = 1e-4;
+}
+
+pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_report* report) {
+  if (options == nullptr) return null_argument("options");
+  if (options->struct_size < sizeof(pstream_cook_options))
+    return fail(PSTREAM_ERROR_ARGUMENT, "pstream_cook_options.struct_size is smaller than this library's");
+  if (options->output == nullptr) return null_argument("options->output");
+  if (const pstream_result r = check_readable(options->input); r != PSTREAM_OK) return r;
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    cook::Options o;
+    o.input = options->input;
+    o.output = options->output;
+    if (options->object) o.object = options->object;
+    if (options->attributes) {
+      std::string list = options->attributes;
+      for (std::size_t at = 0; at <= list.size();) {
+        const std::size_t comma = std::min(list.find(',', at), list.size());
+        if (comma > at) o.attributes.push_back(list.substr(at, comma - at));
+        at = comma + 1;
+      }
+    }
+    o.fps = options->fps;
+    o.interpolate = options->interpolate != 0;
+    switch (options->codec) {
+      case PSTREAM_CODEC_RAW: o.codec = format::Codec::Raw; break;
+      case PSTREAM_CODEC_LZ4: o.codec = format::Codec::Lz4; break;
+      case PSTREAM_CODEC_ZSTD: o.codec = format::Codec::Zstd; break;
+      case PSTREAM_CODEC_PARTICLE:
+      case PSTREAM_CODEC_PARTICLE_LOSSLESS:
+        o.frame_codec = format::FrameCodec::Particle;
+        o.particle.lossless = options->codec == PSTREAM_CODEC_PARTICLE_LOSSLESS;
+        if (options->error > 0) o.particle.error = options->error;
+        break;
+      default: return fail(PSTREAM_ERROR_ARGUMENT, "unknown codec " + std::to_string(options->codec));
+    }
+    bool cancelled = false;
+    std::function<void(const cook::Progress&)> progress;
+    if (options->progress) {
+      progress = [&](const cook::Progress& p) {
+        if (options->progress(options->progress_user, p.frames_done, p.frame_count) != 0) {
+          cancelled = true;
+          throw Error(std::string(options->input) + ": the cook was cancelled by its progress callback");
+        }
+      };
+    }
+    try {
+      const cook::Report r = cook::cook(o, progress);
+      if (report) *report = {r.frames, r.particles, r.file_bytes, r.seconds};
+    } catch (const Error& e) {
+      if (cancelled) return fail(PSTREAM_ERROR_STATE, e.what());
+      throw;
+    }
+    return PSTREAM_OK;
+  });
+}
+
+// ---- Clips --------------------------------------------------------------------------------
+
+pstream_result pstream_clip_open(const char* path, pstream_clip** out) {
+  if (out == nullptr) return null_argument("out");
+  *out = nullptr;
+  if (const pstream_result r = check_readable(path); r != PSTREAM_OK) return r;
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    *out = new pstream_clip{format::Reader::open(path)};
+    return PSTREAM_OK;
+  });
+}
+
+void pstream_clip_close(pstream_clip* clip) { delete clip; }
+
+pstream_result pstream_clip_info_get(const pstream_clip* clip, pstream_clip_info* out) {
+  if (clip == nullptr || out == nullptr) return null_argument("the clip or out");
+  fill_info(clip->reader.metadata(), out);
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_clip_attribute(const pstream_clip* clip, uint32_t index, pstream_attribute* out) {
+  if (clip == nullptr || out == nullptr) return null_argument("the clip or out");
+  const auto& layout = clip->reader.metadata().layout;
+  if (index >= layout.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no attribute " + std::to_string(index));
+  fill_attribute(layout[index], out);
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_clip_frame_info(const pstream_clip* clip, uint64_t frame, uint64_t* count, double* time) {
+  if (clip == nullptr) return null_argument("the clip");
+  const format::Metadata& m = clip->reader.metadata();
+  if (frame >= m.frame_count())
+    return fail(PSTREAM_ERROR_ARGUMENT, "frame " + std::to_string(frame) + " of " + std::to_string(m.frame_count()));
+  if (count) *count = m.frames[frame].count;
+  if (time) *time = m.frames[frame].time;
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_clip_read_frame(pstream_clip* clip, uint64_t frame, void* out, uint64_t capacity) {
+  if (clip == nullptr || out == nullptr) return null_argument("the clip or out");
+  const format::Metadata& m = clip->reader.metadata();
+  if (frame >= m.frame_count())
+    return fail(PSTREAM_ERROR_ARGUMENT, "frame " + std::to_string(frame) + " of " + std::to_string(m.frame_count()));
+  const std::uint64_t bytes = m.frames[frame].count * m.record_size;
+  if (capacity < bytes)
+    return fail(PSTREAM_ERROR_ARGUMENT, "frame " + std::to_string(frame) + " needs " + std::to_string(bytes) +
+                                            " bytes, the buffer has " + std::to_string(capacity));
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    // The reader decodes into a whole frame's room; the caller's buffer may be just the records.
+    clip->reader.read_frame(frame, {static_cast<std::byte*>(out), static_cast<std::size_t>(capacity)});
+    return PSTREAM_OK;
+  });
+}
+
+// ---- Playback -----------------------------------------------------------------------------
+
+void pstream_player_options_init(pstream_player_options* options) {
+  if (options == nullptr) return;
+  *options = pstream_player_options{};
+  options->struct_size = sizeof(pstream_player_options);
+  options->cache_seconds = 1.0;
+  options->interpolation = PSTREAM_INTERPOLATION_HERMITE;
+  options->sort = PSTREAM_SORT_BACK_TO_FRONT;
+  options->loop = 1;
+}
+
+pstream_result pstream_player_open(const char* const* paths, size_t count, const pstream_player_options* options,
+                                   pstream_player** out) {
+  if (out == nullptr) return null_argument("out");
+  *out = nullptr;
+  pstream_player_options o;
+  pstream_player_options_init(&o);
+  if (options) {
+    if (options->struct_size < sizeof(pstream_player_options))
+      return fail(PSTREAM_ERROR_ARGUMENT, "pstream_player_options.struct_size is smaller than this library's");
+    o = *options;
+  }
+  if (count == 0) return fail(PSTREAM_ERROR_ARGUMENT, "a player needs at least one clip");
+  if (o.io == nullptr) {
+    if (paths == nullptr) return null_argument("paths");
+    for (size_t i = 0; i < count; ++i) {
+      if (const pstream_result r = check_readable(paths[i]); r != PSTREAM_OK) return r;
+    }
+  } else {
+    for (size_t i = 0; i < count; ++i) {
+      if (o.io[i].read == nullptr) return fail(PSTREAM_ERROR_ARGUMENT, "io[" + std::to_string(i) + "].read is NULL");
+    }
+  }
+  if (o.tasks && o.tasks->submit == nullptr) return fail(PSTREAM_ERROR_ARGUMENT, "tasks->submit is NULL");
+  if (o.interpolation < PSTREAM_INTERPOLATION_NONE || o.interpolation > PSTREAM_INTERPOLATION_HERMITE)
+    return fail(PSTREAM_ERROR_ARGUMENT, "unknown interpolation " + std::to_string(o.interpolation));
+  if (o.sort < PSTREAM_SORT_NONE || o.sort > PSTREAM_SORT_FRONT_TO_BACK)
+    return fail(PSTREAM_ERROR_ARGUMENT, "unknown sort " + std::to_string(o.sort));
+  if (!(o.cache_seconds >= 0.0)) return fail(PSTREAM_ERROR_ARGUMENT, "cache_seconds must be 0 or more");
+  return guarded(PSTREAM_ERROR_FORMAT, [&] {
+    playback::PlayerOptions po;
+    po.interpolation = static_cast<playback::Interpolation>(o.interpolation);
+    po.stream.cache_seconds = o.cache_seconds;
+    po.stream.blocking = o.blocking != 0;
+    po.loop = o.loop != 0;
+    if (o.memory_budget) po.stream.budget = std::make_shared<stream::MemoryBudget>(o.memory_budget);
+    if (o.tasks) {
+      const pstream_tasks tasks = *o.tasks;
+      po.stream.scheduler = std::make_shared<stream::IoScheduler>(
+          [tasks](void (*run)(void*), void* job) { tasks.submit(tasks.user, run, job); });
+    }
+    std::vector<std::filesystem::path> files(count);
+    for (size_t i = 0; i < count; ++i) {
+      if (o.io) {
+        po.io.push_back(std::make_unique<CallbackIo>(o.io[i]));
+        files[i] = o.io[i].name ? o.io[i].name : "pstream_io";
+      } else {
+        files[i] = paths[i];
+      }
+    }
+    auto p = std::make_unique<pstream_player>();
+    p->sort = o.sort == PSTREAM_SORT_NONE            ? sort::SortMode::None
+              : o.sort == PSTREAM_SORT_FRONT_TO_BACK ? sort::SortMode::FrontToBack
+                                                     : sort::SortMode::BackToFront;
+    p->player = playback::Player::open(files, std::move(po));
+    for (std::size_t i = 0; i < p->player->clip_count(); ++i) {
+      const stream::DebugInfo d = p->player->clip(i).debug();
+      p->cache_bytes += d.cache_bytes + d.decode_bytes;
+    }
+    *out = p.release();
+    return PSTREAM_OK;
+  });
+}
+
+void pstream_player_close(pstream_player* player) { delete player; }
+
+#define PSTREAM_PLAYER_CALL(player, body)                        \
+  do {                                                           \
+    if ((player) == nullptr) return null_argument("the player"); \
+    return guarded(PSTREAM_ERROR_STATE, [&] {                    \
+      body;                                                      \
+      return PSTREAM_OK;                                         \
+    });                                                          \
+  } while (0)
+
+pstream_result pstream_player_play(pstream_player* player) { PSTREAM_PLAYER_CALL(player, player->player->play()); }
+pstream_result pstream_player_pause(pstream_player* player) { PSTREAM_PLAYER_CALL(player, player->player->pause()); }
+pstream_result pstream_player_seek(pstream_player* player, double time) {
+  if (!std::isfinite(time)) return fail(PSTREAM_ERROR_ARGUMENT, "seek: the time is not finite");
+  PSTREAM_PLAYER_CALL(player, player->player->seek(time));
+}
+pstream_result pstream_player_set_speed(pstream_player* player, double speed) {
+  if (!std::isfinite(speed)) return fail(PSTREAM_ERROR_ARGUMENT, "set_speed: the speed is not finite");
+  PSTREAM_PLAYER_CALL(player, player->player->set_speed(speed));
+}
+pstream_result pstream_player_set_loop(pstream_player* player, int loop) {
+  PSTREAM_PLAYER_CALL(player, player->player->set_loop(loop != 0));
+}
+pstream_result pstream_player_set_range(pstream_player* player, double start, double end) {
+  if (!std::isfinite(start) || !std::isfinite(end)) return fail(PSTREAM_ERROR_ARGUMENT, "set_range: not finite");
+  PSTREAM_PLAYER_CALL(player, player->player->set_range(start, end));
+}
+
+pstream_result pstream_player_set_transform(pstream_player* player, size_t clip, const float world[16]) {
+  if (player == nullptr || world == nullptr) return null_argument("the player or world");
+  if (clip >= player->player->clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
+  render::Mat4 m;
+  std::memcpy(m.data(), world, sizeof(float) * 16);
+  player->player->set_world_transform(clip, m);
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_player_update(pstream_player* player, double dt, const float view[16]) {
+  if (player == nullptr) return null_argument("the player");
+  if (!(dt >= 0.0) || !std::isfinite(dt)) return fail(PSTREAM_ERROR_ARGUMENT, "update: dt must be finite and >= 0");
+  render::Mat4 v = render::identity();
+  if (view) std::memcpy(v.data(), view, sizeof(float) * 16);
+  return guarded(PSTREAM_ERROR_STATE, [&] {
+    player->player->advance(dt, v, player->sort);
+    return PSTREAM_OK;
+  });
+}
+
+pstream_result pstream_player_check(const pstream_player* player) {
+  if (player == nullptr) return null_argument("the player");
+  return guarded(PSTREAM_ERROR_STATE, [&] {
+    player->player->check();
+    return PSTREAM_OK;
+  });
+}
+
+size_t pstream_player_clip_count(const pstream_player* player) { return player ? player->player->clip_count() : 0; }
+
+pstream_result pstream_player_frame(const pstream_player* player, size_t clip, pstream_frame* out) {
+  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  const playback::Player& p = *player->player;
+  if (clip >= p.clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
+  *out = pstream_frame{};
+  const stream::ParticleStream& s = p.clip(clip);
+  out->time = s.time();
+  out->fraction = s.fraction();
+  out->frame = s.frame().frame;
+  out->color_offset = out->velocity_offset = -1;
+  out->record_size = s.metadata().record_size;
+  // The batch advance() made for this clip (a clip without particles has none).
+  const std::ptrdiff_t batch = p.batch_of(clip);
+  if (batch < 0) return PSTREAM_OK;
+  const render::ParticleBatch& b = p.batches()[static_cast<std::size_t>(batch)];
+  out->records = b.first.data();
+  out->count = b.count;
+  out->color_offset = b.color_offset;
+  out->velocity_offset = b.velocity_offset;
+  out->order = b.order.empty() ? nullptr : b.order.data();
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_player_merged_order(const pstream_player* player, const uint32_t** order, uint64_t* count) {
+  if (player == nullptr || order == nullptr || count == nullptr) return null_argument("the player, order or count");
+  const std::span<const std::uint32_t> merged = player->player->merged_order();
+  *order = merged.empty() ? nullptr : merged.data();
+  *count = merged.size();
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_player_clip_info(const pstream_player* player, size_t clip, pstream_clip_info* out) {
+  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  if (clip >= player->player->clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
+  fill_info(player->player->clip(clip).metadata(), out);
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_player_attribute(const pstream_player* player, size_t clip, uint32_t index,
+                                        pstream_attribute* out) {
+  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  if (clip >= player->player->clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
+  const auto& layout = player->player->clip(clip).metadata().layout;
+  if (index >= layout.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no attribute " + std::to_string(index));
+  fill_attribute(layout[index], out);
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_player_stats_get(const pstream_player* player, pstream_player_stats* out) {
+  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  const playback::FrameStats& s = player->player->stats();
+  *out = pstream_player_stats{};
+  out->stream_ms = s.stream_ms;
+  out->interpolate_ms = s.interpolate_ms;
+  out->sort_ms = s.sort_ms;
+  out->particles = s.particles;
+  out->failed_clips = static_cast<uint32_t>(s.failed_clips);
+  out->cache_bytes = player->cache_bytes;
+  for (std::size_t i = 0; i < player->player->clip_count(); ++i) out->stalls += player->player->clip(i).debug().stalls;
+  return PSTREAM_OK;
+}
+
+}  // extern "C"

@@ -1,0 +1,432 @@
+/* Every function of the C API (include/particlestream/particlestream.h), from C99 compiled with
+ * -Wall -Wextra -Werror -pedantic: results and messages of each error path, a cook with progress
+ * and cancellation, reading a clip, playing it (also through IO callbacks, with failures), and
+ * what a corrupt chunk and a small memory budget give.
+ *
+ *   every_function DATA_DIR WORK_DIR     (DATA_DIR: tests/data; WORK_DIR: an empty folder)
+ */
+#define _POSIX_C_SOURCE 200809L /* pthreads under -std=c99 */
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <particlestream/particlestream.h>
+
+static int failures = 0;
+
+#define CHECK(cond)                                                                                             \
+  do {                                                                                                          \
+    if (!(cond)) {                                                                                              \
+      fprintf(stderr, "%s:%d: failed: %s (last error: %s)\n", __FILE__, __LINE__, #cond, pstream_last_error()); \
+      ++failures;                                                                                               \
+    }                                                                                                           \
+  } while (0)
+
+/* The call returns `code` and leaves a message naming `fragment`. */
+#define EXPECT_ERROR(call, code, fragment)                                                              \
+  do {                                                                                                  \
+    const pstream_result r_ = (call);                                                                   \
+    CHECK(r_ == (code));                                                                                \
+    CHECK(strstr(pstream_last_error(), (fragment)) != NULL);                                            \
+    if (r_ != (code)) fprintf(stderr, "  got %s: %s\n", pstream_result_name(r_), pstream_last_error()); \
+  } while (0)
+
+static char path_buffer[8][1024];
+static const char* join(int slot, const char* dir, const char* name) {
+  snprintf(path_buffer[slot], sizeof path_buffer[slot], "%s/%s", dir, name);
+  return path_buffer[slot];
+}
+
+static int progress_calls = 0;
+static int count_progress(void* user, uint64_t done, uint64_t total) {
+  (void)user;
+  ++progress_calls;
+  return done > total; /* never */
+}
+static int cancel_at_two(void* user, uint64_t done, uint64_t total) {
+  (void)user;
+  (void)total;
+  return done >= 2;
+}
+
+/* A clip held in memory, read through pstream_io; `fail_after` reads succeed, then every read fails. */
+typedef struct memory_file {
+  unsigned char* bytes;
+  uint64_t size;
+  int reads, fail_after;
+} memory_file;
+
+static int read_memory(void* user, uint64_t offset, void* out, uint64_t size) {
+  memory_file* f = (memory_file*)user;
+  if (f->fail_after >= 0 && f->reads >= f->fail_after) return -1;
+  ++f->reads;
+  memcpy(out, f->bytes + offset, (size_t)size);
+  return 0;
+}
+
+/* A host job system: one worker thread and a queue, as an engine would give the library. */
+typedef struct job_queue {
+  pthread_mutex_t mutex;
+  pthread_cond_t wake;
+  void (*run[256])(void*);
+  void* job[256];
+  int head, count, stop, ran, overflow;
+  pthread_t worker;
+} job_queue;
+
+static void submit_job(void* user, void (*run)(void* job), void* job) {
+  job_queue* q = (job_queue*)user;
+  pthread_mutex_lock(&q->mutex);
+  if (q->count == 256) {
+    q->overflow = 1;
+  } else {
+    q->run[(q->head + q->count) % 256] = run;
+    q->job[(q->head + q->count) % 256] = job;
+    ++q->count;
+  }
+  pthread_cond_signal(&q->wake);
+  pthread_mutex_unlock(&q->mutex);
+}
+
+static void* worker_main(void* user) {
+  job_queue* q = (job_queue*)user;
+  for (;;) {
+    void (*run)(void*);
+    void* job;
+    pthread_mutex_lock(&q->mutex);
+    while (!q->stop && q->count == 0) pthread_cond_wait(&q->wake, &q->mutex);
+    if (q->count == 0) {
+      pthread_mutex_unlock(&q->mutex);
+      return NULL;
+    }
+    run = q->run[q->head];
+    job = q->job[q->head];
+    q->head = (q->head + 1) % 256;
+    --q->count;
+    ++q->ran;
+    pthread_mutex_unlock(&q->mutex);
+    run(job);
+  }
+}
+
+static unsigned char* load(const char* path, uint64_t* size) {
+  FILE* f = fopen(path, "rb");
+  unsigned char* bytes;
+  long n;
+  if (!f) return NULL;
+  fseek(f, 0, SEEK_END);
+  n = ftell(f);
+  fseek(f, 0, SEEK_SET);
+  bytes = (unsigned char*)malloc((size_t)n);
+  if (bytes && fread(bytes, 1, (size_t)n, f) != (size_t)n) {
+    free(bytes);
+    bytes = NULL;
+  }
+  fclose(f);
+  *size = (uint64_t)n;
+  return bytes;
+}
+
+static int save(const char* path, const unsigned char* bytes, uint64_t size) {
+  FILE* f = fopen(path, "wb");
+  int ok;
+  if (!f) return 0;
+  ok = fwrite(bytes, 1, (size_t)size, f) == (size_t)size;
+  return fclose(f) == 0 && ok;
+}
+
+/* Plays `player`'s clip 0 for `frames` host frames at 96 Hz; returns the particles seen. */
+static uint64_t play(pstream_player* player, int frames) {
+  static const float view[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, -5, 1};
+  uint64_t seen = 0;
+  int k;
+  for (k = 0; k < frames; ++k) {
+    pstream_frame frame;
+    CHECK(pstream_player_update(player, k == 0 ? 0.0 : 1.0 / 96, view) == PSTREAM_OK);
+    CHECK(pstream_player_frame(player, 0, &frame) == PSTREAM_OK);
+    seen += frame.count;
+  }
+  return seen;
+}
+
+int main(int argc, char** argv) {
+  const char *data, *work;
+  if (argc != 3) {
+    fprintf(stderr, "usage: %s DATA_DIR WORK_DIR\n", argv[0]);
+    return 2;
+  }
+  data = argv[1];
+  work = argv[2];
+
+  /* ---- Version and names ---- */
+  CHECK(pstream_version() == PSTREAM_VERSION);
+  CHECK(strcmp(pstream_result_name(PSTREAM_OK), "PSTREAM_OK") == 0);
+  CHECK(strcmp(pstream_result_name(PSTREAM_ERROR_BUDGET), "PSTREAM_ERROR_BUDGET") == 0);
+
+  /* ---- Archives ---- */
+  {
+    pstream_archive* archive = NULL;
+    size_t objects = 0;
+    const char* name = NULL;
+    uint32_t samples = 0;
+    uint64_t count = 0;
+    double time = -1, sum = 0;
+    float* positions;
+    uint64_t i;
+    CHECK(pstream_archive_open(join(0, data, "alembic/points_varying.abc"), &archive) == PSTREAM_OK);
+    CHECK(pstream_archive_points_count(archive, &objects) == PSTREAM_OK && objects == 1);
+    CHECK(pstream_archive_points_info(archive, 0, &name, &samples) == PSTREAM_OK);
+    CHECK(name && strcmp(name, "/particles") == 0);
+    CHECK(samples == 60);
+    CHECK(pstream_archive_points_sample(archive, 0, 5, &count, &time) == PSTREAM_OK && count > 0 && time > 0);
+    positions = (float*)malloc((size_t)count * 3 * sizeof(float));
+    CHECK(pstream_archive_read_positions(archive, 0, 5, positions, count * 3) == PSTREAM_OK);
+    for (i = 0; i < count * 3; ++i) sum += positions[i];
+    CHECK(sum != 0);
+    EXPECT_ERROR(pstream_archive_read_positions(archive, 0, 5, positions, 2), PSTREAM_ERROR_ARGUMENT, "buffer holds 2");
+    EXPECT_ERROR(pstream_archive_points_info(archive, 1, &name, &samples), PSTREAM_ERROR_ARGUMENT, "points object 1");
+    EXPECT_ERROR(pstream_archive_points_sample(archive, 0, 60, &count, &time), PSTREAM_ERROR_ARGUMENT, "sample 60");
+    free(positions);
+    pstream_archive_close(archive);
+    EXPECT_ERROR(pstream_archive_open(join(0, data, "no/such.abc"), &archive), PSTREAM_ERROR_IO, "no/such.abc");
+    CHECK(archive == NULL);
+    EXPECT_ERROR(pstream_archive_open(join(0, data, "alembic/points_varying.expected.json"), &archive),
+                 PSTREAM_ERROR_FORMAT, "points_varying.expected.json");
+    EXPECT_ERROR(pstream_archive_open(NULL, &archive), PSTREAM_ERROR_ARGUMENT, "NULL");
+    EXPECT_ERROR(pstream_archive_points_count(NULL, &objects), PSTREAM_ERROR_ARGUMENT, "NULL");
+    pstream_archive_close(NULL); /* harmless */
+  }
+
+  /* ---- Cooking ---- */
+  {
+    pstream_cook_options o;
+    pstream_cook_report report;
+    FILE* exists;
+    pstream_cook_options_init(&o);
+    CHECK(o.struct_size == sizeof o && o.codec == PSTREAM_CODEC_RAW);
+    o.input = join(0, data, "alembic/points_varying.abc");
+    o.output = join(1, work, "particle.pstream");
+    o.attributes = "velocity,id";
+    o.codec = PSTREAM_CODEC_PARTICLE;
+    o.progress = count_progress;
+    CHECK(pstream_cook(&o, &report) == PSTREAM_OK);
+    CHECK(report.frames == 60 && report.particles > 0 && report.file_bytes > 0);
+    CHECK(progress_calls >= 60);
+    o.output = join(2, work, "raw.pstream");
+    o.codec = PSTREAM_CODEC_RAW;
+    o.progress = NULL;
+    CHECK(pstream_cook(&o, NULL) == PSTREAM_OK);
+    o.output = join(3, work, "cancelled.pstream");
+    o.progress = cancel_at_two;
+    EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_STATE, "cancelled");
+    exists = fopen(join(3, work, "cancelled.pstream"), "rb");
+    CHECK(exists == NULL); /* nothing written */
+    if (exists) fclose(exists);
+    o.progress = NULL;
+    o.codec = 99;
+    EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_ARGUMENT, "unknown codec 99");
+    o.codec = PSTREAM_CODEC_RAW;
+    o.object = "/nothing/here";
+    EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_FORMAT, "/nothing/here");
+    o.object = NULL;
+    o.input = join(0, data, "no/such.abc");
+    EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_IO, "no/such.abc");
+    EXPECT_ERROR(pstream_cook(NULL, NULL), PSTREAM_ERROR_ARGUMENT, "NULL");
+  }
+
+  /* ---- Reading a clip ---- */
+  {
+    pstream_clip* clip = NULL;
+    pstream_clip_info info;
+    pstream_attribute a;
+    uint32_t i;
+    uint64_t count = 0;
+    double time = 0;
+    void* records;
+    CHECK(pstream_clip_open(join(1, work, "particle.pstream"), &clip) == PSTREAM_OK);
+    CHECK(pstream_clip_info_get(clip, &info) == PSTREAM_OK);
+    /* position, scale, color (from Cd), velocity, id */
+    CHECK(info.frame_count == 60 && info.record_size == 16 + 4 + 12 + 8 && info.attribute_count == 5);
+    for (i = 0; i < info.attribute_count; ++i) CHECK(pstream_clip_attribute(clip, i, &a) == PSTREAM_OK);
+    CHECK(strcmp(a.name, "id") == 0 && a.type == PSTREAM_UINT64 && a.components == 1 && a.offset == 32);
+    CHECK(pstream_clip_attribute(clip, 0, &a) == PSTREAM_OK && strcmp(a.name, "position") == 0 && a.offset == 0);
+    EXPECT_ERROR(pstream_clip_attribute(clip, 9, &a), PSTREAM_ERROR_ARGUMENT, "attribute 9");
+    CHECK(pstream_clip_frame_info(clip, 5, &count, &time) == PSTREAM_OK && count > 0);
+    records = malloc((size_t)(info.max_count * info.record_size));
+    CHECK(pstream_clip_read_frame(clip, 59, records, info.max_count * info.record_size) == PSTREAM_OK);
+    EXPECT_ERROR(pstream_clip_read_frame(clip, 5, records, 3), PSTREAM_ERROR_ARGUMENT, "the buffer has 3");
+    EXPECT_ERROR(pstream_clip_frame_info(clip, 60, &count, &time), PSTREAM_ERROR_ARGUMENT, "frame 60 of 60");
+    free(records);
+    pstream_clip_close(clip);
+    EXPECT_ERROR(pstream_clip_open(join(0, data, "alembic/points_varying.abc"), &clip), PSTREAM_ERROR_FORMAT,
+                 "points_varying.abc");
+  }
+
+  /* ---- Playback ---- */
+  {
+    pstream_player* player = NULL;
+    pstream_player_options options;
+    pstream_player_stats stats;
+    pstream_clip_info info;
+    pstream_attribute a;
+    pstream_frame frame;
+    const uint32_t* order = NULL;
+    uint64_t merged = 0;
+    const char* clips[2];
+    static const float world[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.5f, 0, 0, 1};
+    int k, between = 0, drawn = 0;
+    clips[0] = join(1, work, "particle.pstream");
+    clips[1] = join(2, work, "raw.pstream");
+    pstream_player_options_init(&options);
+    CHECK(options.struct_size == sizeof options && options.loop == 1);
+    options.blocking = 1;
+    CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+    CHECK(pstream_player_clip_count(player) == 1);
+    CHECK(pstream_player_clip_info(player, 0, &info) == PSTREAM_OK && info.frame_count == 60);
+    CHECK(pstream_player_attribute(player, 0, 3, &a) == PSTREAM_OK && strcmp(a.name, "velocity") == 0);
+    CHECK(pstream_player_set_transform(player, 0, world) == PSTREAM_OK);
+    CHECK(pstream_player_set_range(player, info.start_time, info.end_time) == PSTREAM_OK);
+    CHECK(pstream_player_set_loop(player, 0) == PSTREAM_OK);
+    CHECK(pstream_player_set_speed(player, 0.5) == PSTREAM_OK);
+    CHECK(pstream_player_seek(player, info.start_time) == PSTREAM_OK);
+    CHECK(pstream_player_play(player) == PSTREAM_OK);
+    for (k = 0; k < 40; ++k) {
+      CHECK(pstream_player_update(player, k == 0 ? 0.0 : 1.0 / 96, NULL) == PSTREAM_OK);
+      CHECK(pstream_player_frame(player, 0, &frame) == PSTREAM_OK);
+      CHECK(frame.record_size == info.record_size);
+      if (frame.count > 0) { /* the clip's first frames are empty */
+        CHECK(frame.records != NULL && frame.order != NULL);
+        CHECK(frame.velocity_offset == 20 && frame.color_offset == 16);
+        ++drawn;
+      }
+      between += frame.fraction > 0;
+    }
+    CHECK(between > 20); /* 96 Hz at half speed on a 24 fps clip: mostly between frames */
+    CHECK(drawn > 30);
+    CHECK(pstream_player_merged_order(player, &order, &merged) == PSTREAM_OK && merged == 0 && order == NULL);
+    CHECK(pstream_player_stats_get(player, &stats) == PSTREAM_OK);
+    CHECK(stats.particles > 0 && stats.cache_bytes > 0 && stats.failed_clips == 0);
+    CHECK(pstream_player_check(player) == PSTREAM_OK);
+    CHECK(pstream_player_pause(player) == PSTREAM_OK);
+    EXPECT_ERROR(pstream_player_frame(player, 3, &frame), PSTREAM_ERROR_ARGUMENT, "no clip 3");
+    EXPECT_ERROR(pstream_player_update(player, -1.0, NULL), PSTREAM_ERROR_ARGUMENT, "dt");
+    EXPECT_ERROR(pstream_player_seek(player, NAN), PSTREAM_ERROR_ARGUMENT, "not finite");
+    pstream_player_close(player);
+
+    /* Two clips sorted together: one order across both. */
+    CHECK(pstream_player_open(clips, 2, &options, &player) == PSTREAM_OK);
+    CHECK(pstream_player_play(player) == PSTREAM_OK);
+    CHECK(play(player, 10) > 0);
+    CHECK(pstream_player_merged_order(player, &order, &merged) == PSTREAM_OK && merged > 0 && order != NULL);
+    pstream_player_close(player);
+
+    EXPECT_ERROR(pstream_player_open(clips, 0, &options, &player), PSTREAM_ERROR_ARGUMENT, "at least one clip");
+    clips[1] = join(3, work, "missing.pstream");
+    EXPECT_ERROR(pstream_player_open(clips, 2, &options, &player), PSTREAM_ERROR_IO, "missing.pstream");
+    clips[1] = join(2, work, "raw.pstream");
+    options.interpolation = 7;
+    EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "unknown interpolation 7");
+    options.interpolation = PSTREAM_INTERPOLATION_HERMITE;
+    options.sort = -1;
+    EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "unknown sort -1");
+    options.sort = PSTREAM_SORT_BACK_TO_FRONT;
+    options.memory_budget = 1024;
+    EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_BUDGET, "memory budget");
+    options.memory_budget = 0;
+    EXPECT_ERROR(pstream_player_play(NULL), PSTREAM_ERROR_ARGUMENT, "NULL");
+    pstream_player_close(NULL);
+    CHECK(pstream_player_clip_count(NULL) == 0);
+  }
+
+  /* ---- IO callbacks: the same frames as the file; a failing backend puts the clip in error ---- */
+  {
+    pstream_player* player = NULL;
+    pstream_player_options options;
+    pstream_io io;
+    memory_file file;
+    uint64_t from_file, from_memory;
+    const char* clips[1];
+    clips[0] = join(2, work, "raw.pstream");
+    pstream_player_options_init(&options);
+    options.blocking = 1;
+    CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+    pstream_player_play(player);
+    from_file = play(player, 60);
+    pstream_player_close(player);
+
+    {
+      /* The same frames with the IO and decoding on the host's jobs. */
+      static job_queue q;
+      pstream_tasks tasks;
+      uint64_t from_jobs;
+      pthread_mutex_init(&q.mutex, NULL);
+      pthread_cond_init(&q.wake, NULL);
+      CHECK(pthread_create(&q.worker, NULL, worker_main, &q) == 0);
+      tasks.user = &q;
+      tasks.submit = submit_job;
+      options.tasks = &tasks;
+      CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+      pstream_player_play(player);
+      from_jobs = play(player, 60);
+      pstream_player_close(player);
+      CHECK(from_jobs == from_file);
+      pthread_mutex_lock(&q.mutex);
+      q.stop = 1;
+      pthread_cond_signal(&q.wake);
+      pthread_mutex_unlock(&q.mutex);
+      pthread_join(q.worker, NULL);
+      CHECK(q.ran > 0 && !q.overflow);
+      tasks.submit = NULL;
+      EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "tasks->submit is NULL");
+      options.tasks = NULL;
+      pthread_cond_destroy(&q.wake);
+      pthread_mutex_destroy(&q.mutex);
+    }
+
+    file.bytes = load(clips[0], &file.size);
+    file.reads = 0;
+    file.fail_after = -1;
+    CHECK(file.bytes != NULL);
+    io.user = &file;
+    io.read = read_memory;
+    io.size = file.size;
+    io.name = "pak://fx/raw.pstream";
+    options.io = &io;
+    CHECK(pstream_player_open(NULL, 1, &options, &player) == PSTREAM_OK);
+    pstream_player_play(player);
+    from_memory = play(player, 60);
+    CHECK(from_memory == from_file && file.reads > 0);
+    pstream_player_close(player);
+
+    file.reads = 0;
+    file.fail_after = 2; /* the header and the tables, then the first chunk fails */
+    CHECK(pstream_player_open(NULL, 1, &options, &player) == PSTREAM_OK);
+    pstream_player_play(player);
+    play(player, 5);
+    EXPECT_ERROR(pstream_player_check(player), PSTREAM_ERROR_STATE, "pak://fx/raw.pstream");
+    pstream_player_close(player);
+    io.read = NULL;
+    EXPECT_ERROR(pstream_player_open(NULL, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "read is NULL");
+
+    /* A corrupt chunk: one byte changed in the middle of the raw clip's data. */
+    file.bytes[file.size / 2] ^= 0x5a;
+    CHECK(save(join(4, work, "corrupt.pstream"), file.bytes, file.size));
+    free(file.bytes);
+    clips[0] = join(4, work, "corrupt.pstream");
+    options.io = NULL;
+    CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+    pstream_player_play(player);
+    play(player, 60);
+    EXPECT_ERROR(pstream_player_check(player), PSTREAM_ERROR_STATE, "checksum");
+    pstream_player_close(player);
+  }
+
+  if (failures) {
+    fprintf(stderr, "%d check(s) failed\n", failures);
+    return 1;
+  }
+  printf("every C API function checked\n");
+  return 0;
+}

@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# The installed SDK as a user gets it: install the build into a temporary prefix, then build the
+# C example against it with find_package(ParticleStream) and with pkg-config, run both on a clip
+# (the same output), check that libparticlestream exports only pstream_* functions, and that
+# the C API test uses every function the header declares.
+#   install_test.sh BUILD_DIR SOURCE_DIR PSTREAM_CLI
+set -euo pipefail
+build=$1 source=$2 cli=$3
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+prefix=$work/prefix
+
+cmake --install "$build" --prefix "$prefix" --component Runtime >/dev/null
+cmake --install "$build" --prefix "$prefix" --component Development >/dev/null
+lib=$(find "$prefix" -name libparticlestream.so.0 | head -1)
+[ -n "$lib" ] || { echo "libparticlestream.so.0 not installed under $prefix"; find "$prefix"; exit 1; }
+libdir=$(dirname "$lib")
+[ -f "$prefix/include/particlestream/particlestream.h" ] || { echo "header not installed"; exit 1; }
+
+# Only the API is exported.
+exported=$(nm -D --defined-only "$lib" | awk '$2 == "T" || $2 == "W" || $2 == "D" || $2 == "B" || $2 == "R" {sub(/@.*/, "", $3); print $3}')
+others=$(echo "$exported" | grep -v '^pstream_' || true)
+if [ -n "$others" ]; then echo "exported besides the API:"; echo "$others" | head -20; exit 1; fi
+declared=$(grep -oE 'PSTREAM_API [^;]*\b(pstream_[a-z_]+)\(' "$source/include/particlestream/particlestream.h" |
+           grep -oE 'pstream_[a-z_]+\($' | tr -d '(' | sort -u)
+[ "$(echo "$exported" | sort -u)" = "$declared" ] || {
+  echo "exported and declared differ:"; diff <(echo "$exported" | sort -u) <(echo "$declared"); exit 1; }
+# The C API test calls each of them.
+for f in $declared; do
+  grep -q "\b$f(" "$source/tests/sdk/every_function.c" || { echo "tests/sdk/every_function.c never calls $f"; exit 1; }
+done
+echo "exports: $(echo "$declared" | wc -l) pstream_* functions, nothing else"
+
+# A clip to play.
+"$cli" cook "$source/tests/data/alembic/points_varying.abc" --attributes velocity,id -o "$work/clip.pstream" -q
+
+# find_package
+cmake -S "$source/examples/c" -B "$work/cmake-build" -DCMAKE_PREFIX_PATH="$prefix" >/dev/null
+cmake --build "$work/cmake-build" >/dev/null
+LD_LIBRARY_PATH=$libdir "$work/cmake-build/play_clip" "$work/clip.pstream" >"$work/cmake.out"
+
+# pkg-config
+PKG_CONFIG_PATH=$libdir/pkgconfig cc -std=c99 -Wall -Wextra -Werror -pedantic "$source/examples/c/play_clip.c" \
+  $(PKG_CONFIG_PATH=$libdir/pkgconfig pkg-config --cflags --libs particlestream) -o "$work/play_clip_pc"
+LD_LIBRARY_PATH=$libdir "$work/play_clip_pc" "$work/clip.pstream" >"$work/pc.out"
+
+cmp "$work/cmake.out" "$work/pc.out"
+lines=$(wc -l <"$work/pc.out")
+[ "$lines" -ge 100 ] || { echo "the example played $lines host frames"; exit 1; }
+awk '$3 > 0 {drawn++} END {exit !(drawn > NR / 2)}' "$work/pc.out" || { echo "most host frames without particles"; exit 1; }
+echo "the example built with find_package and with pkg-config played $lines host frames"
