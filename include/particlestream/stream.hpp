@@ -157,7 +157,8 @@ class ParticleStream {
  public:
   // Opens and validates the file, sizes the cache and allocates it (one allocation), reserves IO
   // queue room, and starts loading the first chunks. Throws pstream::Error with a clear message
-  // for a file that is not a .pstream, or a cache that does not fit the memory budget.
+  // for a file that is not a .pstream, or pstream::OptionError("budget") for a cache that does not
+  // fit the memory budget.
   static std::unique_ptr<ParticleStream> open(const std::filesystem::path& path, StreamOptions options = {});
   ~ParticleStream();
   void close();  // waits for the load in flight; safe after an error and twice

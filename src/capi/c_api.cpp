@@ -2,7 +2,6 @@
 // codes, per-thread messages; every exception is caught here.
 #include "particlestream/particlestream.h"
 
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -36,13 +35,11 @@ template <class F>
 pstream_result guarded(pstream_result code, F&& body) {
   try {
     return body();
-  } catch (const OptionError& e) {
-    const bool limit = e.option().rfind("max_", 0) == 0;
+  } catch (const OptionError& e) {  // a memory budget or a limit (max_particles, ...), or a bad setting
+    const bool limit = e.option() == "budget" || e.option().rfind("max_", 0) == 0;
     return fail(limit ? PSTREAM_ERROR_BUDGET : PSTREAM_ERROR_ARGUMENT, e.what());
   } catch (const Error& e) {
-    const std::string what = e.what();
-    if (what.find("memory budget") != std::string::npos) return fail(PSTREAM_ERROR_BUDGET, what);
-    return fail(code, what);
+    return fail(code, e.what());
   } catch (const std::bad_alloc&) {
     return fail(PSTREAM_ERROR_BUDGET, "out of memory");
   } catch (const std::exception& e) {
@@ -55,8 +52,6 @@ pstream_result guarded(pstream_result code, F&& body) {
 // A file that cannot be read is an IO error, whatever the reader would have said about it.
 pstream_result check_readable(const char* path) {
   if (path == nullptr) return fail(PSTREAM_ERROR_ARGUMENT, "a path is NULL");
-  struct stat st {};
-  if (::stat(path, &st) != 0) return fail(PSTREAM_ERROR_IO, std::string(path) + ": " + std::strerror(errno));
   if (::access(path, R_OK) != 0) return fail(PSTREAM_ERROR_IO, std::string(path) + ": " + std::strerror(errno));
   return PSTREAM_OK;
 }

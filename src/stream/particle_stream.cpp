@@ -376,6 +376,16 @@ struct ParticleStream::Impl {
     issue_locked();
     kick_locked();
   }
+
+  // restart_locked(), with the frame on screen (if any) still shown, as sequence number
+  // `shown_seq`, until the target is decoded.
+  void restart_keeping_shown(std::uint64_t frame, std::uint64_t shown_seq) {
+    FrameSlot shown = frame_slots[current];
+    restart_locked(frame);
+    if (!current_valid) return;
+    shown.seq = shown_seq;
+    frame_slots[current] = shown;
+  }
 };
 
 std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path& path, StreamOptions options) {
@@ -421,11 +431,11 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
       impl->frame_decoder->state_bytes();
   const std::uint64_t total_bytes = impl->cache_bytes + decode_bytes;
   if (options.budget && !options.budget->try_reserve(total_bytes)) {
-    throw Error(fmt::format(
-        "{}: its cache of {} slots x {} KiB plus {} decoded frames and decoding state, {:.1f} MiB in all, does not fit "
-        "the memory budget ({:.1f} of {:.1f} MiB used)",
-        impl->name, slots, m.chunk_size >> 10, frame_slots, total_bytes / 1048576.0, options.budget->used() / 1048576.0,
-        options.budget->total() / 1048576.0));
+    throw OptionError("budget", fmt::format("{}: its cache of {} slots x {} KiB plus {} decoded frames and decoding "
+                                            "state, {:.1f} MiB in all, does not fit "
+                                            "the memory budget ({:.1f} of {:.1f} MiB used)",
+                                            impl->name, slots, m.chunk_size >> 10, frame_slots, total_bytes / 1048576.0,
+                                            options.budget->used() / 1048576.0, options.budget->total() / 1048576.0));
   }
   impl->decode_bytes = decode_bytes;
   impl->budget = options.budget;
@@ -576,16 +586,12 @@ void ParticleStream::update(double dt) {
     const bool passed = d.frame_seq(d.p_lap, d.p_frame) > target_seq ||
                         (d.p_lap == 0 && d.playhead.lap == 0 && target < d.p_publish_from);
     if (passed && !seeking_ && find(target_seq) == d.frame_slots.size()) {
-      const bool keep = d.current_valid;
-      const std::uint64_t kept_frame = d.current_seq % m.frame_count();
-      const std::size_t kept_runs = d.frame_slots[d.current].runs;
       d.playhead.lap = 0;  // sequence numbers restart with the decoding
       target_seq = target;
-      d.restart_locked(target);
+      d.current_seq %= m.frame_count();
       // Held for display only: a sequence number no lookup matches (the frame is decoded again
       // after its predecessor, matched to it).
-      if (keep) d.frame_slots[d.current] = {FrameSlot::Ready, FrameSlot::kHeld, kept_runs};
-      d.current_seq = kept_frame;
+      d.restart_keeping_shown(target, FrameSlot::kHeld);
     }
   }
   // 2. Release decoded frames playback has passed (the current one stays until a newer one is
@@ -599,17 +605,11 @@ void ParticleStream::update(double dt) {
   const std::uint64_t target_key = format::keyframe_of(m, target);
   if (!d.producer_done && producer_seq < d.frame_seq(d.playhead.lap, target_key) && target_key > d.frame_begin &&
       d.packet_seqs(d.playhead.lap, target_key).first >= d.next) {
-    const bool keep = d.current_valid;
-    const std::uint64_t kept_seq = d.current_seq;
-    const std::size_t kept_runs = d.frame_slots[d.current].runs;
     const std::uint64_t lap = d.playhead.lap;
-    d.restart_locked(target);
+    d.restart_keeping_shown(target, d.current_seq);
     d.p_lap = lap;  // the same lap: chunk sequence numbers and frames stay in step
     d.seq_base = d.oldest = d.next = d.packet_seqs(lap, target_key).first;
     d.issue_locked();
-    if (keep) {  // the shown frame stays shown until the target is decoded
-      d.frame_slots[d.current] = {FrameSlot::Ready, kept_seq, kept_runs};
-    }
   }
   // 3. Keep the IO worker busy (it also chains loads and decodes by itself as each one completes).
   d.issue_locked();
