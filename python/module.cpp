@@ -177,18 +177,7 @@ PYBIND11_MODULE(particlestream, m) {
         o.object = object;
         o.attributes = std::move(attributes);
         o.interpolate = interpolate;
-        if (codec == "raw")
-          o.codec = format::Codec::Raw;
-        else if (codec == "lz4")
-          o.codec = format::Codec::Lz4;
-        else if (codec == "zstd")
-          o.codec = format::Codec::Zstd;
-        else if (codec == "particle" || codec == "particle-lossless") {
-          o.frame_codec = format::FrameCodec::Particle;
-          o.particle.lossless = codec == "particle-lossless";
-        } else {
-          throw Error("codec '" + codec + "': expected raw, lz4, zstd, particle or particle-lossless");
-        }
+        cook::set_codec(o, codec);
         std::function<void(const cook::Progress&)> report;
         if (progress) {
           report = [&](const cook::Progress& p) {
@@ -252,26 +241,12 @@ PYBIND11_MODULE(particlestream, m) {
       .def(py::init([](std::vector<std::filesystem::path> paths, const std::string& interpolation, bool blocking,
                        bool loop, const std::string& sort, double cache_seconds) {
              playback::PlayerOptions o;
-             if (interpolation == "none")
-               o.interpolation = playback::Interpolation::None;
-             else if (interpolation == "linear")
-               o.interpolation = playback::Interpolation::Linear;
-             else if (interpolation == "hermite")
-               o.interpolation = playback::Interpolation::Hermite;
-             else
-               throw Error("interpolation '" + interpolation + "': expected none, linear or hermite");
+             o.interpolation = playback::parse_interpolation(interpolation);
              o.stream.blocking = blocking;
              o.stream.cache_seconds = cache_seconds;
              o.loop = loop;
              auto p = std::make_unique<PyPlayer>();
-             if (sort == "none")
-               p->sort = sort::SortMode::None;
-             else if (sort == "back")
-               p->sort = sort::SortMode::BackToFront;
-             else if (sort == "front")
-               p->sort = sort::SortMode::FrontToBack;
-             else
-               throw Error("sort '" + sort + "': expected none, back or front");
+             p->sort = sort::parse_sort_mode(sort);
              p->player = playback::Player::open(paths, std::move(o));
              return p;
            }),

@@ -70,6 +70,7 @@ std::string in_cli_terms(std::string message) {
       {"`max_particles`", "--max-particles"},
       {"`max_frames`", "--max-frames"},
       {"`chunk_size`", "--chunk-size"},
+      {"`codec`", "--codec"},
       {"`color_from`", "--color-from"},
       {"`scale_from`", "--scale-from"},
       {"`attributes`", "--attributes"},

@@ -32,45 +32,6 @@ std::uint64_t parse_size(const std::string& text) {
   return value << shift;
 }
 
-void parse_codec(const std::string& text, cook::Options& o) {
-  const auto colon = text.find(':');
-  const std::string name = text.substr(0, colon);
-  if (name == "particle" || name == "particle-lossless") {
-    o.frame_codec = format::FrameCodec::Particle;
-    o.particle.lossless = name == "particle-lossless";
-    if (colon != std::string::npos) {  // the entropy stage's zstd level
-      const std::string level = text.substr(colon + 1);
-      const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.particle.zstd_level);
-      if (ec != std::errc() || ptr != level.data() + level.size() || o.particle.zstd_level < 1 ||
-          o.particle.zstd_level > 22) {
-        throw Error(fmt::format("--codec '{}': the particle codec's zstd level must be 1..22 (default {}, lossless {})",
-                                text, format::kDefaultParticleZstdLevel, format::kDefaultLosslessParticleZstdLevel));
-      }
-    }
-    return;
-  }
-  if (name == "raw") {
-    o.codec = format::Codec::Raw;
-    if (colon != std::string::npos) throw Error(fmt::format("--codec '{}': raw has no level; write raw", text));
-    return;
-  }
-  if (name == "lz4")
-    o.codec = format::Codec::Lz4;
-  else if (name == "zstd")
-    o.codec = format::Codec::Zstd;
-  else
-    throw Error(fmt::format(
-        "--codec '{}': expected particle[:LEVEL], particle-lossless[:LEVEL], raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL",
-        text));
-  if (colon != std::string::npos) {
-    const std::string level = text.substr(colon + 1);
-    const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.codec_level);
-    if (ec != std::errc() || ptr != level.data() + level.size() || o.codec_level < 0 || o.codec_level > 22) {
-      throw Error(fmt::format("--codec '{}': level must be 0..22", text));
-    }
-  }
-}
-
 // "1e-4" or "rel:1e-4": a fraction of the clip's bounds diagonal; "abs:0.001": scene units.
 void parse_error(const std::string& text, cook::Options& o) {
   std::string number = text;
@@ -136,7 +97,7 @@ int run_cook(const CookCli& cli) {
     start = comma + 1;
   }
   o.chunk_size = parse_size(cli.chunk_size);
-  parse_codec(cli.codec, o);
+  cook::set_codec(o, cli.codec);
   parse_error(cli.error, o);
   o.particle.keyframe_interval = cli.keyframe_interval;
   if (!cli.frames.empty()) parse_frames(cli.frames, o);

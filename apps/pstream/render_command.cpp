@@ -62,9 +62,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   playback::PlayerOptions options;
   options.stream.blocking = true;  // offline: wait for every frame instead of skipping
   options.loop = false;
-  options.interpolation = cli.interpolation == "none"     ? playback::Interpolation::None
-                          : cli.interpolation == "linear" ? playback::Interpolation::Linear
-                                                          : playback::Interpolation::Hermite;
+  options.interpolation = playback::parse_interpolation(cli.interpolation);
   const std::filesystem::path files[] = {cli.file};
   const auto player = playback::Player::open(files, std::move(options));
   const format::Metadata& m = player->clip(0).metadata();
@@ -103,9 +101,9 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   style.blend = render::parse_blend(cli.blend);
   style.size_multiplier = cli.size_multiplier;
   style.texture = cli.texture;
-  const sort::SortMode mode = style.blend != render::BlendMode::Alpha || cli.sort == "none" ? sort::SortMode::None
-                              : cli.sort == "front" ? sort::SortMode::FrontToBack
-                                                    : sort::SortMode::BackToFront;
+  // Only alpha blending depends on the order.
+  const sort::SortMode mode =
+      style.blend != render::BlendMode::Alpha ? sort::SortMode::None : sort::parse_sort_mode(cli.sort);
 
   if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
   player->set_range(t0, t1);

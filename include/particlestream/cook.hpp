@@ -48,6 +48,11 @@ struct Options {
   unsigned threads = 0;                          // chunk encoders; 0: one per core
 };
 
+// Sets how frames are stored from a spec: "particle[:LEVEL]" or "particle-lossless[:LEVEL]" (the
+// particle codec and its zstd level, 1..22), "raw", "lz4[:LEVEL]" or "zstd[:LEVEL]" (records in
+// chunks of that codec, level 0..22). Throws pstream::Error naming `codec` and what is expected.
+void set_codec(Options& options, std::string_view spec);
+
 // What the file records about how it was made (its "cooked with" string): every setting that
 // changes the bytes, as key=value words, and the input's name and content hash. No paths, so
 // the same input and settings give the same file wherever either is.

@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <memory>
 #include <span>
+#include <string_view>
 #include <vector>
 
 #include "particlestream/render.hpp"
@@ -32,6 +33,9 @@ enum class Interpolation {
   Linear,   // particles matched by id move in straight lines; births and deaths grow and shrink
   Hermite,  // the same along cubic Hermite curves through positions and velocities (when present)
 };
+
+// "none", "linear" or "hermite"; throws pstream::Error naming `interpolation` otherwise.
+Interpolation parse_interpolation(std::string_view name);
 
 struct PlayerOptions {
   Interpolation interpolation = Interpolation::Hermite;

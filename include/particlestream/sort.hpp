@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <span>
+#include <string_view>
 
 namespace pstream::sort {
 
@@ -18,6 +19,8 @@ struct Histogram;
 }
 
 enum class SortMode { None, BackToFront, FrontToBack };
+// "none", "back" (back to front) or "front" (front to back); throws pstream::Error otherwise.
+SortMode parse_sort_mode(std::string_view name);
 
 // A float mapped to an unsigned integer with the same order (-inf < ... < -0 < +0 < ... < +inf).
 inline std::uint32_t order_preserving_key(float f) {

@@ -23,6 +23,13 @@ struct Player::Clip {
   std::vector<std::byte> blended;         // an interpolated frame: up to both frames' particles
 };
 
+Interpolation parse_interpolation(std::string_view name) {
+  if (name == "none") return Interpolation::None;
+  if (name == "linear") return Interpolation::Linear;
+  if (name == "hermite") return Interpolation::Hermite;
+  throw Error(fmt::format("`interpolation` '{}': expected none, linear or hermite", name));
+}
+
 Player::~Player() = default;
 
 std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> files, PlayerOptions options) {

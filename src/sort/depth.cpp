@@ -1,8 +1,18 @@
 #include <cstring>
 
+#include <string>
+
+#include "particlestream/error.hpp"
 #include "particlestream/sort.hpp"
 
 namespace pstream::sort {
+
+SortMode parse_sort_mode(std::string_view name) {
+  if (name == "none") return SortMode::None;
+  if (name == "back") return SortMode::BackToFront;
+  if (name == "front") return SortMode::FrontToBack;
+  throw Error("sort mode '" + std::string(name) + "': expected none, back or front");
+}
 
 DepthAxis depth_axis(const std::array<float, 16>& m) {
   // Row 2 of the column-major matrix gives z_view; depth is its negation.

@@ -119,7 +119,7 @@ def test_errors_are_exceptions_with_the_librarys_message(tmp_path):
         ps.Archive(DATA / "no" / "such.abc")
     with pytest.raises(ps.Error, match="not a .pstream file"):
         ps.Clip(DATA / "alembic" / "points_varying.abc")
-    with pytest.raises(ps.Error, match="codec 'gzip'"):
+    with pytest.raises(ps.Error, match="`codec` 'gzip': expected particle"):
         ps.cook(DATA / "alembic" / "points_varying.abc", tmp_path / "x.pstream", codec="gzip")
     archive = ps.Archive(DATA / "alembic" / "points_varying.abc")
     with pytest.raises(ps.Error, match="no points object '/nothing'"):
