@@ -1,9 +1,12 @@
-// `pstream bench render`: per-frame cost of drawing 100k and 1M particles at 1280x720, instanced
-// quads against GL points, with the GL renderer's name (llvmpipe here, a GPU where there is one).
+// `pstream bench render`: per-frame cost of drawing 100k and 1M particles (1280x720 unless
+// --size): instanced quads (sprites) against GL points and against the screen-space liquid, as
+// ratios to the sprites measured in the same run, with the GL renderer's name (llvmpipe here, a
+// GPU where there is one).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <random>
+#include <string_view>
 
 #include <epoxy/gl.h>
 #include <fmt/format.h>
@@ -16,7 +19,9 @@ namespace pstream::app {
 
 int bench_render(const BenchRenderOptions& o) {
   using Clock = std::chrono::steady_clock;
-  render::HeadlessContext context(1280, 720);
+  int width = 1280, height = 720;
+  parse_size(o.size, width, height);
+  render::HeadlessContext context(width, height);
   nlohmann::ordered_json results = nlohmann::ordered_json::array();
   std::mt19937 rng(1);
   std::uniform_real_distribution<float> uni(-1.0f, 1.0f);
@@ -26,7 +31,9 @@ int bench_render(const BenchRenderOptions& o) {
       records[i * 4] = uni(rng), records[i * 4 + 1] = uni(rng), records[i * 4 + 2] = uni(rng),
                   records[i * 4 + 3] = 0.004f;
     }
-    for (bool points : {false, true}) {
+    double sprites_ms = 0;
+    for (const char* method : {"instanced_quads", "points", "liquid"}) {
+      const bool points = std::string_view(method) == "points", liquid = std::string_view(method) == "liquid";
       render::RendererOptions ro;
       ro.max_bytes_per_frame = n * 16;
       ro.points = points;
@@ -41,28 +48,36 @@ int bench_render(const BenchRenderOptions& o) {
       for (int r = 0; r < o.repetitions + 1; ++r) {
         const auto t0 = Clock::now();
         context.bind();
-        renderer.begin_frame(1280, 720, camera, {0, 0, 0, 1});
-        renderer.draw(b);
+        renderer.begin_frame(width, height, camera, {0, 0, 0, 1});
+        if (liquid) {
+          renderer.draw_liquid({&b, 1}, render::LiquidStyle{});
+        } else {
+          renderer.draw(b);
+        }
         renderer.end_frame();
         glFinish();
         if (r > 0)
           ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());  // first warms up
       }
       std::sort(ms.begin(), ms.end());
+      const double median = ms[ms.size() / 2];
+      if (!points && !liquid) sprites_ms = median;
       results.push_back({{"particles", n},
-                         {"method", points ? "points" : "instanced_quads"},
-                         {"frame_ms_median", ms[ms.size() / 2]}});
+                         {"method", method},
+                         {"frame_ms_median", median},
+                         {"ratio_to_sprites", sprites_ms > 0 ? median / sprites_ms : 0.0}});
     }
   }
   nlohmann::ordered_json j{
-      {"gl_renderer", render::Renderer::gl_renderer()}, {"width", 1280}, {"height", 720}, {"results", results}};
+      {"gl_renderer", render::Renderer::gl_renderer()}, {"width", width}, {"height", height}, {"results", results}};
   if (o.json) {
     fmt::print("{}\n", j.dump());
   } else {
-    fmt::print("{} at 1280x720\n", j["gl_renderer"].get<std::string>());
+    fmt::print("{} at {}x{}\n", j["gl_renderer"].get<std::string>(), width, height);
     for (const auto& r : results) {
-      fmt::print("  {:>8} particles  {:<16} {:9.2f} ms a frame\n", r["particles"].get<std::uint64_t>(),
-                 r["method"].get<std::string>(), r["frame_ms_median"].get<double>());
+      fmt::print("  {:>8} particles  {:<16} {:9.2f} ms a frame  {:5.2f}x sprites\n",
+                 r["particles"].get<std::uint64_t>(), r["method"].get<std::string>(),
+                 r["frame_ms_median"].get<double>(), r["ratio_to_sprites"].get<double>());
     }
   }
   return 0;

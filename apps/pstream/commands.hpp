@@ -5,6 +5,8 @@
 #include <string>
 #include <vector>
 
+#include "particlestream/render.hpp"
+
 namespace pstream::app {
 
 struct InfoOptions {
@@ -85,8 +87,11 @@ struct BenchPlaybackOptions {
 int bench_playback(const BenchPlaybackOptions& options);
 
 struct RenderCli {
-  std::string file, out = "frames", frames, size = "1280x720", camera = "auto", video, blend = "alpha", sort = "back",
-                    texture, interpolation = "hermite";
+  std::vector<std::string> files;  // drawn together (merged depth order; one liquid surface)
+  std::string out = "frames", frames, size = "1280x720", camera = "auto", video, blend = "alpha", sort = "back",
+              texture, interpolation = "hermite", look = "sprites", backdrop = "auto";
+  std::string liquid_filter, liquid_output, liquid_color;  // empty: the library's defaults
+  render::LiquidStyle liquid;                              // the numbers, bound to their flags
   double fps = 0.0, speed = 1.0;
   float size_multiplier = 1.0f;
   bool quiet = false;
@@ -103,6 +108,7 @@ struct ViewerCli {
   int width = 1280, height = 720;
   int frames_to_run = 0;   // > 0: quit after that many frames (scripted runs, tests)
   std::string screenshot;  // with frames_to_run: save the last frame (PNG)
+  std::string look;        // sprites or liquid; empty: sprites
 };
 int run_viewer(const ViewerCli& cli);
 
@@ -136,7 +142,10 @@ int run_export(const ExportCli& cli);
 struct BenchRenderOptions {
   int repetitions = 3;
   bool json = false;
+  std::string size = "1280x720";
 };
+// "WIDTHxHEIGHT" (render_command.cpp); throws pstream::Error naming --size.
+void parse_size(const std::string& text, int& width, int& height);
 int bench_render(const BenchRenderOptions& options);
 
 struct BenchAllOptions {

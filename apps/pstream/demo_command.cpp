@@ -27,7 +27,8 @@
 
 namespace pstream::app {
 
-render::Camera camera_for(const std::string& spec, const format::Metadata& m);  // render_command.cpp
+render::Camera camera_for(const std::string& spec, const std::array<float, 6>& bounds,
+                          float aspect);  // render_command.cpp
 
 namespace {
 
@@ -151,7 +152,7 @@ int run_demo(const DemoCli& cli) {
   const bool window = cli.window || (!cli.headless && std::getenv("DISPLAY") != nullptr);
   if (window) {
     say("opening the viewer (use --headless to render frames instead)");
-    return run_viewer({{co.output.string()}, 1280, 720, 0, ""});
+    return run_viewer({{co.output.string()}, 1280, 720, 0, "", ""});
   }
 
   // 3. Stream in real time, as a game would (never blocking), and sort every frame.
@@ -162,7 +163,7 @@ int run_demo(const DemoCli& cli) {
     const std::filesystem::path files[] = {co.output};
     const auto player = playback::Player::open(files);
     const format::Metadata& m = player->clip(0).metadata();
-    const render::Camera camera = camera_for("auto", m);
+    const render::Camera camera = camera_for("auto", m.bounds, 16.0f / 9.0f);
     player->set_loop(false);
     player->play();
     const double dt = 1.0 / m.fps;
@@ -185,7 +186,7 @@ int run_demo(const DemoCli& cli) {
 
   // 4. Render headless (blocking stream: no frame skipped), then the MP4 and the contact sheet.
   RenderCli rc;
-  rc.file = co.output.string();
+  rc.files = {co.output.string()};
   rc.out = (dir / "frames").string();
   rc.size = cli.size;
   rc.quiet = cli.quiet;

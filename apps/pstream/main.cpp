@@ -243,8 +243,15 @@ int main(int argc, char** argv) {
       "  pstream render splash.pstream --out frames\n"
       "  pstream render splash.pstream --out frames --frames 0:48 --size 1920x1080 --video splash.mp4\n"
       "  pstream render fx.pstream --out f --camera 4,3,6:0,1,0 --blend additive\n"
-      "  pstream render fx.pstream --out slow --fps 120 --speed 0.25   (slow motion, every image interpolated)");
-  render_cmd->add_option("file", render_cli.file, "A .pstream file")->required()->check(CLI::ExistingFile);
+      "  pstream render fx.pstream --out slow --fps 120 --speed 0.25   (slow motion, every image interpolated)\n"
+      "  pstream render pour.pstream --out water --look liquid --foam-speed 3\n"
+      "  pstream render a.pstream b.pstream --out both   (two clips in one picture)");
+  render_cmd
+      ->add_option("files", render_cli.files,
+                   "One or more .pstream files, drawn together (overlapping clips blend in depth order; as a "
+                   "liquid they make one surface). --frames counts the first clip's frames")
+      ->required()
+      ->check(CLI::ExistingFile);
   render_cmd->add_option("--out", render_cli.out, "Folder for frame_NNNNN.png")->capture_default_str();
   render_cmd->add_option("--frames", render_cli.frames, "Clip frames A:B (from A up to but not including B)");
   render_cmd->add_option("--size", render_cli.size, "Image size WIDTHxHEIGHT")->capture_default_str();
@@ -275,6 +282,58 @@ int main(int argc, char** argv) {
       ->capture_default_str()
       ->check(positive_number());
   render_cmd->add_option("--texture", render_cli.texture, "A sprite image (PNG) instead of the soft round sprite");
+  render_cmd
+      ->add_option("--look", render_cli.look,
+                   "sprites (a lit round sprite per particle) or liquid (a screen-space surface: smoothed depth, "
+                   "refraction, absorption by thickness, Fresnel sky reflection, spray)")
+      ->capture_default_str();
+  render_cmd
+      ->add_option("--backdrop", render_cli.backdrop,
+                   "auto (a ground grid under the clip for liquid, none for sprites), ground, sky or none")
+      ->capture_default_str();
+  render_cmd
+      ->add_option("--particle-radius", render_cli.liquid.particle_radius,
+                   "Liquid: every particle's radius in scene units (default: the median cooked radius)")
+      ->check(CLI::NonNegativeNumber);
+  render_cmd
+      ->add_option("--liquid-color", render_cli.liquid_color,
+                   "Liquid: r,g,b in (0,1], what --liquid-color-depth of liquid lets through (deeper is darker "
+                   "and more saturated)")
+      ->default_str(
+          fmt::format("{},{},{}", render_cli.liquid.color[0], render_cli.liquid.color[1], render_cli.liquid.color[2]));
+  render_cmd
+      ->add_option("--liquid-color-depth", render_cli.liquid.color_depth,
+                   "Liquid: the depth, in particle radii, that tints the background to --liquid-color")
+      ->check(positive_number())
+      ->capture_default_str();
+  render_cmd
+      ->add_option("--liquid-smoothing", render_cli.liquid.smoothing,
+                   "Liquid: the depth filter's radius in particle radii (larger: calmer surface, fewer beads)")
+      ->check(CLI::Range(0.0f, 20.0f))
+      ->capture_default_str();
+  render_cmd->add_option("--liquid-iterations", render_cli.liquid.iterations, "Liquid: filter passes, 0..8")
+      ->check(CLI::Range(0, 8))
+      ->capture_default_str();
+  render_cmd->add_option(
+      "--liquid-filter", render_cli.liquid_filter,
+      "Liquid: narrow-range (default: sharp silhouettes), bilateral, gaussian (halos; for comparison) or none");
+  render_cmd
+      ->add_option("--liquid-resolution", render_cli.liquid.resolution,
+                   "Liquid: depth and thickness at this fraction of the image size (0.25..1; 0.5 is 4x fewer pixels)")
+      ->check(CLI::Range(0.25f, 1.0f))
+      ->capture_default_str();
+  render_cmd->add_option("--liquid-output", render_cli.liquid_output,
+                         "Liquid: shaded (default), or an inspection view: depth, normals, thickness");
+  render_cmd
+      ->add_option("--foam-speed", render_cli.liquid.foam_speed,
+                   "Liquid: particles faster than this (scene units/s; needs velocities) are white spray; 0: off")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  render_cmd
+      ->add_option("--foam-isolation", render_cli.liquid.foam_isolation,
+                   "Liquid: particles where the liquid is thinner than this many radii are spray; 0: off")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   render_cmd->add_flag("-q,--quiet", render_cli.quiet, "No progress or summary");
 
   ViewerCli viewer;
@@ -288,6 +347,8 @@ int main(int argc, char** argv) {
   play_cmd->add_option("--height", viewer.height, "Window height")->capture_default_str();
   play_cmd->add_option("--frames-to-run", viewer.frames_to_run, "Quit after N frames (scripted runs)");
   play_cmd->add_option("--screenshot", viewer.screenshot, "With --frames-to-run: save the last frame as PNG");
+  play_cmd->add_option("--look", viewer.look, "sprites or liquid (a screen-space surface; its settings in the panel)")
+      ->check(CLI::IsMember({"sprites", "liquid"}));
 
   DemoCli demo;
   auto* demo_cmd = app.add_subcommand(
@@ -310,7 +371,12 @@ int main(int argc, char** argv) {
 
   BenchRenderOptions bench_render_opts;
   auto* bench_render_cmd = bench_cmd->add_subcommand(
-      "render", "Per-frame cost of 100k and 1M particles at 1280x720: instanced quads vs points, with GL_RENDERER");
+      "render",
+      "Per-frame cost of 100k and 1M particles: sprites (instanced quads) vs GL points vs the screen-space liquid, "
+      "as ratios to the sprites in the same run, with GL_RENDERER");
+  bench_render_cmd
+      ->add_option("--size", bench_render_opts.size, "Image size WIDTHxHEIGHT (1920x1080 for the GPU target)")
+      ->capture_default_str();
   bench_render_cmd->add_option("--repetitions", bench_render_opts.repetitions, "Frames timed per case")
       ->check(CLI::Range(1, 100));
   bench_render_cmd->add_flag("--json", bench_render_opts.json, "Print JSON");
@@ -358,7 +424,7 @@ int main(int argc, char** argv) {
       return bench_playback(bench_playback_opts);
     }
     if (render_cmd->parsed()) {
-      cooked(render_cli.file);
+      for (const std::string& f : render_cli.files) cooked(f);
       return run_render(render_cli);
     }
     if (play_cmd->parsed()) {

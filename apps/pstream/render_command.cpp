@@ -34,9 +34,9 @@ render::Vec3 parse_vec3(const std::string& text) {
 
 }  // namespace
 
-render::Camera camera_for(const std::string& spec, const format::Metadata& m) {
+render::Camera camera_for(const std::string& spec, const std::array<float, 6>& bounds, float aspect) {
   if (spec.empty() || spec == "auto") {
-    return render::Camera::framing({m.bounds[0], m.bounds[1], m.bounds[2]}, {m.bounds[3], m.bounds[4], m.bounds[5]});
+    return render::Camera::framing({bounds[0], bounds[1], bounds[2]}, {bounds[3], bounds[4], bounds[5]}, aspect);
   }
   const auto colon = spec.find(':');
   if (colon == std::string::npos) throw Error(fmt::format("--camera '{}': expected auto or x,y,z:tx,ty,tz", spec));
@@ -56,17 +56,57 @@ void parse_size(const std::string& text, int& width, int& height) {
   }
 }
 
+// The look flags in the library's terms.
+playback::DrawStyle draw_style(const RenderCli& cli, const std::array<float, 6>& bounds) {
+  playback::DrawStyle style;
+  style.look = render::parse_look(cli.look);
+  style.blend = render::parse_blend(cli.blend);
+  style.size_multiplier = cli.size_multiplier;
+  style.texture = cli.texture;
+  style.liquid = cli.liquid;
+  render::LiquidStyle& l = style.liquid;
+  if (!cli.liquid_filter.empty()) l.filter = render::parse_liquid_filter(cli.liquid_filter);
+  if (!cli.liquid_output.empty()) l.output = render::parse_liquid_output(cli.liquid_output);
+  if (!cli.liquid_color.empty()) {
+    const render::Vec3 c = parse_vec3(cli.liquid_color);
+    for (float v : c) {
+      if (!(v > 0.0f && v <= 1.0f))
+        throw Error(fmt::format("--liquid-color '{}': expected three values in (0, 1]", cli.liquid_color));
+    }
+    l.color = c;
+  }
+  const bool ground = cli.backdrop == "ground" || (cli.backdrop == "auto" && style.look == render::Look::Liquid);
+  if (cli.backdrop != "auto" && cli.backdrop != "ground" && cli.backdrop != "sky" && cli.backdrop != "none")
+    throw Error(fmt::format("--backdrop '{}': expected auto, ground, sky or none", cli.backdrop));
+  if (ground || cli.backdrop == "sky") {
+    style.backdrop = render::Backdrop::under({bounds[0], bounds[1], bounds[2]}, {bounds[3], bounds[4], bounds[5]});
+    style.backdrop->ground = ground;
+  }
+  return style;
+}
+
 int run_render(const RenderCli& cli, RenderStats* stats) {
   int width = 0, height = 0;
   parse_size(cli.size, width, height);
+  if (cli.files.empty()) throw Error("render: no clip given");
   playback::PlayerOptions options;
   options.stream.blocking = true;  // offline: wait for every frame instead of skipping
   options.loop = false;
   options.interpolation = playback::parse_interpolation(cli.interpolation);
-  const std::filesystem::path files[] = {cli.file};
+  const std::vector<std::filesystem::path> files(cli.files.begin(), cli.files.end());
   const auto player = playback::Player::open(files, std::move(options));
+  // The first clip's frames number the render (--frames); the camera frames every clip.
   const format::Metadata& m = player->clip(0).metadata();
-  if (m.frame_count() == 0) throw Error(fmt::format("{}: the clip has no frames", cli.file));
+  if (m.frame_count() == 0) throw Error(fmt::format("{}: the clip has no frames", cli.files[0]));
+  std::array<float, 6> bounds = m.bounds;
+  for (std::size_t c = 1; c < player->clip_count(); ++c) {
+    const auto& b = player->clip(c).metadata().bounds;
+    for (int i = 0; i < 3; ++i) {
+      bounds[std::size_t(i)] = std::min(bounds[std::size_t(i)], b[std::size_t(i)]);
+      bounds[std::size_t(i) + 3] = std::max(bounds[std::size_t(i) + 3], b[std::size_t(i) + 3]);
+    }
+  }
+  const playback::DrawStyle style = draw_style(cli, bounds);  // flags checked before anything is written
   std::int64_t first = 0, last = std::int64_t(m.frame_count());
   if (!cli.frames.empty()) {
     const auto [a, b] = parse_frame_range(cli.frames);
@@ -85,7 +125,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     throw Error(
         fmt::format("{}: rendering {:g} s at {:g} fps makes {:.0f} images, more than --max-frames {}; "
                     "choose a lower --fps or --frames, or raise --max-frames",
-                    cli.file, (t1 - t0) / cli.speed, fps, images, cli.max_frames));
+                    cli.files[0], (t1 - t0) / cli.speed, fps, images, cli.max_frames));
   }
   const auto outputs = static_cast<std::uint64_t>(images);
 
@@ -96,14 +136,11 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
-  const render::Camera camera = camera_for(cli.camera, m);
-  playback::DrawStyle style;
-  style.blend = render::parse_blend(cli.blend);
-  style.size_multiplier = cli.size_multiplier;
-  style.texture = cli.texture;
-  // Only alpha blending depends on the order.
-  const sort::SortMode mode =
-      style.blend != render::BlendMode::Alpha ? sort::SortMode::None : sort::parse_sort_mode(cli.sort);
+  const render::Camera camera = camera_for(cli.camera, bounds, float(width) / float(height));
+  // Only alpha-blended sprites depend on the order.
+  const sort::SortMode mode = style.look != render::Look::Sprites || style.blend != render::BlendMode::Alpha
+                                  ? sort::SortMode::None
+                                  : sort::parse_sort_mode(cli.sort);
 
   if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
   player->set_range(t0, t1);

@@ -52,8 +52,11 @@ struct Ui {
   double last_x = 0, last_y = 0;
   float speed = 1.0f, size = 1.0f;
   bool loop = true;
-  int sort_mode = 1;  // none, back to front, front to back
-  int blend = 0;      // alpha, additive, alpha test
+  int sort_mode = 1;                         // none, back to front, front to back
+  int blend = 0;                             // alpha, additive, alpha test
+  int look = 0;                              // sprites, liquid
+  int liquid_filter = 0, liquid_output = 0;  // in the order of the combos below
+  bool backdrop = false;
   float background[3] = {0.02f, 0.025f, 0.035f};
   playback::Player* player = nullptr;
 };
@@ -154,8 +157,11 @@ int run_viewer(const ViewerCli& cli) {
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   auto renderer = std::make_unique<render::Renderer>(ro);  // destroyed before its context (below)
   playback::DrawStyle style;
+  if (!cli.look.empty()) style.look = render::parse_look(cli.look);
 
   Ui ui;
+  ui.look = style.look == render::Look::Liquid ? 1 : 0;
+  ui.backdrop = ui.look == 1;
   ui.player = player.get();
   ui.orbit.frame(player->clip(0).metadata());
   glfwSetWindowUserPointer(window, &ui);
@@ -211,7 +217,21 @@ int run_viewer(const ViewerCli& cli) {
                   : ui.blend == 1 ? render::BlendMode::Additive
                                   : render::BlendMode::AlphaTest;
     style.size_multiplier = ui.size;
-    const bool sorting = ui.sort_mode != 0 && style.blend == render::BlendMode::Alpha;
+    style.look = ui.look == 1 ? render::Look::Liquid : render::Look::Sprites;
+    constexpr render::LiquidFilter kFilters[] = {render::LiquidFilter::NarrowRange, render::LiquidFilter::Bilateral,
+                                                 render::LiquidFilter::Gaussian, render::LiquidFilter::None};
+    constexpr render::LiquidOutput kOutputs[] = {render::LiquidOutput::Shaded, render::LiquidOutput::Depth,
+                                                 render::LiquidOutput::Normals, render::LiquidOutput::Thickness};
+    style.liquid.filter = kFilters[ui.liquid_filter];
+    style.liquid.output = kOutputs[ui.liquid_output];
+    if (ui.backdrop) {
+      const auto& b = player->clip(0).metadata().bounds;
+      style.backdrop = render::Backdrop::under({b[0], b[1], b[2]}, {b[3], b[4], b[5]});
+    } else {
+      style.backdrop.reset();
+    }
+    const bool sorting =
+        style.look == render::Look::Sprites && ui.sort_mode != 0 && style.blend == render::BlendMode::Alpha;
     const sort::SortMode mode = !sorting            ? sort::SortMode::None
                                 : ui.sort_mode == 1 ? sort::SortMode::BackToFront
                                                     : sort::SortMode::FrontToBack;
@@ -255,7 +275,23 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::SliderFloat("Speed", &ui.speed, -2.0f, 4.0f, "%.2fx");  // below 0: backwards
     ImGui::SliderFloat("Particle size", &ui.size, 0.1f, 5.0f, "%.2fx");
     ImGui::Combo("Sort", &ui.sort_mode, "None\0Back to front\0Front to back\0");
-    ImGui::Combo("Blend", &ui.blend, "Alpha\0Additive\0Alpha test\0");
+    ImGui::Combo("Look", &ui.look, "Sprites\0Liquid\0");
+    if (ui.look == 0) ImGui::Combo("Blend", &ui.blend, "Alpha\0Additive\0Alpha test\0");
+    ImGui::Checkbox("Sky and ground grid", &ui.backdrop);
+    if (ui.look == 1 && ImGui::TreeNodeEx("Liquid", ImGuiTreeNodeFlags_DefaultOpen)) {
+      render::LiquidStyle& l = style.liquid;
+      ImGui::Combo("Filter", &ui.liquid_filter, "Narrow range\0Bilateral\0Gaussian\0None\0");
+      ImGui::Combo("Show", &ui.liquid_output, "Shaded\0Depth\0Normals\0Thickness\0");
+      ImGui::SliderFloat("Smoothing (radii)", &l.smoothing, 0.0f, 12.0f, "%.1f");
+      ImGui::SliderInt("Filter passes", &l.iterations, 0, 8);
+      ImGui::SliderFloat("Resolution", &l.resolution, 0.25f, 1.0f, "%.2f");
+      ImGui::ColorEdit3("Colour", l.color.data());
+      ImGui::SliderFloat("Colour depth (radii)", &l.color_depth, 1.0f, 100.0f, "%.0f", ImGuiSliderFlags_Logarithmic);
+      ImGui::SliderFloat("Refraction", &l.refraction, 0.0f, 4.0f, "%.2f");
+      ImGui::SliderFloat("Spray: thinner than (radii)", &l.foam_isolation, 0.0f, 10.0f, "%.1f");
+      ImGui::SliderFloat("Spray: faster than (units/s)", &l.foam_speed, 0.0f, 20.0f, "%.1f");
+      ImGui::TreePop();
+    }
     ImGui::ColorEdit3("Background", ui.background);
     ImGui::Separator();
     ImGui::Text("%.0f fps | %llu particles drawn", ImGui::GetIO().Framerate, static_cast<unsigned long long>(drawn));

@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string_view>
 #include <vector>
@@ -50,9 +51,12 @@ struct PlayerOptions {
 
 // How the frame is drawn.
 struct DrawStyle {
-  render::BlendMode blend = render::BlendMode::Alpha;
+  render::Look look = render::Look::Sprites;
+  render::BlendMode blend = render::BlendMode::Alpha;  // sprites
   float size_multiplier = 1.0f;
-  std::string texture;  // a sprite image (PNG); empty: the soft round sprite
+  std::string texture;                       // a sprite image (PNG); empty: the soft round sprite
+  render::LiquidStyle liquid;                // Look::Liquid: every clip drawn as one liquid surface
+  std::optional<render::Backdrop> backdrop;  // drawn first when set (sky and ground grid)
 };
 
 // Where the time of a host frame went (milliseconds, this frame).

@@ -29,8 +29,9 @@ struct Camera {
   float fov_y_degrees = 45.0f, near = 0.01f, far = 1000.0f;
   Mat4 view() const { return look_at(eye, target, up); }
   Mat4 projection(float aspect) const { return perspective(fov_y_degrees, aspect, near, far); }
-  // A camera that frames the box [lo, hi] from a three-quarter view above the front.
-  static Camera framing(const Vec3& lo, const Vec3& hi);
+  // A camera that frames the box [lo, hi] from a three-quarter view above the front, as close as
+  // keeps all of it in a view of this width / height.
+  static Camera framing(const Vec3& lo, const Vec3& hi, float aspect = 16.0f / 9.0f);
 };
 
 enum class BlendMode { Alpha, Additive, AlphaTest };
@@ -52,6 +53,62 @@ struct ParticleBatch {
   std::array<float, 4> color{0.45f, 0.65f, 0.95f, 0.9f};  // when the record has no colour
   float size_multiplier = 1.0f;
   std::string texture;  // optional sprite image (PNG); empty: the soft round sprite
+};
+
+// How a draw shows its particles: each as a lit round sprite, or the surface of a liquid made
+// from them in screen space (below).
+enum class Look { Sprites, Liquid };
+Look parse_look(const std::string& name);  // "sprites", "liquid"
+
+// Screen-space liquid (van der Laan, Green and Sainz 2009; Truong and Yuksel 2018). Every
+// particle is splatted as a sphere into a depth buffer and, additively, into a thickness buffer;
+// the depth is smoothed by a separable filter whose radius is a world-space length (so it
+// shrinks with distance in pixels); normals come from the smoothed depth; the surface reflects
+// the sky (Fresnel), refracts and absorbs what is behind it by its thickness (Beer-Lambert) and
+// takes a highlight from the key light. Isolated or fast particles are drawn over it as white
+// spray. Lengths are in particle radii, so one style suits any scene scale.
+enum class LiquidFilter {
+  NarrowRange,  // Truong and Yuksel: neighbours far in front are another surface (ignored), far
+                // behind or empty are clamped just behind: smooth surfaces, sharp silhouettes
+  Bilateral,    // Gaussian in space and in depth (the classic filter, for comparison)
+  Gaussian,     // depth-blind Gaussian (blends layers: halos; for comparison)
+  None,         // the raw sphere splats (what sprites look like as a surface)
+};
+LiquidFilter parse_liquid_filter(const std::string& name);  // "narrow-range", "bilateral", "gaussian", "none"
+
+enum class LiquidOutput { Shaded, Depth, Normals, Thickness };  // Depth, Normals, Thickness: inspection views
+LiquidOutput parse_liquid_output(const std::string& name);      // "shaded", "depth", "normals", "thickness"
+
+struct LiquidStyle {
+  float particle_radius = 0.0f;  // world units; 0: the median radius of up to 255 records of the frame
+  float resolution = 1.0f;       // depth and thickness buffers at this fraction of the viewport, 0.25..1
+  LiquidFilter filter = LiquidFilter::NarrowRange;
+  float smoothing = 4.0f;                           // filter radius, in particle radii
+  int iterations = 2;                               // applications of the separable (horizontal, vertical) filter, 0..8
+  float depth_range = 4.0f;                         // the narrow range: farther than this (in radii) is another layer
+  std::array<float, 3> color{0.30f, 0.66f, 0.82f};  // what `color_depth` of liquid lets through
+  float color_depth = 16.0f;                        // in particle radii
+  float refraction = 1.0f;                          // how far the normal bends what is behind, 0..4
+  float foam_speed = 0.0f;      // world units per second: faster particles are spray (0: off; needs velocities)
+  float foam_isolation = 3.0f;  // particles where the liquid is thinner than this (radii) are spray (0: off)
+  LiquidOutput output = LiquidOutput::Shaded;
+};
+
+// The buffers of the last liquid draw, read back as floats (tests and tools; allocates).
+enum class LiquidBuffer { RawDepth, Depth, Normals, Thickness };  // Normals: 3 floats a pixel, view space
+struct LiquidImage {
+  int width = 0, height = 0, channels = 1;
+  std::vector<float> values;  // bottom row first, as OpenGL stores it; depth: distance along the view axis, 0: none
+};
+
+// A context for what is drawn: a sky gradient and a ground plane with a grid (which the liquid
+// refracts and reflects).
+struct Backdrop {
+  bool ground = true;
+  float ground_height = 0.0f;  // world y of the ground plane
+  float grid_spacing = 1.0f;   // world units between grid lines
+  // The ground under the box [lo, hi] (y up), with a grid of about ten lines across it.
+  static Backdrop under(const Vec3& lo, const Vec3& hi);
 };
 
 struct RendererOptions {
@@ -76,6 +133,14 @@ class Renderer {
   // order. The first batch's blend mode and sprite apply to all.
   static constexpr std::size_t kMaxMergedBatches = 8;
   void draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order);
+  // Several streams drawn as one liquid surface (Look::Liquid). Needs no draw order; the
+  // surface is depth-tested against what is already drawn and writes its depth. The GPU buffers
+  // are made on the first liquid draw and when the viewport's size changes.
+  void draw_liquid(std::span<const ParticleBatch> batches, const LiquidStyle& style);
+  LiquidImage read_liquid(LiquidBuffer which) const;
+  // The sky and, optionally, the ground grid; call it first in a frame (it replaces the clear
+  // colour and writes the ground's depth).
+  void draw_backdrop(const Backdrop& backdrop);
   void end_frame();  // fences this frame's buffer region
   static std::string gl_renderer();
 

@@ -12,6 +12,11 @@ void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
     b.size_multiplier = style.size_multiplier;
     if (b.texture != style.texture) b.texture = style.texture;  // set once: no allocation per frame
   }
+  if (style.backdrop) renderer.draw_backdrop(*style.backdrop);
+  if (style.look == render::Look::Liquid) {  // one surface from every clip; needs no order
+    renderer.draw_liquid(batches, style.liquid);
+    return;
+  }
   if (!merged_order_.empty()) {
     renderer.draw_merged(batches, merged_order_);
     return;

@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -59,24 +60,40 @@ Mat4 perspective(float fov_y_degrees, float aspect, float near, float far) {
   return m;
 }
 
-Camera Camera::framing(const Vec3& lo, const Vec3& hi) {
+Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect) {
   Camera c;
   c.target = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
   const Vec3 half = sub(hi, c.target);
   const float radius = std::max(std::sqrt(dot(half, half)), 1e-3f);
-  const float distance = radius / std::sin(c.fov_y_degrees * std::numbers::pi_v<float> / 360.0f) * 1.05f;
-  const Vec3 dir = normalize({0.55f, 0.4f, 1.0f});
+  const Vec3 dir = normalize({0.55f, 0.4f, 1.0f});  // three-quarter view, from above the front
+  const Vec3 right = normalize(cross({-dir[0], -dir[1], -dir[2]}, {0, 1, 0}));
+  const Vec3 up = cross(right, {-dir[0], -dir[1], -dir[2]});
+  // The nearest distance at which every corner of the box is inside the view, with a margin.
+  const float tan_y = std::tan(c.fov_y_degrees * std::numbers::pi_v<float> / 360.0f);
+  const float tan_x = tan_y * std::max(aspect, 0.1f);
+  float distance = 0;
+  for (int k = 0; k < 8; ++k) {
+    const Vec3 d{(k & 1 ? half[0] : -half[0]), (k & 2 ? half[1] : -half[1]), (k & 4 ? half[2] : -half[2])};
+    const float toward = dot(d, dir);  // a corner nearer the camera needs more distance
+    distance = std::max({distance, std::abs(dot(d, up)) / tan_y + toward, std::abs(dot(d, right)) / tan_x + toward});
+  }
+  distance = std::max(distance * 1.08f, radius * 0.2f);
   c.eye = {c.target[0] + dir[0] * distance, c.target[1] + dir[1] * distance, c.target[2] + dir[2] * distance};
   c.near = std::max(distance - radius * 2, distance * 0.01f);
   c.far = distance + radius * 2;
   return c;
 }
 
-BlendMode parse_blend(const std::string& name) {
-  if (name == "alpha") return BlendMode::Alpha;
-  if (name == "additive") return BlendMode::Additive;
-  if (name == "alphatest") return BlendMode::AlphaTest;
-  throw Error(fmt::format("blend mode '{}': expected alpha, additive or alphatest", name));
+Backdrop Backdrop::under(const Vec3& lo, const Vec3& hi) {
+  Backdrop b;
+  b.ground_height = std::isfinite(lo[1]) ? lo[1] : 0.0f;
+  const float extent = std::max(hi[0] - lo[0], hi[2] - lo[2]);
+  // A power of ten, or twice or five times one: lines a tenth of the box apart, rounded.
+  const float raw = std::isfinite(extent) && extent > 0 ? extent / 10.0f : 1.0f;
+  const float decade = std::pow(10.0f, std::floor(std::log10(raw)));
+  const float m = raw / decade;
+  b.grid_spacing = decade * (m < 1.5f ? 1.0f : m < 3.5f ? 2.0f : m < 7.5f ? 5.0f : 10.0f);
+  return b;
 }
 
 }  // namespace pstream::render

@@ -10,7 +10,9 @@
 
 #include <fmt/format.h>
 
+#include "gl_program.hpp"
 #include "particlestream/render.hpp"
+#include "passes.hpp"
 
 namespace pstream::render {
 namespace {
@@ -88,26 +90,19 @@ void main() {
 }
 )";
 
-GLuint compile(GLenum type, const char* source) {
-  const GLuint s = glCreateShader(type);
-  glShaderSource(s, 1, &source, nullptr);
-  glCompileShader(s);
-  GLint ok = 0;
-  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
-  if (!ok) {
-    char log[2048];
-    glGetShaderInfoLog(s, sizeof log, nullptr, log);
-    throw Error(fmt::format("shader compilation failed: {}", log));
-  }
-  return s;
-}
-
 std::uint64_t align_up(std::uint64_t v, std::uint64_t a) { return (v + a - 1) / a * a; }
 
 }  // namespace
 
 struct Renderer::Impl {
   RendererOptions options;
+  detail::FrameContext frame;
+  detail::StagedBatches staged;
+  std::unique_ptr<detail::LiquidPass> liquid;      // made on the first liquid draw
+  std::unique_ptr<detail::BackdropPass> backdrop;  // made on the first backdrop
+  // Copies the batches' records (and the order) into this frame's region of the mapped buffers,
+  // binds them, and fills `staged`; false when there is nothing to draw.
+  bool stage(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order);
   GLuint program = 0, vao = 0, records = 0, order = 0, sprite = 0;
   std::string sprite_path;
   std::byte* records_map = nullptr;
@@ -116,8 +111,6 @@ struct Renderer::Impl {
   std::vector<GLsync> fences;
   int region = 0;
   std::uint64_t records_used = 0, order_used = 0;
-  Mat4 view = identity(), projection = identity();
-  int viewport_height = 1;
   GLint ssbo_alignment = 256;
   GLint u_model_view = -1, u_projection = -1, u_stride = -1, u_base = -1, u_color_word = -1, u_color = -1, u_size = -1,
         u_use_order = -1, u_merged = -1, u_points = -1, u_viewport_height = -1, u_mode = -1, u_light = -1,
@@ -139,20 +132,7 @@ Renderer::Renderer(RendererOptions options) : impl_(std::make_unique<Impl>()) {
                     epoxy_is_desktop_gl() ? "OpenGL" : "OpenGL ES", epoxy_gl_version() / 10, epoxy_gl_version() % 10,
                     gl_renderer()));
   }
-  const GLuint vs = compile(GL_VERTEX_SHADER, kVertexShader), fs = compile(GL_FRAGMENT_SHADER, kFragmentShader);
-  d.program = glCreateProgram();
-  glAttachShader(d.program, vs);
-  glAttachShader(d.program, fs);
-  glLinkProgram(d.program);
-  glDeleteShader(vs);
-  glDeleteShader(fs);
-  GLint ok = 0;
-  glGetProgramiv(d.program, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    char log[2048];
-    glGetProgramInfoLog(d.program, sizeof log, nullptr, log);
-    throw Error(fmt::format("shader link failed: {}", log));
-  }
+  d.program = detail::link_program(kVertexShader, kFragmentShader);
   const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
   d.u_model_view = loc("u_model_view");
   d.u_projection = loc("u_projection");
@@ -189,6 +169,8 @@ Renderer::Renderer(RendererOptions options) : impl_(std::make_unique<Impl>()) {
 
 Renderer::~Renderer() {
   Impl& d = *impl_;
+  d.liquid.reset();
+  d.backdrop.reset();
   for (GLsync f : d.fences) {
     if (f) glDeleteSync(f);
   }
@@ -210,9 +192,18 @@ void Renderer::begin_frame(int width, int height, const Camera& camera, const st
     d.fences[std::size_t(d.region)] = nullptr;
   }
   d.records_used = d.order_used = 0;
-  d.view = camera.view();
-  d.projection = camera.projection(float(width) / float(std::max(height, 1)));
-  d.viewport_height = height;
+  d.frame.view = camera.view();
+  d.frame.projection = camera.projection(float(width) / float(std::max(height, 1)));
+  d.frame.width = std::max(width, 1);
+  d.frame.height = std::max(height, 1);
+  // The light in view space (a direction: no translation).
+  const Vec3& l = d.options.light_direction;
+  const Mat4& v = d.frame.view;
+  Vec3 lv{v[0] * l[0] + v[4] * l[1] + v[8] * l[2], v[1] * l[0] + v[5] * l[1] + v[9] * l[2],
+          v[2] * l[0] + v[6] * l[1] + v[10] * l[2]};
+  const float len = std::sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]);
+  for (float& c : lv) c /= len > 0 ? len : 1.0f;
+  d.frame.light_view = lv;
   glViewport(0, 0, width, height);
   glClearColor(background[0], background[1], background[2], background[3]);
   glDepthMask(GL_TRUE);
@@ -232,8 +223,8 @@ void Renderer::draw_merged(std::span<const ParticleBatch> batches, std::span<con
   impl_draw(batches, order, true);
 }
 
-void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged) {
-  Impl& d = *impl_;
+bool Renderer::Impl::stage(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order) {
+  Impl& d = *this;
   std::uint64_t total = 0, bytes = 0;
   for (const ParticleBatch& b : batches) {
     const std::uint64_t n = b.first.size() + b.second.size();
@@ -243,7 +234,7 @@ void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const
     total += b.count;
     bytes += n;
   }
-  if (total == 0) return;
+  if (total == 0) return false;
   const std::uint64_t at = align_up(d.records_used, std::uint64_t(d.ssbo_alignment));
   const std::uint64_t order_at = align_up(d.order_used, std::uint64_t(d.ssbo_alignment));
   if (at + bytes > d.region_bytes || order_at + order.size_bytes() > d.order_region) {
@@ -253,23 +244,22 @@ void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const
   // Each frame's records move once: from the stream's cache into the mapped GPU buffer, batch
   // after batch; the shader finds a batch's records at its base word.
   std::byte* dst = d.records_map + std::uint64_t(d.region) * d.region_bytes + at;
-  std::array<GLuint, kMaxMergedBatches> base{}, stride{};
-  std::array<GLint, kMaxMergedBatches> color_word{};
-  std::array<float, kMaxMergedBatches> size{};
-  std::array<float, 4 * kMaxMergedBatches> color{};
-  std::array<float, 16 * kMaxMergedBatches> model_view{};
+  detail::StagedBatches& s = d.staged;
+  s.n = batches.size();
   std::uint64_t offset = 0;
   for (std::size_t k = 0; k < batches.size(); ++k) {
     const ParticleBatch& b = batches[k];
     std::memcpy(dst + offset, b.first.data(), b.first.size());
     if (!b.second.empty()) std::memcpy(dst + offset + b.first.size(), b.second.data(), b.second.size());
-    base[k] = GLuint(offset / 4);
-    stride[k] = b.record_size / 4;
-    color_word[k] = b.color_offset >= 0 ? b.color_offset / 4 : -1;
-    size[k] = b.size_multiplier;
-    std::copy(b.color.begin(), b.color.end(), color.begin() + 4 * k);
-    const Mat4 mv = multiply(d.view, b.world);
-    std::copy(mv.begin(), mv.end(), model_view.begin() + 16 * k);
+    s.count[k] = b.count;
+    s.base[k] = GLuint(offset / 4);
+    s.stride[k] = b.record_size / 4;
+    s.color_word[k] = b.color_offset >= 0 ? b.color_offset / 4 : -1;
+    s.velocity_word[k] = b.velocity_offset >= 0 ? b.velocity_offset / 4 : -1;
+    s.size[k] = b.size_multiplier;
+    std::copy(b.color.begin(), b.color.end(), s.color.begin() + 4 * std::ptrdiff_t(k));
+    const Mat4 mv = multiply(d.frame.view, b.world);
+    std::copy(mv.begin(), mv.end(), s.model_view.begin() + 16 * std::ptrdiff_t(k));
     offset += b.first.size() + b.second.size();
   }
   glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 0, d.records, GLintptr(std::uint64_t(d.region) * d.region_bytes + at),
@@ -284,7 +274,15 @@ void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const
     glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order, 0, 4);
   }
   d.records_used = at + bytes;
+  return true;
+}
 
+void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged) {
+  Impl& d = *impl_;
+  if (!d.stage(batches, order)) return;
+  const detail::StagedBatches& s = d.staged;
+  std::uint64_t total = 0;
+  for (std::size_t k = 0; k < s.n; ++k) total += s.count[k];
   const ParticleBatch& first = batches.front();                    // blend mode and sprite of the draw
   if (!first.texture.empty() && first.texture != d.sprite_path) {  // an artist's sprite, loaded once
     int w = 0, h = 0;
@@ -297,47 +295,44 @@ void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const
     d.sprite_path = first.texture;
   }
 
-  // The light in view space (a direction: no translation).
-  const Vec3& l = d.options.light_direction;
-  Vec3 lv{d.view[0] * l[0] + d.view[4] * l[1] + d.view[8] * l[2],
-          d.view[1] * l[0] + d.view[5] * l[1] + d.view[9] * l[2],
-          d.view[2] * l[0] + d.view[6] * l[1] + d.view[10] * l[2]};
-  const float len = std::sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]);
-  for (float& c : lv) c /= len > 0 ? len : 1.0f;
-
   const auto n = GLsizei(batches.size());
   glUseProgram(d.program);
   glBindVertexArray(d.vao);
-  glUniformMatrix4fv(d.u_model_view, n, GL_FALSE, model_view.data());
-  glUniformMatrix4fv(d.u_projection, 1, GL_FALSE, d.projection.data());
-  glUniform1uiv(d.u_stride, n, stride.data());
-  glUniform1uiv(d.u_base, n, base.data());
-  glUniform1iv(d.u_color_word, n, color_word.data());
-  glUniform4fv(d.u_color, n, color.data());
-  glUniform1fv(d.u_size, n, size.data());
+  glUniformMatrix4fv(d.u_model_view, n, GL_FALSE, s.model_view.data());
+  glUniformMatrix4fv(d.u_projection, 1, GL_FALSE, d.frame.projection.data());
+  glUniform1uiv(d.u_stride, n, s.stride.data());
+  glUniform1uiv(d.u_base, n, s.base.data());
+  glUniform1iv(d.u_color_word, n, s.color_word.data());
+  glUniform4fv(d.u_color, n, s.color.data());
+  glUniform1fv(d.u_size, n, s.size.data());
   glUniform1i(d.u_use_order, order.empty() ? 0 : 1);
   glUniform1i(d.u_merged, merged ? 1 : 0);
   glUniform1i(d.u_points, d.options.points ? 1 : 0);
-  glUniform1f(d.u_viewport_height, float(d.viewport_height));
-  glUniform3fv(d.u_light, 1, lv.data());
+  glUniform1f(d.u_viewport_height, float(d.frame.height));
+  glUniform3fv(d.u_light, 1, d.frame.light_view.data());
   glUniform1i(d.u_textured, first.texture.empty() ? 0 : 1);
   if (d.sprite) glBindTextureUnit(0, d.sprite);
   switch (first.blend) {
-    case BlendMode::Alpha:  // premultiplied, drawn back to front, no depth writes
+    case BlendMode::Alpha:  // premultiplied, drawn back to front, no depth writes (hidden by the ground)
       glEnable(GL_BLEND);
       glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
-      glDisable(GL_DEPTH_TEST);
+      glEnable(GL_DEPTH_TEST);
+      glDepthFunc(GL_LESS);
+      glDepthMask(GL_FALSE);
       glUniform1i(d.u_mode, 0);
       break;
     case BlendMode::Additive:  // order-independent
       glEnable(GL_BLEND);
       glBlendFunc(GL_ONE, GL_ONE);
-      glDisable(GL_DEPTH_TEST);
+      glEnable(GL_DEPTH_TEST);
+      glDepthFunc(GL_LESS);
+      glDepthMask(GL_FALSE);
       glUniform1i(d.u_mode, 1);
       break;
     case BlendMode::AlphaTest:  // opaque cut-outs with the depth buffer
       glDisable(GL_BLEND);
       glEnable(GL_DEPTH_TEST);
+      glDepthFunc(GL_LESS);
       glDepthMask(GL_TRUE);
       glUniform1i(d.u_mode, 2);
       break;
@@ -348,6 +343,28 @@ void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const
   } else {
     glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(total));
   }
+}
+
+void Renderer::draw_liquid(std::span<const ParticleBatch> batches, const LiquidStyle& style) {
+  Impl& d = *impl_;
+  if (batches.size() > kMaxMergedBatches) {
+    throw Error(fmt::format("{} streams drawn as one liquid; the renderer merges at most {}", batches.size(),
+                            kMaxMergedBatches));
+  }
+  if (!d.stage(batches, {})) return;
+  if (!d.liquid) d.liquid = std::make_unique<detail::LiquidPass>();
+  d.liquid->draw(d.frame, d.staged, batches, style);
+}
+
+LiquidImage Renderer::read_liquid(LiquidBuffer which) const {
+  if (!impl_->liquid) throw Error("read_liquid: nothing was drawn as a liquid yet");
+  return impl_->liquid->read(which);
+}
+
+void Renderer::draw_backdrop(const Backdrop& backdrop) {
+  Impl& d = *impl_;
+  if (!d.backdrop) d.backdrop = std::make_unique<detail::BackdropPass>();
+  d.backdrop->draw(d.frame, backdrop);
 }
 
 void Renderer::end_frame() {

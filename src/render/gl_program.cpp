@@ -1,0 +1,56 @@
+#include "gl_program.hpp"
+
+#include <array>
+
+#include <fmt/format.h>
+
+#include "particlestream/error.hpp"
+
+namespace pstream::render::detail {
+namespace {
+
+GLuint compile(GLenum type, const char* source) {
+  const GLuint s = glCreateShader(type);
+  glShaderSource(s, 1, &source, nullptr);
+  glCompileShader(s);
+  GLint ok = 0;
+  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
+  if (!ok) {
+    std::array<char, 2048> log{};
+    glGetShaderInfoLog(s, GLsizei(log.size()), nullptr, log.data());
+    glDeleteShader(s);
+    throw Error(
+        fmt::format("{} shader compilation failed: {}", type == GL_VERTEX_SHADER ? "vertex" : "fragment", log.data()));
+  }
+  return s;
+}
+
+}  // namespace
+
+GLuint link_program(const char* vertex_source, const char* fragment_source) {
+  const GLuint vs = compile(GL_VERTEX_SHADER, vertex_source);
+  GLuint fs = 0;
+  try {
+    fs = compile(GL_FRAGMENT_SHADER, fragment_source);
+  } catch (...) {
+    glDeleteShader(vs);
+    throw;
+  }
+  const GLuint program = glCreateProgram();
+  glAttachShader(program, vs);
+  glAttachShader(program, fs);
+  glLinkProgram(program);
+  glDeleteShader(vs);
+  glDeleteShader(fs);
+  GLint ok = 0;
+  glGetProgramiv(program, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    std::array<char, 2048> log{};
+    glGetProgramInfoLog(program, GLsizei(log.size()), nullptr, log.data());
+    glDeleteProgram(program);
+    throw Error(fmt::format("shader link failed: {}", log.data()));
+  }
+  return program;
+}
+
+}  // namespace pstream::render::detail

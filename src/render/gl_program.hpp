@@ -1,0 +1,12 @@
+// Compiling and linking the renderer's GLSL programs (one place for every pass).
+#pragma once
+
+#include <epoxy/gl.h>
+
+namespace pstream::render::detail {
+
+// Links a program from a vertex and a fragment shader; throws pstream::Error with the driver's
+// log when either fails to compile or the program fails to link.
+GLuint link_program(const char* vertex_source, const char* fragment_source);
+
+}  // namespace pstream::render::detail

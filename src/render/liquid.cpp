@@ -1,0 +1,515 @@
+// The screen-space liquid: sphere splats to a depth buffer and (additively) to a thickness
+// buffer, a separable depth filter (narrow-range by default), normals from the smoothed depth,
+// and a full-screen composite that reflects the sky, refracts and absorbs the scene behind, adds
+// the key light's highlight and writes the surface's depth; spray is drawn over it.
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+
+#include <fmt/format.h>
+
+#include "gl_program.hpp"
+#include "passes.hpp"
+
+namespace pstream::render::detail {
+namespace {
+
+// Splats, one instanced quad per particle of one batch. Pass 0: the sphere's front depth
+// (distance along the view axis) with depth testing; 1: its thickness (chord length) added up;
+// 2: spray, for particles where the liquid is thin (isolated) or that move fast.
+constexpr const char* kSplatVertex = R"(#version 450 core
+layout(std430, binding = 0) readonly buffer Records { uint words[]; };
+uniform mat4 u_model_view;
+uniform mat4 u_projection;
+uniform uint u_base;
+uniform uint u_stride;
+uniform float u_size;
+uniform int u_velocity_word;
+uniform float u_fixed_radius;    // > 0: every particle's radius (object units)
+uniform int u_pass;
+uniform sampler2D u_thickness;
+uniform float u_foam_speed;      // view units per second; 0: off
+uniform float u_foam_thickness;  // view units; 0: off
+out vec2 v_corner;
+out vec3 v_center;
+out float v_radius;
+out float v_foam;
+float word(uint w) { return uintBitsToFloat(words[w]); }
+void main() {
+  uint w = u_base + uint(gl_InstanceID) * u_stride;
+  float world_scale = length(u_model_view[0].xyz);
+  float r = (u_fixed_radius > 0.0 ? u_fixed_radius : word(w + 3u) * u_size) * world_scale;
+  vec4 view = u_model_view * vec4(word(w), word(w + 1u), word(w + 2u), 1.0);
+  v_corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
+  v_center = view.xyz;
+  v_radius = r;
+  v_foam = 0.0;
+  if (u_pass == 2) {
+    vec4 c = u_projection * view;
+    vec2 uv = c.xy / c.w * 0.5 + 0.5;
+    float foam = 0.0;
+    if (u_foam_thickness > 0.0 && c.w > 0.0 && all(greaterThan(uv, vec2(0.0))) && all(lessThan(uv, vec2(1.0)))) {
+      float t = texture(u_thickness, uv).r;
+      foam = 1.0 - smoothstep(0.5 * u_foam_thickness, u_foam_thickness, t);
+    }
+    if (u_foam_speed > 0.0 && u_velocity_word >= 0) {
+      uint vw = w + uint(u_velocity_word);
+      float speed = length(vec3(word(vw), word(vw + 1u), word(vw + 2u))) * world_scale;
+      foam = max(foam, smoothstep(u_foam_speed, 1.5 * u_foam_speed, speed));
+    }
+    v_foam = foam;
+    if (foam < 0.02) {  // not spray: outside the clip volume, so nothing is rasterised
+      gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+      return;
+    }
+    view.z += r;  // on the surface of the liquid the particle is in, not inside it
+    r *= 0.8;
+  }
+  view.xy += v_corner * r;
+  gl_Position = u_projection * view;
+}
+)";
+
+constexpr const char* kSplatFragment = R"(#version 450 core
+in vec2 v_corner;
+in vec3 v_center;
+in float v_radius;
+in float v_foam;
+uniform mat4 u_projection;
+uniform int u_pass;
+layout(location = 0) out vec4 o_out;
+void main() {
+  float r2 = dot(v_corner, v_corner);
+  if (r2 > 1.0) discard;
+  float h = sqrt(1.0 - r2);
+  if (u_pass == 0) {
+    vec3 p = v_center + vec3(v_corner * v_radius, h * v_radius);
+    vec4 c = u_projection * vec4(p, 1.0);
+    gl_FragDepth = c.z / c.w * 0.5 + 0.5;
+    o_out = vec4(-p.z, 0.0, 0.0, 0.0);
+    return;
+  }
+  gl_FragDepth = gl_FragCoord.z;
+  if (u_pass == 1) {
+    o_out = vec4(2.0 * h * v_radius, 0.0, 0.0, 0.0);
+    return;
+  }
+  float a = v_foam * 0.85 * (1.0 - smoothstep(0.2, 1.0, sqrt(r2)));
+  o_out = vec4(vec3(0.93, 0.96, 1.0) * a, a);
+}
+)";
+
+// One direction of the separable depth filter; the radius in pixels is a world length projected
+// at the centre pixel's depth. Depth 0 is "no liquid" and stays so: silhouettes do not move.
+constexpr const char* kFilterFragment = R"(#version 450 core
+uniform sampler2D u_depth;
+uniform ivec2 u_step;
+uniform ivec2 u_size;
+uniform float u_radius_at_1;  // filter radius in pixels at distance 1
+uniform float u_range;        // the narrow range, view units
+uniform float u_clamp;        // where samples behind it are clamped to, past the centre (half a radius)
+uniform int u_mode;           // 0 narrow range, 1 bilateral, 2 gaussian
+layout(location = 0) out vec4 o_depth;
+const int kMaxRadius = 48;
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  float z0 = texelFetch(u_depth, p, 0).r;
+  float radius = u_radius_at_1 / max(z0, 1e-6);
+  int n = min(int(ceil(radius)), kMaxRadius);
+  if (z0 <= 0.0 || n < 1) {
+    o_depth = vec4(z0, 0.0, 0.0, 0.0);
+    return;
+  }
+  float sigma = max(0.5 * radius, 0.5);
+  float k = 1.0 / (2.0 * sigma * sigma);
+  float sum = 0.0, weights = 0.0;
+  for (int i = -n; i <= n; ++i) {
+    float z = texelFetch(u_depth, clamp(p + u_step * i, ivec2(0), u_size - 1), 0).r;
+    float w = exp(-float(i * i) * k);
+    if (u_mode == 0) {
+      if (z <= 0.0) w = 0.0;                          // nothing there: the silhouette stays put
+      else if (z > z0 + u_range) z = z0 + u_clamp;    // far behind: clamped, rounding the edge
+      else if (z < z0 - u_range) w = 0.0;             // far in front: another surface
+    } else if (u_mode == 1) {
+      if (z <= 0.0) w = 0.0;
+      else w *= exp(-((z - z0) * (z - z0)) / (2.0 * u_range * u_range));
+    } else if (z <= 0.0) {
+      w = 0.0;
+    }
+    sum += w * z;
+    weights += w;
+  }
+  o_depth = vec4(weights > 0.0 ? sum / weights : z0, 0.0, 0.0, 0.0);
+}
+)";
+
+// Shared by the normal and composite passes: a pixel's view-space position from its depth.
+constexpr const char* kViewPosition = R"(
+vec3 view_position(vec2 uv, float d, mat4 projection) {
+  vec2 ndc = uv * 2.0 - 1.0;
+  return vec3(ndc.x * d / projection[0][0], ndc.y * d / projection[1][1], -d);
+}
+)";
+
+// Normals: per axis the neighbour difference with the smaller depth change, so that edges do not
+// bend the normals of the pixels beside them.
+constexpr const char* kNormalFragment = R"(
+uniform sampler2D u_depth;
+uniform ivec2 u_size;
+uniform mat4 u_projection;
+layout(location = 0) out vec4 o_normal;
+vec3 at(ivec2 q, float d) { return view_position((vec2(q) + 0.5) / vec2(u_size), d, u_projection); }
+vec3 tangent(ivec2 p, ivec2 s, vec3 c) {
+  ivec2 pa = clamp(p + s, ivec2(0), u_size - 1), pb = clamp(p - s, ivec2(0), u_size - 1);
+  float a = texelFetch(u_depth, pa, 0).r, b = texelFetch(u_depth, pb, 0).r;
+  vec3 forward = at(pa, a) - c, backward = c - at(pb, b);
+  if (a <= 0.0 && b <= 0.0) return s.x != 0 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0);
+  if (a <= 0.0) return backward;
+  if (b <= 0.0) return forward;
+  return abs(forward.z) < abs(backward.z) ? forward : backward;
+}
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  float d = texelFetch(u_depth, p, 0).r;
+  if (d <= 0.0) {
+    o_normal = vec4(0.0);
+    return;
+  }
+  vec3 c = at(p, d);
+  vec3 n = normalize(cross(tangent(p, ivec2(1, 0), c), tangent(p, ivec2(0, 1), c)));
+  o_normal = vec4(n, 1.0);
+}
+)";
+
+constexpr const char* kCompositeFragment = R"(
+uniform sampler2D u_depth;
+uniform sampler2D u_normal;
+uniform sampler2D u_thickness;
+uniform sampler2D u_scene;
+uniform vec2 u_viewport;
+uniform vec2 u_liquid_size;
+uniform mat4 u_projection;
+uniform mat4 u_view;
+uniform vec3 u_light;       // view space, towards the key light
+uniform vec3 u_color;
+uniform vec3 u_absorb;      // per view unit of thickness
+uniform float u_color_depth;
+uniform float u_refraction;
+uniform int u_output;       // 0 shaded, 1 depth, 2 normals, 3 thickness
+layout(location = 0) out vec4 o_color;
+void main() {
+  vec2 uv = gl_FragCoord.xy / u_viewport;
+  ivec2 q = min(ivec2(uv * u_liquid_size), ivec2(u_liquid_size) - 1);
+  float d = texelFetch(u_depth, q, 0).r;
+  if (d <= 0.0) discard;
+  vec3 p = view_position(uv, d, u_projection);
+  vec4 clip = u_projection * vec4(p, 1.0);
+  gl_FragDepth = clip.z / clip.w * 0.5 + 0.5;
+  vec3 n = texelFetch(u_normal, q, 0).xyz;
+  float thickness = texelFetch(u_thickness, q, 0).r;
+  if (u_output == 1) {
+    float near = u_projection[3][2] / (u_projection[2][2] - 1.0), far = u_projection[3][2] / (u_projection[2][2] + 1.0);
+    o_color = vec4(vec3(1.0 - clamp((d - near) / (far - near), 0.0, 1.0)), 1.0);
+    return;
+  }
+  if (u_output == 2) {
+    o_color = vec4(n * 0.5 + 0.5, 1.0);
+    return;
+  }
+  if (u_output == 3) {
+    o_color = vec4(vec3(1.0 - exp(-thickness / u_color_depth)), 1.0);
+    return;
+  }
+  vec3 v = normalize(-p);
+  float fresnel = 0.02 + 0.98 * pow(1.0 - max(dot(n, v), 0.0), 5.0);
+  vec3 reflected = sky_color(normalize(transpose(mat3(u_view)) * reflect(-v, n)));
+  vec3 transmitted = exp(-u_absorb * thickness);
+  vec2 bend = n.xy * u_refraction * 0.04 * (1.0 - exp(-thickness / u_color_depth));
+  vec3 behind = texture(u_scene, clamp(uv - bend, vec2(0.0), vec2(1.0))).rgb;
+  vec3 scattered = 0.5 * u_color * (1.0 - transmitted);  // light the liquid scatters back, tinted
+  vec3 h = normalize(u_light + v);
+  float highlight = dot(n, u_light) > 0.0 ? 1.6 * pow(max(dot(n, h), 0.0), 180.0) : 0.0;
+  o_color = vec4(mix(behind * transmitted + scattered, reflected, fresnel) + vec3(highlight), 1.0);
+}
+)";
+
+struct Target {
+  GLuint texture = 0, framebuffer = 0;
+};
+
+Target make_target(GLenum format, int w, int h, GLuint depth_renderbuffer = 0) {
+  Target t;
+  glCreateTextures(GL_TEXTURE_2D, 1, &t.texture);
+  glTextureStorage2D(t.texture, 1, format, w, h);
+  glTextureParameteri(t.texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTextureParameteri(t.texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTextureParameteri(t.texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTextureParameteri(t.texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+  glCreateFramebuffers(1, &t.framebuffer);
+  glNamedFramebufferTexture(t.framebuffer, GL_COLOR_ATTACHMENT0, t.texture, 0);
+  if (depth_renderbuffer)
+    glNamedFramebufferRenderbuffer(t.framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth_renderbuffer);
+  if (glCheckNamedFramebufferStatus(t.framebuffer, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+    throw Error(fmt::format("liquid: a {}x{} render target is not supported by {}", w, h, Renderer::gl_renderer()));
+  return t;
+}
+
+void destroy(Target& t) {
+  if (t.framebuffer) glDeleteFramebuffers(1, &t.framebuffer);
+  if (t.texture) glDeleteTextures(1, &t.texture);
+  t = {};
+}
+
+// The median radius (view units) of up to 255 records spread over the batches.
+float median_radius(std::span<const ParticleBatch> batches) {
+  std::uint64_t total = 0;
+  for (const ParticleBatch& b : batches) total += b.count;
+  std::array<float, 255> sample{};
+  std::size_t n = 0;
+  const std::uint64_t want = std::min<std::uint64_t>(total, sample.size());
+  for (std::uint64_t k = 0; k < want; ++k) {
+    std::uint64_t i = total <= want ? k : k * total / want;
+    for (const ParticleBatch& b : batches) {
+      if (i >= b.count) {
+        i -= b.count;
+        continue;
+      }
+      const std::uint64_t at = i * b.record_size + 12;  // scale: the radius, after position
+      const std::span<const std::byte> part = at < b.first.size() ? b.first : b.second;
+      const std::uint64_t in = at < b.first.size() ? at : at - b.first.size();
+      float radius = 0;
+      std::memcpy(&radius, part.data() + in, sizeof radius);
+      const float world = std::sqrt(b.world[0] * b.world[0] + b.world[1] * b.world[1] + b.world[2] * b.world[2]);
+      if (std::isfinite(radius) && radius > 0) sample[n++] = radius * b.size_multiplier * world;
+      break;
+    }
+  }
+  if (n == 0) return 0.01f;
+  std::nth_element(sample.begin(), sample.begin() + std::ptrdiff_t(n / 2), sample.begin() + std::ptrdiff_t(n));
+  return sample[n / 2];
+}
+
+struct Uniforms {
+  GLint model_view, projection, base, stride, size, velocity_word, fixed_radius, pass, thickness, foam_speed,
+      foam_thickness;
+};
+
+}  // namespace
+
+struct LiquidPass::Impl {
+  GLuint splat = 0, filter = 0, normals = 0, composite = 0, vao = 0, depth_buffer = 0;
+  Uniforms su{};
+  Target raw, smooth[2], thickness, normal, scene;
+  const Target* smoothed = &raw;  // the last filter output
+  int width = 0, height = 0, liquid_width = 0, liquid_height = 0;
+
+  void resize(int w, int h, float resolution);
+  void release();
+  void splat_batches(const FrameContext& frame, const StagedBatches& s, int pass, float fixed_radius,
+                     const LiquidStyle& style, float radius);
+};
+
+void LiquidPass::Impl::release() {
+  for (Target* t : {&raw, &smooth[0], &smooth[1], &thickness, &normal, &scene}) destroy(*t);
+  if (depth_buffer) glDeleteRenderbuffers(1, &depth_buffer);
+  depth_buffer = 0;
+  width = height = liquid_width = liquid_height = 0;
+}
+
+void LiquidPass::Impl::resize(int w, int h, float resolution) {
+  const int lw = std::max(1, int(std::lround(float(w) * resolution)));
+  const int lh = std::max(1, int(std::lround(float(h) * resolution)));
+  if (w == width && h == height && lw == liquid_width && lh == liquid_height) return;
+  release();
+  glCreateRenderbuffers(1, &depth_buffer);
+  glNamedRenderbufferStorage(depth_buffer, GL_DEPTH_COMPONENT32F, lw, lh);
+  raw = make_target(GL_R32F, lw, lh, depth_buffer);
+  smooth[0] = make_target(GL_R32F, lw, lh);
+  smooth[1] = make_target(GL_R32F, lw, lh);
+  thickness = make_target(GL_R32F, lw, lh);
+  normal = make_target(GL_RGBA16F, lw, lh);
+  scene = make_target(GL_RGBA8, w, h);
+  width = w, height = h, liquid_width = lw, liquid_height = lh;
+}
+
+LiquidPass::LiquidPass() : impl_(std::make_unique<Impl>()) {
+  Impl& d = *impl_;
+  d.splat = link_program(kSplatVertex, kSplatFragment);
+  const std::string header = std::string("#version 450 core\n") + kViewPosition;
+  d.filter = link_program(kFullScreenVertexShader, kFilterFragment);
+  d.normals = link_program(kFullScreenVertexShader, (header + kNormalFragment).c_str());
+  d.composite = link_program(kFullScreenVertexShader, (header + kSkyFunction + kCompositeFragment).c_str());
+  glCreateVertexArrays(1, &d.vao);
+  const auto loc = [&](const char* name) { return glGetUniformLocation(d.splat, name); };
+  d.su = {loc("u_model_view"), loc("u_projection"),    loc("u_base"),          loc("u_stride"),
+          loc("u_size"),       loc("u_velocity_word"), loc("u_fixed_radius"),  loc("u_pass"),
+          loc("u_thickness"),  loc("u_foam_speed"),    loc("u_foam_thickness")};
+}
+
+LiquidPass::~LiquidPass() {
+  Impl& d = *impl_;
+  d.release();
+  for (GLuint p : {d.splat, d.filter, d.normals, d.composite}) glDeleteProgram(p);
+  glDeleteVertexArrays(1, &d.vao);
+}
+
+void LiquidPass::Impl::splat_batches(const FrameContext& frame, const StagedBatches& s, int pass, float fixed_radius,
+                                     const LiquidStyle& style, float radius) {
+  glUseProgram(splat);
+  glUniformMatrix4fv(su.projection, 1, GL_FALSE, frame.projection.data());
+  glUniform1i(su.pass, pass);
+  glUniform1f(su.fixed_radius, fixed_radius);
+  glUniform1i(su.thickness, 0);
+  glUniform1f(su.foam_speed, style.foam_speed);
+  glUniform1f(su.foam_thickness, style.foam_isolation * radius);
+  for (std::size_t k = 0; k < s.n; ++k) {
+    if (s.count[k] == 0) continue;
+    glUniformMatrix4fv(su.model_view, 1, GL_FALSE, s.model_view.data() + 16 * k);
+    glUniform1ui(su.base, s.base[k]);
+    glUniform1ui(su.stride, s.stride[k]);
+    glUniform1f(su.size, s.size[k]);
+    glUniform1i(su.velocity_word, s.velocity_word[k]);
+    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(s.count[k]));
+  }
+}
+
+void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::span<const ParticleBatch> source,
+                      const LiquidStyle& style) {
+  Impl& d = *impl_;
+  GLint target = 0;  // the application's framebuffer (a window's is 0)
+  glGetIntegerv(GL_DRAW_FRAMEBUFFER_BINDING, &target);
+  d.resize(frame.width, frame.height, std::clamp(style.resolution, 0.25f, 1.0f));
+  const int lw = d.liquid_width, lh = d.liquid_height;
+  // Lengths in view units: the style's are in particle radii.
+  const float world =
+      source.empty() ? 1.0f
+                     : std::sqrt(source[0].world[0] * source[0].world[0] + source[0].world[1] * source[0].world[1] +
+                                 source[0].world[2] * source[0].world[2]);
+  const float radius = style.particle_radius > 0 ? style.particle_radius * world : median_radius(source);
+  const float fixed_radius = style.particle_radius > 0 ? style.particle_radius : 0.0f;
+  glBindVertexArray(d.vao);
+  glDisable(GL_BLEND);
+
+  // 1. Sphere depth, nearest wins.
+  glBindFramebuffer(GL_FRAMEBUFFER, d.raw.framebuffer);
+  glViewport(0, 0, lw, lh);
+  const float zero[4] = {0, 0, 0, 0};
+  const float far_depth = 1.0f;
+  glClearNamedFramebufferfv(d.raw.framebuffer, GL_COLOR, 0, zero);
+  glClearNamedFramebufferfv(d.raw.framebuffer, GL_DEPTH, 0, &far_depth);
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LESS);
+  glDepthMask(GL_TRUE);
+  d.splat_batches(frame, s, 0, fixed_radius, style, radius);
+
+  // 2. Thickness, every sphere's chord added.
+  glBindFramebuffer(GL_FRAMEBUFFER, d.thickness.framebuffer);
+  glClearNamedFramebufferfv(d.thickness.framebuffer, GL_COLOR, 0, zero);
+  glDisable(GL_DEPTH_TEST);
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_ONE, GL_ONE);
+  d.splat_batches(frame, s, 1, fixed_radius, style, radius);
+  glDisable(GL_BLEND);
+
+  // 3. The separable filter, horizontal and vertical (alternating which goes first), `iterations` times.
+  d.smoothed = &d.raw;
+  const int iterations = style.filter == LiquidFilter::None ? 0 : std::clamp(style.iterations, 0, 8);
+  if (iterations > 0) {
+    glUseProgram(d.filter);
+    const auto loc = [&](const char* name) { return glGetUniformLocation(d.filter, name); };
+    // The radius in pixels at distance 1: a world length through the projection's focal length.
+    glUniform1f(loc("u_radius_at_1"), style.smoothing * radius * frame.projection[5] * 0.5f * float(lh));
+    glUniform1f(loc("u_range"), std::max(style.depth_range, 0.01f) * radius);
+    glUniform1f(loc("u_clamp"), 0.5f * radius);
+    glUniform1i(loc("u_mode"), style.filter == LiquidFilter::NarrowRange ? 0
+                               : style.filter == LiquidFilter::Bilateral ? 1
+                                                                         : 2);
+    glUniform2i(loc("u_size"), lw, lh);
+    glUniform1i(loc("u_depth"), 0);
+    for (int i = 0; i < iterations; ++i) {
+      for (int pass = 0; pass < 2; ++pass) {  // the axes alternate in order, so neither leaves streaks last
+        const int axis = (pass + i) % 2;
+        const Target& out = d.smooth[pass];
+        glBindFramebuffer(GL_FRAMEBUFFER, out.framebuffer);
+        glBindTextureUnit(0, d.smoothed->texture);
+        glUniform2i(loc("u_step"), axis == 0 ? 1 : 0, axis == 0 ? 0 : 1);
+        glDrawArrays(GL_TRIANGLES, 0, 3);
+        d.smoothed = &out;
+      }
+    }
+  }
+
+  // 4. Normals from the smoothed depth.
+  glBindFramebuffer(GL_FRAMEBUFFER, d.normal.framebuffer);
+  glUseProgram(d.normals);
+  glUniform1i(glGetUniformLocation(d.normals, "u_depth"), 0);
+  glUniform2i(glGetUniformLocation(d.normals, "u_size"), lw, lh);
+  glUniformMatrix4fv(glGetUniformLocation(d.normals, "u_projection"), 1, GL_FALSE, frame.projection.data());
+  glBindTextureUnit(0, d.smoothed->texture);
+  glDrawArrays(GL_TRIANGLES, 0, 3);
+
+  // 5. What is behind the liquid, copied for refraction; then the surface over it.
+  glBlitNamedFramebuffer(GLuint(target), d.scene.framebuffer, 0, 0, frame.width, frame.height, 0, 0, frame.width,
+                         frame.height, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+  glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
+  glViewport(0, 0, frame.width, frame.height);
+  glUseProgram(d.composite);
+  const auto loc = [&](const char* name) { return glGetUniformLocation(d.composite, name); };
+  glUniform1i(loc("u_depth"), 0);
+  glUniform1i(loc("u_normal"), 1);
+  glUniform1i(loc("u_thickness"), 2);
+  glUniform1i(loc("u_scene"), 3);
+  glBindTextureUnit(0, d.smoothed->texture);
+  glBindTextureUnit(1, d.normal.texture);
+  glBindTextureUnit(2, d.thickness.texture);
+  glBindTextureUnit(3, d.scene.texture);
+  glUniform2f(loc("u_viewport"), float(frame.width), float(frame.height));
+  glUniform2f(loc("u_liquid_size"), float(lw), float(lh));
+  glUniformMatrix4fv(loc("u_projection"), 1, GL_FALSE, frame.projection.data());
+  glUniformMatrix4fv(loc("u_view"), 1, GL_FALSE, frame.view.data());
+  glUniform3fv(loc("u_light"), 1, frame.light_view.data());
+  const float color_depth = std::max(style.color_depth, 0.01f) * radius;
+  std::array<float, 3> absorb{};
+  for (int c = 0; c < 3; ++c)
+    absorb[std::size_t(c)] = -std::log(std::clamp(style.color[std::size_t(c)], 1e-3f, 1.0f)) / color_depth;
+  glUniform3fv(loc("u_color"), 1, style.color.data());
+  glUniform3fv(loc("u_absorb"), 1, absorb.data());
+  glUniform1f(loc("u_color_depth"), color_depth);
+  glUniform1f(loc("u_refraction"), std::clamp(style.refraction, 0.0f, 4.0f));
+  glUniform1i(loc("u_output"), int(style.output));
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LESS);
+  glDepthMask(GL_TRUE);
+  glDrawArrays(GL_TRIANGLES, 0, 3);
+
+  // 6. Spray over the surface.
+  if (style.output == LiquidOutput::Shaded && (style.foam_isolation > 0 || style.foam_speed > 0)) {
+    glBindTextureUnit(0, d.thickness.texture);
+    glEnable(GL_BLEND);
+    glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+    glDepthMask(GL_FALSE);
+    d.splat_batches(frame, s, 2, fixed_radius, style, radius);
+    glDepthMask(GL_TRUE);
+    glDisable(GL_BLEND);
+  }
+}
+
+LiquidImage LiquidPass::read(LiquidBuffer which) const {
+  const Impl& d = *impl_;
+  LiquidImage image;
+  image.width = d.liquid_width;
+  image.height = d.liquid_height;
+  const Target* t = which == LiquidBuffer::RawDepth    ? &d.raw
+                    : which == LiquidBuffer::Depth     ? d.smoothed
+                    : which == LiquidBuffer::Thickness ? &d.thickness
+                                                       : &d.normal;
+  image.channels = which == LiquidBuffer::Normals ? 3 : 1;
+  image.values.resize(std::size_t(image.width) * std::size_t(image.height) * std::size_t(image.channels));
+  glPixelStorei(GL_PACK_ALIGNMENT, 4);
+  glGetTextureImage(t->texture, 0, image.channels == 3 ? GL_RGB : GL_RED, GL_FLOAT,
+                    GLsizei(image.values.size() * sizeof(float)), image.values.data());
+  return image;
+}
+
+}  // namespace pstream::render::detail
