@@ -243,6 +243,36 @@ cook::Options large_clip(const fs::path& dir) {
   return o;
 }
 
+// The liquid look from the command line, with two clips in one picture; a mistyped look flag is
+// refused before anything is written.
+TEST(RenderCommand, LiquidLookAndSeveralClips) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = dir / "flip.pstream";
+  ASSERT_EQ(test::run_cli(fmt::format("cook '{}' -o '{}' -q --frames 30:33",
+                                      test::data_path("sims/blender_flip_pour_small.abc"), clip.string()))
+                .exit_code,
+            0);
+  const auto r =
+      test::run_cli(fmt::format("render '{0}' '{0}' --look liquid --foam-speed 2 --size 320x180 -q --out '{1}'",
+                                clip.string(), (dir / "liquid").string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  int w = 0, h = 0;
+  const auto img = read_png(dir / "liquid" / "frame_00000.png", w, h);
+  ASSERT_EQ(w, 320);
+  // The liquid's blue-green is in the picture (the backdrop is grey and sky blue: its pixels have
+  // red close to green).
+  std::size_t liquid = 0;
+  for (std::size_t i = 0; i < img.size(); i += 4) liquid += int(img[i + 1]) - int(img[i]) > 40;
+  EXPECT_GT(liquid, 500u);
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir / "liquid"), fs::directory_iterator{}), 3);
+
+  const auto bad = test::run_cli(fmt::format("render '{}' --look liquid --liquid-filter median -q --out '{}'",
+                                             clip.string(), (dir / "bad").string()));
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.output.find("liquid filter 'median'"), std::string::npos) << bad.output;
+  EXPECT_FALSE(fs::exists(dir / "bad"));
+}
+
 TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
   if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
   const fs::path dir = test::fresh_dir();
