@@ -177,10 +177,8 @@ double step_sharpness(const LiquidImage& raw, const LiquidImage& depth, std::siz
 }
 
 TEST_F(LiquidTest, SilhouettesKeepTheirDepthStepWithoutHalos) {
-  const auto bounds = [] {
-    const auto& b = playback::Player::open(std::vector<fs::path>{*dir_ / "flip.pstream"})->clip(0).metadata().bounds;
-    return b;
-  }();
+  const auto player = playback::Player::open(std::vector<fs::path>{*dir_ / "flip.pstream"});
+  const std::array<float, 6> bounds = player->clip(0).metadata().bounds;  // copied while the player lives
   const Camera camera =
       Camera::framing({bounds[0], bounds[1], bounds[2]}, {bounds[3], bounds[4], bounds[5]}, float(kW) / float(kH));
   LiquidStyle style;
