@@ -261,6 +261,9 @@ void destroy(Target& t) {
   t = {};
 }
 
+// How much a world transform scales lengths (its first column's length, as the shaders take it).
+float scale_of(const Mat4& world) { return std::sqrt(world[0] * world[0] + world[1] * world[1] + world[2] * world[2]); }
+
 // The median radius (view units) of up to 255 records spread over the batches.
 float median_radius(std::span<const ParticleBatch> batches) {
   std::uint64_t total = 0;
@@ -280,8 +283,7 @@ float median_radius(std::span<const ParticleBatch> batches) {
       const std::uint64_t in = at < b.first.size() ? at : at - b.first.size();
       float radius = 0;
       std::memcpy(&radius, part.data() + in, sizeof radius);
-      const float world = std::sqrt(b.world[0] * b.world[0] + b.world[1] * b.world[1] + b.world[2] * b.world[2]);
-      if (std::isfinite(radius) && radius > 0) sample[n++] = radius * b.size_multiplier * world;
+      if (std::isfinite(radius) && radius > 0) sample[n++] = radius * b.size_multiplier * scale_of(b.world);
       break;
     }
   }
@@ -382,10 +384,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   d.resize(frame.width, frame.height, std::clamp(style.resolution, 0.25f, 1.0f));
   const int lw = d.liquid_width, lh = d.liquid_height;
   // Lengths in view units: the style's are in particle radii.
-  const float world =
-      source.empty() ? 1.0f
-                     : std::sqrt(source[0].world[0] * source[0].world[0] + source[0].world[1] * source[0].world[1] +
-                                 source[0].world[2] * source[0].world[2]);
+  const float world = source.empty() ? 1.0f : scale_of(source[0].world);
   const float radius = style.particle_radius > 0 ? style.particle_radius * world : median_radius(source);
   const float fixed_radius = style.particle_radius > 0 ? style.particle_radius : 0.0f;
   glBindVertexArray(d.vao);
