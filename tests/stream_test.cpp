@@ -13,9 +13,11 @@
 #include <fmt/format.h>
 
 #include "alloc_counter.hpp"
+#include "capi/callback_io.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/stream.hpp"
+#include "test_io.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -34,6 +36,13 @@ fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::C
   o.attributes = std::move(attributes);
   cook::cook(o);
   return o.output;
+}
+
+// The stream over the file through the IO the run asks for (PSTREAM_TEST_IO, tests/test_io.hpp),
+// unless the test brings its own.
+std::unique_ptr<stream::ParticleStream> open_stream(const fs::path& file, stream::StreamOptions o = {}) {
+  if (!o.io) o.io = test::test_io(file);
+  return stream::ParticleStream::open(file, std::move(o));
 }
 
 // The same fixture in the particle codec, a keyframe every `keyframes` frames, 64 KiB chunks (so
@@ -136,7 +145,7 @@ TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
     SCOPED_TRACE(file.filename().string());
     const Reference ref(file);
     const auto& m = ref.reader.metadata();
-    auto s = stream::ParticleStream::open(file, tiny_cache());
+    auto s = open_stream(file, tiny_cache());
     EXPECT_EQ(s->debug().slots.size(), stream::cache_slots(m, 0.0));
     s->play();
     s->update(0);
@@ -162,7 +171,7 @@ TEST(Stream, LoopingAndSpeed) {
     const auto& m = ref.reader.metadata();
     const std::uint64_t n = m.frame_count();
     {
-      auto s = stream::ParticleStream::open(file, tiny_cache());
+      auto s = open_stream(file, tiny_cache());
       s->set_loop(true);
       s->play();
       s->update(0);
@@ -172,7 +181,7 @@ TEST(Stream, LoopingAndSpeed) {
       }
     }
     {
-      auto s = stream::ParticleStream::open(file, tiny_cache());
+      auto s = open_stream(file, tiny_cache());
       s->set_loop(true);
       s->set_speed(2.5);
       s->play();
@@ -201,7 +210,7 @@ TEST(Stream, TwoHundredRandomSeeks) {
     const auto& m = ref.reader.metadata();
     stream::StreamOptions o = tiny_cache();
     o.scheduler = std::make_shared<stream::IoScheduler>(1);  // its own worker: decodes are counted alone
-    auto s = stream::ParticleStream::open(file, std::move(o));
+    auto s = open_stream(file, std::move(o));
     std::mt19937 rng(42);
     std::uniform_int_distribution<std::uint64_t> pick(0, m.frame_count() - 1);
     for (int i = 0; i < 200; ++i) {
@@ -232,7 +241,7 @@ TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
     const auto& m = ref.reader.metadata();
     std::vector<std::byte> gpu_buffer(m.max_count * m.record_size);
     for (bool blocking : {false, true}) {
-      auto s = stream::ParticleStream::open(file, tiny_cache(blocking));
+      auto s = open_stream(file, tiny_cache(blocking));
       std::vector<std::uint64_t> shown;
       shown.reserve(1000);
       const std::uint64_t before = test::allocation_count();
@@ -283,9 +292,9 @@ TEST(Stream, ExactBandwidthNoStallsHalfBandwidthStallsAndRecovers) {
   auto rate = std::make_shared<std::atomic<double>>(0.0);
   stream::StreamOptions o;
   o.cache_seconds = 0.5;  // half a second of lead
-  o.io = std::make_unique<ThrottledIo>(stream::open_file(file), rate);
+  o.io = std::make_unique<ThrottledIo>(test::test_io(file), rate);
   o.scheduler = std::make_shared<stream::IoScheduler>(1);
-  auto s = stream::ParticleStream::open(file, std::move(o));
+  auto s = open_stream(file, std::move(o));
   // Prime: fill the cache (1 s of frames) at full speed.
   while (s->debug().loads_done < s->debug().slots.size()) {
     s->update(0);
@@ -361,7 +370,7 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
     f.put(static_cast<char>(old ^ 0x40));  // a flip, whatever the byte was
     f.close();
     ASSERT_NE(test::read_text(bad), test::read_text(file));
-    auto s = stream::ParticleStream::open(bad, tiny_cache(true));  // blocking: every chunk is read
+    auto s = open_stream(bad, tiny_cache(true));  // blocking: every chunk is read
     play_until_error(*s);
     ASSERT_EQ(s->state(), stream::PlayState::Error);
     EXPECT_NE(s->error().find("chunk 5"), std::string::npos) << s->error();
@@ -376,9 +385,9 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
     const auto pm = format::Reader::open(particle).metadata();
     ASSERT_GT(pm.chunk_count(), 2u);
     stream::StreamOptions o = tiny_cache(true);
-    o.io = std::make_unique<FaultyIo>(stream::open_file(particle), pm.chunks[2].file_offset,
+    o.io = std::make_unique<FaultyIo>(test::test_io(particle), pm.chunks[2].file_offset,
                                       pm.chunks.back().file_offset + 1, FaultyIo::Fault::Replaced);
-    auto s = stream::ParticleStream::open(particle, std::move(o));
+    auto s = open_stream(particle, std::move(o));
     play_until_error(*s);
     ASSERT_EQ(s->state(), stream::PlayState::Error);
     EXPECT_NE(s->error().find("chunk 2"), std::string::npos) << s->error();
@@ -386,8 +395,8 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
   }
   for (auto fault : {FaultyIo::Fault::ReadError, FaultyIo::Fault::Replaced}) {
     stream::StreamOptions o = tiny_cache(true);
-    o.io = std::make_unique<FaultyIo>(stream::open_file(file), chunk5, m.chunks.back().file_offset + 1, fault);
-    auto s = stream::ParticleStream::open(file, std::move(o));
+    o.io = std::make_unique<FaultyIo>(test::test_io(file), chunk5, m.chunks.back().file_offset + 1, fault);
+    auto s = open_stream(file, std::move(o));
     play_until_error(*s);
     ASSERT_EQ(s->state(), stream::PlayState::Error);
     EXPECT_NE(s->error().find(fault == FaultyIo::Fault::ReadError ? "injected read error" : "chunk 5"),
@@ -399,13 +408,77 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
     const fs::path cut = dir / "cut.pstream";
     fs::copy_file(file, cut);
     fs::resize_file(cut, fs::file_size(cut) / 2);
-    EXPECT_THROW(stream::ParticleStream::open(cut), Error);
+    EXPECT_THROW(open_stream(cut), Error);
     try {
-      stream::ParticleStream::open(test::data_path("alembic/points_constant.abc"));
+      open_stream(test::data_path("alembic/points_constant.abc"));
       FAIL();
     } catch (const Error& e) {
       EXPECT_NE(std::string(e.what()).find("not a .pstream file"), std::string::npos) << e.what();
     }
+  }
+}
+
+// A host's IO callbacks that fail from an offset on: synchronously (`read` returns non-zero),
+// asynchronously (the completion reports it), or refused (read_async returns non-zero). The
+// header and tables (after the chunks) read fine.
+struct FailingHostIo {
+  std::vector<std::byte> bytes;
+  std::uint64_t fail_from = 0, fail_to = 0;
+  bool fails(std::uint64_t offset) const { return offset >= fail_from && offset <= fail_to; }
+  static int read(void* user, std::uint64_t offset, void* out, std::uint64_t size) {
+    auto* h = static_cast<FailingHostIo*>(user);
+    if (h->fails(offset)) return 7;
+    std::memcpy(out, h->bytes.data() + offset, size);
+    return 0;
+  }
+  static int read_async(void* user, std::uint64_t offset, void* out, std::uint64_t size, pstream_io_done done,
+                        void* token) {
+    done(token, read(user, offset, out, size));
+    return 0;
+  }
+  static int refuse_async(void* user, std::uint64_t offset, void* out, std::uint64_t size, pstream_io_done done,
+                          void* token) {
+    if (static_cast<FailingHostIo*>(user)->fails(offset)) return 9;
+    done(token, read(user, offset, out, size));
+    return 0;
+  }
+};
+
+TEST(StreamFaults, HostIoCallbacksThatFailEndInACleanError) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = cook_fixture(dir, "points_constant", format::Codec::Raw);
+  const auto m = format::Reader::open(file).metadata();
+  FailingHostIo host;
+  const std::string text = test::read_text(file);
+  host.bytes.resize(text.size());
+  std::memcpy(host.bytes.data(), text.data(), text.size());
+  host.fail_from = m.chunks[5].file_offset;
+  host.fail_to = m.chunks.back().file_offset;
+  struct Case {
+    const char* what;
+    bool sync, async, refuse;
+    const char* expected;
+  };
+  for (const Case& c : {Case{"read", true, false, false, "status 7"},
+                        Case{"read_async", true, true, false, "(chunk 5) failed with status 7"},
+                        Case{"refused read_async", true, false, true, "refused"}}) {
+    SCOPED_TRACE(c.what);
+    pstream_io io{};
+    io.user = &host;
+    io.size = host.bytes.size();
+    io.name = "pak://clip.pstream";
+    io.read = c.sync ? &FailingHostIo::read : nullptr;
+    io.read_async = c.async ? &FailingHostIo::read_async : c.refuse ? &FailingHostIo::refuse_async : nullptr;
+    stream::StreamOptions o = tiny_cache(true);
+    o.io = capi::callback_io(io);
+    auto s = stream::ParticleStream::open(file, std::move(o));
+    play_until_error(*s);
+    ASSERT_EQ(s->state(), stream::PlayState::Error);
+    EXPECT_NE(s->error().find("pak://clip.pstream"), std::string::npos) << s->error();
+    EXPECT_NE(s->error().find(c.expected), std::string::npos) << s->error();
+    EXPECT_NE(s->error().find(std::to_string(host.fail_from)), std::string::npos) << s->error();
+    s->update(0.1);
+    s->close();
   }
 }
 
@@ -427,7 +500,7 @@ TEST(Stream, CacheSizingAndSharedMemoryBudget) {
   auto budget = std::make_shared<stream::MemoryBudget>(one + one / 2 + 4 * 6390 * 16);
   stream::StreamOptions a;
   a.budget = budget;
-  auto first = stream::ParticleStream::open(file, std::move(a));
+  auto first = open_stream(file, std::move(a));
   EXPECT_EQ(first->debug().cache_bytes, one);
   // The decoded frames (3 of the largest frame) and a packet's staging count too.
   EXPECT_GE(first->debug().decode_bytes, 3 * 6390 * 16u);
@@ -435,7 +508,7 @@ TEST(Stream, CacheSizingAndSharedMemoryBudget) {
   stream::StreamOptions b;
   b.budget = budget;
   try {
-    stream::ParticleStream::open(file, std::move(b));
+    open_stream(file, std::move(b));
     FAIL() << "second cache fitted a budget too small for it";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("does not fit the memory budget"), std::string::npos) << e.what();
@@ -444,13 +517,13 @@ TEST(Stream, CacheSizingAndSharedMemoryBudget) {
   EXPECT_EQ(budget->used(), 0u);
   stream::StreamOptions c;
   c.budget = budget;
-  EXPECT_NO_THROW(stream::ParticleStream::open(file, std::move(c)));
+  EXPECT_NO_THROW(open_stream(file, std::move(c)));
 }
 
 TEST(Stream, SmallestCacheIsTwoSlots) {
   const fs::path dir = test::fresh_dir();
   const fs::path file = cook_fixture(dir, "points_constant", format::Codec::Raw);  // 16 KB frames, 64 KiB chunks
-  auto s = stream::ParticleStream::open(file, tiny_cache());
+  auto s = open_stream(file, tiny_cache());
   EXPECT_EQ(s->debug().slots.size(), 2u);
 }
 
@@ -462,8 +535,8 @@ TEST(Stream, StreamsShareOneScheduler) {
   auto scheduler = std::make_shared<stream::IoScheduler>(1);  // one load in flight across both
   stream::StreamOptions ao = tiny_cache(), bo = tiny_cache();
   ao.scheduler = bo.scheduler = scheduler;
-  auto a = stream::ParticleStream::open(a_file, std::move(ao));
-  auto b = stream::ParticleStream::open(b_file, std::move(bo));
+  auto a = open_stream(a_file, std::move(ao));
+  auto b = open_stream(b_file, std::move(bo));
   a->play();
   b->play();
   a->update(0);
@@ -479,7 +552,7 @@ TEST(Stream, StreamsShareOneScheduler) {
 TEST(Stream, DebugInfoRangeAndStop) {
   const fs::path dir = test::fresh_dir();
   const fs::path file = synthetic_clip(dir, 100, 25, [](std::uint64_t) { return 3000; });
-  auto s = stream::ParticleStream::open(file, tiny_cache());
+  auto s = open_stream(file, tiny_cache());
   const auto d0 = s->debug();
   EXPECT_EQ(d0.slots.size(), stream::cache_slots(s->metadata(), 0.0));
   EXPECT_EQ(d0.cache_bytes, d0.slots.size() * s->metadata().chunk_size);

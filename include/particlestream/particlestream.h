@@ -184,14 +184,27 @@ typedef enum pstream_sort {
   PSTREAM_SORT_FRONT_TO_BACK = 2
 } pstream_sort;
 
+/* Completes an asynchronous read: status 0 when `out` is filled, non-zero when the read failed. */
+typedef void (*pstream_io_done)(void* token, int status);
+
 /* Where a clip's bytes come from, instead of the file: an engine's own file system or pak.
- * `read` runs on the library's IO thread and must fill `size` bytes at `offset` (return 0), or
- * return non-zero (the clip then goes to its error state with `name` in the message). */
+ * Set `read`, `read_async`, or both.
+ * - `read` runs on the library's IO thread (or a host job, with pstream_tasks) and must fill
+ *   `size` bytes at `offset` (return 0), or return non-zero (the clip then goes to its error
+ *   state with `name`, the offset and the status in the message).
+ * - `read_async` starts the read and returns 0 at once (non-zero: refused, nothing will
+ *   complete), then the host calls `done(token, status)` exactly once, from any thread, even
+ *   before read_async returns. `out` stays valid until then. No library thread waits for it: the
+ *   chunk's verification and decoding run as a new job after the completion. Chunk loads use
+ *   read_async when it is set; the two small reads at open (header, tables) use `read`, or
+ *   read_async and wait. pstream_player_close() waits for reads under way.
+ * A clip has one read under way at most; several clips' reads may run at the same time. */
 typedef struct pstream_io {
   void* user;
   int (*read)(void* user, uint64_t offset, void* out, uint64_t size);
   uint64_t size;    /* the clip's size in bytes */
   const char* name; /* for messages */
+  int (*read_async)(void* user, uint64_t offset, void* out, uint64_t size, pstream_io_done done, void* token);
 } pstream_io;
 
 /* The host's job system, instead of the library's IO thread: every chunk load (read, verify,

@@ -30,10 +30,22 @@ namespace pstream::stream {
 // Where chunk bytes come from. read() runs on an IO worker thread; it must fill `out` from
 // `offset` completely or throw pstream::Error. Implementations for tests inject latency,
 // bandwidth limits and failures; later ones may use io_uring or HTTP.
+//
+// A backend whose reads complete elsewhere (an engine's streaming system, io_uring) also
+// overrides start_read(): it starts the read, returns true at once, and calls
+// `done(context, status)` exactly once, from any thread, when `out` is filled (status 0) or the
+// read failed (non-zero); `out` stays valid until then. The load then goes on (verify, decode)
+// as a new job, so no worker waits for the read. Chunk loads use start_read() when it returns
+// true; the two reads of the header and tables at open always use read().
 class IoBackend {
  public:
+  using ReadDone = void (*)(void* context, int status);
   virtual ~IoBackend() = default;
   virtual void read(std::uint64_t offset, std::span<std::byte> out) = 0;
+  virtual bool start_read(std::uint64_t /*offset*/, std::span<std::byte> /*out*/, ReadDone /*done*/,
+                          void* /*context*/) {
+    return false;
+  }
   virtual std::uint64_t size() const = 0;
   virtual const std::string& name() const = 0;
 };
@@ -65,6 +77,9 @@ class IoScheduler {
   void release(std::size_t requests);
   void submit(LoadRequest* request);
   unsigned workers() const { return static_cast<unsigned>(threads_.size()); }
+  // The completion an IoBackend's start_read() calls (context: the load): the load goes on as a
+  // new job.
+  static void read_done(void* request, int status);
 
  private:
   void run();

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "capi/callback_io.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
@@ -75,26 +76,6 @@ void fill_info(const format::Metadata& m, pstream_clip_info* out) {
   out->end_time = m.frame_count() ? m.frames.back().time : 0.0;
   for (int i = 0; i < 6; ++i) out->bounds[i] = m.bounds[static_cast<std::size_t>(i)];
 }
-
-// A pstream_io as the stream's IoBackend.
-class CallbackIo final : public stream::IoBackend {
- public:
-  explicit CallbackIo(const pstream_io& io) : io_(io), name_(io.name ? io.name : "pstream_io") {}
-  void read(std::uint64_t offset, std::span<std::byte> out) override {
-    if (offset > io_.size || out.size() > io_.size - offset)
-      throw Error(name_ + ": a read of " + std::to_string(out.size()) + " bytes at " + std::to_string(offset) +
-                  " is past its end (" + std::to_string(io_.size) + " bytes)");
-    if (io_.read(io_.user, offset, out.data(), out.size()) != 0)
-      throw Error(name_ + ": the read callback failed for " + std::to_string(out.size()) + " bytes at offset " +
-                  std::to_string(offset));
-  }
-  std::uint64_t size() const override { return io_.size; }
-  const std::string& name() const override { return name_; }
-
- private:
-  pstream_io io_;
-  std::string name_;
-};
 
 }  // namespace
 
@@ -350,7 +331,8 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
     }
   } else {
     for (size_t i = 0; i < count; ++i) {
-      if (o.io[i].read == nullptr) return fail(PSTREAM_ERROR_ARGUMENT, "io[" + std::to_string(i) + "].read is NULL");
+      if (o.io[i].read == nullptr && o.io[i].read_async == nullptr)
+        return fail(PSTREAM_ERROR_ARGUMENT, "io[" + std::to_string(i) + "] has neither read nor read_async");
     }
   }
   if (o.tasks && o.tasks->submit == nullptr) return fail(PSTREAM_ERROR_ARGUMENT, "tasks->submit is NULL");
@@ -374,7 +356,7 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
     std::vector<std::filesystem::path> files(count);
     for (size_t i = 0; i < count; ++i) {
       if (o.io) {
-        po.io.push_back(std::make_unique<CallbackIo>(o.io[i]));
+        po.io.push_back(capi::callback_io(o.io[i]));
         files[i] = o.io[i].name ? o.io[i].name : "pstream_io";
       } else {
         files[i] = paths[i];

@@ -6,25 +6,55 @@
 
 namespace pstream::stream {
 
+std::span<std::byte> LoadRequest::read_target() const {
+  return entry.codec == format::Codec::Raw ? destination : staging.first(entry.stored_size);
+}
+
+bool LoadRequest::start_async_read() {
+  if (produce || read_phase != NotStarted) return false;
+  t0 = std::chrono::steady_clock::now();
+  error.clear();
+  read_phase = Started;
+  try {
+    if (io->start_read(entry.file_offset, read_target(), &IoScheduler::read_done, this)) return true;
+  } catch (const std::exception& e) {  // a backend that fails to start: the load fails
+    read_phase = Completed;
+    read_status = -1;
+    error = e.what();
+    return false;
+  }
+  read_phase = NotStarted;  // no asynchronous reads: execute() reads
+  return false;
+}
+
 void LoadRequest::execute() {
   using Clock = std::chrono::steady_clock;
   if (produce) {  // the stream's callback does the work
     status.store(Done, std::memory_order_release);
     return;
   }
+  const bool was_async = read_phase == Completed;
+  read_phase = NotStarted;
   try {
-    const auto t0 = Clock::now();
-    const bool raw = entry.codec == format::Codec::Raw;
-    // Raw chunks are read straight into their slot: the bytes move once, disk to cache.
-    const std::span<std::byte> target = raw ? destination : staging.first(entry.stored_size);
-    io->read(entry.file_offset, target);
-    const auto t1 = Clock::now();
-    if (raw) {
-      if (!format::checksum_matches(target, entry.checksum)) {
-        decoder->decode(entry, target, destination, io->name(), chunk);  // raises the checksum error
+    const std::span<std::byte> target = read_target();
+    if (was_async) {
+      if (read_status != 0) {
+        if (error.empty())
+          error = io->name() + ": the asynchronous read of " + std::to_string(target.size()) + " bytes at offset " +
+                  std::to_string(entry.file_offset) + " (chunk " + std::to_string(chunk) + ") failed with status " +
+                  std::to_string(read_status);
+        status.store(Failed, std::memory_order_release);
+        status.notify_all();
+        return;
       }
     } else {
-      decoder->decode(entry, target, destination, io->name(), chunk);
+      t0 = Clock::now();
+      io->read(entry.file_offset, target);
+    }
+    const auto t1 = Clock::now();
+    // Raw chunks were read straight into their slot: the bytes move once, disk to cache.
+    if (entry.codec != format::Codec::Raw || !format::checksum_matches(target, entry.checksum)) {
+      decoder->decode(entry, target, destination, io->name(), chunk);  // raises a checksum error
     }
     io_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(t1 - t0).count();
     decode_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t1).count();
@@ -54,8 +84,16 @@ IoScheduler::IoScheduler(HostSubmit submit) : queue_(std::make_unique<Queue>()),
 
 void IoScheduler::run_job(void* request) {
   auto* r = static_cast<LoadRequest*>(request);
+  if (r->start_async_read()) return;  // read_done() submits the rest; r may already be gone
   r->execute();
   if (r->on_done != nullptr) r->on_done(r->owner, r);  // must be the last use of r here
+}
+
+void IoScheduler::read_done(void* request, int status) {
+  auto* r = static_cast<LoadRequest*>(request);
+  r->read_status = status;
+  r->read_phase = LoadRequest::Completed;
+  r->scheduler->submit(r);  // verify and decode as a job of its own
 }
 
 IoScheduler::~IoScheduler() {
@@ -91,6 +129,7 @@ void IoScheduler::release(std::size_t requests) {
 
 void IoScheduler::submit(LoadRequest* request) {
   request->status.store(LoadRequest::Pending, std::memory_order_relaxed);
+  request->scheduler = this;
   if (host_) {
     host_(&IoScheduler::run_job, request);
     return;

@@ -29,12 +29,24 @@ struct LoadRequest {
   void (*on_done)(void* owner, LoadRequest* request) = nullptr;
   void* owner = nullptr;
 
-  // Set by the worker.
+  // Set by the worker (and the scheduler, for a read started with IoBackend::start_read()).
   std::atomic<int> status{Idle};
   std::string error;  // only on failure
   std::int64_t io_ns = 0, decode_ns = 0;
+  IoScheduler* scheduler = nullptr;          // set by IoScheduler::submit()
+  std::chrono::steady_clock::time_point t0;  // when the read started
+  // Where an asynchronous read is: NotStarted, Started (waiting for its completion), Completed
+  // (read_status holds the backend's status; the next execute() verifies and decodes).
+  enum ReadPhase : std::uint8_t { NotStarted, Started, Completed };
+  ReadPhase read_phase = NotStarted;
+  int read_status = 0;
 
-  void execute();  // on an IO worker: read, verify, decode; never throws
+  // The span the chunk's stored bytes are read into: raw chunks straight into their slot.
+  std::span<std::byte> read_target() const;
+  // On an IO worker: start an asynchronous read when the backend offers one (returns true: the
+  // load continues when it completes), else nothing (returns false).
+  bool start_async_read();
+  void execute();  // on an IO worker: read (unless already read), verify, decode; never throws
 };
 
 }  // namespace pstream::stream

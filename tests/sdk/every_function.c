@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include <particlestream/particlestream.h>
 
@@ -64,6 +65,69 @@ static int read_memory(void* user, uint64_t offset, void* out, uint64_t size) {
   ++f->reads;
   memcpy(out, f->bytes + offset, (size_t)size);
   return 0;
+}
+
+/* An engine's asynchronous IO: read_async queues the request and returns; a thread of the host
+ * serves it after a millisecond and calls the completion. Reads at offsets in [fail_from,
+ * fail_to] complete with status 5 (fail_from -1: none fail). */
+typedef struct async_io {
+  pthread_mutex_t mutex;
+  pthread_cond_t wake;
+  memory_file* file;
+  uint64_t offset[64], size[64];
+  void* out[64];
+  pstream_io_done done[64];
+  void* token[64];
+  int head, count, stop, served, overflow;
+  int64_t fail_from, fail_to;
+  pthread_t thread;
+} async_io;
+
+static int read_async(void* user, uint64_t offset, void* out, uint64_t size, pstream_io_done done, void* token) {
+  async_io* io = (async_io*)user;
+  int at;
+  pthread_mutex_lock(&io->mutex);
+  if (io->count == 64) {
+    io->overflow = 1;
+    pthread_mutex_unlock(&io->mutex);
+    return -1;
+  }
+  at = (io->head + io->count) % 64;
+  io->offset[at] = offset;
+  io->size[at] = size;
+  io->out[at] = out;
+  io->done[at] = done;
+  io->token[at] = token;
+  ++io->count;
+  pthread_cond_signal(&io->wake);
+  pthread_mutex_unlock(&io->mutex);
+  return 0;
+}
+
+static void* async_io_main(void* user) {
+  async_io* io = (async_io*)user;
+  for (;;) {
+    int at, status;
+    struct timespec pause = {0, 1000000};
+    pthread_mutex_lock(&io->mutex);
+    while (!io->stop && io->count == 0) pthread_cond_wait(&io->wake, &io->mutex);
+    if (io->count == 0) {
+      pthread_mutex_unlock(&io->mutex);
+      return NULL;
+    }
+    at = io->head;
+    io->head = (io->head + 1) % 64;
+    --io->count;
+    ++io->served;
+    pthread_mutex_unlock(&io->mutex);
+    nanosleep(&pause, NULL); /* the engine's latency */
+    status = io->fail_from >= 0 && io->offset[at] >= (uint64_t)io->fail_from &&
+                     io->offset[at] <= (uint64_t)io->fail_to
+                 ? 5
+                 : 0;
+    if (status == 0) memcpy(io->out[at], io->file->bytes + io->offset[at], (size_t)io->size[at]);
+    io->done[at](io->token[at], status);
+  }
 }
 
 /* A host job system: one worker thread and a queue, as an engine would give the library. */
@@ -393,6 +457,7 @@ int main(int argc, char** argv) {
     io.read = read_memory;
     io.size = file.size;
     io.name = "pak://fx/raw.pstream";
+    io.read_async = NULL;
     options.io = &io;
     CHECK(pstream_player_open(NULL, 1, &options, &player) == PSTREAM_OK);
     pstream_player_play(player);
@@ -407,8 +472,44 @@ int main(int argc, char** argv) {
     play(player, 5);
     EXPECT_ERROR(pstream_player_check(player), PSTREAM_ERROR_STATE, "pak://fx/raw.pstream");
     pstream_player_close(player);
-    io.read = NULL;
-    EXPECT_ERROR(pstream_player_open(NULL, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "read is NULL");
+
+    {
+      /* The same frames through asynchronous reads completed on the host's IO thread, without
+       * `read` (the header and tables too); then reads that complete with a failure. */
+      static async_io aio;
+      uint64_t from_async;
+      pthread_mutex_init(&aio.mutex, NULL);
+      pthread_cond_init(&aio.wake, NULL);
+      aio.file = &file;
+      aio.fail_from = -1;
+      CHECK(pthread_create(&aio.thread, NULL, async_io_main, &aio) == 0);
+      io.user = &aio;
+      io.read = NULL;
+      io.read_async = read_async;
+      CHECK(pstream_player_open(NULL, 1, &options, &player) == PSTREAM_OK);
+      pstream_player_play(player);
+      from_async = play(player, 60);
+      pstream_player_close(player);
+      CHECK(from_async == from_file && aio.served > 2 && !aio.overflow);
+      aio.fail_from = 1; /* the chunks fail; the header (at 0) and the tables (at the end) read */
+      aio.fail_to = (int64_t)(file.size / 2);
+      CHECK(pstream_player_open(NULL, 1, &options, &player) == PSTREAM_OK);
+      pstream_player_play(player);
+      play(player, 60);
+      EXPECT_ERROR(pstream_player_check(player), PSTREAM_ERROR_STATE, "failed with status 5");
+      pstream_player_close(player);
+      pthread_mutex_lock(&aio.mutex);
+      aio.stop = 1;
+      pthread_cond_signal(&aio.wake);
+      pthread_mutex_unlock(&aio.mutex);
+      pthread_join(aio.thread, NULL);
+      pthread_cond_destroy(&aio.wake);
+      pthread_mutex_destroy(&aio.mutex);
+      io.user = &file;
+    }
+
+    io.read_async = NULL;
+    EXPECT_ERROR(pstream_player_open(NULL, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "neither read nor read_async");
 
     /* A corrupt chunk: one byte changed in the middle of the raw clip's data. */
     file.bytes[file.size / 2] ^= 0x5a;
