@@ -34,18 +34,40 @@ echo "exports: $(echo "$declared" | wc -l) pstream_* functions, nothing else"
 # A clip to play.
 "$cli" cook "$source/tests/data/alembic/points_varying.abc" --attributes velocity,id -o "$work/clip.pstream" -q
 
-# find_package
+# find_package: the C examples and the C++ one
 cmake -S "$source/examples/c" -B "$work/cmake-build" -DCMAKE_PREFIX_PATH="$prefix" >/dev/null
 cmake --build "$work/cmake-build" >/dev/null
 LD_LIBRARY_PATH=$libdir "$work/cmake-build/play_clip" "$work/clip.pstream" >"$work/cmake.out"
+cmake -S "$source/examples/cpp" -B "$work/cmake-build-cpp" -DCMAKE_PREFIX_PATH="$prefix" >/dev/null
+cmake --build "$work/cmake-build-cpp" >/dev/null
+LD_LIBRARY_PATH=$libdir "$work/cmake-build-cpp/play_clip_cpp" "$work/clip.pstream" >"$work/cmake-cpp.out"
 
-# pkg-config
-PKG_CONFIG_PATH=$libdir/pkgconfig cc -std=c99 -Wall -Wextra -Werror -pedantic "$source/examples/c/play_clip.c" \
-  $(PKG_CONFIG_PATH=$libdir/pkgconfig pkg-config --cflags --libs particlestream) -o "$work/play_clip_pc"
+# pkg-config: the same sources
+pc() { PKG_CONFIG_PATH=$libdir/pkgconfig pkg-config "$@"; }
+cc -std=c99 -Wall -Wextra -Werror -pedantic "$source/examples/c/play_clip.c" $(pc --cflags --libs particlestream) \
+  -o "$work/play_clip_pc"
 LD_LIBRARY_PATH=$libdir "$work/play_clip_pc" "$work/clip.pstream" >"$work/pc.out"
+c++ -std=c++20 -Wall -Wextra -Werror -pedantic "$source/examples/cpp/play_clip.cpp" \
+  $(pc --cflags --libs particlestream) -o "$work/play_clip_cpp_pc"
+LD_LIBRARY_PATH=$libdir "$work/play_clip_cpp_pc" "$work/clip.pstream" >"$work/pc-cpp.out"
+cc -std=c99 -Wall -Wextra -Werror -pedantic "$source/examples/c/view_clip.c" \
+  $(pc --cflags --libs particlestream glfw3 gl) -lm -o "$work/view_clip_pc"
 
-cmp "$work/cmake.out" "$work/pc.out"
+# The C and C++ API give the same frames, whichever way the examples were built.
+for out in pc.out cmake-cpp.out pc-cpp.out; do cmp "$work/cmake.out" "$work/$out"; done
 lines=$(wc -l <"$work/pc.out")
 [ "$lines" -ge 100 ] || { echo "the example played $lines host frames"; exit 1; }
 awk '$3 > 0 {drawn++} END {exit !(drawn > NR / 2)}' "$work/pc.out" || { echo "most host frames without particles"; exit 1; }
-echo "the example built with find_package and with pkg-config played $lines host frames"
+echo "the C and C++ examples built with find_package and with pkg-config played $lines host frames, the same"
+
+# The window loop under a virtual display: 90 host frames, then a screenshot with particles in it.
+[ -x "$work/cmake-build/view_clip" ] || { echo "view_clip was not built with find_package (GLFW?)"; exit 1; }
+for viewer in "$work/cmake-build/view_clip" "$work/view_clip_pc"; do
+  LD_LIBRARY_PATH=$libdir xvfb-run -a -s "-screen 0 1280x720x24" "$viewer" "$work/clip.pstream" --frames 90 \
+    --screenshot "$work/view.ppm" >"$work/view.out"
+  grep -q "played 90 host frames" "$work/view.out"
+  # Pixels brighter than the background (0.05, 0.06, 0.08): the points drawn.
+  lit=$(tail -c +16 "$work/view.ppm" | od -An -v -tu1 -w3 | awk '$1 + $2 + $3 > 120 {n++} END {print n + 0}')
+  [ "$lit" -ge 200 ] || { echo "$viewer: only $lit lit pixels in its last frame"; exit 1; }
+  echo "$(basename "$viewer"): 90 frames in a GLFW window, $lit lit pixels in the last"
+done
