@@ -72,6 +72,29 @@ PSTREAM_API const char* pstream_last_error(void);
 /* "PSTREAM_OK", "PSTREAM_ERROR_IO", ... */
 PSTREAM_API const char* pstream_result_name(pstream_result result);
 
+/* ---- Memory -------------------------------------------------------------------------------- */
+
+/* The host's allocator (malloc/free with a user pointer). `allocate` returns `size` bytes aligned
+ * to `alignment` (a power of two, at least 16) or NULL; `free` releases a block it returned.
+ * Both may be called from any thread, concurrently. */
+typedef struct pstream_allocator {
+  void* user;
+  void* (*allocate)(void* user, size_t size, size_t alignment);
+  void (*free)(void* user, void* block);
+} pstream_allocator;
+
+/* Every allocation the library makes from now on goes to `allocator` (NULL: back to malloc/free):
+ * its containers, strings, threads' state, zstd's contexts. A handle allocates at open and
+ * close, never in pstream_player_update(). Each block remembers its allocator, so it may be
+ * changed at any time; memory taken before the change is returned to the allocator that gave it,
+ * so keep that one usable until the handles opened with it are closed. After every handle is
+ * closed the library holds nothing from the allocator, except the last error message of a thread
+ * whose call failed (until that thread's next failure or its exit).
+ * Not reached: what the C library allocates for itself (thread stacks and TLS). Builds with
+ * sanitizers route only zstd's contexts here. At most 64 distinct allocators per process
+ * (PSTREAM_ERROR_STATE past that); one of the functions NULL: PSTREAM_ERROR_ARGUMENT. */
+PSTREAM_API pstream_result pstream_set_allocator(const pstream_allocator* allocator);
+
 /* ---- Record layout --------------------------------------------------------------------- */
 
 typedef enum pstream_attribute_type {

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "base/memory.hpp"
 #include "capi/callback_io.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/cook.hpp"
@@ -97,6 +98,18 @@ struct pstream_player {
 extern "C" {
 
 uint32_t pstream_version(void) { return PSTREAM_VERSION; }
+
+pstream_result pstream_set_allocator(const pstream_allocator* allocator) {
+  memory::Allocator a;
+  if (allocator != nullptr) {
+    if (allocator->allocate == nullptr || allocator->free == nullptr)
+      return fail(PSTREAM_ERROR_ARGUMENT, "the allocator's allocate or free is NULL");
+    a = memory::Allocator{allocator->user, allocator->allocate, allocator->free};
+  }
+  if (!memory::set_allocator(a))
+    return fail(PSTREAM_ERROR_STATE, "64 allocators were installed already (each is kept for its blocks)");
+  return PSTREAM_OK;
+}
 const char* pstream_last_error(void) { return g_last_error.c_str(); }
 
 const char* pstream_result_name(pstream_result result) {
@@ -352,6 +365,8 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
       const pstream_tasks tasks = *o.tasks;
       po.stream.scheduler = std::make_shared<stream::IoScheduler>(
           [tasks](void (*run)(void*), void* job) { tasks.submit(tasks.user, run, job); });
+    } else {  // the player's own IO thread, not a process-wide one: nothing outlives the handle
+      po.stream.scheduler = std::make_shared<stream::IoScheduler>(1);
     }
     std::vector<std::filesystem::path> files(count);
     for (size_t i = 0; i < count; ++i) {

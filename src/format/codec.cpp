@@ -8,9 +8,11 @@
 #include <algorithm>
 #include <array>
 #include <cstring>
+#include <memory>
 
 #include <fmt/format.h>
 
+#include "format/zstd_memory.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
@@ -62,7 +64,10 @@ void lz4_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std
 
 void zstd_encode(std::span<const std::byte> raw, int level, EncodedChunk& out) {
   out.stored.resize(ZSTD_compressBound(raw.size()));
-  const std::size_t n = ZSTD_compress(out.stored.data(), out.stored.size(), raw.data(), raw.size(), level);
+  const std::unique_ptr<ZSTD_CCtx, decltype(&ZSTD_freeCCtx)> cctx(make_zstd_cctx(), &ZSTD_freeCCtx);
+  if (!cctx) throw Error("cannot create a zstd encoder");
+  const std::size_t n =
+      ZSTD_compressCCtx(cctx.get(), out.stored.data(), out.stored.size(), raw.data(), raw.size(), level);
   if (ZSTD_isError(n)) throw Error(fmt::format("zstd compression failed: {}", ZSTD_getErrorName(n)));
   out.stored.resize(n);
   out.codec_param = static_cast<std::uint32_t>(level);
@@ -116,7 +121,7 @@ EncodedChunk encode_chunk(std::span<const std::byte> raw, Codec codec, int level
   return out;
 }
 
-ChunkDecoder::ChunkDecoder() : zstd_(ZSTD_createDCtx()) {
+ChunkDecoder::ChunkDecoder() : zstd_(make_zstd_dctx()) {
   if (zstd_ == nullptr) throw Error("cannot create a zstd decoder");
 }
 

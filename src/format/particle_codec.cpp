@@ -23,6 +23,7 @@
 #include <fmt/format.h>
 
 #include "format/frame_unit.hpp"
+#include "format/zstd_memory.hpp"
 #include "particlestream/codec.hpp"
 
 namespace pstream::format {
@@ -149,7 +150,7 @@ struct Body {
 class ParticleUnit final : public FrameUnit {
  public:
   ParticleUnit(const Metadata& meta, std::string_view name)
-      : meta_(meta), name_(name), plan_(meta.codec), zstd_(ZSTD_createDCtx()) {
+      : meta_(meta), name_(name), plan_(meta.codec), zstd_(make_zstd_dctx()) {
     if (zstd_ == nullptr) throw Error("cannot create a zstd decoder");
     const std::uint64_t n = meta.max_count;
     const std::size_t coded = plan_.coded.size();
@@ -492,7 +493,7 @@ class GroupEncoder {
     }
     state_.q.resize(plan_.coded.size());
     state_.d.resize(plan_.coded.size());
-    zstd_ = ZSTD_createCCtx();
+    zstd_ = make_zstd_cctx();
     if (zstd_ == nullptr) throw Error("cannot create a zstd encoder");
     ZSTD_CCtx_setParameter(zstd_, ZSTD_c_compressionLevel, info.zstd_level);
     ZSTD_CCtx_setParameter(zstd_, ZSTD_c_contentSizeFlag, 1);

@@ -8,6 +8,7 @@
 #include <fcntl.h>
 #include <fmt/format.h>
 #include <unistd.h>
+#define XXH_STATIC_LINKING_ONLY  // XXH3_state_t as a complete type, held by value
 #include <xxhash.h>
 
 #include "base/output_file.hpp"
@@ -36,7 +37,7 @@ struct Writer::Output {
 
 // A raw chunk being written in pieces; it starts at position_ (which moves only when it ends).
 struct Writer::RawChunk {
-  std::unique_ptr<XXH3_state_t, decltype(&XXH3_freeState)> hash{XXH3_createState(), &XXH3_freeState};
+  XXH3_state_t hash{};  // in the chunk, not from XXH3_createState (malloc)
   std::uint64_t size = 0;
 };
 
@@ -90,13 +91,10 @@ void Writer::append_chunk(std::span<const std::byte> stored, Codec codec, std::u
 }
 
 void Writer::append_raw_piece(std::span<const std::byte> bytes) {
-  if (!raw_) {
-    raw_ = std::make_unique<RawChunk>();
-    if (!raw_->hash) throw std::bad_alloc();
-  }
-  if (raw_->size == 0) XXH3_64bits_reset(raw_->hash.get());
+  if (!raw_) raw_ = std::make_unique<RawChunk>();
+  if (raw_->size == 0) XXH3_64bits_reset(&raw_->hash);
   write_at(position_ + raw_->size, bytes);
-  XXH3_64bits_update(raw_->hash.get(), bytes.data(), bytes.size());
+  XXH3_64bits_update(&raw_->hash, bytes.data(), bytes.size());
   raw_->size += bytes.size();
 }
 
@@ -112,7 +110,7 @@ void Writer::append_stream(std::span<const std::byte> bytes) {
 
 void Writer::end_raw_chunk() {
   if (!raw_ || raw_->size == 0) throw Error(fmt::format("{}: end_raw_chunk() without a piece", path_.string()));
-  end_chunk(std::exchange(raw_->size, 0), Codec::Raw, 0, XXH3_64bits_digest(raw_->hash.get()));
+  end_chunk(std::exchange(raw_->size, 0), Codec::Raw, 0, XXH3_64bits_digest(&raw_->hash));
 }
 
 void Writer::end_chunk(std::uint64_t stored_size, Codec codec, std::uint32_t codec_param, std::uint64_t sum) {

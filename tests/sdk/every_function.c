@@ -121,8 +121,7 @@ static void* async_io_main(void* user) {
     ++io->served;
     pthread_mutex_unlock(&io->mutex);
     nanosleep(&pause, NULL); /* the engine's latency */
-    status = io->fail_from >= 0 && io->offset[at] >= (uint64_t)io->fail_from &&
-                     io->offset[at] <= (uint64_t)io->fail_to
+    status = io->fail_from >= 0 && io->offset[at] >= (uint64_t)io->fail_from && io->offset[at] <= (uint64_t)io->fail_to
                  ? 5
                  : 0;
     if (status == 0) memcpy(io->out[at], io->file->bytes + io->offset[at], (size_t)io->size[at]);
@@ -404,6 +403,16 @@ int main(int argc, char** argv) {
     CHECK(pstream_player_clip_count(NULL) == 0);
   }
 
+  /* ---- The allocator hook (tests/sdk/allocator.c checks what it sees) ---- */
+  {
+    pstream_allocator half;
+    half.user = NULL;
+    half.allocate = NULL;
+    half.free = NULL;
+    EXPECT_ERROR(pstream_set_allocator(&half), PSTREAM_ERROR_ARGUMENT, "allocate or free is NULL");
+    CHECK(pstream_set_allocator(NULL) == PSTREAM_OK);
+  }
+
   /* ---- IO callbacks: the same frames as the file; a failing backend puts the clip in error ---- */
   {
     pstream_player* player = NULL;
@@ -509,7 +518,8 @@ int main(int argc, char** argv) {
     }
 
     io.read_async = NULL;
-    EXPECT_ERROR(pstream_player_open(NULL, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "neither read nor read_async");
+    EXPECT_ERROR(pstream_player_open(NULL, 1, &options, &player), PSTREAM_ERROR_ARGUMENT,
+                 "neither read nor read_async");
 
     /* A corrupt chunk: one byte changed in the middle of the raw clip's data. */
     file.bytes[file.size / 2] ^= 0x5a;
