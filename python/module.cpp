@@ -16,6 +16,7 @@
 
 #include <cstring>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -263,8 +264,17 @@ PYBIND11_MODULE(particlestream, m) {
           "time", [](const PyPlayer& p, std::size_t i) { return p.player->clip(i).time(); }, py::arg("clip") = 0)
       .def(
           "update",
-          [](PyPlayer& p, double dt) {
-            const playback::FrameStats& s = p.player->advance(dt, render::identity(), p.sort);
+          [](PyPlayer& p, double dt,
+             std::optional<py::array_t<float, py::array::c_style | py::array::forcecast>> view) {
+            render::Mat4 v = render::identity();
+            if (view) {  // numpy's M[row, col] (M @ p), to the column-major Mat4
+              if (view->ndim() != 2 || view->shape(0) != 4 || view->shape(1) != 4)
+                throw Error("view must be a 4x4 matrix (world -> view)");
+              const auto m = view->unchecked<2>();
+              for (py::ssize_t r = 0; r < 4; ++r)
+                for (py::ssize_t c = 0; c < 4; ++c) v[std::size_t(c * 4 + r)] = m(r, c);
+            }
+            const playback::FrameStats& s = p.player->advance(dt, v, p.sort);
             p.player->check();
             py::dict d;
             d["stream_ms"] = s.stream_ms;
@@ -273,7 +283,44 @@ PYBIND11_MODULE(particlestream, m) {
             d["particles"] = s.particles;
             return d;
           },
-          "Advances every clip by dt seconds (interpolated, sorted); raises the error of a clip that failed.")
+          py::arg("dt"), py::arg("view") = py::none(),
+          "Advances every clip by dt seconds, interpolates, and sorts for `view` (a 4x4 world -> view matrix, "
+          "M @ p; default identity) as the player's `sort` says; raises the error of a clip that failed.")
+      .def(
+          "order",
+          [](py::object self, std::size_t clip) {
+            const PyPlayer& p = self.cast<const PyPlayer&>();
+            if (clip >= p.player->clip_count()) throw Error("no clip " + std::to_string(clip));
+            const std::ptrdiff_t b = p.player->batch_of(clip);
+            if (b < 0) return py::array_t<std::uint32_t>(0);
+            const std::span<const std::uint32_t> order = p.player->batches()[std::size_t(b)].order;
+            py::array_t<std::uint32_t> a({py::ssize_t(order.size())}, {py::ssize_t(sizeof(std::uint32_t))},
+                                         order.data(), self);
+            py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+            return a;
+          },
+          py::arg("clip") = 0,
+          "Clip i's draw order from the last update() (indices into frame(i), back to front for sort='back'); "
+          "empty when it is drawn in stored order. A read-only view, valid until the next update().")
+      .def(
+          "stats",
+          [](const PyPlayer& p, std::size_t clip) {
+            if (clip >= p.player->clip_count()) throw Error("no clip " + std::to_string(clip));
+            const stream::DebugInfo d = p.player->clip(clip).debug();
+            py::dict out;
+            out["stalls"] = d.stalls;
+            out["loads_done"] = d.loads_done;
+            out["bytes_read"] = d.bytes_read;
+            out["frames_decoded"] = d.frames_decoded;
+            out["io_ms"] = d.io_ms;
+            out["decode_ms"] = d.decode_ms;
+            out["cache_bytes"] = d.cache_bytes;
+            out["decode_bytes"] = d.decode_bytes;
+            return out;
+          },
+          py::arg("clip") = 0,
+          "Clip i's streaming counters since open: stalls, loads, bytes read, frames decoded, IO and decode time, "
+          "and the memory it holds (cache_bytes + decode_bytes, fixed at open).")
       .def(
           "frame",
           [](py::object self, std::size_t clip) {

@@ -9,7 +9,7 @@
  * Memory: a handle allocates when it opens (the player: every cache, sorter and buffer, once)
  * and pstream_player_update() allocates nothing.
  *
- * ABI rules (docs/sdk.md): within a major version, functions are only added, enumerators only
+ * ABI rules (docs/embedding.md): within a major version, functions are only added, enumerators only
  * appended, and option structs only grow at their end; each option struct starts with its
  * `struct_size` (set it with sizeof), so a library reads what the caller's version wrote and
  * defaults the rest. Handles never expose their layout. The shared library's SONAME carries the

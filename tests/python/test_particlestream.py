@@ -112,6 +112,24 @@ def test_cook_clip_and_player_as_numpy(tmp_path):
             seen += 1
     assert seen > 50
     assert player.time(0) == pytest.approx(clip.time(0) + 99 / 60 * 0.5)
+    stats = player.stats(0)
+    assert stats["loads_done"] > 0 and stats["stalls"] == 0 and stats["frames_decoded"] > 0
+    assert stats["cache_bytes"] > 0 and stats["decode_bytes"] > 0
+
+    # Sorted for a camera: looking down -z from z = +10 after a turn about y, back to front means
+    # view-space z ascending (farthest first).
+    angle = 0.7
+    view = np.array([[np.cos(angle), 0, np.sin(angle), 0], [0, 1, 0, 0],
+                     [-np.sin(angle), 0, np.cos(angle), -10], [0, 0, 0, 1]], dtype=np.float32)
+    player.update(1 / 60, view=view)
+    frame, order = player.frame(0), player.order(0)
+    assert len(order) == len(frame) > 0 and not order.flags.writeable
+    assert sorted(order.tolist()) == list(range(len(frame)))
+    p = frame["position"].astype(np.float64)
+    z = p @ view[2, :3].astype(np.float64) + view[2, 3]
+    assert np.all(np.diff(z[order]) >= -1e-4)  # farthest (most negative z) first
+    with pytest.raises(ps.Error, match="4x4"):
+        player.update(0, view=np.eye(3))
 
 
 def test_errors_are_exceptions_with_the_librarys_message(tmp_path):
