@@ -57,7 +57,21 @@ struct DrawStyle {
   std::string texture;                       // a sprite image (PNG); empty: the soft round sprite
   render::LiquidStyle liquid;                // Look::Liquid: every clip drawn as one liquid surface
   std::optional<render::Backdrop> backdrop;  // drawn first when set (sky and ground grid)
+  // Look::Sprites: colour, light, shadows, motion and tone. draw() fills in what it knows: the
+  // light buffer's bounds (the clips' world bounds) and the ground (the backdrop's).
+  render::SpriteStyle sprites;
+  std::string ramp_attribute;  // a float attribute for ColorBy::Attribute ("age", "temperature")
 };
+
+// How advance() should sort for a draw in `style` seen through `camera_view`: for the camera, as
+// `requested`, or, for self-shadowed sprites, front to back along the half-angle between the
+// view and the light (render::half_angle), which the slices need.
+struct SortPlan {
+  render::Mat4 view = render::identity();
+  sort::SortMode mode = sort::SortMode::BackToFront;
+};
+SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, const render::Vec3& light_direction,
+                   sort::SortMode requested);
 
 // Where the time of a host frame went (milliseconds, this frame).
 struct FrameStats {

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -47,6 +48,7 @@ struct ParticleBatch {
   // frames the derivative of the interpolated motion (playback.hpp), for motion blur and
   // stretched sprites.
   std::int32_t velocity_offset = -1;
+  std::int32_t scalar_offset = -1;       // a float32 attribute for ColorBy::Attribute, or -1
   Mat4 world = identity();               // object -> world
   std::span<const std::uint32_t> order;  // draw order (back to front); empty: stored order
   BlendMode blend = BlendMode::Alpha;
@@ -54,6 +56,71 @@ struct ParticleBatch {
   float size_multiplier = 1.0f;
   std::string texture;  // optional sprite image (PNG); empty: the soft round sprite
 };
+
+// ---- Sprites: colour, light, motion -------------------------------------------------------------
+
+// Where a sprite's colour comes from: the record's colour (Cd) or the batch's, or a ramp over the
+// particle's speed (from its velocity) or over a float attribute (ParticleBatch::scalar_offset).
+enum class ColorBy { Stored, Speed, Attribute };
+ColorBy parse_color_by(const std::string& name);  // "stored", "speed", "attribute"
+
+// A colour ramp: up to 8 stops spread evenly over [low, high] (values outside take the end
+// colours), linear RGB.
+struct Ramp {
+  std::array<std::array<float, 3>, 8> stops{};
+  int count = 0;
+  float low = 0.0f, high = 1.0f;
+  std::array<float, 3> at(float value) const;  // what the shaders compute, for tests and tools
+  // "fire" (black, red, orange, yellow, white), "ice", "viridis", "grey".
+  static Ramp named(const std::string& name, float low, float high);
+};
+
+enum class ToneMap {
+  Filmic,  // a filmic curve on each pixel's largest channel, scaling the others with it: bright
+           // additive light saturates towards its own hue, never to white
+  Linear,  // exposure, then clamp (what 8-bit additive blending did before HDR)
+};
+ToneMap parse_tone_map(const std::string& name);  // "filmic", "linear"
+
+// How sprites are coloured, lit and moved. Sprites accumulate in a half-float buffer and are
+// tone-mapped over what is already drawn (the backdrop).
+struct SpriteStyle {
+  ColorBy color_by = ColorBy::Stored;
+  Ramp ramp = Ramp::named("fire", 0.0f, 1.0f);
+  std::array<float, 4> tint{1, 1, 1, 1};  // multiplies every colour (a stream's tint)
+  float opacity = 1.0f;                   // multiplies alpha
+  bool lit = true;                        // key/fill/rim lighting of a sphere under the sprite; false: flat colour
+  // Volumetric self-shadowing by half-angle slicing (Green 2008): the particles are sorted along
+  // the vector halfway between the view and the light (sort_for_shadows()) and drawn in
+  // `slices` batches, each into the eye buffer (lit by what the light buffer lets through) and
+  // then into the light buffer (as opacity × shadow_density). The ground receives the light
+  // buffer's final shadow.
+  bool shadows = false;
+  int slices = 32;              // 1..256
+  float shadow_density = 1.0f;  // a particle's opacity to light, × its alpha
+  bool shadow_blur = true;      // a 5-tap blur when the light buffer is read
+  int shadow_resolution = 512;  // the light buffer's size, 64..4096
+  std::array<float, 6>
+      bounds{};  // world box the light buffer covers (lo xyz, hi xyz); all 0: the camera's target ± its distance
+  std::optional<float> ground_height;  // a ground plane that receives the shadows (and hides what is under it)
+  // Motion: sprites stretch along their screen-space velocity over `shutter` seconds (0: round
+  // sprites), keeping their energy (a longer streak is fainter).
+  float shutter = 0.0f;
+  // Below `min_pixels` of radius a sprite is drawn at that radius with its alpha scaled by the
+  // area it lost, so a receding cloud keeps its brightness instead of flickering away.
+  float min_pixels = 1.0f;
+  float exposure = 1.0f;
+  ToneMap tone_map = ToneMap::Filmic;
+};
+
+// The order self-shadowed sprites are drawn in: sort front to back in `sort_view` (whose view
+// axis is the half-angle vector), and whether the eye buffer then blends front to back (the
+// light is behind the viewer) or back to front.
+struct HalfAngle {
+  Mat4 sort_view = identity();
+  bool eye_front_to_back = true;
+};
+HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction);
 
 // How a draw shows its particles: each as a lit round sprite, or the surface of a liquid made
 // from them in screen space (below).
@@ -127,12 +194,13 @@ class Renderer {
   Renderer& operator=(const Renderer&) = delete;
 
   void begin_frame(int width, int height, const Camera& camera, const std::array<float, 4>& background);
-  void draw(const ParticleBatch& batch);
+  void draw(const ParticleBatch& batch, const SpriteStyle& style = {});
   // Several streams' frames as one draw, in a merged order whose entries are (batch << 28) |
   // index — sort::DepthSorter::sort_merged makes it — so overlapping streams blend in depth
   // order. The first batch's blend mode and sprite apply to all.
   static constexpr std::size_t kMaxMergedBatches = 8;
-  void draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order);
+  void draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order,
+                   const SpriteStyle& style = {});
   // Several streams drawn as one liquid surface (Look::Liquid). Needs no draw order; the
   // surface is depth-tested against what is already drawn and writes its depth. The GPU buffers
   // are made on the first liquid draw and when the viewport's size changes.
@@ -141,11 +209,13 @@ class Renderer {
   // The sky and, optionally, the ground grid; call it first in a frame (it replaces the clear
   // colour and writes the ground's depth).
   void draw_backdrop(const Backdrop& backdrop);
-  void end_frame();  // fences this frame's buffer region
+  void end_frame();                     // fences this frame's buffer region
+  const Vec3& light_direction() const;  // RendererOptions::light_direction
   static std::string gl_renderer();
 
  private:
-  void impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged);
+  void impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged,
+                 const SpriteStyle& style);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

@@ -1,27 +1,69 @@
 // Player::draw, apart from the rest of the player: the only part that needs OpenGL, so that
 // what links the player without drawing (the C API's shared library) does not pull in the
 // renderer.
+#include <algorithm>
+#include <cmath>
+
 #include "particlestream/playback.hpp"
 
 namespace pstream::playback {
 
+SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, const render::Vec3& light_direction,
+                   sort::SortMode requested) {
+  if (style.look != render::Look::Sprites || !style.sprites.shadows || requested == sort::SortMode::None ||
+      style.blend == render::BlendMode::Additive) {
+    return {camera_view, requested};
+  }
+  return {render::half_angle(camera_view, light_direction).sort_view, sort::SortMode::FrontToBack};
+}
+
 void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
   const std::span<render::ParticleBatch> batches(batches_.data(), batch_count_);
-  for (auto& b : batches) {
+  render::SpriteStyle sprites = style.sprites;
+  const bool fit_bounds = std::all_of(sprites.bounds.begin(), sprites.bounds.end(), [](float v) { return v == 0; });
+  std::array<float, 6> box{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < clip_count(); ++i) {
+    const std::ptrdiff_t k = batch_of(i);
+    if (k < 0) continue;
+    render::ParticleBatch& b = batches[std::size_t(k)];
     b.blend = style.blend;
     b.size_multiplier = style.size_multiplier;
     if (b.texture != style.texture) b.texture = style.texture;  // set once: no allocation per frame
+    const stream::ParticleStream& clip = this->clip(i);
+    b.scalar_offset = -1;
+    if (!style.ramp_attribute.empty()) {
+      for (const format::Attribute& a : clip.layout()) {
+        if (a.name == style.ramp_attribute && a.type == format::AttributeType::Float32)
+          b.scalar_offset = std::int32_t(a.offset);
+      }
+    }
+    // The clip's bounds in world space: its box's eight corners through the transform.
+    const std::array<float, 6>& m = clip.metadata().bounds;
+    for (int corner = 0; corner < 8 && fit_bounds; ++corner) {
+      const float x = m[corner & 1 ? 3 : 0], y = m[corner & 2 ? 4 : 1], z = m[corner & 4 ? 5 : 2];
+      const render::Mat4& w = b.world;
+      const float p[3] = {w[0] * x + w[4] * y + w[8] * z + w[12], w[1] * x + w[5] * y + w[9] * z + w[13],
+                          w[2] * x + w[6] * y + w[10] * z + w[14]};
+      for (int i = 0; i < 3; ++i) {
+        box[std::size_t(i)] = std::min(box[std::size_t(i)], p[i]);
+        box[std::size_t(i + 3)] = std::max(box[std::size_t(i + 3)], p[i]);
+      }
+    }
   }
-  if (style.backdrop) renderer.draw_backdrop(*style.backdrop);
+  if (fit_bounds && std::all_of(box.begin(), box.end(), [](float v) { return std::isfinite(v); })) sprites.bounds = box;
+  if (style.backdrop) {
+    renderer.draw_backdrop(*style.backdrop);
+    if (style.backdrop->ground && !sprites.ground_height) sprites.ground_height = style.backdrop->ground_height;
+  }
   if (style.look == render::Look::Liquid) {  // one surface from every clip; needs no order
     renderer.draw_liquid(batches, style.liquid);
     return;
   }
   if (!merged_order_.empty()) {
-    renderer.draw_merged(batches, merged_order_);
+    renderer.draw_merged(batches, merged_order_, sprites);
     return;
   }
-  for (const auto& b : batches) renderer.draw(b);
+  for (const auto& b : batches) renderer.draw(b, sprites);
 }
 
 }  // namespace pstream::playback

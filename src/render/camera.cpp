@@ -96,4 +96,22 @@ Backdrop Backdrop::under(const Vec3& lo, const Vec3& hi) {
   return b;
 }
 
+HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction) {
+  // The camera's forward axis in world space (the view matrix's third row, negated), and the
+  // light's travel direction (from the light into the scene).
+  const Vec3 forward = normalize({-camera_view[2], -camera_view[6], -camera_view[10]});
+  const Vec3 travel = normalize({-light_direction[0], -light_direction[1], -light_direction[2]});
+  HalfAngle h;
+  h.eye_front_to_back = dot(forward, travel) >= 0;  // the light is behind the viewer
+  // Slices run away from the light: along forward + travel when both point into the scene,
+  // else along travel - forward (towards the viewer, from the far side the light comes from).
+  Vec3 s = h.eye_front_to_back ? Vec3{forward[0] + travel[0], forward[1] + travel[1], forward[2] + travel[2]}
+                               : Vec3{travel[0] - forward[0], travel[1] - forward[1], travel[2] - forward[2]};
+  s = dot(s, s) > 1e-12f ? normalize(s) : travel;
+  // A view looking along s: front to back in it is ascending along s.
+  const Vec3 up = std::abs(s[1]) > 0.9f ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+  h.sort_view = look_at({0, 0, 0}, s, up);
+  return h;
+}
+
 }  // namespace pstream::render

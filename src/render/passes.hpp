@@ -17,7 +17,8 @@ constexpr std::size_t kMaxBatches = Renderer::kMaxMergedBatches;
 struct FrameContext {
   Mat4 view = identity(), projection = identity();
   int width = 1, height = 1;
-  Vec3 light_view{0, 0, 1};  // towards the key light, view space, unit length
+  Vec3 light_view{0, 0, 1};   // towards the key light, view space, unit length
+  Vec3 light_world{0, 1, 0};  // the same in world space
 };
 
 // The batches of one draw, where the shaders find them: per batch the first word of its records,
@@ -27,7 +28,7 @@ struct StagedBatches {
   std::size_t n = 0;
   std::array<std::uint64_t, kMaxBatches> count{};
   std::array<GLuint, kMaxBatches> base{}, stride{};
-  std::array<GLint, kMaxBatches> color_word{}, velocity_word{};
+  std::array<GLint, kMaxBatches> color_word{}, velocity_word{}, scalar_word{};
   std::array<float, kMaxBatches> size{};
   std::array<float, 4 * kMaxBatches> color{};
   std::array<float, 16 * kMaxBatches> model_view{};
@@ -49,6 +50,32 @@ class LiquidPass {
   void draw(const FrameContext& frame, const StagedBatches& batches, std::span<const ParticleBatch> source,
             const LiquidStyle& style);
   LiquidImage read(LiquidBuffer which) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// What one sprite draw covers: instances (the order's length, or every record), whether the order
+// holds (batch << 28) | index entries, the blend mode and sprite texture of the draw.
+struct SpriteDraw {
+  std::uint64_t instances = 0;
+  std::uint64_t order_count = 0;  // 0: stored order
+  bool merged = false;
+  bool points = false;  // GL points instead of quads (a benchmark's baseline)
+  BlendMode blend = BlendMode::Alpha;
+  GLuint sprite = 0;  // an artist's sprite texture, or 0
+};
+
+class SpritePass {
+ public:
+  SpritePass();
+  ~SpritePass();
+  SpritePass(const SpritePass&) = delete;
+  SpritePass& operator=(const SpritePass&) = delete;
+  // Draws into the framebuffer bound when called (and leaves it bound).
+  void draw(const FrameContext& frame, const StagedBatches& batches, std::span<const ParticleBatch> source,
+            const SpriteDraw& what, const SpriteStyle& style);
 
  private:
   struct Impl;

@@ -1,6 +1,7 @@
-// Instanced camera-facing quads with vertex pulling: the vertex shader fetches each particle's
-// record from a shader storage buffer, in the sort module's order. Records are copied once per
-// frame into a persistently mapped, multi-buffered buffer guarded by fences.
+// The renderer: each frame's records are copied once into a persistently mapped, multi-buffered
+// buffer guarded by fences, where every pass's shaders pull them from (shader storage), in the
+// sort module's order. The passes: sprites (sprites.cpp), liquid (liquid.cpp), backdrop
+// (backdrop.cpp).
 #include <epoxy/gl.h>
 
 #include <algorithm>
@@ -17,79 +18,6 @@
 namespace pstream::render {
 namespace {
 
-constexpr const char* kVertexShader = R"(#version 450 core
-layout(std430, binding = 0) readonly buffer Records { uint words[]; };
-layout(std430, binding = 1) readonly buffer Order { uint order[]; };
-const int kBatches = 8;                  // streams drawn together in one merged order
-uniform mat4 u_model_view[kBatches];
-uniform mat4 u_projection;
-uniform uint u_stride_words[kBatches];
-uniform uint u_base_words[kBatches];     // where each batch's records start in the buffer
-uniform int u_color_word[kBatches];
-uniform vec4 u_color[kBatches];
-uniform float u_size[kBatches];
-uniform bool u_use_order;
-uniform bool u_merged;                   // order entries are (batch << 28) | index
-uniform bool u_points;
-uniform float u_viewport_height;
-out vec2 v_corner;
-out vec4 v_color;
-void main() {
-  uint entry = u_use_order ? order[gl_InstanceID] : uint(gl_InstanceID);
-  uint b = u_merged ? entry >> 28u : 0u;
-  uint index = u_merged ? entry & 0x0FFFFFFFu : entry;
-  uint w = u_base_words[b] + index * u_stride_words[b];
-  vec3 p = vec3(uintBitsToFloat(words[w]), uintBitsToFloat(words[w + 1u]), uintBitsToFloat(words[w + 2u]));
-  float scale = uintBitsToFloat(words[w + 3u]) * u_size[b] * length(u_model_view[b][0].xyz);
-  v_color = u_color_word[b] >= 0 ? unpackUnorm4x8(words[w + uint(u_color_word[b])]) : u_color[b];
-  vec4 view = u_model_view[b] * vec4(p, 1.0);
-  if (u_points) {
-    gl_Position = u_projection * view;
-    gl_PointSize = max(1.0, u_projection[1][1] * scale * u_viewport_height / max(-view.z, 1e-4));
-    v_corner = vec2(0.0);
-    return;
-  }
-  // Corners of a triangle strip: (-1,-1) (1,-1) (-1,1) (1,1).
-  v_corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
-  view.xy += v_corner * scale;  // scale is a radius in world units
-  gl_Position = u_projection * view;
-}
-)";
-
-constexpr const char* kFragmentShader = R"(#version 450 core
-in vec2 v_corner;
-in vec4 v_color;
-uniform int u_mode;          // 0 alpha (premultiplied), 1 additive, 2 alpha-tested
-uniform bool u_points;
-uniform bool u_textured;
-uniform sampler2D u_sprite;
-uniform vec3 u_light;        // view space, towards the light
-out vec4 o_color;
-void main() {
-  vec2 c = u_points ? gl_PointCoord * 2.0 - 1.0 : v_corner;
-  float r2 = dot(c, c);
-  if (r2 > 1.0) discard;
-  // A sphere's normal under the sprite, lit by one directional light. Self-shadowing (a later
-  // issue) multiplies `light` by its visibility term here.
-  vec3 n = vec3(c.x, -c.y * (u_points ? 1.0 : -1.0), sqrt(1.0 - r2));
-  float light = 0.35 + 0.65 * max(dot(n, u_light), 0.0);
-  vec4 base = v_color;
-  float coverage = 1.0 - smoothstep(0.55, 1.0, sqrt(r2));  // a soft round sprite
-  if (u_textured) {
-    vec4 t = texture(u_sprite, c * 0.5 + 0.5);
-    base *= t;
-    coverage = 1.0;
-  }
-  if (u_mode == 2) {
-    if (base.a < 0.5) discard;
-    o_color = vec4(base.rgb * light, 1.0);
-    return;
-  }
-  float a = base.a * coverage;
-  o_color = vec4(base.rgb * light * a, a);
-}
-)";
-
 std::uint64_t align_up(std::uint64_t v, std::uint64_t a) { return (v + a - 1) / a * a; }
 
 }  // namespace
@@ -100,10 +28,11 @@ struct Renderer::Impl {
   detail::StagedBatches staged;
   std::unique_ptr<detail::LiquidPass> liquid;      // made on the first liquid draw
   std::unique_ptr<detail::BackdropPass> backdrop;  // made on the first backdrop
+  std::unique_ptr<detail::SpritePass> sprites;
   // Copies the batches' records (and the order) into this frame's region of the mapped buffers,
   // binds them, and fills `staged`; false when there is nothing to draw.
   bool stage(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order);
-  GLuint program = 0, vao = 0, records = 0, order = 0, sprite = 0;
+  GLuint records = 0, order = 0, sprite = 0;
   std::string sprite_path;
   std::byte* records_map = nullptr;
   std::uint32_t* order_map = nullptr;
@@ -112,9 +41,6 @@ struct Renderer::Impl {
   int region = 0;
   std::uint64_t records_used = 0, order_used = 0;
   GLint ssbo_alignment = 256;
-  GLint u_model_view = -1, u_projection = -1, u_stride = -1, u_base = -1, u_color_word = -1, u_color = -1, u_size = -1,
-        u_use_order = -1, u_merged = -1, u_points = -1, u_viewport_height = -1, u_mode = -1, u_light = -1,
-        u_textured = -1;
 };
 
 std::string Renderer::gl_renderer() {
@@ -132,23 +58,7 @@ Renderer::Renderer(RendererOptions options) : impl_(std::make_unique<Impl>()) {
                     epoxy_is_desktop_gl() ? "OpenGL" : "OpenGL ES", epoxy_gl_version() / 10, epoxy_gl_version() % 10,
                     gl_renderer()));
   }
-  d.program = detail::link_program(kVertexShader, kFragmentShader);
-  const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
-  d.u_model_view = loc("u_model_view");
-  d.u_projection = loc("u_projection");
-  d.u_stride = loc("u_stride_words");
-  d.u_base = loc("u_base_words");
-  d.u_merged = loc("u_merged");
-  d.u_color_word = loc("u_color_word");
-  d.u_color = loc("u_color");
-  d.u_size = loc("u_size");
-  d.u_use_order = loc("u_use_order");
-  d.u_points = loc("u_points");
-  d.u_viewport_height = loc("u_viewport_height");
-  d.u_mode = loc("u_mode");
-  d.u_light = loc("u_light");
-  d.u_textured = loc("u_textured");
-  glCreateVertexArrays(1, &d.vao);
+  d.sprites = std::make_unique<detail::SpritePass>();
   glGetIntegerv(GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT, &d.ssbo_alignment);
 
   // Persistent, coherent mappings: one region per frame in flight, written by the CPU while the
@@ -171,6 +81,7 @@ Renderer::~Renderer() {
   Impl& d = *impl_;
   d.liquid.reset();
   d.backdrop.reset();
+  d.sprites.reset();
   for (GLsync f : d.fences) {
     if (f) glDeleteSync(f);
   }
@@ -179,8 +90,6 @@ Renderer::~Renderer() {
   glDeleteBuffers(1, &d.records);
   glDeleteBuffers(1, &d.order);
   if (d.sprite) glDeleteTextures(1, &d.sprite);
-  glDeleteVertexArrays(1, &d.vao);
-  glDeleteProgram(d.program);
 }
 
 void Renderer::begin_frame(int width, int height, const Camera& camera, const std::array<float, 4>& background) {
@@ -204,23 +113,28 @@ void Renderer::begin_frame(int width, int height, const Camera& camera, const st
   const float len = std::sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]);
   for (float& c : lv) c /= len > 0 ? len : 1.0f;
   d.frame.light_view = lv;
+  const float lw = std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
+  d.frame.light_world = lw > 0 ? Vec3{l[0] / lw, l[1] / lw, l[2] / lw} : Vec3{0, 1, 0};
   glViewport(0, 0, width, height);
   glClearColor(background[0], background[1], background[2], background[3]);
   glDepthMask(GL_TRUE);
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
 }
 
-void Renderer::draw(const ParticleBatch& b) {
+void Renderer::draw(const ParticleBatch& b, const SpriteStyle& style) {
   const bool ordered = !b.order.empty() && b.blend != BlendMode::Additive;
-  impl_draw({&b, 1}, ordered ? b.order : std::span<const std::uint32_t>{}, false);
+  impl_draw({&b, 1}, ordered ? b.order : std::span<const std::uint32_t>{}, false, style);
 }
 
-void Renderer::draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order) {
+const Vec3& Renderer::light_direction() const { return impl_->options.light_direction; }
+
+void Renderer::draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order,
+                           const SpriteStyle& style) {
   if (batches.size() > kMaxMergedBatches) {
     throw Error(
         fmt::format("{} streams drawn together; the renderer merges at most {}", batches.size(), kMaxMergedBatches));
   }
-  impl_draw(batches, order, true);
+  impl_draw(batches, order, true, style);
 }
 
 bool Renderer::Impl::stage(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order) {
@@ -256,6 +170,7 @@ bool Renderer::Impl::stage(std::span<const ParticleBatch> batches, std::span<con
     s.stride[k] = b.record_size / 4;
     s.color_word[k] = b.color_offset >= 0 ? b.color_offset / 4 : -1;
     s.velocity_word[k] = b.velocity_offset >= 0 ? b.velocity_offset / 4 : -1;
+    s.scalar_word[k] = b.scalar_offset >= 0 ? b.scalar_offset / 4 : -1;
     s.size[k] = b.size_multiplier;
     std::copy(b.color.begin(), b.color.end(), s.color.begin() + 4 * std::ptrdiff_t(k));
     const Mat4 mv = multiply(d.frame.view, b.world);
@@ -277,12 +192,11 @@ bool Renderer::Impl::stage(std::span<const ParticleBatch> batches, std::span<con
   return true;
 }
 
-void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged) {
+void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged,
+                         const SpriteStyle& style) {
   Impl& d = *impl_;
   if (!d.stage(batches, order)) return;
   const detail::StagedBatches& s = d.staged;
-  std::uint64_t total = 0;
-  for (std::size_t k = 0; k < s.n; ++k) total += s.count[k];
   const ParticleBatch& first = batches.front();                    // blend mode and sprite of the draw
   if (!first.texture.empty() && first.texture != d.sprite_path) {  // an artist's sprite, loaded once
     int w = 0, h = 0;
@@ -294,55 +208,14 @@ void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const
     glTextureParameteri(d.sprite, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
     d.sprite_path = first.texture;
   }
-
-  const auto n = GLsizei(batches.size());
-  glUseProgram(d.program);
-  glBindVertexArray(d.vao);
-  glUniformMatrix4fv(d.u_model_view, n, GL_FALSE, s.model_view.data());
-  glUniformMatrix4fv(d.u_projection, 1, GL_FALSE, d.frame.projection.data());
-  glUniform1uiv(d.u_stride, n, s.stride.data());
-  glUniform1uiv(d.u_base, n, s.base.data());
-  glUniform1iv(d.u_color_word, n, s.color_word.data());
-  glUniform4fv(d.u_color, n, s.color.data());
-  glUniform1fv(d.u_size, n, s.size.data());
-  glUniform1i(d.u_use_order, order.empty() ? 0 : 1);
-  glUniform1i(d.u_merged, merged ? 1 : 0);
-  glUniform1i(d.u_points, d.options.points ? 1 : 0);
-  glUniform1f(d.u_viewport_height, float(d.frame.height));
-  glUniform3fv(d.u_light, 1, d.frame.light_view.data());
-  glUniform1i(d.u_textured, first.texture.empty() ? 0 : 1);
-  if (d.sprite) glBindTextureUnit(0, d.sprite);
-  switch (first.blend) {
-    case BlendMode::Alpha:  // premultiplied, drawn back to front, no depth writes (hidden by the ground)
-      glEnable(GL_BLEND);
-      glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
-      glEnable(GL_DEPTH_TEST);
-      glDepthFunc(GL_LESS);
-      glDepthMask(GL_FALSE);
-      glUniform1i(d.u_mode, 0);
-      break;
-    case BlendMode::Additive:  // order-independent
-      glEnable(GL_BLEND);
-      glBlendFunc(GL_ONE, GL_ONE);
-      glEnable(GL_DEPTH_TEST);
-      glDepthFunc(GL_LESS);
-      glDepthMask(GL_FALSE);
-      glUniform1i(d.u_mode, 1);
-      break;
-    case BlendMode::AlphaTest:  // opaque cut-outs with the depth buffer
-      glDisable(GL_BLEND);
-      glEnable(GL_DEPTH_TEST);
-      glDepthFunc(GL_LESS);
-      glDepthMask(GL_TRUE);
-      glUniform1i(d.u_mode, 2);
-      break;
-  }
-  if (d.options.points) {
-    glEnable(GL_PROGRAM_POINT_SIZE);
-    glDrawArraysInstanced(GL_POINTS, 0, 1, GLsizei(total));
-  } else {
-    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(total));
-  }
+  detail::SpriteDraw what;
+  for (std::size_t k = 0; k < s.n; ++k) what.instances += s.count[k];
+  what.order_count = order.size();
+  what.merged = merged;
+  what.points = d.options.points;
+  what.blend = first.blend;
+  what.sprite = first.texture.empty() ? 0 : d.sprite;
+  d.sprites->draw(d.frame, s, batches, what, style);
 }
 
 void Renderer::draw_liquid(std::span<const ParticleBatch> batches, const LiquidStyle& style) {

@@ -1,0 +1,594 @@
+// Sprites: instanced camera-facing quads (or streaks along their screen-space velocity) pulled
+// straight from the staged records, accumulated in a half-float buffer and tone-mapped over what
+// is already drawn. With shadows, half-angle slicing (Green 2008): the slices alternate between
+// the eye buffer, which reads how much light the slices before let through, and the light
+// buffer, which adds the slice's opacity; the ground then takes the light buffer's final shadow.
+#include <algorithm>
+#include <cmath>
+
+#include <fmt/format.h>
+
+#include "gl_program.hpp"
+#include "passes.hpp"
+
+namespace pstream::render::detail {
+namespace {
+
+constexpr const char* kVertexShader = R"(#version 450 core
+layout(std430, binding = 0) readonly buffer Records { uint words[]; };
+layout(std430, binding = 1) readonly buffer Order { uint order[]; };
+const int kBatches = 8;                  // streams drawn together in one merged order
+uniform mat4 u_model_view[kBatches];
+uniform mat4 u_light_model_view[kBatches];  // object -> the light's view
+uniform mat4 u_projection;
+uniform mat4 u_light_projection;
+uniform uint u_stride_words[kBatches];
+uniform uint u_base_words[kBatches];     // where each batch's records start in the buffer
+uniform int u_color_word[kBatches];
+uniform int u_velocity_word[kBatches];
+uniform int u_scalar_word[kBatches];
+uniform vec4 u_color[kBatches];
+uniform float u_size[kBatches];
+uniform bool u_use_order;
+uniform bool u_merged;                   // order entries are (batch << 28) | index
+uniform uint u_first;                    // the slice's first entry
+uniform bool u_points;
+uniform int u_pass;                      // 0: the eye, 1: the light buffer
+uniform float u_viewport_height;
+uniform int u_color_by;                  // 0 stored, 1 speed, 2 attribute
+uniform vec3 u_ramp[8];
+uniform int u_ramp_count;
+uniform vec2 u_ramp_range;
+uniform vec4 u_tint;
+uniform float u_opacity;
+uniform float u_shutter;                 // seconds of motion a sprite is stretched over
+uniform float u_min_pixels;
+uniform bool u_cull_below;
+uniform vec4 u_ground_view;              // the ground plane in view space: under it, dot(n, p) + d < 0
+out vec2 v_local;                        // in radii: along the streak, across it
+flat out float v_half;                   // half the streak's straight part, in radii
+flat out vec2 v_axis;                    // the streak's direction on screen
+out vec4 v_color;
+out vec2 v_light_uv;
+
+float word(uint w) { return uintBitsToFloat(words[w]); }
+
+vec3 ramp(float x) {
+  float t = clamp((x - u_ramp_range.x) / (u_ramp_range.y - u_ramp_range.x), 0.0, 1.0);
+  if (u_ramp_count <= 1) return u_ramp[0];
+  float f = t * float(u_ramp_count - 1);
+  int i = min(int(f), u_ramp_count - 2);
+  return mix(u_ramp[i], u_ramp[i + 1], f - float(i));
+}
+
+void main() {
+  uint slot = uint(gl_InstanceID) + u_first;
+  uint entry = u_use_order ? order[slot] : slot;
+  uint b = u_merged ? entry >> 28u : 0u;
+  uint index = u_merged ? entry & 0x0FFFFFFFu : entry;
+  uint w = u_base_words[b] + index * u_stride_words[b];
+  vec3 p = vec3(word(w), word(w + 1u), word(w + 2u));
+  float radius = word(w + 3u) * u_size[b] * length(u_model_view[b][0].xyz);
+  vec4 color = u_color_word[b] >= 0 ? unpackUnorm4x8(words[w + uint(u_color_word[b])]) : u_color[b];
+  vec3 velocity = vec3(0.0);
+  if (u_velocity_word[b] >= 0) {
+    uint vw = w + uint(u_velocity_word[b]);
+    velocity = mat3(u_model_view[b]) * vec3(word(vw), word(vw + 1u), word(vw + 2u));  // view space, world units
+  }
+  if (u_color_by == 1) color.rgb = ramp(length(velocity));
+  if (u_color_by == 2 && u_scalar_word[b] >= 0) color.rgb = ramp(word(w + uint(u_scalar_word[b])));
+  color *= u_tint;
+  color.a *= u_opacity;
+  // Corners of a triangle strip: (-1,-1) (1,-1) (-1,1) (1,1).
+  vec2 corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
+  v_half = 0.0;
+  v_axis = vec2(1.0, 0.0);
+  v_color = color;
+  v_light_uv = vec2(-1.0);
+  if (u_pass == 1) {  // the light buffer: a disc facing the light
+    vec4 lv = u_light_model_view[b] * vec4(p, 1.0);
+    lv.xy += corner * radius;
+    v_local = corner;
+    gl_Position = u_light_projection * lv;
+    return;
+  }
+  vec4 view = u_model_view[b] * vec4(p, 1.0);
+  if (u_cull_below && dot(u_ground_view.xyz, view.xyz) + u_ground_view.w < 0.0) {
+    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // under the ground: outside the view
+    return;
+  }
+  vec4 light_clip = u_light_projection * (u_light_model_view[b] * vec4(p, 1.0));
+  v_light_uv = light_clip.xy * 0.5 + 0.5;
+  // Below min_pixels of radius: drawn at min_pixels, fainter by the area it lost.
+  float pixels = radius * u_projection[1][1] * u_viewport_height * 0.5 / max(-view.z, 1e-6);
+  if (pixels < u_min_pixels && pixels > 0.0) {
+    float k = pixels / u_min_pixels;
+    v_color.a *= k * k;
+    radius /= k;
+  }
+  if (u_points) {
+    gl_Position = u_projection * view;
+    gl_PointSize = max(1.0, 2.0 * pixels);
+    v_local = vec2(0.0);
+    return;
+  }
+  // A streak: the disc swept along the screen-space motion of `shutter` seconds, as bright in
+  // total as the disc (its alpha shrinks by the area it gained).
+  if (u_shutter > 0.0) {
+    vec2 d = velocity.xy * u_shutter;
+    float len = length(d);
+    if (len > 1e-4 * radius) {
+      v_axis = d / len;
+      v_half = 0.5 * len / radius;
+      // The soft disc's coverage integrates to 1.9187 (in radii squared); each radius of straight
+      // part adds 2 x 0.775 (its cross-section's integral).
+      v_color.a *= 1.0 / (1.0 + 1.6157 * v_half);
+    }
+  }
+  v_local = vec2(corner.x * (1.0 + v_half), corner.y);
+  view.xy += (v_axis * v_local.x + vec2(-v_axis.y, v_axis.x) * v_local.y) * radius;
+  gl_Position = u_projection * view;
+}
+)";
+
+constexpr const char* kFragmentShader = R"(#version 450 core
+in vec2 v_local;
+flat in float v_half;
+flat in vec2 v_axis;
+in vec4 v_color;
+in vec2 v_light_uv;
+uniform int u_mode;          // 0 alpha (premultiplied), 1 additive, 2 alpha-tested
+uniform int u_pass;          // 0: the eye, 1: the light buffer
+uniform bool u_points;
+uniform bool u_textured;
+uniform sampler2D u_sprite;
+uniform sampler2D u_light_buffer;
+uniform bool u_shadows;
+uniform bool u_shadow_blur;
+uniform float u_light_texel;
+uniform float u_shadow_density;
+uniform bool u_lit;
+uniform vec3 u_key;          // view space, towards the key light
+uniform vec3 u_fill;         // view space, towards the fill light
+out vec4 o_color;
+
+// How much of the key light reaches here: 1 - the opacity the slices before laid down.
+float transmittance(vec2 uv) {
+  if (!u_shadows || any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
+  float o = texture(u_light_buffer, uv).r;
+  if (u_shadow_blur) {
+    float t = 1.5 * u_light_texel;
+    o = (2.0 * o + texture(u_light_buffer, uv + vec2(t, 0.0)).r + texture(u_light_buffer, uv - vec2(t, 0.0)).r +
+         texture(u_light_buffer, uv + vec2(0.0, t)).r + texture(u_light_buffer, uv - vec2(0.0, t)).r) / 6.0;
+  }
+  return 1.0 - clamp(o, 0.0, 1.0);
+}
+
+void main() {
+  vec2 c = u_points ? gl_PointCoord * 2.0 - 1.0 : v_local;
+  c.x = sign(c.x) * max(abs(c.x) - v_half, 0.0);  // the streak's straight part is the disc's middle
+  float r2 = dot(c, c);
+  if (r2 > 1.0) discard;
+  vec4 base = v_color;
+  float coverage = 1.0 - smoothstep(0.55, 1.0, sqrt(r2));  // a soft round sprite
+  if (u_textured) {
+    base *= texture(u_sprite, c * 0.5 + 0.5);
+    coverage = 1.0;
+  }
+  float a = base.a * coverage;
+  if (u_pass == 1) {
+    float o = clamp(a * u_shadow_density, 0.0, 1.0);
+    o_color = vec4(o, 0.0, 0.0, o);
+    return;
+  }
+  float light = 1.0;
+  if (u_lit) {  // a sphere under the sprite: key (shadowed), fill and rim lights over an ambient
+    vec2 xy = u_points ? vec2(c.x, -c.y) : v_axis * c.x + vec2(-v_axis.y, v_axis.x) * c.y;
+    vec3 n = vec3(xy, sqrt(1.0 - r2));
+    float t = transmittance(v_light_uv);
+    // Wrapped diffuse: a particle of a volume scatters some light past its terminator.
+    float key = clamp(dot(n, u_key) * 0.6 + 0.4, 0.0, 1.0);
+    float fill = max(dot(n, u_fill), 0.0);
+    float rim = pow(1.0 - n.z, 3.0);
+    light = 0.16 + 0.84 * key * t + 0.12 * fill + 0.2 * rim * t;
+  }
+  if (u_mode == 2) {
+    if (base.a < 0.5) discard;
+    o_color = vec4(base.rgb * light, 1.0);
+    return;
+  }
+  // Additive light covers nothing: it adds, with no alpha to hide what is behind.
+  o_color = vec4(base.rgb * light * a, u_mode == 1 ? 0.0 : a);
+}
+)";
+
+// The accumulated sprites over the scene: exposure and tone map, premultiplied.
+constexpr const char* kCompositeFragment = R"(#version 450 core
+uniform sampler2D u_hdr;
+uniform float u_exposure;
+uniform int u_tone_map;      // 0 filmic, 1 linear
+out vec4 o_color;
+float filmic(float x) {      // a fitted ACES curve, on 1.4 x so that white comes out near 87 %
+  x *= 1.4;
+  return clamp(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
+}
+void main() {
+  vec4 h = texelFetch(u_hdr, ivec2(gl_FragCoord.xy), 0);
+  vec3 c = max(h.rgb, vec3(0.0)) * u_exposure;
+  if (u_tone_map == 0) {
+    float m = max(max(c.r, c.g), c.b);
+    c = m > 0.0 ? c * (filmic(m) / m) : vec3(0.0);
+  } else {
+    c = clamp(c, 0.0, 1.0);
+  }
+  o_color = vec4(c, clamp(h.a, 0.0, 1.0));
+}
+)";
+
+// The ground under the light buffer: each pixel's view ray meets the ground plane; where that
+// point is in the light buffer, the scene there darkens by the opacity above it.
+constexpr const char* kGroundShadowFragment = R"(#version 450 core
+uniform mat4 u_view;
+uniform mat4 u_projection;
+uniform vec2 u_viewport;
+uniform float u_ground_height;
+uniform mat4 u_light_view_projection;   // world -> the light's clip space
+uniform sampler2D u_light_buffer;
+uniform float u_light_texel;
+uniform float u_strength;
+out vec4 o_color;
+void main() {
+  vec2 ndc = gl_FragCoord.xy / u_viewport * 2.0 - 1.0;
+  mat3 to_world = transpose(mat3(u_view));
+  vec3 eye = -(to_world * u_view[3].xyz);
+  vec3 dir = normalize(to_world * vec3(ndc.x / u_projection[0][0], ndc.y / u_projection[1][1], -1.0));
+  float t = (u_ground_height - eye.y) / dir.y;
+  if (dir.y >= 0.0 || t <= 0.0) discard;
+  vec4 l = u_light_view_projection * vec4(eye + t * dir, 1.0);
+  vec2 uv = l.xy * 0.5 + 0.5;
+  if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) discard;
+  float o = 0.0;
+  for (int y = -1; y <= 1; ++y)
+    for (int x = -1; x <= 1; ++x) o += texture(u_light_buffer, uv + 2.0 * u_light_texel * vec2(x, y)).r;
+  o_color = vec4(vec3(1.0 - u_strength * clamp(o / 9.0, 0.0, 1.0)), 1.0);
+}
+)";
+
+Mat4 orthographic(float half_width, float near, float far) {
+  Mat4 m{};
+  m[0] = 1.0f / half_width;
+  m[5] = 1.0f / half_width;
+  m[10] = -2.0f / (far - near);
+  m[14] = -(far + near) / (far - near);
+  m[15] = 1.0f;
+  return m;
+}
+
+Vec3 view_direction(const Mat4& view, const Vec3& world) {  // a direction: no translation
+  Vec3 v{view[0] * world[0] + view[4] * world[1] + view[8] * world[2],
+         view[1] * world[0] + view[5] * world[1] + view[9] * world[2],
+         view[2] * world[0] + view[6] * world[1] + view[10] * world[2]};
+  const float len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  for (float& c : v) c /= len > 0 ? len : 1.0f;
+  return v;
+}
+
+struct Uniforms {
+  GLint model_view, light_model_view, projection, light_projection, stride, base, color_word, velocity_word,
+      scalar_word, color, size, use_order, merged, first, points, pass, viewport_height, color_by, ramp, ramp_count,
+      ramp_range, tint, opacity, shutter, min_pixels, cull_below, ground_view, mode, textured, sprite, light_buffer,
+      shadows, shadow_blur, light_texel, shadow_density, lit, key, fill;
+};
+
+}  // namespace
+
+struct SpritePass::Impl {
+  GLuint program = 0, composite = 0, ground_shadow = 0, vao = 0;
+  Uniforms u{};
+  GLint c_hdr = -1, c_exposure = -1, c_tone_map = -1;
+  GLint g_view = -1, g_projection = -1, g_viewport = -1, g_ground = -1, g_light_vp = -1, g_light = -1, g_texel = -1,
+        g_strength = -1;
+  GLuint hdr_texture = 0, hdr_depth = 0, hdr_framebuffer = 0;  // depth: alpha-tested sprites only
+  int hdr_width = 0, hdr_height = 0;
+  GLuint light_texture = 0, light_framebuffer = 0;
+  int light_size = 0;
+
+  void ensure_hdr(int width, int height) {
+    if (hdr_width == width && hdr_height == height) return;
+    if (hdr_framebuffer) glDeleteFramebuffers(1, &hdr_framebuffer);
+    if (hdr_texture) glDeleteTextures(1, &hdr_texture);
+    if (hdr_depth) glDeleteRenderbuffers(1, &hdr_depth);
+    glCreateTextures(GL_TEXTURE_2D, 1, &hdr_texture);
+    glTextureStorage2D(hdr_texture, 1, GL_RGBA16F, width, height);
+    glCreateRenderbuffers(1, &hdr_depth);
+    glNamedRenderbufferStorage(hdr_depth, GL_DEPTH_COMPONENT24, width, height);
+    glCreateFramebuffers(1, &hdr_framebuffer);
+    glNamedFramebufferTexture(hdr_framebuffer, GL_COLOR_ATTACHMENT0, hdr_texture, 0);
+    glNamedFramebufferRenderbuffer(hdr_framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, hdr_depth);
+    if (glCheckNamedFramebufferStatus(hdr_framebuffer, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+      throw Error("the sprites' half-float buffer is not renderable on this GPU");
+    hdr_width = width;
+    hdr_height = height;
+  }
+
+  void ensure_light(int size) {
+    if (light_size == size) return;
+    if (light_framebuffer) glDeleteFramebuffers(1, &light_framebuffer);
+    if (light_texture) glDeleteTextures(1, &light_texture);
+    glCreateTextures(GL_TEXTURE_2D, 1, &light_texture);
+    glTextureStorage2D(light_texture, 1, GL_R16F, size, size);
+    glTextureParameteri(light_texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    glTextureParameteri(light_texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    glTextureParameteri(light_texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTextureParameteri(light_texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    glCreateFramebuffers(1, &light_framebuffer);
+    glNamedFramebufferTexture(light_framebuffer, GL_COLOR_ATTACHMENT0, light_texture, 0);
+    if (glCheckNamedFramebufferStatus(light_framebuffer, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+      throw Error("the sprites' light buffer is not renderable on this GPU");
+    light_size = size;
+  }
+};
+
+SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
+  Impl& d = *impl_;
+  d.program = link_program(kVertexShader, kFragmentShader);
+  const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
+  d.u = Uniforms{loc("u_model_view"),
+                 loc("u_light_model_view"),
+                 loc("u_projection"),
+                 loc("u_light_projection"),
+                 loc("u_stride_words"),
+                 loc("u_base_words"),
+                 loc("u_color_word"),
+                 loc("u_velocity_word"),
+                 loc("u_scalar_word"),
+                 loc("u_color"),
+                 loc("u_size"),
+                 loc("u_use_order"),
+                 loc("u_merged"),
+                 loc("u_first"),
+                 loc("u_points"),
+                 loc("u_pass"),
+                 loc("u_viewport_height"),
+                 loc("u_color_by"),
+                 loc("u_ramp"),
+                 loc("u_ramp_count"),
+                 loc("u_ramp_range"),
+                 loc("u_tint"),
+                 loc("u_opacity"),
+                 loc("u_shutter"),
+                 loc("u_min_pixels"),
+                 loc("u_cull_below"),
+                 loc("u_ground_view"),
+                 loc("u_mode"),
+                 loc("u_textured"),
+                 loc("u_sprite"),
+                 loc("u_light_buffer"),
+                 loc("u_shadows"),
+                 loc("u_shadow_blur"),
+                 loc("u_light_texel"),
+                 loc("u_shadow_density"),
+                 loc("u_lit"),
+                 loc("u_key"),
+                 loc("u_fill")};
+  d.composite = link_program(kFullScreenVertexShader, kCompositeFragment);
+  d.c_hdr = glGetUniformLocation(d.composite, "u_hdr");
+  d.c_exposure = glGetUniformLocation(d.composite, "u_exposure");
+  d.c_tone_map = glGetUniformLocation(d.composite, "u_tone_map");
+  d.ground_shadow = link_program(kFullScreenVertexShader, kGroundShadowFragment);
+  const auto gloc = [&](const char* name) { return glGetUniformLocation(d.ground_shadow, name); };
+  d.g_view = gloc("u_view");
+  d.g_projection = gloc("u_projection");
+  d.g_viewport = gloc("u_viewport");
+  d.g_ground = gloc("u_ground_height");
+  d.g_light_vp = gloc("u_light_view_projection");
+  d.g_light = gloc("u_light_buffer");
+  d.g_texel = gloc("u_light_texel");
+  d.g_strength = gloc("u_strength");
+  glCreateVertexArrays(1, &d.vao);
+}
+
+SpritePass::~SpritePass() {
+  Impl& d = *impl_;
+  if (d.hdr_framebuffer) glDeleteFramebuffers(1, &d.hdr_framebuffer);
+  if (d.hdr_texture) glDeleteTextures(1, &d.hdr_texture);
+  if (d.hdr_depth) glDeleteRenderbuffers(1, &d.hdr_depth);
+  if (d.light_framebuffer) glDeleteFramebuffers(1, &d.light_framebuffer);
+  if (d.light_texture) glDeleteTextures(1, &d.light_texture);
+  glDeleteVertexArrays(1, &d.vao);
+  glDeleteProgram(d.program);
+  glDeleteProgram(d.composite);
+  glDeleteProgram(d.ground_shadow);
+}
+
+void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::span<const ParticleBatch> source,
+                      const SpriteDraw& what, const SpriteStyle& style) {
+  Impl& d = *impl_;
+  const Uniforms& u = d.u;
+  GLint target = 0;
+  glGetIntegerv(GL_DRAW_FRAMEBUFFER_BINDING, &target);
+  d.ensure_hdr(frame.width, frame.height);
+  const bool shadows = style.shadows && what.blend != BlendMode::Additive && !what.points;
+  const int light_size = std::clamp(style.shadow_resolution, 64, 4096);
+  if (shadows) d.ensure_light(light_size);
+
+  // The light's view: an orthographic box around the bounds (or the camera's target), looking
+  // along the light.
+  Vec3 lo{style.bounds[0], style.bounds[1], style.bounds[2]}, hi{style.bounds[3], style.bounds[4], style.bounds[5]};
+  Vec3 center{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
+  float radius = 0.5f * std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                                  (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  if (!(radius > 0) || !std::isfinite(radius)) {  // no bounds: around what the camera looks at
+    const Mat4& v = frame.view;
+    const Vec3 eye{-(v[0] * v[12] + v[1] * v[13] + v[2] * v[14]), -(v[4] * v[12] + v[5] * v[13] + v[6] * v[14]),
+                   -(v[8] * v[12] + v[9] * v[13] + v[10] * v[14])};
+    const float dist = std::sqrt(eye[0] * eye[0] + eye[1] * eye[1] + eye[2] * eye[2]);
+    radius = std::max(dist * 0.5f, 1e-3f);
+    center = {eye[0] - v[2] * dist, eye[1] - v[6] * dist, eye[2] - v[10] * dist};
+  }
+  const Vec3& ld = frame.light_world;
+  const Vec3 light_eye{center[0] + ld[0] * 2 * radius, center[1] + ld[1] * 2 * radius, center[2] + ld[2] * 2 * radius};
+  const Vec3 up = std::abs(ld[1]) > 0.9f ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+  const Mat4 light_view = look_at(light_eye, center, up);
+  const Mat4 light_projection = orthographic(radius * 1.05f, radius * 0.5f, radius * 3.5f);
+  std::array<float, 16 * kMaxBatches> light_model_view{};
+  for (std::size_t k = 0; k < s.n; ++k) {
+    const Mat4 m = multiply(light_view, source[k].world);
+    std::copy(m.begin(), m.end(), light_model_view.begin() + 16 * std::ptrdiff_t(k));
+  }
+
+  const auto n = GLsizei(s.n);
+  glUseProgram(d.program);
+  glBindVertexArray(d.vao);
+  glUniformMatrix4fv(u.model_view, n, GL_FALSE, s.model_view.data());
+  glUniformMatrix4fv(u.light_model_view, n, GL_FALSE, light_model_view.data());
+  glUniformMatrix4fv(u.projection, 1, GL_FALSE, frame.projection.data());
+  glUniformMatrix4fv(u.light_projection, 1, GL_FALSE, light_projection.data());
+  glUniform1uiv(u.stride, n, s.stride.data());
+  glUniform1uiv(u.base, n, s.base.data());
+  glUniform1iv(u.color_word, n, s.color_word.data());
+  glUniform1iv(u.velocity_word, n, s.velocity_word.data());
+  glUniform1iv(u.scalar_word, n, s.scalar_word.data());
+  glUniform4fv(u.color, n, s.color.data());
+  glUniform1fv(u.size, n, s.size.data());
+  glUniform1i(u.use_order, what.order_count > 0 ? 1 : 0);
+  glUniform1i(u.merged, what.merged ? 1 : 0);
+  glUniform1i(u.points, what.points ? 1 : 0);
+  glUniform1f(u.viewport_height, float(frame.height));
+  glUniform1i(u.color_by, static_cast<int>(style.color_by));
+  glUniform3fv(u.ramp, 8, style.ramp.stops[0].data());
+  glUniform1i(u.ramp_count, std::clamp(style.ramp.count, 1, 8));
+  glUniform2f(u.ramp_range, style.ramp.low, style.ramp.high != style.ramp.low ? style.ramp.high : style.ramp.low + 1);
+  glUniform4fv(u.tint, 1, style.tint.data());
+  glUniform1f(u.opacity, style.opacity);
+  glUniform1f(u.shutter, std::max(style.shutter, 0.0f));
+  glUniform1f(u.min_pixels, std::max(style.min_pixels, 0.0f));
+  glUniform1i(u.mode, static_cast<int>(what.blend));
+  glUniform1i(u.textured, what.sprite != 0 ? 1 : 0);
+  glUniform1i(u.sprite, 0);
+  glUniform1i(u.light_buffer, 1);
+  glUniform1i(u.shadows, shadows ? 1 : 0);
+  glUniform1i(u.shadow_blur, style.shadow_blur ? 1 : 0);
+  glUniform1f(u.light_texel, 1.0f / float(light_size));
+  glUniform1f(u.shadow_density, std::max(style.shadow_density, 0.0f));
+  glUniform1i(u.lit, style.lit ? 1 : 0);
+  glUniform3fv(u.key, 1, frame.light_view.data());
+  const Vec3 fill = view_direction(frame.view, {-frame.light_world[0], 0.35f, -frame.light_world[2]});
+  glUniform3fv(u.fill, 1, fill.data());
+  // The ground plane y = h in view space: n = the view's y axis, d = -n . (0, h, 0) transformed.
+  const bool cull = style.ground_height.has_value();
+  glUniform1i(u.cull_below, cull ? 1 : 0);
+  if (cull) {
+    const Mat4& v = frame.view;
+    const float h = *style.ground_height;
+    const float nx = v[4], ny = v[5], nz = v[6];                                      // view * (0, 1, 0, 0)
+    const float px = v[4] * h + v[12], py = v[5] * h + v[13], pz = v[6] * h + v[14];  // view * (0, h, 0, 1)
+    glUniform4f(u.ground_view, nx, ny, nz, -(nx * px + ny * py + nz * pz));
+  }
+  if (what.sprite != 0) glBindTextureUnit(0, what.sprite);
+  if (shadows) glBindTextureUnit(1, d.light_texture);
+
+  const float clear[4] = {0, 0, 0, 0};
+  glClearNamedFramebufferfv(d.hdr_framebuffer, GL_COLOR, 0, clear);
+  if (shadows) glClearNamedFramebufferfv(d.light_framebuffer, GL_COLOR, 0, clear);
+  // Blended sprites need no depth (drawn in order; the ground hides what is under it in the
+  // vertex shader); alpha-tested ones are opaque cut-outs with a depth test of their own.
+  const bool depth = what.blend == BlendMode::AlphaTest;
+  if (depth) {
+    const float far_depth = 1.0f;
+    glClearNamedFramebufferfv(d.hdr_framebuffer, GL_DEPTH, 0, &far_depth);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDepthMask(GL_TRUE);
+  } else {
+    glDisable(GL_DEPTH_TEST);
+    glDepthMask(GL_FALSE);
+  }
+  glEnable(GL_BLEND);
+  if (what.points) glEnable(GL_PROGRAM_POINT_SIZE);
+
+  const HalfAngle half = half_angle(frame.view, frame.light_world);
+  const auto eye_blend = [&] {
+    if (what.blend == BlendMode::Additive) {
+      glBlendFunc(GL_ONE, GL_ONE);
+    } else if (what.blend == BlendMode::AlphaTest) {
+      glDisable(GL_BLEND);
+    } else if (shadows && half.eye_front_to_back) {
+      glBlendFunc(GL_ONE_MINUS_DST_ALPHA, GL_ONE);  // "under": each slice goes behind the ones before
+    } else {
+      glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
+    }
+  };
+  const std::uint64_t total = what.instances;
+  const int slices = shadows ? std::clamp(style.slices, 1, 256) : 1;
+  for (int k = 0; k < slices; ++k) {
+    const std::uint64_t first = total * std::uint64_t(k) / std::uint64_t(slices);
+    const std::uint64_t end = total * std::uint64_t(k + 1) / std::uint64_t(slices);
+    if (end == first) continue;
+    glUniform1ui(u.first, GLuint(first));
+    glBindFramebuffer(GL_FRAMEBUFFER, d.hdr_framebuffer);
+    glViewport(0, 0, frame.width, frame.height);
+    glEnable(GL_BLEND);
+    eye_blend();
+    glUniform1i(u.pass, 0);
+    if (what.points) {
+      glDrawArraysInstanced(GL_POINTS, 0, 1, GLsizei(end - first));
+    } else {
+      glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(end - first));
+    }
+    if (!shadows || k + 1 == slices) continue;  // the last slice shadows nothing after it
+    glBindFramebuffer(GL_FRAMEBUFFER, d.light_framebuffer);
+    glViewport(0, 0, light_size, light_size);
+    glEnable(GL_BLEND);
+    glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+    glUniform1i(u.pass, 1);
+    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(end - first));
+  }
+  glDisable(GL_DEPTH_TEST);
+  glDepthMask(GL_FALSE);
+
+  glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
+  glViewport(0, 0, frame.width, frame.height);
+  glBindVertexArray(d.vao);
+  if (shadows && style.ground_height) {
+    // The last slice's opacity too, then the ground's shadow under all of it.
+    const std::uint64_t first = total * std::uint64_t(slices - 1) / std::uint64_t(slices);
+    glBindFramebuffer(GL_FRAMEBUFFER, d.light_framebuffer);
+    glViewport(0, 0, light_size, light_size);
+    glEnable(GL_BLEND);
+    glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+    glUniform1ui(u.first, GLuint(first));
+    glUniform1i(u.pass, 1);
+    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(total - first));
+    glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
+    glViewport(0, 0, frame.width, frame.height);
+
+    glUseProgram(d.ground_shadow);
+    glUniformMatrix4fv(d.g_view, 1, GL_FALSE, frame.view.data());
+    glUniformMatrix4fv(d.g_projection, 1, GL_FALSE, frame.projection.data());
+    glUniform2f(d.g_viewport, float(frame.width), float(frame.height));
+    glUniform1f(d.g_ground, *style.ground_height);
+    const Mat4 light_vp = multiply(light_projection, light_view);
+    glUniformMatrix4fv(d.g_light_vp, 1, GL_FALSE, light_vp.data());
+    glUniform1i(d.g_light, 1);
+    glUniform1f(d.g_texel, 1.0f / float(light_size));
+    glUniform1f(d.g_strength, 0.8f);
+    glBindTextureUnit(1, d.light_texture);
+    glEnable(GL_BLEND);
+    glBlendFunc(GL_ZERO, GL_SRC_COLOR);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+  }
+
+  glUseProgram(d.composite);
+  glUniform1i(d.c_hdr, 2);
+  glUniform1f(d.c_exposure, std::max(style.exposure, 0.0f));
+  glUniform1i(d.c_tone_map, static_cast<int>(style.tone_map));
+  glBindTextureUnit(2, d.hdr_texture);
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+  glDrawArrays(GL_TRIANGLES, 0, 3);
+  glEnable(GL_DEPTH_TEST);
+  glDepthMask(GL_TRUE);
+}
+
+}  // namespace pstream::render::detail

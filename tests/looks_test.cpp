@@ -1,0 +1,370 @@
+// How sprites look, measured on llvmpipe (what CI has) with tolerant comparisons: self-shadowing
+// darkens the far side of a dense ball, shadows fall on the ground, a speed ramp gives known
+// colours for known speeds, motion blur grows with velocity, a receding sub-pixel cloud keeps its
+// brightness, and an additive cloud does not clip to white. PSTREAM_LOOKS_IMAGES=DIR writes the
+// images the tests measure.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <random>
+
+#include <fmt/format.h>
+
+#include "particlestream/render.hpp"
+#include "particlestream/sort.hpp"
+
+namespace {
+
+using namespace pstream;
+using namespace pstream::render;
+
+constexpr int kW = 320, kH = 240;
+
+struct Particle {
+  float x, y, z, scale;
+  std::uint32_t rgba;  // R in the lowest byte
+  float vx, vy, vz;
+  float value;  // a float attribute for ramps
+};
+
+std::uint32_t rgba(float r, float g, float b, float a) {
+  const auto q = [](float v) { return std::uint32_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255)); };
+  return q(r) | q(g) << 8 | q(b) << 16 | q(a) << 24;
+}
+
+ParticleBatch batch_of(const std::vector<Particle>& ps) {
+  ParticleBatch b;
+  b.first = std::as_bytes(std::span(ps));
+  b.count = ps.size();
+  b.record_size = sizeof(Particle);
+  b.color_offset = 16;
+  b.velocity_offset = 20;
+  b.scalar_offset = 32;
+  return b;
+}
+
+// A ball of n particles, uniform in volume.
+std::vector<Particle> ball(int n, float radius, float size, std::uint32_t color, Vec3 center = {0, 0, 0},
+                           unsigned seed = 7) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1, 1);
+  std::vector<Particle> ps;
+  while (int(ps.size()) < n) {
+    const float x = u(rng), y = u(rng), z = u(rng);
+    if (x * x + y * y + z * z > 1) continue;
+    ps.push_back({center[0] + x * radius, center[1] + y * radius, center[2] + z * radius, size, color, 0, 0, 0, 0});
+  }
+  return ps;
+}
+
+struct Image {
+  std::vector<std::uint8_t> rgba;  // top row first
+  double lum(int x, int y) const {
+    const std::size_t i = (std::size_t(y) * kW + std::size_t(x)) * 4;
+    return (0.2126 * rgba[i] + 0.7152 * rgba[i + 1] + 0.0722 * rgba[i + 2]) / 255.0;
+  }
+  std::array<int, 3> at(int x, int y) const {
+    const std::size_t i = (std::size_t(y) * kW + std::size_t(x)) * 4;
+    return {rgba[i], rgba[i + 1], rgba[i + 2]};
+  }
+};
+
+class LooksTest : public ::testing::Test {
+ protected:
+  HeadlessContext ctx{kW, kH};
+  std::unique_ptr<Renderer> renderer;
+
+  void SetUp() override {
+    ctx.bind();
+    RendererOptions o;
+    o.light_direction = light;
+    renderer = std::make_unique<Renderer>(o);
+  }
+  void use_light(const Vec3& l) {
+    light = l;
+    ctx.bind();
+    RendererOptions o;
+    o.light_direction = l;
+    renderer = std::make_unique<Renderer>(o);
+  }
+
+  // Draws `ps` seen by `cam` in `style` (sorted as the style needs, as the playback layer does),
+  // over an optional backdrop.
+  Image draw(const Camera& cam, const std::vector<Particle>& ps, const SpriteStyle& style,
+             BlendMode blend = BlendMode::Alpha, const std::optional<Backdrop>& backdrop = std::nullopt,
+             const std::string& name = {}) {
+    ParticleBatch b = batch_of(ps);
+    b.blend = blend;
+    sort::DepthSorter sorter(ps.size());
+    const HalfAngle half = half_angle(cam.view(), light);
+    const bool sliced = style.shadows && blend != BlendMode::Additive;
+    b.order = sorter.sort(reinterpret_cast<const std::byte*>(ps.data()), ps.size(), sizeof(Particle),
+                          sliced ? half.sort_view : cam.view(),
+                          sliced ? sort::SortMode::FrontToBack : sort::SortMode::BackToFront);
+    ctx.bind();
+    renderer->begin_frame(kW, kH, cam, {0, 0, 0, 1});
+    if (backdrop) renderer->draw_backdrop(*backdrop);
+    renderer->draw(b, style);
+    renderer->end_frame();
+    Image img{ctx.read_rgba()};
+    if (const char* dir = std::getenv("PSTREAM_LOOKS_IMAGES"); dir != nullptr && !name.empty()) {
+      std::filesystem::create_directories(dir);
+      write_png(std::filesystem::path(dir) / (name + ".png"), kW, kH, img.rgba);
+    }
+    return img;
+  }
+
+  Vec3 light{-0.4f, 0.8f, 0.45f};
+};
+
+Camera front_camera(float distance = 5) {
+  Camera c;
+  c.eye = {0, 0, distance};
+  c.target = {0, 0, 0};
+  return c;
+}
+
+// ---- Self-shadowing ---------------------------------------------------------------------------
+
+TEST_F(LooksTest, ADenseBallIsDarkerOnTheSideAwayFromTheLight) {
+  use_light({1, 0, 0});  // from the right, across the view
+  const auto ps = ball(6000, 1.0f, 0.07f, rgba(0.85f, 0.85f, 0.85f, 0.6f));
+  SpriteStyle style;
+  style.shadows = true;
+  style.bounds = {-1.1f, -1.1f, -1.1f, 1.1f, 1.1f, 1.1f};
+  // Mean luminance of the ball's right (lit) and left thirds, where it covers the pixel.
+  const auto sides = [&](const Image& img) {
+    double left = 0, right = 0;
+    int nl = 0, nr = 0;
+    const int cx = kW / 2,
+              r = int(1.0 / std::tan(22.5 * 3.14159265 / 180) / 5 * kH / 2);  // the ball's radius in pixels
+    for (int y = kH / 2 - r / 2; y < kH / 2 + r / 2; ++y) {
+      for (int x = cx - r; x < cx + r; ++x) {
+        if (x < cx - r / 3) left += img.lum(x, y), ++nl;
+        if (x > cx + r / 3) right += img.lum(x, y), ++nr;
+      }
+    }
+    return std::pair{left / nl, right / nr};
+  };
+  const Image shadowed = draw(front_camera(), ps, style, BlendMode::Alpha, std::nullopt, "ball_shadowed");
+  style.shadows = false;
+  const Image plain = draw(front_camera(), ps, style, BlendMode::Alpha, std::nullopt, "ball_unshadowed");
+  const auto [sl, sr] = sides(shadowed);
+  const auto [pl, pr] = sides(plain);
+  const double with = sr / sl, without = pr / pl;
+  RecordProperty("contrast_with_shadows", fmt::format("{:.3f}", with));
+  RecordProperty("contrast_without", fmt::format("{:.3f}", without));
+  std::printf("lit/far side luminance: with shadows %.3f / %.3f = %.2f, without %.3f / %.3f = %.2f\n", sr, sl, with, pr,
+              pl, without);
+  EXPECT_GT(with, 1.8) << "the far side should be in the ball's own shadow";
+  EXPECT_NEAR(without, 1.0, 0.08) << "without shadows both sides are lit alike";
+  EXPECT_GT(sl, 0.03) << "the shadowed side still shows (ambient light)";
+}
+
+TEST_F(LooksTest, ShadowsFallOnTheGround) {
+  use_light({0.25f, 1.0f, 0.1f});  // from above
+  const auto ps = ball(3000, 0.6f, 0.06f, rgba(0.8f, 0.8f, 0.8f, 0.7f), {0, 0.4f, 0});
+  Camera cam;
+  cam.eye = {0, 2.5f, 5.0f};
+  cam.target = {0, -0.2f, 0};
+  Backdrop ground;
+  ground.ground_height = -1.0f;
+  ground.grid_spacing = 0.5f;
+  SpriteStyle style;
+  style.shadows = true;
+  style.bounds = {-0.7f, -0.3f, -0.7f, 0.7f, 1.1f, 0.7f};
+  style.ground_height = ground.ground_height;
+  const Image with = draw(cam, ps, style, BlendMode::Alpha, ground, "ground_shadowed");
+  style.shadows = false;
+  const Image without = draw(cam, ps, style, BlendMode::Alpha, ground, "ground_unshadowed");
+  const Image empty = draw(cam, {}, style, BlendMode::Alpha, ground);
+  // Ground pixels the particles do not cover (the picture without shadows equals the empty
+  // scene there) that the shadow darkens by more than a quarter.
+  int ground_pixels = 0, darkened = 0;
+  double sum_ratio = 0, shadow_y = 0, ball_y = 0, ball_n = 0;
+  for (int y = 0; y < kH; ++y) {
+    for (int x = 0; x < kW; ++x) {
+      const double e = empty.lum(x, y), p = without.lum(x, y), s = with.lum(x, y);
+      if (std::abs(p - e) > 2.0 / 255) {
+        ball_y += y, ++ball_n;
+        continue;
+      }
+      ++ground_pixels;
+      if (s < 0.75 * p) {
+        ++darkened;
+        sum_ratio += s / p;
+        shadow_y += y;
+      }
+    }
+  }
+  std::printf(
+      "ground shadow: %d pixels darkened (mean to %.2f of their light), centroid row %.1f; particles' row %.1f\n",
+      darkened, darkened ? sum_ratio / darkened : 0.0, darkened ? shadow_y / darkened : 0.0,
+      ball_n ? ball_y / ball_n : 0.0);
+  EXPECT_GT(darkened, 400) << "a shadow on the ground";
+  EXPECT_LT(sum_ratio / std::max(darkened, 1), 0.6);
+  EXPECT_GT(shadow_y / std::max(darkened, 1), ball_y / std::max(ball_n, 1.0)) << "the shadow lies below the ball";
+  // Without shadows the ground is untouched.
+  int changed = 0;
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) changed += std::abs(without.lum(x, y) - empty.lum(x, y)) > 2.0 / 255;
+  EXPECT_LT(changed, 0.12 * kW * kH);  // only the ball itself
+}
+
+// ---- Colour -------------------------------------------------------------------------------------
+
+TEST_F(LooksTest, ASpeedRampMapsKnownSpeedsToKnownColours) {
+  std::vector<Particle> ps;
+  const float speeds[] = {0.0f, 1.0f, 2.5f, 4.0f, 6.0f};
+  for (int i = 0; i < 5; ++i) {
+    const float v = speeds[i];
+    ps.push_back({-1.6f + 0.8f * float(i), 0, 0, 0.3f, rgba(1, 1, 1, 1), v * 0.6f, 0, v * 0.8f, 0});
+  }
+  SpriteStyle style;
+  style.color_by = ColorBy::Speed;
+  style.ramp = Ramp::named("viridis", 0.0f, 5.0f);  // 6 is past the end: the last colour
+  style.lit = false;
+  style.tone_map = ToneMap::Linear;
+  const Image img = draw(front_camera(), ps, style, BlendMode::Alpha, std::nullopt, "speed_ramp");
+  const double px_per_unit = 1.0 / std::tan(22.5 * 3.14159265 / 180) / 5 * kH / 2;
+  for (int i = 0; i < 5; ++i) {
+    const int x = int(std::lround(kW / 2 + (-1.6 + 0.8 * i) * px_per_unit)), y = kH / 2;
+    const auto want = style.ramp.at(speeds[i]);
+    const auto got = img.at(x, y);
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(got[std::size_t(c)], want[std::size_t(c)] * 255, 4) << "speed " << speeds[i] << ", channel " << c;
+    }
+  }
+  // A float attribute through the same ramp.
+  for (int i = 0; i < 5; ++i) ps[std::size_t(i)].value = speeds[i], ps[std::size_t(i)].vx = ps[std::size_t(i)].vz = 0;
+  style.color_by = ColorBy::Attribute;
+  const Image by_value = draw(front_camera(), ps, style);
+  for (std::size_t k = 0; k < img.rgba.size(); ++k) ASSERT_NEAR(by_value.rgba[k], img.rgba[k], 1);
+}
+
+TEST_F(LooksTest, AnAdditiveCloudDoesNotClipToWhite) {
+  // 3,000 orange sparks in a small ball: dozens overlap in every pixel of the core.
+  const auto ps = ball(3000, 0.5f, 0.05f, rgba(1.0f, 0.45f, 0.1f, 1.0f));
+  SpriteStyle style;  // defaults: filmic tone map, exposure 1
+  style.lit = false;
+  const Image hdr = draw(front_camera(), ps, style, BlendMode::Additive, std::nullopt, "additive_filmic");
+  style.tone_map = ToneMap::Linear;
+  const Image clipped = draw(front_camera(), ps, style, BlendMode::Additive, std::nullopt, "additive_linear");
+  int white_hdr = 0, white_linear = 0, bright = 0;
+  std::array<int, 3> brightest{};
+  for (int y = 0; y < kH; ++y) {
+    for (int x = 0; x < kW; ++x) {
+      const auto a = hdr.at(x, y), b = clipped.at(x, y);
+      white_hdr += std::min({a[0], a[1], a[2]}) >= 250;
+      white_linear += std::min({b[0], b[1], b[2]}) >= 250;
+      bright += a[0] >= 200;
+      if (a[0] + a[1] + a[2] > brightest[0] + brightest[1] + brightest[2]) brightest = a;
+    }
+  }
+  std::printf(
+      "additive core: %d white pixels tone-mapped, %d linear; brightest (%d, %d, %d); %d pixels with R >= 200\n",
+      white_hdr, white_linear, brightest[0], brightest[1], brightest[2], bright);
+  EXPECT_EQ(white_hdr, 0);
+  EXPECT_GT(white_linear, 300) << "the linear control does clip";
+  EXPECT_GE(brightest[0], 230) << "the core glows";
+  EXPECT_LT(brightest[2], brightest[0] / 2) << "and keeps its hue";
+  EXPECT_GT(bright, 300);
+}
+
+// ---- Motion and size ---------------------------------------------------------------------------
+
+TEST_F(LooksTest, MotionBlurLengthIsProportionalToVelocity) {
+  // Three sparks in a column: still, moving right at v and at 2v.
+  const float v = 4.0f;
+  std::vector<Particle> ps = {{0, 0.8f, 0, 0.06f, rgba(1, 1, 1, 1), 0, 0, 0, 0},
+                              {0, 0, 0, 0.06f, rgba(1, 1, 1, 1), v, 0, 0, 0},
+                              {0, -0.8f, 0, 0.06f, rgba(1, 1, 1, 1), 2 * v, 0, 0, 0}};
+  SpriteStyle style;
+  style.shutter = 1.0f / 48;  // half of a 24 fps frame
+  style.lit = false;
+  style.tone_map = ToneMap::Linear;
+  const Image img = draw(front_camera(), ps, style, BlendMode::Alpha, std::nullopt, "motion_blur");
+  const double px_per_unit = 1.0 / std::tan(22.5 * 3.14159265 / 180) / 5 * kH / 2;
+  // Each spark's total brightness (its row band), and its width at half its own peak along the
+  // row through it: a streak is flat along its straight part, so that width grows by exactly the
+  // straight part's length, whatever the disc's soft edge.
+  const auto measure = [&](float world_y) {
+    const int y = int(std::lround(kH / 2 - world_y * px_per_unit));
+    double sum = 0, peak = 0;
+    for (int yy = y - 12; yy <= y + 12; ++yy)
+      for (int x = 0; x < kW; ++x) sum += img.lum(x, yy);
+    for (int x = 0; x < kW; ++x) peak = std::max(peak, img.lum(x, y));
+    const double half = peak / 2;
+    double left = 0, right = 0;
+    for (int x = 1; x < kW; ++x) {  // crossings of half the peak, interpolated between pixels
+      const double a = img.lum(x - 1, y), b = img.lum(x, y);
+      if (a < half && b >= half && left == 0) left = x - 1 + (half - a) / (b - a);
+      if (a >= half && b < half) right = x - 1 + (a - half) / (a - b);
+    }
+    return std::pair{right - left, sum};
+  };
+  const auto [w0, e0] = measure(0.8f);
+  const auto [w1, e1] = measure(0.0f);
+  const auto [w2, e2] = measure(-0.8f);
+  const double one = w1 - w0, two = w2 - w0;
+  const double expected = v * style.shutter * px_per_unit;  // the streak's length at v, pixels
+  std::printf("streak lengths: %.2f px at v, %.2f px at 2v (expected %.2f, %.2f); total brightness %.1f %.1f %.1f\n",
+              one, two, expected, 2 * expected, e0, e1, e2);
+  EXPECT_NEAR(one, expected, 0.8);
+  EXPECT_NEAR(two, 2 * expected, 0.8);
+  EXPECT_NEAR(two / one, 2.0, 0.2);
+  EXPECT_NEAR(e1 / e0, 1.0, 0.08) << "a streak is as bright in total as the still spark";
+  EXPECT_NEAR(e2 / e0, 1.0, 0.08);
+}
+
+TEST_F(LooksTest, ASubPixelCloudKeepsItsBrightnessAsItRecedes) {
+  // A 12 x 12 sheet of tiny additive particles, facing the camera, at growing distances: each
+  // particle's image shrinks with the square of the distance, so brightness x distance^2 stays
+  // constant while they are larger than a pixel, and must stay so below a pixel.
+  std::vector<Particle> ps;
+  for (int j = 0; j < 12; ++j)
+    for (int i = 0; i < 12; ++i)
+      ps.push_back({-0.165f + 0.03f * float(i) + 0.0037f * float(j % 3),
+                    -0.165f + 0.03f * float(j) + 0.0041f * float(i % 4), 0, 0.006f, rgba(1, 1, 1, 1), 0, 0, 0, 0});
+  const auto total = [&](const std::vector<Particle>& cloud, float distance, const SpriteStyle& style,
+                         const std::string& name = {}) {
+    const Image img = draw(front_camera(distance), cloud, style, BlendMode::Additive, std::nullopt, name);
+    double sum = 0;
+    for (std::size_t k = 0; k < img.rgba.size(); k += 4) sum += img.rgba[k];
+    return sum * distance * distance;
+  };
+  const auto radius_px = [](float d) { return 0.006 / std::tan(22.5 * 3.14159265 / 180) * kH / 2 / d; };
+  SpriteStyle style;
+  style.lit = false;
+  style.tone_map = ToneMap::Linear;
+  const double reference = total(ps, 1.2f, style, "subpixel_1.2");  // radius 1.45 px
+  for (float d : {2.4f, 4.8f, 9.6f}) {                              // 0.72, 0.36, 0.18 px
+    const double kept = total(ps, d, style, fmt::format("subpixel_{:.1f}", d)) / reference;
+    std::printf("distance %.1f (radius %.2f px): brightness x d^2 %.3f of the near cloud\n", d, radius_px(d), kept);
+    EXPECT_NEAR(kept, 1.0, 0.12) << "distance " << d;
+  }
+  // One particle of 0.18 px radius moved across a pixel in eighths: with the floor it shows at
+  // every position with about the same brightness; without it, it vanishes between pixel centres.
+  SpriteStyle raw = style;
+  raw.min_pixels = 0;
+  double kept_min = 1e30, kept_max = 0;
+  int raw_gone = 0;
+  for (int k = 0; k < 8; ++k) {
+    const float shift = float(k) / 8 * 9.6f / float(1.0 / std::tan(22.5 * 3.14159265 / 180) * kH / 2);  // k/8 pixel
+    const std::vector<Particle> one = {{shift, 0.3f * shift, 0, 0.006f, rgba(1, 1, 1, 1), 0, 0, 0, 0}};
+    const double a = total(one, 9.6f, style), b = total(one, 9.6f, raw);
+    kept_min = std::min(kept_min, a), kept_max = std::max(kept_max, a);
+    raw_gone += b == 0;
+  }
+  std::printf(
+      "one 0.18 px particle at 8 sub-pixel positions: brightness %.0f..%.0f with the floor; without it, "
+      "invisible at %d of 8\n",
+      kept_min, kept_max, raw_gone);
+  EXPECT_GT(kept_min, 0.55 * kept_max) << "always visible, about as bright";
+  EXPECT_GE(raw_gone, 4) << "without the floor it vanishes between pixel centres";
+}
+
+}  // namespace
