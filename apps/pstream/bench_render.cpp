@@ -1,7 +1,8 @@
 // `pstream bench render`: per-frame cost of drawing 100k and 1M particles (1280x720 unless
-// --size): instanced quads (sprites) against GL points and against the screen-space liquid, as
-// ratios to the sprites measured in the same run, with the GL renderer's name (llvmpipe here, a
-// GPU where there is one).
+// --size): instanced quads (additive sprites) against GL points and against the screen-space
+// liquid, as ratios to the sprites measured in the same run; and alpha-blended sprites with and
+// without self-shadowing (32 half-angle slices, the ground's shadow), as the ratio of the two.
+// With the GL renderer's name (llvmpipe here, a GPU where there is one).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -14,6 +15,7 @@
 
 #include "commands.hpp"
 #include "particlestream/render.hpp"
+#include "particlestream/sort.hpp"
 
 namespace pstream::app {
 
@@ -31,9 +33,12 @@ int bench_render(const BenchRenderOptions& o) {
       records[i * 4] = uni(rng), records[i * 4 + 1] = uni(rng), records[i * 4 + 2] = uni(rng),
                   records[i * 4 + 3] = 0.004f;
     }
-    double sprites_ms = 0;
-    for (const char* method : {"instanced_quads", "points", "liquid"}) {
+    double sprites_ms = 0, alpha_ms = 0;
+    sort::DepthSorter sorter(n);
+    for (const char* method : {"instanced_quads", "points", "liquid", "alpha", "alpha_shadowed"}) {
       const bool points = std::string_view(method) == "points", liquid = std::string_view(method) == "liquid";
+      const bool alpha = std::string_view(method).starts_with("alpha");
+      const bool shadowed = std::string_view(method) == "alpha_shadowed";
       render::RendererOptions ro;
       ro.max_bytes_per_frame = n * 16;
       ro.points = points;
@@ -43,7 +48,17 @@ int bench_render(const BenchRenderOptions& o) {
       render::ParticleBatch b;
       b.first = std::as_bytes(std::span(records));
       b.count = n;
-      b.blend = render::BlendMode::Additive;
+      b.blend = alpha ? render::BlendMode::Alpha : render::BlendMode::Additive;
+      render::SpriteStyle style;
+      style.shadows = shadowed;
+      style.bounds = {-1, -1, -1, 1, 1, 1};
+      style.ground_height = -1.0f;
+      if (alpha) {  // sorted once, outside the timing: this measures drawing
+        const render::Mat4 view =
+            shadowed ? render::half_angle(camera.view(), ro.light_direction).sort_view : camera.view();
+        b.order = sorter.sort(reinterpret_cast<const std::byte*>(records.data()), n, 16, view,
+                              shadowed ? sort::SortMode::FrontToBack : sort::SortMode::BackToFront);
+      }
       std::vector<double> ms;
       for (int r = 0; r < o.repetitions + 1; ++r) {
         const auto t0 = Clock::now();
@@ -52,7 +67,7 @@ int bench_render(const BenchRenderOptions& o) {
         if (liquid) {
           renderer.draw_liquid({&b, 1}, render::LiquidStyle{});
         } else {
-          renderer.draw(b);
+          renderer.draw(b, style);
         }
         renderer.end_frame();
         glFinish();
@@ -61,11 +76,17 @@ int bench_render(const BenchRenderOptions& o) {
       }
       std::sort(ms.begin(), ms.end());
       const double median = ms[ms.size() / 2];
-      if (!points && !liquid) sprites_ms = median;
-      results.push_back({{"particles", n},
-                         {"method", method},
-                         {"frame_ms_median", median},
-                         {"ratio_to_sprites", sprites_ms > 0 ? median / sprites_ms : 0.0}});
+      if (!points && !liquid && !alpha) sprites_ms = median;
+      if (alpha && !shadowed) alpha_ms = median;
+      nlohmann::ordered_json r{{"particles", n},
+                               {"method", method},
+                               {"frame_ms_median", median},
+                               {"ratio_to_sprites", sprites_ms > 0 ? median / sprites_ms : 0.0}};
+      if (shadowed) {
+        r["ratio_to_unshadowed"] = alpha_ms > 0 ? median / alpha_ms : 0.0;
+        r["shadow_overhead_ms"] = median - alpha_ms;
+      }
+      results.push_back(r);
     }
   }
   nlohmann::ordered_json j{
@@ -75,9 +96,12 @@ int bench_render(const BenchRenderOptions& o) {
   } else {
     fmt::print("{} at {}x{}\n", j["gl_renderer"].get<std::string>(), width, height);
     for (const auto& r : results) {
-      fmt::print("  {:>8} particles  {:<16} {:9.2f} ms a frame  {:5.2f}x sprites\n",
+      fmt::print("  {:>8} particles  {:<16} {:9.2f} ms a frame  {:5.2f}x sprites{}\n",
                  r["particles"].get<std::uint64_t>(), r["method"].get<std::string>(),
-                 r["frame_ms_median"].get<double>(), r["ratio_to_sprites"].get<double>());
+                 r["frame_ms_median"].get<double>(), r["ratio_to_sprites"].get<double>(),
+                 r.contains("ratio_to_unshadowed")
+                     ? fmt::format("  {:5.2f}x without shadows", r["ratio_to_unshadowed"].get<double>())
+                     : "");
     }
   }
   return 0;

@@ -3,8 +3,10 @@
 
 #include <cstdint>
 #include <string>
+#include <string_view>
 #include <vector>
 
+#include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
 
 namespace pstream::app {
@@ -86,12 +88,25 @@ struct BenchPlaybackOptions {
 };
 int bench_playback(const BenchPlaybackOptions& options);
 
+// The sprite look's flags, shared by render and play, in the CLI's words: --preset first, then
+// each flag given on the command line over it (look_style()).
+struct LookCli {
+  std::string preset, color_by, ramp, ramp_range, ramp_attribute, tone_map, tint;
+  bool flat = false;
+  render::SpriteStyle sprites;     // the numbers and switches, bound to their flags
+  std::vector<std::string> given;  // the flags on the command line
+  bool has(std::string_view flag) const;
+};
+// The style `cli` asks for over `base` (a preset's, or the defaults); checks every value.
+void apply_look(const LookCli& cli, playback::DrawStyle& style);
+
 struct RenderCli {
   std::vector<std::string> files;  // drawn together (merged depth order; one liquid surface)
   std::string out = "frames", frames, size = "1280x720", camera = "auto", video, blend = "alpha", sort = "back",
               texture, interpolation = "hermite", look = "sprites", backdrop = "auto";
   std::string liquid_filter, liquid_output, liquid_color;  // empty: the library's defaults
   render::LiquidStyle liquid;                              // the numbers, bound to their flags
+  LookCli sprite_look;
   double fps = 0.0, speed = 1.0;
   float size_multiplier = 1.0f;
   bool quiet = false;
@@ -109,6 +124,7 @@ struct ViewerCli {
   int frames_to_run = 0;   // > 0: quit after that many frames (scripted runs, tests)
   std::string screenshot;  // with frames_to_run: save the last frame (PNG)
   std::string look;        // sprites or liquid; empty: sprites
+  LookCli sprite_look;
 };
 int run_viewer(const ViewerCli& cli);
 

@@ -149,10 +149,24 @@ int run_demo(const DemoCli& cli) {
                   co.output.string(), cr.file_bytes / 1048576.0, double(cr.stream_bytes) / double(cr.file_bytes),
                   per_particle, cr.error, cr.seconds));
 
+  // Each simulation in the look that reads as what it is.
+  LookCli look;
+  if (cli.preset == "explosion") {
+    look.preset = "sparks";  // additive, glowing streaks
+  } else if (cli.preset == "smoke") {
+    look.preset = "smoke";  // self-shadowed, shadows on the ground
+  } else {
+    look.preset = "sprites";  // droplets streaked along their arcs
+    look.sprites.shutter = 1.0f / 60;
+    look.given = {"--shutter"};
+  }
   const bool window = cli.window || (!cli.headless && std::getenv("DISPLAY") != nullptr);
   if (window) {
     say("opening the viewer (use --headless to render frames instead)");
-    return run_viewer({{co.output.string()}, 1280, 720, 0, "", ""});
+    ViewerCli viewer;
+    viewer.files = {co.output.string()};
+    viewer.sprite_look = look;
+    return run_viewer(viewer);
   }
 
   // 3. Stream in real time, as a game would (never blocking), and sort every frame.
@@ -190,6 +204,7 @@ int run_demo(const DemoCli& cli) {
   rc.out = (dir / "frames").string();
   rc.size = cli.size;
   rc.quiet = cli.quiet;
+  rc.sprite_look = look;
   const bool have_ffmpeg = have_program("ffmpeg");
   if (have_ffmpeg) rc.video = (dir / "demo.mp4").string();
   fs::remove_all(rc.out);

@@ -3,6 +3,8 @@
 #include <exception>
 #include <filesystem>
 #include <new>
+#include <string>
+#include <vector>
 
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
@@ -12,7 +14,60 @@
 #include "commands.hpp"
 #include "particlestream/error.hpp"
 
-namespace {}  // namespace
+namespace {
+
+// The sprite look's flags, the same on render and play (apps/pstream/commands.hpp: LookCli).
+void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
+  const pstream::render::SpriteStyle defaults;
+  cmd.add_option("--preset", look.preset,
+                 "A look: sprites, smoke (self-shadowed), sparks (additive, motion-blurred), liquid-sprites "
+                 "(coloured by speed), liquid, debug (flat, stored colours). Flags given with it override its parts")
+      ->check(CLI::IsMember({"sprites", "smoke", "sparks", "liquid-sprites", "liquid", "debug"}));
+  cmd.add_flag("--shadows", look.sprites.shadows,
+               "Volumetric self-shadowing (half-angle slices) and shadows on the ground");
+  cmd.add_option("--slices", look.sprites.slices, "Shadow slices: more is smoother and slower")
+      ->default_val(defaults.slices)
+      ->check(CLI::Range(1, 256));
+  cmd.add_option("--shadow-density", look.sprites.shadow_density, "How much light a particle stops, x its alpha")
+      ->default_val(defaults.shadow_density)
+      ->check(CLI::NonNegativeNumber);
+  cmd.add_option("--color-by", look.color_by,
+                 "stored (the cache's colours), speed (a ramp over |velocity|) or attribute (--ramp-attribute)")
+      ->check(CLI::IsMember({"stored", "speed", "attribute"}));
+  cmd.add_option("--ramp", look.ramp, "The ramp's colours: fire, ice, viridis or grey")
+      ->check(CLI::IsMember({"fire", "ice", "viridis", "grey"}));
+  cmd.add_option("--ramp-range", look.ramp_range, "LOW,HIGH: the values the ramp spans (speeds in units/s)");
+  cmd.add_option("--ramp-attribute", look.ramp_attribute, "A float attribute the ramp colours by (age, temperature)");
+  cmd.add_option("--tint", look.tint, "r,g,b multiplying every colour");
+  cmd.add_option("--opacity", look.sprites.opacity, "Multiplies every particle's alpha")
+      ->default_val(defaults.opacity)
+      ->check(CLI::Range(0.0, 1.0));
+  cmd.add_flag("--flat", look.flat, "No lighting: each sprite in its colour");
+  cmd.add_option("--shutter", look.sprites.shutter,
+                 "Motion blur: seconds of motion each sprite is stretched along (1/48 is half a 24 fps frame); 0: off")
+      ->default_val(defaults.shutter)
+      ->check(CLI::NonNegativeNumber);
+  cmd.add_option("--min-pixels", look.sprites.min_pixels,
+                 "Smaller sprites are drawn this size and fainter, keeping their brightness; 0: off")
+      ->default_val(defaults.min_pixels)
+      ->check(CLI::NonNegativeNumber);
+  cmd.add_option("--exposure", look.sprites.exposure, "Brightness before the tone map")
+      ->default_val(defaults.exposure)
+      ->check(CLI::PositiveNumber);
+  cmd.add_option("--tone-map", look.tone_map, "filmic (bright light keeps its hue) or linear (clamps)")
+      ->check(CLI::IsMember({"filmic", "linear"}));
+}
+
+// Which flags the command line gave (a preset's parts they override).
+std::vector<std::string> given_flags(const CLI::App& cmd) {
+  std::vector<std::string> names;
+  for (const CLI::Option* o : cmd.get_options()) {
+    if (o->count() > 0) names.push_back(o->get_name());
+  }
+  return names;
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   using namespace pstream::app;
@@ -245,6 +300,9 @@ int main(int argc, char** argv) {
       "  pstream render fx.pstream --out f --camera 4,3,6:0,1,0 --blend additive\n"
       "  pstream render fx.pstream --out slow --fps 120 --speed 0.25   (slow motion, every image interpolated)\n"
       "  pstream render pour.pstream --out water --look liquid --foam-speed 3\n"
+      "  pstream render smoke.pstream --out s --preset smoke --slices 64   (self-shadowed, shadows on the ground)\n"
+      "  pstream render sparks.pstream --out k --preset sparks --shutter 0.04   (glowing streaks)\n"
+      "  pstream render fx.pstream --out v --color-by speed --ramp fire --ramp-range 0,8\n"
       "  pstream render a.pstream b.pstream --out both   (two clips in one picture)");
   render_cmd
       ->add_option("files", render_cli.files,
@@ -334,6 +392,7 @@ int main(int argc, char** argv) {
                    "Liquid: particles where the liquid is thinner than this many radii are spray; 0: off")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  add_look_flags(*render_cmd, render_cli.sprite_look);
   render_cmd->add_flag("-q,--quiet", render_cli.quiet, "No progress or summary");
 
   ViewerCli viewer;
@@ -349,6 +408,7 @@ int main(int argc, char** argv) {
   play_cmd->add_option("--screenshot", viewer.screenshot, "With --frames-to-run: save the last frame as PNG");
   play_cmd->add_option("--look", viewer.look, "sprites or liquid (a screen-space surface; its settings in the panel)")
       ->check(CLI::IsMember({"sprites", "liquid"}));
+  add_look_flags(*play_cmd, viewer.sprite_look);
 
   DemoCli demo;
   auto* demo_cmd = app.add_subcommand(
@@ -373,7 +433,8 @@ int main(int argc, char** argv) {
   auto* bench_render_cmd = bench_cmd->add_subcommand(
       "render",
       "Per-frame cost of 100k and 1M particles: sprites (instanced quads) vs GL points vs the screen-space liquid, "
-      "as ratios to the sprites in the same run, with GL_RENDERER");
+      "as ratios to the sprites in the same run; alpha sprites with and without self-shadowing (32 slices) as "
+      "their ratio and the overhead in ms; with GL_RENDERER");
   bench_render_cmd
       ->add_option("--size", bench_render_opts.size, "Image size WIDTHxHEIGHT (1920x1080 for the GPU target)")
       ->capture_default_str();
@@ -388,6 +449,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
 
   CLI11_PARSE(app, argc, argv);
+  render_cli.sprite_look.given = given_flags(*render_cmd);
+  viewer.sprite_look.given = given_flags(*play_cmd);
   if (play_cmd->parsed() && !viewer.screenshot.empty() && viewer.frames_to_run <= 0) {
     fmt::print(stderr,
                "pstream: error: --screenshot needs --frames-to-run N (the frame to save; the viewer otherwise "

@@ -2,8 +2,10 @@
 // through ffmpeg): stream (blocking, no frame skipped) -> sort back to front -> draw.
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -56,11 +58,51 @@ void parse_size(const std::string& text, int& width, int& height) {
   }
 }
 
+bool LookCli::has(std::string_view flag) const { return std::find(given.begin(), given.end(), flag) != given.end(); }
+
+void apply_look(const LookCli& cli, playback::DrawStyle& style) {
+  const bool all = cli.preset.empty();  // no preset: every flag's value, given or default
+  const auto set = [&](std::string_view flag) { return all || cli.has(flag); };
+  render::SpriteStyle& s = style.sprites;
+  const render::SpriteStyle& c = cli.sprites;
+  if (set("--shadows")) s.shadows = c.shadows;
+  if (set("--slices")) s.slices = c.slices;
+  if (set("--shadow-density")) s.shadow_density = c.shadow_density;
+  if (set("--shutter")) s.shutter = c.shutter;
+  if (set("--exposure")) s.exposure = c.exposure;
+  if (set("--opacity")) s.opacity = c.opacity;
+  if (set("--min-pixels")) s.min_pixels = c.min_pixels;
+  if (set("--flat")) s.lit = !cli.flat;
+  if (!cli.color_by.empty()) s.color_by = render::parse_color_by(cli.color_by);
+  if (!cli.ramp_attribute.empty()) {
+    style.ramp_attribute = cli.ramp_attribute;
+    if (cli.color_by.empty()) s.color_by = render::ColorBy::Attribute;
+  }
+  float low = s.ramp.low, high = s.ramp.high;
+  if (!cli.ramp_range.empty() && (std::sscanf(cli.ramp_range.c_str(), "%f,%f", &low, &high) != 2 || !(low < high)))
+    throw Error(fmt::format("--ramp-range '{}': expected LOW,HIGH with LOW < HIGH", cli.ramp_range));
+  if (!cli.ramp.empty()) {
+    s.ramp = render::Ramp::named(cli.ramp, low, high);
+  } else {
+    s.ramp.low = low, s.ramp.high = high;
+  }
+  if (!cli.tone_map.empty()) s.tone_map = render::parse_tone_map(cli.tone_map);
+  if (!cli.tint.empty()) {
+    const render::Vec3 t = parse_vec3(cli.tint);
+    for (float v : t) {
+      if (!(v >= 0.0f && v <= 4.0f)) throw Error(fmt::format("--tint '{}': expected r,g,b in [0, 4]", cli.tint));
+    }
+    s.tint = {t[0], t[1], t[2], 1.0f};
+  }
+}
+
 // The look flags in the library's terms.
 playback::DrawStyle draw_style(const RenderCli& cli, const std::array<float, 6>& bounds) {
-  playback::DrawStyle style;
-  style.look = render::parse_look(cli.look);
-  style.blend = render::parse_blend(cli.blend);
+  const LookCli& look = cli.sprite_look;
+  playback::DrawStyle style = look.preset.empty() ? playback::DrawStyle{} : playback::look_preset(look.preset);
+  if (look.preset.empty() || look.has("--look")) style.look = render::parse_look(cli.look);
+  if (look.preset.empty() || look.has("--blend")) style.blend = render::parse_blend(cli.blend);
+  apply_look(look, style);
   style.size_multiplier = cli.size_multiplier;
   style.texture = cli.texture;
   style.liquid = cli.liquid;
@@ -75,7 +117,9 @@ playback::DrawStyle draw_style(const RenderCli& cli, const std::array<float, 6>&
     }
     l.color = c;
   }
-  const bool ground = cli.backdrop == "ground" || (cli.backdrop == "auto" && style.look == render::Look::Liquid);
+  // auto: a ground for liquid, and for shadows to fall on.
+  const bool ground = cli.backdrop == "ground" ||
+                      (cli.backdrop == "auto" && (style.look == render::Look::Liquid || style.sprites.shadows));
   if (cli.backdrop != "auto" && cli.backdrop != "ground" && cli.backdrop != "sky" && cli.backdrop != "none")
     throw Error(fmt::format("--backdrop '{}': expected auto, ground, sky or none", cli.backdrop));
   if (ground || cli.backdrop == "sky") {
@@ -137,10 +181,11 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
   const render::Camera camera = camera_for(cli.camera, bounds, float(width) / float(height));
-  // Only alpha-blended sprites depend on the order.
-  const sort::SortMode mode = style.look != render::Look::Sprites || style.blend != render::BlendMode::Alpha
-                                  ? sort::SortMode::None
-                                  : sort::parse_sort_mode(cli.sort);
+  // Only alpha-blended sprites depend on the order (along the half-angle with shadows).
+  const sort::SortMode requested = style.look != render::Look::Sprites || style.blend != render::BlendMode::Alpha
+                                       ? sort::SortMode::None
+                                       : sort::parse_sort_mode(cli.sort);
+  const playback::SortPlan plan = playback::sort_plan(style, camera.view(), renderer.light_direction(), requested);
 
   if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
   player->set_range(t0, t1);
@@ -149,7 +194,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   player->play();
   ProgressBar bar("render", !cli.quiet);
   for (std::uint64_t k = 0; k < outputs; ++k) {
-    player->advance(k == 0 ? 0.0 : 1.0 / fps, camera.view(), mode);
+    player->advance(k == 0 ? 0.0 : 1.0 / fps, plan.view, plan.mode);
     player->check();
     const auto start = std::chrono::steady_clock::now();
     context.bind();

@@ -156,12 +156,15 @@ int run_viewer(const ViewerCli& cli) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   auto renderer = std::make_unique<render::Renderer>(ro);  // destroyed before its context (below)
-  playback::DrawStyle style;
+  playback::DrawStyle style =
+      cli.sprite_look.preset.empty() ? playback::DrawStyle{} : playback::look_preset(cli.sprite_look.preset);
   if (!cli.look.empty()) style.look = render::parse_look(cli.look);
+  apply_look(cli.sprite_look, style);
 
   Ui ui;
   ui.look = style.look == render::Look::Liquid ? 1 : 0;
-  ui.backdrop = ui.look == 1;
+  ui.blend = style.blend == render::BlendMode::Alpha ? 0 : style.blend == render::BlendMode::Additive ? 1 : 2;
+  ui.backdrop = ui.look == 1 || style.sprites.shadows;
   ui.player = player.get();
   ui.orbit.frame(player->clip(0).metadata());
   glfwSetWindowUserPointer(window, &ui);
@@ -238,7 +241,8 @@ int run_viewer(const ViewerCli& cli) {
     // The library's playback layer: every clip advanced, sorted (several clips together, so where
     // they overlap they blend in depth order) and drawn.
     player->set_speed(ui.speed);
-    const playback::FrameStats& frame = player->advance(dt, camera.view(), mode);
+    const playback::SortPlan plan = playback::sort_plan(style, camera.view(), renderer->light_direction(), mode);
+    const playback::FrameStats& frame = player->advance(dt, plan.view, plan.mode);
     const auto t_draw0 = Clock::now();
     player->draw(*renderer, style);
     const double t_draw = std::chrono::duration<double, std::milli>(Clock::now() - t_draw0).count();
@@ -278,6 +282,27 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::Combo("Look", &ui.look, "Sprites\0Liquid\0");
     if (ui.look == 0) ImGui::Combo("Blend", &ui.blend, "Alpha\0Additive\0Alpha test\0");
     ImGui::Checkbox("Sky and ground grid", &ui.backdrop);
+    if (ui.look == 0 && ImGui::TreeNodeEx("Sprites", ImGuiTreeNodeFlags_DefaultOpen)) {
+      render::SpriteStyle& sp = style.sprites;
+      ImGui::Checkbox("Shadows (half-angle slices)", &sp.shadows);
+      if (sp.shadows) {
+        ImGui::SliderInt("Slices", &sp.slices, 1, 128);
+        ImGui::SliderFloat("Shadow density", &sp.shadow_density, 0.0f, 4.0f, "%.2f");
+      }
+      int color_by = static_cast<int>(sp.color_by);
+      if (ImGui::Combo("Colour", &color_by, "Stored\0Speed ramp\0Attribute ramp\0"))
+        sp.color_by = static_cast<render::ColorBy>(color_by);
+      if (sp.color_by != render::ColorBy::Stored)
+        ImGui::DragFloatRange2("Ramp range", &sp.ramp.low, &sp.ramp.high, 0.05f);
+      ImGui::Checkbox("Lit (key, fill, rim)", &sp.lit);
+      ImGui::SliderFloat("Opacity", &sp.opacity, 0.0f, 1.0f, "%.2f");
+      ImGui::SliderFloat("Motion blur (shutter s)", &sp.shutter, 0.0f, 0.1f, "%.3f");
+      ImGui::SliderFloat("Exposure", &sp.exposure, 0.1f, 8.0f, "%.2f", ImGuiSliderFlags_Logarithmic);
+      bool filmic = sp.tone_map == render::ToneMap::Filmic;
+      if (ImGui::Checkbox("Filmic tone map", &filmic))
+        sp.tone_map = filmic ? render::ToneMap::Filmic : render::ToneMap::Linear;
+      ImGui::TreePop();
+    }
     if (ui.look == 1 && ImGui::TreeNodeEx("Liquid", ImGuiTreeNodeFlags_DefaultOpen)) {
       render::LiquidStyle& l = style.liquid;
       ImGui::Combo("Filter", &ui.liquid_filter, "Narrow range\0Bilateral\0Gaussian\0None\0");
@@ -318,6 +343,23 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::TextDisabled("space play/pause, arrows step, F frame, drag orbit/pan, wheel zoom");
     ImGui::PopTextWrapPos();
     ImGui::End();
+    {  // The timeline along the bottom, in the source's frame numbers (the first clip's frames).
+      const stream::ParticleStream& first = player->clip(0);
+      const auto& m = first.metadata();
+      const ImVec2 size = ImGui::GetIO().DisplaySize;
+      ImGui::SetNextWindowPos({0, size.y - 44});
+      ImGui::SetNextWindowSize({size.x, 44});
+      ImGui::Begin("Timeline", nullptr,
+                   ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoSavedSettings |
+                       ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoBringToFrontOnFocus);
+      const stream::FrameView shown = first.frame();
+      int frame = shown.valid ? int(shown.frame) : 0;
+      const int last = m.frame_count() ? int(m.frame_count()) - 1 : 0;
+      ImGui::SetNextItemWidth(size.x - 20);
+      if (ImGui::SliderInt("##frame", &frame, 0, last, "frame %d") && m.frame_count())
+        player->seek(m.frames[std::size_t(frame)].time);
+      ImGui::End();
+    }
     ImGui::Render();
     ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
 

@@ -73,6 +73,12 @@ struct SortPlan {
 SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, const render::Vec3& light_direction,
                    sort::SortMode requested);
 
+// A look by name: "sprites" (the defaults), "smoke" (self-shadowed, soft), "sparks" (additive,
+// unlit, motion-blurred), "liquid-sprites" (lit droplets coloured by speed), "liquid" (the
+// screen-space surface), "debug" (stored colours, flat, linear). Throws pstream::Error naming
+// the choices for another name.
+DrawStyle look_preset(std::string_view name);
+
 // Where the time of a host frame went (milliseconds, this frame).
 struct FrameStats {
   double stream_ms = 0.0;  // update() of every clip

@@ -8,15 +8,6 @@
 
 namespace pstream::playback {
 
-SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, const render::Vec3& light_direction,
-                   sort::SortMode requested) {
-  if (style.look != render::Look::Sprites || !style.sprites.shadows || requested == sort::SortMode::None ||
-      style.blend == render::BlendMode::Additive) {
-    return {camera_view, requested};
-  }
-  return {render::half_angle(camera_view, light_direction).sort_view, sort::SortMode::FrontToBack};
-}
-
 void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
   const std::span<render::ParticleBatch> batches(batches_.data(), batch_count_);
   render::SpriteStyle sprites = style.sprites;

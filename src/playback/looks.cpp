@@ -1,0 +1,52 @@
+// Looks as a whole: the presets a user picks by name, and the sort order a look needs.
+#include <fmt/format.h>
+
+#include "particlestream/playback.hpp"
+
+namespace pstream::playback {
+
+SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, const render::Vec3& light_direction,
+                   sort::SortMode requested) {
+  if (style.look != render::Look::Sprites || !style.sprites.shadows || requested == sort::SortMode::None ||
+      style.blend == render::BlendMode::Additive) {
+    return {camera_view, requested};
+  }
+  return {render::half_angle(camera_view, light_direction).sort_view, sort::SortMode::FrontToBack};
+}
+
+DrawStyle look_preset(std::string_view name) {
+  DrawStyle s;
+  render::SpriteStyle& p = s.sprites;
+  if (name == "sprites") return s;
+  if (name == "smoke") {  // soft, self-shadowed puffs
+    p.shadows = true;
+    p.slices = 48;
+    p.opacity = 0.55f;
+    p.shadow_density = 1.0f;
+    return s;
+  }
+  if (name == "sparks") {  // additive, glowing, streaked along their motion over half a 24 fps frame
+    s.blend = render::BlendMode::Additive;
+    p.lit = false;
+    p.shutter = 1.0f / 48;
+    return s;
+  }
+  if (name == "liquid-sprites") {  // water as lit droplets, coloured by speed
+    p.color_by = render::ColorBy::Speed;
+    p.ramp = render::Ramp::named("ice", 0.0f, 3.0f);
+    return s;
+  }
+  if (name == "debug") {  // stored colours, flat, untouched by tone or size floors
+    p.lit = false;
+    p.tone_map = render::ToneMap::Linear;
+    p.min_pixels = 0.0f;
+    return s;
+  }
+  if (name == "liquid") {
+    s.look = render::Look::Liquid;
+    return s;
+  }
+  throw Error(fmt::format("look preset '{}': expected sprites, smoke, sparks, liquid-sprites, liquid or debug", name));
+}
+
+}  // namespace pstream::playback
