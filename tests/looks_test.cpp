@@ -274,6 +274,30 @@ TEST_F(LooksTest, AnAdditiveCloudDoesNotClipToWhite) {
   EXPECT_GT(bright, 300);
 }
 
+TEST_F(LooksTest, EachStreamTakesItsTint) {
+  // Two white streams side by side, drawn as one merged order; the second tinted orange.
+  const std::vector<Particle> a = {{-0.8f, 0, 0, 0.4f, rgba(1, 1, 1, 1), 0, 0, 0, 0}};
+  const std::vector<Particle> b = {{0.8f, 0, 0, 0.4f, rgba(1, 1, 1, 1), 0, 0, 0, 0}};
+  std::array<ParticleBatch, 2> batches{batch_of(a), batch_of(b)};
+  batches[1].tint = {1.0f, 0.55f, 0.2f, 1.0f};
+  const std::vector<std::uint32_t> order = {0u, 1u << 28};
+  SpriteStyle style;
+  style.lit = false;
+  style.tone_map = ToneMap::Linear;
+  ctx.bind();
+  renderer->begin_frame(kW, kH, front_camera(), {0, 0, 0, 1});
+  renderer->draw_merged(batches, order, style);
+  renderer->end_frame();
+  const Image img{ctx.read_rgba()};
+  const double px_per_unit = 1.0 / std::tan(22.5 * 3.14159265 / 180) / 5 * kH / 2;
+  const auto left = img.at(int(kW / 2 - 0.8 * px_per_unit), kH / 2), right = img.at(int(kW / 2 + 0.8 * px_per_unit), kH / 2);
+  EXPECT_NEAR(left[0], 255, 3);
+  EXPECT_NEAR(left[2], 255, 3);
+  EXPECT_NEAR(right[0], 255, 3);
+  EXPECT_NEAR(right[1], 0.55 * 255, 4);
+  EXPECT_NEAR(right[2], 0.2 * 255, 4);
+}
+
 // ---- Motion and size ---------------------------------------------------------------------------
 
 TEST_F(LooksTest, MotionBlurLengthIsProportionalToVelocity) {

@@ -45,7 +45,7 @@ json percentiles(std::vector<double> v) {
 
 // A grid of evenly spaced frames, each shrunk by averaging 4x4 pixel blocks.
 void contact_sheet(const std::filesystem::path& frames, std::size_t count, const std::filesystem::path& out) {
-  constexpr int kColumns = 4, kRows = 3, kShrink = 4;
+  constexpr int kColumns = 3, kRows = 3, kShrink = 2;  // thumbnails half the frame: big enough to see
   int w = 0, h = 0;
   render::read_png(frames / "frame_00000.png", w, h);
   const int tw = w / kShrink, th = h / kShrink;

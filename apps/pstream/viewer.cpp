@@ -295,6 +295,9 @@ int run_viewer(const ViewerCli& cli) {
       if (sp.color_by != render::ColorBy::Stored)
         ImGui::DragFloatRange2("Ramp range", &sp.ramp.low, &sp.ramp.high, 0.05f);
       ImGui::Checkbox("Lit (key, fill, rim)", &sp.lit);
+      bool tinted = style.clip_tints[1] != playback::DrawStyle::white_tints()[1];
+      if (player->clip_count() > 1 && ImGui::Checkbox("Tint each clip", &tinted))
+        style.clip_tints = tinted ? playback::DrawStyle::distinct_tints() : playback::DrawStyle::white_tints();
       ImGui::SliderFloat("Opacity", &sp.opacity, 0.0f, 1.0f, "%.2f");
       ImGui::SliderFloat("Motion blur (shutter s)", &sp.shutter, 0.0f, 0.1f, "%.3f");
       ImGui::SliderFloat("Exposure", &sp.exposure, 0.1f, 8.0f, "%.2f", ImGuiSliderFlags_Logarithmic);

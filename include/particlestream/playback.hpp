@@ -61,6 +61,11 @@ struct DrawStyle {
   // light buffer's bounds (the clips' world bounds) and the ground (the backdrop's).
   render::SpriteStyle sprites;
   std::string ramp_attribute;  // a float attribute for ColorBy::Attribute ("age", "temperature")
+  // Per clip (in open order; up to 8): multiplies its colours, to tell overlapping clips apart.
+  std::array<std::array<float, 4>, 8> clip_tints = white_tints();
+  static std::array<std::array<float, 4>, 8> white_tints();
+  // Distinct tints for clips 1.. (clip 0 keeps its colours): a palette for --tint-clips.
+  static std::array<std::array<float, 4>, 8> distinct_tints();
 };
 
 // How advance() should sort for a draw in `style` seen through `camera_view`: for the camera, as

@@ -53,6 +53,7 @@ struct ParticleBatch {
   std::span<const std::uint32_t> order;  // draw order (back to front); empty: stored order
   BlendMode blend = BlendMode::Alpha;
   std::array<float, 4> color{0.45f, 0.65f, 0.95f, 0.9f};  // when the record has no colour
+  std::array<float, 4> tint{1, 1, 1, 1};                  // multiplies this stream's colours (telling streams apart)
   float size_multiplier = 1.0f;
   std::string texture;  // optional sprite image (PNG); empty: the soft round sprite
 };

@@ -14,6 +14,23 @@ SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, cons
   return {render::half_angle(camera_view, light_direction).sort_view, sort::SortMode::FrontToBack};
 }
 
+std::array<std::array<float, 4>, 8> DrawStyle::white_tints() {
+  std::array<std::array<float, 4>, 8> t{};
+  for (auto& c : t) c = {1, 1, 1, 1};
+  return t;
+}
+
+std::array<std::array<float, 4>, 8> DrawStyle::distinct_tints() {
+  return {{{1, 1, 1, 1},
+           {1.0f, 0.55f, 0.35f, 1},
+           {0.45f, 1.0f, 0.5f, 1},
+           {1.0f, 0.9f, 0.35f, 1},
+           {0.85f, 0.5f, 1.0f, 1},
+           {0.4f, 0.95f, 1.0f, 1},
+           {1.0f, 0.5f, 0.75f, 1},
+           {0.7f, 0.7f, 0.7f, 1}}};
+}
+
 DrawStyle look_preset(std::string_view name) {
   DrawStyle s;
   render::SpriteStyle& p = s.sprites;

@@ -21,6 +21,7 @@ void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
     b.size_multiplier = style.size_multiplier;
     if (b.texture != style.texture) b.texture = style.texture;  // set once: no allocation per frame
     const stream::ParticleStream& clip = this->clip(i);
+    b.tint = i < style.clip_tints.size() ? style.clip_tints[i] : std::array<float, 4>{1, 1, 1, 1};
     b.scalar_offset = -1;
     if (!style.ramp_attribute.empty()) {
       for (const format::Attribute& a : clip.layout()) {

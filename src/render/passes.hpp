@@ -30,7 +30,7 @@ struct StagedBatches {
   std::array<GLuint, kMaxBatches> base{}, stride{};
   std::array<GLint, kMaxBatches> color_word{}, velocity_word{}, scalar_word{};
   std::array<float, kMaxBatches> size{};
-  std::array<float, 4 * kMaxBatches> color{};
+  std::array<float, 4 * kMaxBatches> color{}, tint{};
   std::array<float, 16 * kMaxBatches> model_view{};
 };
 

@@ -173,6 +173,7 @@ bool Renderer::Impl::stage(std::span<const ParticleBatch> batches, std::span<con
     s.scalar_word[k] = b.scalar_offset >= 0 ? b.scalar_offset / 4 : -1;
     s.size[k] = b.size_multiplier;
     std::copy(b.color.begin(), b.color.end(), s.color.begin() + 4 * std::ptrdiff_t(k));
+    std::copy(b.tint.begin(), b.tint.end(), s.tint.begin() + 4 * std::ptrdiff_t(k));
     const Mat4 mv = multiply(d.frame.view, b.world);
     std::copy(mv.begin(), mv.end(), s.model_view.begin() + 16 * std::ptrdiff_t(k));
     offset += b.first.size() + b.second.size();

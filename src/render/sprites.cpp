@@ -28,6 +28,7 @@ uniform int u_color_word[kBatches];
 uniform int u_velocity_word[kBatches];
 uniform int u_scalar_word[kBatches];
 uniform vec4 u_color[kBatches];
+uniform vec4 u_batch_tint[kBatches];
 uniform float u_size[kBatches];
 uniform bool u_use_order;
 uniform bool u_merged;                   // order entries are (batch << 28) | index
@@ -77,7 +78,7 @@ void main() {
   }
   if (u_color_by == 1) color.rgb = ramp(length(velocity));
   if (u_color_by == 2 && u_scalar_word[b] >= 0) color.rgb = ramp(word(w + uint(u_scalar_word[b])));
-  color *= u_tint;
+  color *= u_tint * u_batch_tint[b];
   color.a *= u_opacity;
   // Corners of a triangle strip: (-1,-1) (1,-1) (-1,1) (1,1).
   vec2 corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
@@ -275,7 +276,7 @@ Vec3 view_direction(const Mat4& view, const Vec3& world) {  // a direction: no t
 
 struct Uniforms {
   GLint model_view, light_model_view, projection, light_projection, stride, base, color_word, velocity_word,
-      scalar_word, color, size, use_order, merged, first, points, pass, viewport_height, color_by, ramp, ramp_count,
+      scalar_word, color, batch_tint, size, use_order, merged, first, points, pass, viewport_height, color_by, ramp, ramp_count,
       ramp_range, tint, opacity, shutter, min_pixels, cull_below, ground_view, mode, textured, sprite, light_buffer,
       shadows, shadow_blur, light_texel, shadow_density, lit, key, fill;
 };
@@ -343,6 +344,7 @@ SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
                  loc("u_velocity_word"),
                  loc("u_scalar_word"),
                  loc("u_color"),
+                 loc("u_batch_tint"),
                  loc("u_size"),
                  loc("u_use_order"),
                  loc("u_merged"),
@@ -450,6 +452,7 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glUniform1iv(u.velocity_word, n, s.velocity_word.data());
   glUniform1iv(u.scalar_word, n, s.scalar_word.data());
   glUniform4fv(u.color, n, s.color.data());
+  glUniform4fv(u.batch_tint, n, s.tint.data());
   glUniform1fv(u.size, n, s.size.data());
   glUniform1i(u.use_order, what.order_count > 0 ? 1 : 0);
   glUniform1i(u.merged, what.merged ? 1 : 0);
