@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <numeric>
 
 #include <fmt/format.h>
 #include <hwy/targets.h>
@@ -350,6 +351,46 @@ void write_ply(const fs::path& path, const std::vector<std::array<float, 4>>& po
     } else {
       out << p[0] << " " << p[1] << " " << p[2] << " " << p[3] << "\n";
     }
+  }
+}
+
+// A cache without widths: every particle's scale is half the particles' spacing (neighbours just
+// touch), whatever the scene's units.
+TEST(Cook, WithoutWidthsTheScaleIsHalfTheSpacing) {
+  for (const float spacing : {0.002f, 0.5f, 40.0f}) {
+    SCOPED_TRACE(fmt::format("spacing {}", spacing));
+    std::vector<float> p;
+    for (int z = 0; z < 10; ++z)
+      for (int y = 0; y < 10; ++y)
+        for (int x = 0; x < 12; ++x) {  // a jittered grid: spacing within 10 % of `spacing`
+          const float j = 0.05f * spacing * float((x * 7 + y * 3 + z * 5) % 3 - 1);
+          p.insert(p.end(), {float(x) * spacing + j, float(y) * spacing, float(z) * spacing - j});
+        }
+    const fs::path dir = test::fresh_dir();
+    alembic::PointsWriterOptions po;
+    po.widths = false;
+    po.velocities = false;
+    {
+      alembic::ArchiveWriter w(dir / "grid.abc", "test", "a grid without widths", 24.0, 0.0, po);
+      std::vector<std::uint64_t> ids(p.size() / 3);
+      std::iota(ids.begin(), ids.end(), 0);
+      for (int f = 0; f < 3; ++f) {
+        alembic::PointsSample sample;
+        sample.positions = p;
+        sample.ids = ids;
+        w.write_sample(sample);
+      }
+      w.close();
+    }
+    cook::Options o;
+    o.input = dir / "grid.abc";
+    o.output = dir / "grid.pstream";
+    const cook::Report r = cook::cook(o);
+    EXPECT_NEAR(r.default_scale, 0.5 * spacing, 0.08 * spacing);
+    const format::Reader reader = format::Reader::open(o.output);
+    std::vector<float> records(reader.metadata().frames[0].count * 4);
+    reader.read_frame(0, std::as_writable_bytes(std::span(records)));
+    for (std::size_t i = 0; i < records.size(); i += 4) ASSERT_EQ(records[i + 3], float(r.default_scale));
   }
 }
 

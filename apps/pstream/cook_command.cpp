@@ -131,7 +131,9 @@ int run_cook(const CookCli& cli) {
   }
   if (!cli.quiet) {
     if (r.default_scale > 0) {
-      fmt::print(stderr, "note: the source has no widths; every particle got scale {:g} (choose with --scale-from)\n",
+      fmt::print(stderr,
+                 "note: the source has no widths; every particle got scale {:g}, half the particles' median "
+                 "spacing (choose with --scale-from)\n",
                  r.default_scale);
     }
     if (r.dropped_invalid)

@@ -67,7 +67,9 @@ struct Report {
   std::uint64_t frames = 0, chunks = 0, particles = 0, dropped_invalid = 0;
   std::uint64_t input_bytes = 0, stream_bytes = 0, file_bytes = 0;
   double seconds = 0.0;
-  double default_scale = 0.0;  // set when the source had no widths and a default scale was used
+  // Set when the source had no widths: the scale every particle got, half the median
+  // nearest-neighbour spacing of the middle frame (0.01 when that cannot be measured).
+  double default_scale = 0.0;
   std::string object;
   // The particle codec: the positions' bound (absolute), keyframes, and how many particles were
   // predicted from the frame before out of how many could have been.
