@@ -92,7 +92,7 @@ int bench_playback(const BenchPlaybackOptions& options);
 // each flag given on the command line over it (look_style()).
 struct LookCli {
   std::string preset, color_by, ramp, ramp_range, ramp_attribute, tone_map, tint;
-  bool flat = false, tint_clips = false;
+  bool flat = false, tint_clips = false, bounds_box = false;
   render::SpriteStyle sprites;     // the numbers and switches, bound to their flags
   std::vector<std::string> given;  // the flags on the command line
   bool has(std::string_view flag) const;

@@ -156,8 +156,8 @@ int run_demo(const DemoCli& cli) {
   } else if (cli.preset == "smoke") {
     look.preset = "smoke";  // self-shadowed, shadows on the ground
   } else {
-    look.preset = "sprites";  // droplets streaked along their arcs
-    look.sprites.shutter = 1.0f / 60;
+    look.preset = "sprites";  // small droplets streaked along their arcs, over a ground
+    look.sprites.shutter = 1.0f / 30;
     look.given = {"--shutter"};
   }
   const bool window = cli.window || (!cli.headless && std::getenv("DISPLAY") != nullptr);
@@ -205,6 +205,10 @@ int run_demo(const DemoCli& cli) {
   rc.size = cli.size;
   rc.quiet = cli.quiet;
   rc.sprite_look = look;
+  if (cli.preset == "fountain") {
+    rc.size_multiplier = 0.45f;
+    rc.backdrop = "ground";
+  }
   const bool have_ffmpeg = have_program("ffmpeg");
   if (have_ffmpeg) rc.video = (dir / "demo.mp4").string();
   fs::remove_all(rc.out);

@@ -44,6 +44,7 @@ void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
       ->check(CLI::Range(0.0, 1.0));
   cmd.add_flag("--flat", look.flat, "No lighting: each sprite in its colour");
   cmd.add_flag("--tint-clips", look.tint_clips, "Tint each clip after the first differently, to tell them apart");
+  cmd.add_flag("--bounds-box", look.bounds_box, "Draw the clips' bounds as a box");
   cmd.add_option("--shutter", look.sprites.shutter,
                  "Motion blur: seconds of motion each sprite is stretched along (1/48 is half a 24 fps frame); 0: off")
       ->default_val(defaults.shutter)

@@ -74,6 +74,7 @@ void apply_look(const LookCli& cli, playback::DrawStyle& style) {
   if (set("--min-pixels")) s.min_pixels = c.min_pixels;
   if (set("--flat")) s.lit = !cli.flat;
   if (cli.tint_clips) style.clip_tints = playback::DrawStyle::distinct_tints();
+  if (cli.bounds_box) style.bounds_box = true;
   if (!cli.color_by.empty()) s.color_by = render::parse_color_by(cli.color_by);
   if (!cli.ramp_attribute.empty()) {
     style.ramp_attribute = cli.ramp_attribute;

@@ -282,6 +282,8 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::Combo("Look", &ui.look, "Sprites\0Liquid\0");
     if (ui.look == 0) ImGui::Combo("Blend", &ui.blend, "Alpha\0Additive\0Alpha test\0");
     ImGui::Checkbox("Sky and ground grid", &ui.backdrop);
+    ImGui::SameLine();
+    ImGui::Checkbox("Bounds box", &style.bounds_box);
     if (ui.look == 0 && ImGui::TreeNodeEx("Sprites", ImGuiTreeNodeFlags_DefaultOpen)) {
       render::SpriteStyle& sp = style.sprites;
       ImGui::Checkbox("Shadows (half-angle slices)", &sp.shadows);

@@ -57,6 +57,7 @@ struct DrawStyle {
   std::string texture;                       // a sprite image (PNG); empty: the soft round sprite
   render::LiquidStyle liquid;                // Look::Liquid: every clip drawn as one liquid surface
   std::optional<render::Backdrop> backdrop;  // drawn first when set (sky and ground grid)
+  bool bounds_box = false;                   // the clips' world bounds as lines
   // Look::Sprites: colour, light, shadows, motion and tone. draw() fills in what it knows: the
   // light buffer's bounds (the clips' world bounds) and the ground (the backdrop's).
   render::SpriteStyle sprites;

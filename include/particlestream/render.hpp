@@ -210,6 +210,8 @@ class Renderer {
   // The sky and, optionally, the ground grid; call it first in a frame (it replaces the clear
   // colour and writes the ground's depth).
   void draw_backdrop(const Backdrop& backdrop);
+  // The edges of the world box [lo, hi] as lines (context: where the clip can be), depth-tested.
+  void draw_box(const Vec3& lo, const Vec3& hi, const std::array<float, 4>& color);
   void end_frame();                     // fences this frame's buffer region
   const Vec3& light_direction() const;  // RendererOptions::light_direction
   static std::string gl_renderer();

@@ -12,6 +12,7 @@ void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
   const std::span<render::ParticleBatch> batches(batches_.data(), batch_count_);
   render::SpriteStyle sprites = style.sprites;
   const bool fit_bounds = std::all_of(sprites.bounds.begin(), sprites.bounds.end(), [](float v) { return v == 0; });
+  const bool need_box = fit_bounds || style.bounds_box;
   std::array<float, 6> box{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
   for (std::size_t i = 0; i < clip_count(); ++i) {
     const std::ptrdiff_t k = batch_of(i);
@@ -31,7 +32,7 @@ void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
     }
     // The clip's bounds in world space: its box's eight corners through the transform.
     const std::array<float, 6>& m = clip.metadata().bounds;
-    for (int corner = 0; corner < 8 && fit_bounds; ++corner) {
+    for (int corner = 0; corner < 8 && need_box; ++corner) {
       const float x = m[corner & 1 ? 3 : 0], y = m[corner & 2 ? 4 : 1], z = m[corner & 4 ? 5 : 2];
       const render::Mat4& w = b.world;
       const float p[3] = {w[0] * x + w[4] * y + w[8] * z + w[12], w[1] * x + w[5] * y + w[9] * z + w[13],
@@ -42,11 +43,14 @@ void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
       }
     }
   }
-  if (fit_bounds && std::all_of(box.begin(), box.end(), [](float v) { return std::isfinite(v); })) sprites.bounds = box;
+  const bool box_found = std::all_of(box.begin(), box.end(), [](float v) { return std::isfinite(v); });
+  if (fit_bounds && box_found) sprites.bounds = box;
   if (style.backdrop) {
     renderer.draw_backdrop(*style.backdrop);
     if (style.backdrop->ground && !sprites.ground_height) sprites.ground_height = style.backdrop->ground_height;
   }
+  if (style.bounds_box && box_found)
+    renderer.draw_box({box[0], box[1], box[2]}, {box[3], box[4], box[5]}, {0.9f, 0.75f, 0.3f, 0.6f});
   if (style.look == render::Look::Liquid) {  // one surface from every clip; needs no order
     renderer.draw_liquid(batches, style.liquid);
     return;

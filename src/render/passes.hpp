@@ -40,6 +40,11 @@ extern const char* const kFullScreenVertexShader;
 // The sky seen along a world-space direction, shared by the backdrop and the liquid's reflection.
 extern const char* const kSkyFunction;
 
+// This pixel's view ray and where it meets the ground plane y = h (false when it does not), for
+// the full-screen passes that draw the ground or its shadow. Uses the uniforms u_view,
+// u_projection and u_viewport.
+extern const char* const kGroundRayFunction;
+
 class LiquidPass {
  public:
   LiquidPass();
@@ -89,9 +94,12 @@ class BackdropPass {
   BackdropPass(const BackdropPass&) = delete;
   BackdropPass& operator=(const BackdropPass&) = delete;
   void draw(const FrameContext& frame, const Backdrop& backdrop);
+  void draw_box(const FrameContext& frame, const Vec3& lo, const Vec3& hi, const std::array<float, 4>& color);
 
  private:
-  GLuint program_ = 0, vao_ = 0;
+  GLuint program_ = 0, box_program_ = 0, vao_ = 0;
+  GLint u_view_ = -1, u_projection_ = -1, u_viewport_ = -1, u_ground_ = -1, u_ground_height_ = -1, u_grid_ = -1;
+  GLint b_view_projection_ = -1, b_lo_ = -1, b_hi_ = -1, b_color_ = -1;
 };
 
 }  // namespace pstream::render::detail

@@ -241,6 +241,12 @@ void Renderer::draw_backdrop(const Backdrop& backdrop) {
   d.backdrop->draw(d.frame, backdrop);
 }
 
+void Renderer::draw_box(const Vec3& lo, const Vec3& hi, const std::array<float, 4>& color) {
+  Impl& d = *impl_;
+  if (!d.backdrop) d.backdrop = std::make_unique<detail::BackdropPass>();
+  d.backdrop->draw_box(d.frame, lo, hi, color);
+}
+
 void Renderer::end_frame() {
   Impl& d = *impl_;
   d.fences[std::size_t(d.region)] = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);

@@ -5,6 +5,7 @@
 // buffer, which adds the slice's opacity; the ground then takes the light buffer's final shadow.
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 #include <fmt/format.h>
 
@@ -228,10 +229,7 @@ void main() {
 
 // The ground under the light buffer: each pixel's view ray meets the ground plane; where that
 // point is in the light buffer, the scene there darkens by the opacity above it.
-constexpr const char* kGroundShadowFragment = R"(#version 450 core
-uniform mat4 u_view;
-uniform mat4 u_projection;
-uniform vec2 u_viewport;
+constexpr const char* kGroundShadowFragment = R"(
 uniform float u_ground_height;
 uniform mat4 u_light_view_projection;   // world -> the light's clip space
 uniform sampler2D u_light_buffer;
@@ -239,13 +237,10 @@ uniform float u_light_texel;
 uniform float u_strength;
 out vec4 o_color;
 void main() {
-  vec2 ndc = gl_FragCoord.xy / u_viewport * 2.0 - 1.0;
-  mat3 to_world = transpose(mat3(u_view));
-  vec3 eye = -(to_world * u_view[3].xyz);
-  vec3 dir = normalize(to_world * vec3(ndc.x / u_projection[0][0], ndc.y / u_projection[1][1], -1.0));
-  float t = (u_ground_height - eye.y) / dir.y;
-  if (dir.y >= 0.0 || t <= 0.0) discard;
-  vec4 l = u_light_view_projection * vec4(eye + t * dir, 1.0);
+  vec3 dir, hit;
+  float t;
+  if (!ground_ray(u_ground_height, dir, t, hit)) discard;
+  vec4 l = u_light_view_projection * vec4(hit, 1.0);
   vec2 uv = l.xy * 0.5 + 0.5;
   if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) discard;
   float o = 0.0;
@@ -276,9 +271,9 @@ Vec3 view_direction(const Mat4& view, const Vec3& world) {  // a direction: no t
 
 struct Uniforms {
   GLint model_view, light_model_view, projection, light_projection, stride, base, color_word, velocity_word,
-      scalar_word, color, batch_tint, size, use_order, merged, first, points, pass, viewport_height, color_by, ramp, ramp_count,
-      ramp_range, tint, opacity, shutter, min_pixels, cull_below, ground_view, mode, textured, sprite, light_buffer,
-      shadows, shadow_blur, light_texel, shadow_density, lit, key, fill;
+      scalar_word, color, batch_tint, size, use_order, merged, first, points, pass, viewport_height, color_by, ramp,
+      ramp_count, ramp_range, tint, opacity, shutter, min_pixels, cull_below, ground_view, mode, textured, sprite,
+      light_buffer, shadows, shadow_blur, light_texel, shadow_density, lit, key, fill;
 };
 
 }  // namespace
@@ -334,50 +329,32 @@ SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
   d.program = link_program(kVertexShader, kFragmentShader);
   const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
-  d.u = Uniforms{loc("u_model_view"),
-                 loc("u_light_model_view"),
-                 loc("u_projection"),
-                 loc("u_light_projection"),
-                 loc("u_stride_words"),
-                 loc("u_base_words"),
-                 loc("u_color_word"),
-                 loc("u_velocity_word"),
-                 loc("u_scalar_word"),
-                 loc("u_color"),
-                 loc("u_batch_tint"),
-                 loc("u_size"),
-                 loc("u_use_order"),
-                 loc("u_merged"),
-                 loc("u_first"),
-                 loc("u_points"),
-                 loc("u_pass"),
-                 loc("u_viewport_height"),
-                 loc("u_color_by"),
-                 loc("u_ramp"),
-                 loc("u_ramp_count"),
-                 loc("u_ramp_range"),
-                 loc("u_tint"),
-                 loc("u_opacity"),
-                 loc("u_shutter"),
-                 loc("u_min_pixels"),
-                 loc("u_cull_below"),
-                 loc("u_ground_view"),
-                 loc("u_mode"),
-                 loc("u_textured"),
-                 loc("u_sprite"),
-                 loc("u_light_buffer"),
-                 loc("u_shadows"),
-                 loc("u_shadow_blur"),
-                 loc("u_light_texel"),
-                 loc("u_shadow_density"),
-                 loc("u_lit"),
-                 loc("u_key"),
+  d.u = Uniforms{loc("u_model_view"),   loc("u_light_model_view"),
+                 loc("u_projection"),   loc("u_light_projection"),
+                 loc("u_stride_words"), loc("u_base_words"),
+                 loc("u_color_word"),   loc("u_velocity_word"),
+                 loc("u_scalar_word"),  loc("u_color"),
+                 loc("u_batch_tint"),   loc("u_size"),
+                 loc("u_use_order"),    loc("u_merged"),
+                 loc("u_first"),        loc("u_points"),
+                 loc("u_pass"),         loc("u_viewport_height"),
+                 loc("u_color_by"),     loc("u_ramp"),
+                 loc("u_ramp_count"),   loc("u_ramp_range"),
+                 loc("u_tint"),         loc("u_opacity"),
+                 loc("u_shutter"),      loc("u_min_pixels"),
+                 loc("u_cull_below"),   loc("u_ground_view"),
+                 loc("u_mode"),         loc("u_textured"),
+                 loc("u_sprite"),       loc("u_light_buffer"),
+                 loc("u_shadows"),      loc("u_shadow_blur"),
+                 loc("u_light_texel"),  loc("u_shadow_density"),
+                 loc("u_lit"),          loc("u_key"),
                  loc("u_fill")};
   d.composite = link_program(kFullScreenVertexShader, kCompositeFragment);
   d.c_hdr = glGetUniformLocation(d.composite, "u_hdr");
   d.c_exposure = glGetUniformLocation(d.composite, "u_exposure");
   d.c_tone_map = glGetUniformLocation(d.composite, "u_tone_map");
-  d.ground_shadow = link_program(kFullScreenVertexShader, kGroundShadowFragment);
+  const std::string ground_shadow = std::string("#version 450 core\n") + kGroundRayFunction + kGroundShadowFragment;
+  d.ground_shadow = link_program(kFullScreenVertexShader, ground_shadow.c_str());
   const auto gloc = [&](const char* name) { return glGetUniformLocation(d.ground_shadow, name); };
   d.g_view = gloc("u_view");
   d.g_projection = gloc("u_projection");

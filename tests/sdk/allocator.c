@@ -15,6 +15,8 @@
 
 #include <particlestream/particlestream.h>
 
+#include "check.h"
+
 extern void* __libc_malloc(size_t size);
 extern void* __libc_calloc(size_t count, size_t size);
 extern void* __libc_realloc(void* block, size_t size);
@@ -81,15 +83,6 @@ static void count_free(void* user, void* block) {
   __sync_fetch_and_add(&a->frees, 1);
   __libc_free(block);
 }
-
-static int failures = 0;
-#define CHECK(cond)                                                                                             \
-  do {                                                                                                          \
-    if (!(cond)) {                                                                                              \
-      fprintf(stderr, "%s:%d: failed: %s (last error: %s)\n", __FILE__, __LINE__, #cond, pstream_last_error()); \
-      ++failures;                                                                                               \
-    }                                                                                                           \
-  } while (0)
 
 static char paths[4][1024];
 static const char* join(int slot, const char* dir, const char* name) {

@@ -15,24 +15,7 @@
 
 #include <particlestream/particlestream.h>
 
-static int failures = 0;
-
-#define CHECK(cond)                                                                                             \
-  do {                                                                                                          \
-    if (!(cond)) {                                                                                              \
-      fprintf(stderr, "%s:%d: failed: %s (last error: %s)\n", __FILE__, __LINE__, #cond, pstream_last_error()); \
-      ++failures;                                                                                               \
-    }                                                                                                           \
-  } while (0)
-
-/* The call returns `code` and leaves a message naming `fragment`. */
-#define EXPECT_ERROR(call, code, fragment)                                                              \
-  do {                                                                                                  \
-    const pstream_result r_ = (call);                                                                   \
-    CHECK(r_ == (code));                                                                                \
-    CHECK(strstr(pstream_last_error(), (fragment)) != NULL);                                            \
-    if (r_ != (code)) fprintf(stderr, "  got %s: %s\n", pstream_result_name(r_), pstream_last_error()); \
-  } while (0)
+#include "check.h"
 
 static char path_buffer[8][1024];
 static const char* join(int slot, const char* dir, const char* name) {
