@@ -16,6 +16,7 @@
 
 #include "cli_terms.hpp"
 #include "commands.hpp"
+#include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
@@ -32,6 +33,43 @@ render::Vec3 parse_vec3(const std::string& text) {
   char comma = 0;
   if (!(in >> v[0] >> comma >> v[1] >> comma >> v[2])) throw Error(fmt::format("'{}': expected x,y,z", text));
   return v;
+}
+
+// What the automatic camera frames: per axis, the 0.5th to 99.5th percentile of the particles'
+// positions in four frames of each clip (a quarter, half, three quarters, the end), so that a few
+// stray particles do not shrink the clip to a corner of the picture. The clips' whole bounds when
+// that finds nothing.
+std::array<float, 6> framing_bounds(const std::vector<std::filesystem::path>& files, std::array<float, 6> whole) {
+  std::array<std::vector<float>, 3> axes;
+  for (const auto& file : files) {
+    const format::Reader reader = format::Reader::open(file);
+    const format::Metadata& m = reader.metadata();
+    std::vector<std::byte> records;
+    for (const double at : {0.25, 0.5, 0.75, 1.0}) {
+      if (m.frame_count() == 0) break;
+      const auto f = std::min<std::uint64_t>(m.frame_count() - 1, std::uint64_t(at * double(m.frame_count() - 1)));
+      records.resize(m.frames[f].count * m.record_size);
+      reader.read_frame(f, records);
+      const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
+      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) {
+        float p[3];
+        std::memcpy(p, records.data() + i * m.record_size, sizeof p);
+        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))
+          for (int a = 0; a < 3; ++a) axes[std::size_t(a)].push_back(p[a]);
+      }
+    }
+  }
+  if (axes[0].size() < 16) return whole;
+  std::array<float, 6> box{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    auto& v = axes[a];
+    const auto lo = v.begin() + std::ptrdiff_t(v.size() / 200), hi = v.begin() + std::ptrdiff_t(v.size() - 1 - v.size() / 200);
+    std::nth_element(v.begin(), lo, v.end());
+    box[a] = *lo;
+    std::nth_element(v.begin(), hi, v.end());
+    box[a + 3] = *hi;
+  }
+  return box;
 }
 
 }  // namespace
@@ -182,7 +220,8 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
-  const render::Camera camera = camera_for(cli.camera, bounds, float(width) / float(height));
+  const render::Camera camera =
+      camera_for(cli.camera, cli.camera == "auto" ? framing_bounds(files, bounds) : bounds, float(width) / float(height));
   // Only alpha-blended sprites depend on the order (along the half-angle with shadows).
   const sort::SortMode requested = style.look != render::Look::Sprites || style.blend != render::BlendMode::Alpha
                                        ? sort::SortMode::None
