@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include "particlestream/render.hpp"
+#include "passes.hpp"
 
 namespace pstream::render {
 namespace {
@@ -95,6 +96,16 @@ Backdrop Backdrop::under(const Vec3& lo, const Vec3& hi) {
   b.grid_spacing = decade * (m < 1.5f ? 1.0f : m < 3.5f ? 2.0f : m < 7.5f ? 5.0f : 10.0f);
   return b;
 }
+
+namespace detail {
+
+Vec3 view_direction(const Mat4& view, const Vec3& world) {
+  return normalize({view[0] * world[0] + view[4] * world[1] + view[8] * world[2],
+                    view[1] * world[0] + view[5] * world[1] + view[9] * world[2],
+                    view[2] * world[0] + view[6] * world[1] + view[10] * world[2]});
+}
+
+}  // namespace detail
 
 HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction) {
   // The camera's forward axis in world space (the view matrix's third row, negated), and the

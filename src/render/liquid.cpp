@@ -296,12 +296,25 @@ struct Uniforms {
   GLint model_view, projection, base, stride, size, velocity_word, fixed_radius, pass, thickness, foam_speed,
       foam_thickness;
 };
+struct FilterUniforms {
+  GLint radius_at_1, range, clamp, mode, size, depth, step;
+};
+struct NormalUniforms {
+  GLint depth, size, projection;
+};
+struct CompositeUniforms {
+  GLint depth, normal, thickness, scene, viewport, liquid_size, projection, view, light, color, absorb, color_depth,
+      refraction, output;
+};
 
 }  // namespace
 
 struct LiquidPass::Impl {
   GLuint splat = 0, filter = 0, normals = 0, composite = 0, vao = 0, depth_buffer = 0;
   Uniforms su{};
+  FilterUniforms fu{};
+  NormalUniforms nu{};
+  CompositeUniforms cu{};
   Target raw, smooth[2], thickness, normal, scene;
   const Target* smoothed = &raw;  // the last filter output
   int width = 0, height = 0, liquid_width = 0, liquid_height = 0;
@@ -347,6 +360,15 @@ LiquidPass::LiquidPass() : impl_(std::make_unique<Impl>()) {
   d.su = {loc("u_model_view"), loc("u_projection"),    loc("u_base"),          loc("u_stride"),
           loc("u_size"),       loc("u_velocity_word"), loc("u_fixed_radius"),  loc("u_pass"),
           loc("u_thickness"),  loc("u_foam_speed"),    loc("u_foam_thickness")};
+  const auto in = [](GLuint program, const char* name) { return glGetUniformLocation(program, name); };
+  d.fu = {in(d.filter, "u_radius_at_1"), in(d.filter, "u_range"), in(d.filter, "u_clamp"), in(d.filter, "u_mode"),
+          in(d.filter, "u_size"),        in(d.filter, "u_depth"), in(d.filter, "u_step")};
+  d.nu = {in(d.normals, "u_depth"), in(d.normals, "u_size"), in(d.normals, "u_projection")};
+  d.cu = {in(d.composite, "u_depth"),      in(d.composite, "u_normal"),   in(d.composite, "u_thickness"),
+          in(d.composite, "u_scene"),      in(d.composite, "u_viewport"), in(d.composite, "u_liquid_size"),
+          in(d.composite, "u_projection"), in(d.composite, "u_view"),     in(d.composite, "u_light"),
+          in(d.composite, "u_color"),      in(d.composite, "u_absorb"),   in(d.composite, "u_color_depth"),
+          in(d.composite, "u_refraction"), in(d.composite, "u_output")};
 }
 
 LiquidPass::~LiquidPass() {
@@ -416,23 +438,22 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   const int iterations = style.filter == LiquidFilter::None ? 0 : std::clamp(style.iterations, 0, 8);
   if (iterations > 0) {
     glUseProgram(d.filter);
-    const auto loc = [&](const char* name) { return glGetUniformLocation(d.filter, name); };
     // The radius in pixels at distance 1: a world length through the projection's focal length.
-    glUniform1f(loc("u_radius_at_1"), style.smoothing * radius * frame.projection[5] * 0.5f * float(lh));
-    glUniform1f(loc("u_range"), std::max(style.depth_range, 0.01f) * radius);
-    glUniform1f(loc("u_clamp"), 0.5f * radius);
-    glUniform1i(loc("u_mode"), style.filter == LiquidFilter::NarrowRange ? 0
-                               : style.filter == LiquidFilter::Bilateral ? 1
-                                                                         : 2);
-    glUniform2i(loc("u_size"), lw, lh);
-    glUniform1i(loc("u_depth"), 0);
+    glUniform1f(d.fu.radius_at_1, style.smoothing * radius * frame.projection[5] * 0.5f * float(lh));
+    glUniform1f(d.fu.range, std::max(style.depth_range, 0.01f) * radius);
+    glUniform1f(d.fu.clamp, 0.5f * radius);
+    glUniform1i(d.fu.mode, style.filter == LiquidFilter::NarrowRange ? 0
+                           : style.filter == LiquidFilter::Bilateral ? 1
+                                                                     : 2);
+    glUniform2i(d.fu.size, lw, lh);
+    glUniform1i(d.fu.depth, 0);
     for (int i = 0; i < iterations; ++i) {
       for (int pass = 0; pass < 2; ++pass) {  // the axes alternate in order, so neither leaves streaks last
         const int axis = (pass + i) % 2;
         const Target& out = d.smooth[pass];
         glBindFramebuffer(GL_FRAMEBUFFER, out.framebuffer);
         glBindTextureUnit(0, d.smoothed->texture);
-        glUniform2i(loc("u_step"), axis == 0 ? 1 : 0, axis == 0 ? 0 : 1);
+        glUniform2i(d.fu.step, axis == 0 ? 1 : 0, axis == 0 ? 0 : 1);
         glDrawArrays(GL_TRIANGLES, 0, 3);
         d.smoothed = &out;
       }
@@ -442,9 +463,9 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   // 4. Normals from the smoothed depth.
   glBindFramebuffer(GL_FRAMEBUFFER, d.normal.framebuffer);
   glUseProgram(d.normals);
-  glUniform1i(glGetUniformLocation(d.normals, "u_depth"), 0);
-  glUniform2i(glGetUniformLocation(d.normals, "u_size"), lw, lh);
-  glUniformMatrix4fv(glGetUniformLocation(d.normals, "u_projection"), 1, GL_FALSE, frame.projection.data());
+  glUniform1i(d.nu.depth, 0);
+  glUniform2i(d.nu.size, lw, lh);
+  glUniformMatrix4fv(d.nu.projection, 1, GL_FALSE, frame.projection.data());
   glBindTextureUnit(0, d.smoothed->texture);
   glDrawArrays(GL_TRIANGLES, 0, 3);
 
@@ -454,29 +475,28 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
   glViewport(0, 0, frame.width, frame.height);
   glUseProgram(d.composite);
-  const auto loc = [&](const char* name) { return glGetUniformLocation(d.composite, name); };
-  glUniform1i(loc("u_depth"), 0);
-  glUniform1i(loc("u_normal"), 1);
-  glUniform1i(loc("u_thickness"), 2);
-  glUniform1i(loc("u_scene"), 3);
+  glUniform1i(d.cu.depth, 0);
+  glUniform1i(d.cu.normal, 1);
+  glUniform1i(d.cu.thickness, 2);
+  glUniform1i(d.cu.scene, 3);
   glBindTextureUnit(0, d.smoothed->texture);
   glBindTextureUnit(1, d.normal.texture);
   glBindTextureUnit(2, d.thickness.texture);
   glBindTextureUnit(3, d.scene.texture);
-  glUniform2f(loc("u_viewport"), float(frame.width), float(frame.height));
-  glUniform2f(loc("u_liquid_size"), float(lw), float(lh));
-  glUniformMatrix4fv(loc("u_projection"), 1, GL_FALSE, frame.projection.data());
-  glUniformMatrix4fv(loc("u_view"), 1, GL_FALSE, frame.view.data());
-  glUniform3fv(loc("u_light"), 1, frame.light_view.data());
+  glUniform2f(d.cu.viewport, float(frame.width), float(frame.height));
+  glUniform2f(d.cu.liquid_size, float(lw), float(lh));
+  glUniformMatrix4fv(d.cu.projection, 1, GL_FALSE, frame.projection.data());
+  glUniformMatrix4fv(d.cu.view, 1, GL_FALSE, frame.view.data());
+  glUniform3fv(d.cu.light, 1, frame.light_view.data());
   const float color_depth = std::max(style.color_depth, 0.01f) * radius;
   std::array<float, 3> absorb{};
   for (int c = 0; c < 3; ++c)
     absorb[std::size_t(c)] = -std::log(std::clamp(style.color[std::size_t(c)], 1e-3f, 1.0f)) / color_depth;
-  glUniform3fv(loc("u_color"), 1, style.color.data());
-  glUniform3fv(loc("u_absorb"), 1, absorb.data());
-  glUniform1f(loc("u_color_depth"), color_depth);
-  glUniform1f(loc("u_refraction"), std::clamp(style.refraction, 0.0f, 4.0f));
-  glUniform1i(loc("u_output"), int(style.output));
+  glUniform3fv(d.cu.color, 1, style.color.data());
+  glUniform3fv(d.cu.absorb, 1, absorb.data());
+  glUniform1f(d.cu.color_depth, color_depth);
+  glUniform1f(d.cu.refraction, std::clamp(style.refraction, 0.0f, 4.0f));
+  glUniform1i(d.cu.output, int(style.output));
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
   glDepthMask(GL_TRUE);

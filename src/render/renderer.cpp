@@ -105,14 +105,8 @@ void Renderer::begin_frame(int width, int height, const Camera& camera, const st
   d.frame.projection = camera.projection(float(width) / float(std::max(height, 1)));
   d.frame.width = std::max(width, 1);
   d.frame.height = std::max(height, 1);
-  // The light in view space (a direction: no translation).
   const Vec3& l = d.options.light_direction;
-  const Mat4& v = d.frame.view;
-  Vec3 lv{v[0] * l[0] + v[4] * l[1] + v[8] * l[2], v[1] * l[0] + v[5] * l[1] + v[9] * l[2],
-          v[2] * l[0] + v[6] * l[1] + v[10] * l[2]};
-  const float len = std::sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]);
-  for (float& c : lv) c /= len > 0 ? len : 1.0f;
-  d.frame.light_view = lv;
+  d.frame.light_view = detail::view_direction(d.frame.view, l);
   const float lw = std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
   d.frame.light_world = lw > 0 ? Vec3{l[0] / lw, l[1] / lw, l[2] / lw} : Vec3{0, 1, 0};
   glViewport(0, 0, width, height);

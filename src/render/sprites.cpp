@@ -260,15 +260,6 @@ Mat4 orthographic(float half_width, float near, float far) {
   return m;
 }
 
-Vec3 view_direction(const Mat4& view, const Vec3& world) {  // a direction: no translation
-  Vec3 v{view[0] * world[0] + view[4] * world[1] + view[8] * world[2],
-         view[1] * world[0] + view[5] * world[1] + view[9] * world[2],
-         view[2] * world[0] + view[6] * world[1] + view[10] * world[2]};
-  const float len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-  for (float& c : v) c /= len > 0 ? len : 1.0f;
-  return v;
-}
-
 struct Uniforms {
   GLint model_view, light_model_view, projection, light_projection, stride, base, color_word, velocity_word,
       scalar_word, color, batch_tint, size, use_order, merged, first, points, pass, viewport_height, color_by, ramp,
@@ -516,7 +507,8 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
     } else {
       glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(end - first));
     }
-    if (!shadows || k + 1 == slices) continue;  // the last slice shadows nothing after it
+    // The last slice shadows no slice after it, only the ground (when there is one).
+    if (!shadows || (k + 1 == slices && !style.ground_height)) continue;
     glBindFramebuffer(GL_FRAMEBUFFER, d.light_framebuffer);
     glViewport(0, 0, light_size, light_size);
     glEnable(GL_BLEND);
@@ -530,19 +522,7 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
   glViewport(0, 0, frame.width, frame.height);
   glBindVertexArray(d.vao);
-  if (shadows && style.ground_height) {
-    // The last slice's opacity too, then the ground's shadow under all of it.
-    const std::uint64_t first = total * std::uint64_t(slices - 1) / std::uint64_t(slices);
-    glBindFramebuffer(GL_FRAMEBUFFER, d.light_framebuffer);
-    glViewport(0, 0, light_size, light_size);
-    glEnable(GL_BLEND);
-    glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
-    glUniform1ui(u.first, GLuint(first));
-    glUniform1i(u.pass, 1);
-    glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(total - first));
-    glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
-    glViewport(0, 0, frame.width, frame.height);
-
+  if (shadows && style.ground_height) {  // the ground's shadow under every slice
     glUseProgram(d.ground_shadow);
     glUniformMatrix4fv(d.g_view, 1, GL_FALSE, frame.view.data());
     glUniformMatrix4fv(d.g_projection, 1, GL_FALSE, frame.projection.data());
