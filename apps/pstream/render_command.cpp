@@ -63,7 +63,8 @@ std::array<float, 6> framing_bounds(const std::vector<std::filesystem::path>& fi
   std::array<float, 6> box{};
   for (std::size_t a = 0; a < 3; ++a) {
     auto& v = axes[a];
-    const auto lo = v.begin() + std::ptrdiff_t(v.size() / 200), hi = v.begin() + std::ptrdiff_t(v.size() - 1 - v.size() / 200);
+    const auto lo = v.begin() + std::ptrdiff_t(v.size() / 200),
+               hi = v.begin() + std::ptrdiff_t(v.size() - 1 - v.size() / 200);
     std::nth_element(v.begin(), lo, v.end());
     box[a] = *lo;
     std::nth_element(v.begin(), hi, v.end());
@@ -220,13 +221,10 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
-  const render::Camera camera =
-      camera_for(cli.camera, cli.camera == "auto" ? framing_bounds(files, bounds) : bounds, float(width) / float(height));
-  // Only alpha-blended sprites depend on the order (along the half-angle with shadows).
-  const sort::SortMode requested = style.look != render::Look::Sprites || style.blend != render::BlendMode::Alpha
-                                       ? sort::SortMode::None
-                                       : sort::parse_sort_mode(cli.sort);
-  const playback::SortPlan plan = playback::sort_plan(style, camera.view(), renderer.light_direction(), requested);
+  const render::Camera camera = camera_for(cli.camera, cli.camera == "auto" ? framing_bounds(files, bounds) : bounds,
+                                           float(width) / float(height));
+  const playback::SortPlan plan =
+      playback::sort_plan(style, camera.view(), renderer.light_direction(), sort::parse_sort_mode(cli.sort));
 
   if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
   player->set_range(t0, t1);

@@ -233,9 +233,7 @@ int run_viewer(const ViewerCli& cli) {
     } else {
       style.backdrop.reset();
     }
-    const bool sorting =
-        style.look == render::Look::Sprites && ui.sort_mode != 0 && style.blend == render::BlendMode::Alpha;
-    const sort::SortMode mode = !sorting            ? sort::SortMode::None
+    const sort::SortMode mode = ui.sort_mode == 0   ? sort::SortMode::None
                                 : ui.sort_mode == 1 ? sort::SortMode::BackToFront
                                                     : sort::SortMode::FrontToBack;
     // The library's playback layer: every clip advanced, sorted (several clips together, so where

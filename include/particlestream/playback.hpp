@@ -69,9 +69,10 @@ struct DrawStyle {
   static std::array<std::array<float, 4>, 8> distinct_tints();
 };
 
-// How advance() should sort for a draw in `style` seen through `camera_view`: for the camera, as
-// `requested`, or, for self-shadowed sprites, front to back along the half-angle between the
-// view and the light (render::half_angle), which the slices need.
+// How advance() should sort for a draw in `style` seen through `camera_view`: not at all unless
+// the style draws alpha-blended sprites (the only look that depends on the order); for the
+// camera, as `requested`; or, for self-shadowed sprites, front to back along the half-angle
+// between the view and the light (render::half_angle), which the slices need.
 struct SortPlan {
   render::Mat4 view = render::identity();
   sort::SortMode mode = sort::SortMode::BackToFront;

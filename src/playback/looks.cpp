@@ -7,10 +7,12 @@ namespace pstream::playback {
 
 SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, const render::Vec3& light_direction,
                    sort::SortMode requested) {
-  if (style.look != render::Look::Sprites || !style.sprites.shadows || requested == sort::SortMode::None ||
-      style.blend == render::BlendMode::Additive) {
-    return {camera_view, requested};
+  // Only alpha-blended sprites depend on the order: additive light and alpha-tested cut-outs do
+  // not, nor does the liquid's surface.
+  if (style.look != render::Look::Sprites || style.blend != render::BlendMode::Alpha) {
+    return {camera_view, sort::SortMode::None};
   }
+  if (!style.sprites.shadows || requested == sort::SortMode::None) return {camera_view, requested};
   return {render::half_angle(camera_view, light_direction).sort_view, sort::SortMode::FrontToBack};
 }
 
