@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Bounded libFuzzer run of every reader of untrusted bytes, seeded with the test fixtures.
 #   FUZZ_SECONDS (default 30) per target.
-# Expects `scripts/build.sh fuzz` to have built build-fuzz/.
+# Expects `scripts/build.sh check` to have built build-check/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${FUZZ_SECONDS:-25}
@@ -15,7 +15,7 @@ run_target() {  # name, seed files...
   cp "$@" "$corpus/"
   echo "fuzz: $name for ${seconds}s from $# seeds"
   # Crash reproducers land in the work directory; libFuzzer exits non-zero on any finding.
-  if ! "build-fuzz/tests/fuzz/$name" "$corpus" -max_total_time="$seconds" -max_len=1048576 -timeout=10 \
+  if ! "build-check/tests/fuzz/$name" "$corpus" -max_total_time="$seconds" -max_len=1048576 -timeout=10 \
       -rss_limit_mb=2048 -artifact_prefix="$work/" -print_final_stats=1 >"$work/$name.log" 2>&1; then
     tail -n 60 "$work/$name.log"
     mkdir -p fuzz-findings && cp "$work"/crash-* "$work"/timeout-* "$work"/oom-* fuzz-findings/ 2>/dev/null || true
@@ -33,9 +33,9 @@ run_target fuzz_alembic $seeds
 mkdir -p "$work/pstream-seeds"
 for codec in raw lz4 zstd particle particle-lossless; do
   for fixture in points_widths_constant points_empty_frames; do
-    build-fuzz/apps/pstream/pstream cook -q "tests/data/alembic/$fixture.abc" --chunk-size 64KiB --codec $codec \
+    build-check/apps/pstream/pstream cook -q "tests/data/alembic/$fixture.abc" --chunk-size 64KiB --codec $codec \
       --attributes velocity,id -o "$work/pstream-seeds/$fixture-$codec.pstream" 2>/dev/null ||
-      build-fuzz/apps/pstream/pstream cook -q "tests/data/alembic/$fixture.abc" --chunk-size 64KiB --codec $codec \
+      build-check/apps/pstream/pstream cook -q "tests/data/alembic/$fixture.abc" --chunk-size 64KiB --codec $codec \
         -o "$work/pstream-seeds/$fixture-$codec.pstream"
   done
 done
@@ -43,7 +43,7 @@ run_target fuzz_pstream "$work"/pstream-seeds/*.pstream
 
 # Particle-codec bodies, from the encoder itself.
 mkdir -p "$work/particle-seeds"
-build-fuzz/tests/fuzz/fuzz_particle_seeds "$work/particle-seeds"
+build-check/tests/fuzz/fuzz_particle_seeds "$work/particle-seeds"
 run_target fuzz_particle "$work"/particle-seeds/*
 
 # PLY files: the test suite's sequences and a few written here (ascii, binary, with faces after).

@@ -25,6 +25,7 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;  // a clip of no frames plays none
   std::sort(v.begin(), v.end());
   return v[std::min(v.size() - 1, static_cast<std::size_t>(q * double(v.size())))];
 }
@@ -128,7 +129,9 @@ int bench_stream(const BenchStreamOptions& o) {
   const auto prime_start = Clock::now();
   const auto primed = [&] {
     const stream::DebugInfo d = s->debug();
-    return d.loads_done >= d.slots.size() && d.decoded_ready + 1 >= d.decoded_slots;
+    // Every slot loaded once (a clip of empty frames has no chunk to load), and the decoded ring full.
+    return d.loads_done >= std::min<std::uint64_t>(d.slots.size(), m.chunk_count()) &&
+           d.decoded_ready + 1 >= d.decoded_slots;
   };
   while (!primed() && s->state() != stream::PlayState::Error && Clock::now() - prime_start < std::chrono::seconds(30)) {
     s->update(0);
@@ -169,23 +172,25 @@ int bench_stream(const BenchStreamOptions& o) {
   if (s->state() == stream::PlayState::Error) throw Error(s->error());
   const auto d = s->debug();
   const double frame_med = percentile(frame_ms, 0.5), copy_med = percentile(memcpy_ms, 0.5);
+  // A clip of empty frames stores nothing: its per-byte figures are 0, not 0/0.
+  const auto per = [](double a, double b) { return b > 0.0 ? a / b : 0.0; };
   nlohmann::ordered_json j{{"file", o.file.empty() ? "generated" : o.file},
                            {"particles_per_frame", m.max_count},
                            {"frame_bytes", m.max_count * m.record_size},
                            {"frames_played", total},
                            {"cache_slots", d.slots.size()},
                            {"codec", std::string(format::frame_codec_name(m.codec.codec))},
-                           {"stored_bytes_per_particle", double(m.stream_size()) / double(m.total_particles())},
+                           {"stored_bytes_per_particle", per(double(m.stream_size()), double(m.total_particles()))},
                            {"cache_bytes", d.cache_bytes},
                            {"decode_bytes", d.decode_bytes},
-                           {"cache_seconds", double(d.slots.size() * m.chunk_size) / double(m.stream_size()) *
+                           {"cache_seconds", per(double(d.slots.size() * m.chunk_size), double(m.stream_size())) *
                                                  double(m.frame_count()) / m.fps},
                            {"decode_ms_total", d.decode_ms},
                            {"frames_decoded", d.frames_decoded},
                            {"frame_ms_median", frame_med},
                            {"frame_ms_p99", percentile(frame_ms, 0.99)},
                            {"memcpy_ms_median", copy_med},
-                           {"ratio", frame_med / copy_med},
+                           {"ratio", per(frame_med, copy_med)},
                            {"stalls", d.stalls},
                            {"io_ms_total", d.io_ms},
                            {"bytes_read", d.bytes_read}};

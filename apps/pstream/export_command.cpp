@@ -130,7 +130,7 @@ int run_export(const ExportCli& cli) {
         a.name == "position" || a.name == "scale" || a.name == "velocity" || a.name == "id" || a.name == "color";
     if (!known && a.type == AttributeType::Float32) c.float_attributes.push_back(&a);
   }
-  std::vector<std::byte> records(m.max_count * m.record_size);
+  std::vector<std::byte> records = format::frame_buffer(m, cli.file);
   ProgressBar bar("export", !cli.quiet);
   if (!cli.out.empty()) {
     if (fs::exists(cli.out) && !fs::is_directory(cli.out))

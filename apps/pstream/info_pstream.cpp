@@ -162,7 +162,7 @@ int info_pstream(const InfoPstreamOptions& options) {
         {"frame_codec", codec_json(m)}};
     if (options.frames) {
       json frames = json::array();
-      std::vector<std::byte> buffer(m.max_count * m.record_size);
+      std::vector<std::byte> buffer = format::frame_buffer(m, options.file);
       for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
         reader.read_frame(f, buffer);
         double sum[4] = {0, 0, 0, 0};
@@ -254,7 +254,7 @@ json compare_with_source(const Reader& reader, const std::string& source, std::v
         fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source, sm.record_size, m.record_size));
     return json::object();
   }
-  std::vector<std::byte> a(m.max_count * m.record_size), b(sm.max_count * sm.record_size);
+  std::vector<std::byte> a = format::frame_buffer(m, reader.name()), b = format::frame_buffer(sm, source);
   FrameComparison c;
   std::uint64_t s = 0, compared = 0;
   for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
@@ -317,7 +317,7 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
     }
     // Every frame decodes (in order: a predicted frame needs the one before it).
     if (errors.empty()) {
-      std::vector<std::byte> records(m.max_count * m.record_size);
+      std::vector<std::byte> records = format::frame_buffer(m, file);
       for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
         try {
           reader.read_frame(f, records);

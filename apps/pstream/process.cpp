@@ -1,7 +1,8 @@
 #include "process.hpp"
 
 #include <fcntl.h>
-#include <spawn.h>
+#include <signal.h>
+#include <sys/prctl.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -14,9 +15,8 @@
 
 #include <fmt/format.h>
 
+#include "base/output_file.hpp"
 #include "particlestream/error.hpp"
-
-extern char** environ;
 
 namespace pstream::app {
 
@@ -38,13 +38,23 @@ ProgramResult run_program(const std::vector<std::string>& argv, bool capture, bo
   int pipe_fds[2] = {-1, -1};
   if (capture && ::pipe2(pipe_fds, O_CLOEXEC) != 0)
     throw Error(fmt::format("cannot run {}: {}", argv[0], std::strerror(errno)));
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  if (capture) posix_spawn_file_actions_adddup2(&actions, pipe_fds[1], STDOUT_FILENO);
-  if (quiet) posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, "/dev/null", O_WRONLY, 0);
-  pid_t pid = 0;
-  const int spawned = ::posix_spawnp(&pid, argv[0].c_str(), &actions, nullptr, args.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
+  // fork + exec rather than posix_spawn, for one call in between: the child is SIGKILLed when
+  // this thread ends (a SIGKILL of pstream included), so no ffmpeg runs on as an orphan.
+  // Between fork and exec only async-signal-safe calls.
+  const pid_t parent = ::getpid();
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (::getppid() != parent) ::_exit(127);  // the parent is already gone
+    if (capture) ::dup2(pipe_fds[1], STDOUT_FILENO);
+    if (quiet) {
+      const int null = ::open("/dev/null", O_WRONLY);
+      if (null >= 0) ::dup2(null, STDERR_FILENO);
+    }
+    ::execvp(args[0], args.data());
+    ::_exit(127);
+  }
+  const int spawned = pid < 0 ? errno : 0;
   if (capture) ::close(pipe_fds[1]);
   if (spawned != 0) {
     if (capture) ::close(pipe_fds[0]);
@@ -77,10 +87,11 @@ void encode_video(const std::string& frames_dir, double fps, const std::string& 
                     "ffmpeg); the PNG frames are in {}",
                     video, frames_dir));
   }
-  // ffmpeg writes the file in place: give it a temporary beside the video and rename when done.
-  const std::filesystem::path out(video);
-  const std::filesystem::path temp =
-      out.parent_path() / fmt::format(".{}.partial-{}{}", out.stem().string(), ::getpid(), out.extension().string());
+  // ffmpeg writes the file in place: it writes our locked temporary beside the video (removed on
+  // signals, recognised after a SIGKILL like every other), which is renamed when done.
+  OutputFile out = OutputFile::create(video);
+  const std::filesystem::path temp = out.temporary();
+  if (temp.empty()) throw Error(fmt::format("{}: a video is written to a regular file", video));
   const ProgramResult r =
       run_program({"ffmpeg", "-nostdin", "-y", "-loglevel", "error", "-framerate", fmt::format("{}", fps), "-i",
                    (std::filesystem::path(frames_dir) / "frame_%05d.png").string(), "-c:v", "libx264", "-pix_fmt",
@@ -88,17 +99,10 @@ void encode_video(const std::string& frames_dir, double fps, const std::string& 
   struct stat st {};
   const bool written = ::stat(temp.c_str(), &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0;
   if (r.exit_code != 0 || !written) {
-    std::error_code ec;
-    std::filesystem::remove(temp, ec);
     throw Error(fmt::format("{}: ffmpeg could not write the video (exit code {}); the PNG frames are in {}", video,
                             r.exit_code, frames_dir));
   }
-  if (::rename(temp.c_str(), out.c_str()) != 0) {
-    const int err = errno;
-    std::error_code ec;
-    std::filesystem::remove(temp, ec);
-    throw Error(fmt::format("{}: cannot rename {} over it: {}", video, temp.string(), std::strerror(err)));
-  }
+  out.commit();
 }
 
 }  // namespace pstream::app

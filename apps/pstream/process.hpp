@@ -1,5 +1,5 @@
 // Running other programs (ffmpeg, this pstream for `bench all`) without a shell: an argument
-// vector goes straight to posix_spawnp, so no path or option is ever parsed as shell syntax.
+// vector goes straight to execvp, so no path or option is ever parsed as shell syntax.
 #pragma once
 
 #include <string>
@@ -15,7 +15,8 @@ struct ProgramResult {
   std::string output;  // its standard output, when captured
 };
 // Runs argv[0] (looked up in PATH) with `argv` and waits. With `capture`, its standard output
-// is returned (standard error is left to ours, or discarded with `quiet`).
+// is returned (standard error is left to ours, or discarded with `quiet`). The program is killed
+// if the calling thread ends first (PR_SET_PDEATHSIG): it never outlives pstream.
 ProgramResult run_program(const std::vector<std::string>& argv, bool capture = false, bool quiet = false);
 
 // This executable's path (to run pstream's own subcommands).

@@ -250,8 +250,10 @@ class Archive {
   ArchiveInfo info() const;
   const std::vector<TimeSampling>& time_samplings() const;
   const TimeSampling& time_sampling(std::uint32_t index) const;
-  // Earliest and latest sample time of the archive, as Abc::GetArchiveStartAndEndTime: when no
-  // property has a sample, start = +DBL_MAX and end = -DBL_MAX.
+  // Earliest and latest sample time of the archive, as Abc::GetArchiveStartAndEndTime: from the
+  // non-default samplings with several samples; failing those, from the ones with one sample;
+  // failing those, from the default sampling. When no property has a sample, start = +DBL_MAX
+  // and end = -DBL_MAX.
   std::pair<double, double> start_end_time() const;
   // Throws pstream::Error when the file was truncated while this archive read it (the reads past
   // the new end saw zeros; see MappedFile). Call it before trusting what was read.

@@ -155,8 +155,11 @@ std::size_t match_by_id(const Metadata& meta, std::span<const std::byte> prev, s
 // attribute and the offset in the packet; nothing is ever written outside `out`.
 class FrameDecoder {
  public:
-  // Allocates all decoding state for the clip's largest frame (the only allocation).
-  FrameDecoder(const Metadata& meta, std::string name);
+  // Allocates all decoding state for the clip's largest frame (the only allocation). State that
+  // would exceed `memory_limit` bytes (0: unbudgeted_memory_limit(meta), what the clip's stored
+  // bytes justify) is refused before anything is allocated, with an OptionError("budget") that
+  // names the file, max_count and the bytes needed.
+  FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit = 0);
   ~FrameDecoder();
   FrameDecoder(const FrameDecoder&) = delete;
   FrameDecoder& operator=(const FrameDecoder&) = delete;

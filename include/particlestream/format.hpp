@@ -34,6 +34,9 @@ inline constexpr std::uint64_t kDefaultChunkSize = 2ull << 20;
 inline constexpr std::uint32_t kMaxAttributes = 64;
 inline constexpr std::size_t kAttributeNameSize = 32;
 inline constexpr std::uint64_t kChunkAlignment = 64;
+// Times (header and frame index) lie within +-kMaxTime seconds (about 31 years): far beyond any
+// cache, and where a double still resolves a frame of 1 MHz.
+inline constexpr double kMaxTime = 1e9;
 
 inline constexpr std::uint64_t kFlagXformsBaked = 1u << 0;   // positions are in the source's world space
 inline constexpr std::uint64_t kFlagInterpolated = 1u << 1;  // frames between samples were blended, not picked
@@ -154,6 +157,20 @@ std::uint32_t append_attribute(std::vector<Attribute>& layout, std::string name,
                                std::uint8_t components);
 std::uint32_t record_size_of(const std::vector<Attribute>& layout);
 
+// ---- Memory a clip may claim ----------------------------------------------------------------
+
+// A clip's header can claim far more particles than its bytes hold (a particle-codec frame of
+// identical particles is a few bytes whatever its count). Without a budget from the host, a
+// reader spends on decoded frames and decoder state at most what the stored bytes justify:
+// kMemoryPerStoredByte bytes for each stored byte, and never less than kUnbudgetedMemoryFloor.
+inline constexpr std::uint64_t kUnbudgetedMemoryFloor = 256ull << 20;
+inline constexpr std::uint64_t kMemoryPerStoredByte = 64;
+std::uint64_t unbudgeted_memory_limit(const Metadata& meta);
+// A buffer for the clip's largest decoded frame (max_count × record_size bytes), refused with an
+// OptionError("budget") naming `name`, max_count and the bytes when the clip's stored bytes do not
+// justify it: what every reader of whole frames allocates them with.
+std::vector<std::byte> frame_buffer(const Metadata& meta, std::string_view name);
+
 // ---- Chunks -----------------------------------------------------------------------------------
 
 struct EncodedChunk {
@@ -163,6 +180,10 @@ struct EncodedChunk {
   std::uint64_t checksum = 0;
 };
 EncodedChunk encode_chunk(std::span<const std::byte> raw, Codec codec, int level);
+// The most raw bytes `stored` bytes of a chunk in `codec` can decode to (raw: exactly `stored`;
+// lz4: 255 per byte; zstd: 32,768 per byte, an RLE block's 4 bytes for a 128 KiB block). The
+// reader refuses a chunk table that claims more, before anything is allocated for it.
+std::uint64_t max_decoded_size(Codec codec, std::uint64_t stored);
 // Checks the checksum, then decodes into `out`, which must be exactly the chunk's raw size.
 // `where` names the file and chunk in errors.
 std::uint64_t checksum(std::span<const std::byte> bytes);

@@ -302,17 +302,26 @@ ArchiveInfo Archive::info() const {
 }
 
 std::pair<double, double> Archive::start_end_time() const {
+  // Abc::GetArchiveStartAndEndTime's three tiers, the first that finds anything wins:
+  //   1. samplings other than the default (index 0) with more than one sample;
+  //   2. else those samplings with exactly one sample;
+  //   3. else the default sampling, when anything is sampled on it.
+  // Nothing sampled at all: +DBL_MAX, -DBL_MAX, as the official library reports.
   double start = std::numeric_limits<double>::max();
   double end = -std::numeric_limits<double>::max();
-  for (std::size_t i = 0; i < d_->time_samplings.size(); ++i) {
-    const TimeSampling& ts = d_->time_samplings[i];
-    // The default sampling with a single sample only holds constant values: it says nothing
-    // about the animation's range.
-    if (ts.max_num_samples == 0 || (i == 0 && ts.max_num_samples == 1)) continue;
+  const auto take = [&](const TimeSampling& ts) {
     start = std::min(start, ts.sample_time(0));
     end = std::max(end, ts.sample_time(ts.max_num_samples - 1));
+  };
+  const auto& samplings = d_->time_samplings;
+  for (const auto fits : {+[](std::uint32_t n) { return n > 1; }, +[](std::uint32_t n) { return n == 1; }}) {
+    for (std::size_t i = 1; i < samplings.size(); ++i) {
+      if (fits(samplings[i].max_num_samples)) take(samplings[i]);
+    }
+    if (start <= end) return {start, end};
   }
-  return {start, end};  // nothing sampled: +DBL_MAX, -DBL_MAX, as the official library reports
+  if (!samplings.empty() && samplings[0].max_num_samples > 0) take(samplings[0]);
+  return {start, end};
 }
 
 void Archive::check_intact() const { d_->mapping.check_intact(); }

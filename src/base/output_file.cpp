@@ -2,6 +2,8 @@
 
 #include <fcntl.h>
 #include <signal.h>
+#include <sys/file.h>
+#include <sys/random.h>
 #include <sys/stat.h>
 #include <sys/statvfs.h>
 #include <unistd.h>
@@ -9,7 +11,7 @@
 #include <array>
 #include <atomic>
 #include <cerrno>
-#include <charconv>
+#include <climits>
 #include <cstring>
 #include <mutex>
 #include <utility>
@@ -72,21 +74,63 @@ void unregister_temporary(int slot) {
   temp_used[static_cast<std::size_t>(slot)].store(false);
 }
 
-// `.NAME.partial-PID` of a process that is gone: a cook killed with SIGKILL.
+// Whether `name` is one of our temporaries: `.NAME.partial-TAG`, TAG hexadecimal (random now;
+// a process id in earlier versions).
+bool is_temporary_name(std::string_view name) {
+  const auto at = name.rfind(kPartial);
+  if (name.size() < 2 || name[0] != '.' || at == std::string_view::npos) return false;
+  const std::string_view tag = name.substr(at + kPartial.size());
+  return !tag.empty() && tag.find_first_not_of("0123456789abcdef") == std::string_view::npos;
+}
+
+// Temporaries nobody holds any more (their writer was killed with SIGKILL, in this container or
+// another, on this host or another sharing the folder). A writer holds an exclusive flock on its
+// temporary for as long as it lives, so a lock we can take means the writer is gone; process ids
+// say nothing across PID namespaces and hosts.
 void remove_stale_temporaries(const std::filesystem::path& dir) {
   std::error_code ec;
   for (std::filesystem::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end; it.increment(ec)) {
-    const std::string name = it->path().filename().string();
-    const auto at = name.rfind(kPartial);
-    if (name.empty() || name[0] != '.' || at == std::string::npos) continue;
-    const std::string_view digits = std::string_view(name).substr(at + kPartial.size());
-    pid_t pid = 0;
-    const auto [p, err] = std::from_chars(digits.data(), digits.data() + digits.size(), pid);
-    if (err != std::errc() || p != digits.data() + digits.size() || pid <= 0 || pid == ::getpid()) continue;
-    if (::kill(pid, 0) == 0 || errno != ESRCH) continue;  // still running (or not ours to judge)
-    std::error_code ignored;
-    std::filesystem::remove(it->path(), ignored);
+    const std::filesystem::path path = it->path();
+    if (!is_temporary_name(path.filename().string())) continue;
+    const int fd = ::open(path.c_str(), O_RDWR | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0) continue;  // gone already, or not ours to judge
+    struct stat held {
+    }, named{};
+    if (::fstat(fd, &held) == 0 && S_ISREG(held.st_mode) && ::flock(fd, LOCK_EX | LOCK_NB) == 0 &&
+        ::lstat(path.c_str(), &named) == 0 && named.st_dev == held.st_dev && named.st_ino == held.st_ino) {
+      ::unlink(path.c_str());
+    }
+    ::close(fd);
   }
+}
+
+// Creates `.NAME.partial-TAG` beside `path` (NAME cut so that the whole fits NAME_MAX), open for
+// writing and exclusively locked for the descriptor's life. Returns the descriptor, or -1 with
+// errno set.
+int create_locked_temporary(const std::filesystem::path& path, std::filesystem::path& temp) {
+  for (int attempt = 0; attempt < 16; ++attempt) {
+    std::uint64_t tag = 0;
+    if (::getrandom(&tag, sizeof tag, 0) != static_cast<ssize_t>(sizeof tag)) {
+      tag = (static_cast<std::uint64_t>(::getpid()) << 32) ^ static_cast<std::uint64_t>(attempt) ^
+            reinterpret_cast<std::uintptr_t>(&tag);
+    }
+    const std::string suffix = fmt::format("{}{:016x}", kPartial, tag);
+    std::string name = path.filename().string();
+    name.resize(std::min(name.size(), std::size_t(NAME_MAX) - 1 - suffix.size()));
+    temp = path.parent_path() / fmt::format(".{}{}", name, suffix);
+    const int fd = ::open(temp.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    if (fd < 0) {
+      if (errno == EEXIST) continue;
+      return -1;
+    }
+    // Between the open and the lock another process's cleanup may have taken the lock of the
+    // new, empty file and removed it: then the inode is unlinked, and a fresh name is tried.
+    struct stat st {};
+    if (::flock(fd, LOCK_EX | LOCK_NB) == 0 && ::fstat(fd, &st) == 0 && st.st_nlink > 0) return fd;
+    ::close(fd);
+  }
+  errno = EEXIST;
+  return -1;
 }
 
 const char* kind_of(mode_t mode) {
@@ -144,14 +188,14 @@ OutputFile OutputFile::create(const std::filesystem::path& path, std::span<const
   }
   const std::filesystem::path dir = path.parent_path();
   remove_stale_temporaries(dir);
-  out.temp_ = dir / fmt::format(".{}{}{}", path.filename().string(), kPartial, ::getpid());
-  out.slot_ = register_temporary(out.temp_.string());
-  out.fd_ = ::open(out.temp_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  out.fd_ = create_locked_temporary(path, out.temp_);
   if (out.fd_ < 0) {
     const int err = errno;
-    unregister_temporary(std::exchange(out.slot_, -1));
-    throw Error(fmt::format("{}: cannot create {}: {}", name, out.temp_.string(), std::strerror(err)));
+    const std::string folder = dir.empty() ? std::string(".") : dir.string();
+    out.temp_.clear();
+    throw Error(fmt::format("{}: cannot create a temporary in {}: {}", name, folder, std::strerror(err)));
   }
+  out.slot_ = register_temporary(out.temp_.string());
   return out;
 }
 

@@ -14,11 +14,15 @@ class OutputFile {
  public:
   // Opens `path` for writing.
   // - A regular file, or a name that does not exist yet: the bytes go to a temporary beside it,
-  //   `.NAME.partial-PID`, renamed over `path` by commit(). Until then `path` is untouched.
+  //   `.NAME.partial-TAG` (TAG random, NAME shortened to fit NAME_MAX), renamed over `path` by
+  //   commit(). Until then `path` is untouched. The temporary is exclusively flock()ed while this
+  //   object lives: that lock, not a process id, tells other processes (other PID namespaces,
+  //   other hosts on a shared folder) that it is in use.
   // - A character device (/dev/null): written directly; commit() only checks the writes.
   // - A directory, FIFO, socket or block device: refused.
   // - The same file (device and inode) as one of `inputs`: refused, it would destroy its input.
-  // Temporaries of processes that no longer run (a SIGKILL) in the same folder are removed first.
+  // Temporaries in the same folder whose lock nobody holds (their writer was SIGKILLed) are removed
+  // first.
   // SIGINT, SIGTERM and SIGHUP remove every open temporary before the process ends.
   static OutputFile create(const std::filesystem::path& path, std::span<const std::filesystem::path> inputs = {});
 
@@ -38,6 +42,9 @@ class OutputFile {
   std::uint64_t size() const { return end_; }  // bytes appended or written so far (the end)
   int descriptor() const { return fd_; }
   const std::filesystem::path& path() const { return path_; }
+  // The temporary being written (empty for a device): another program may write it in place (a
+  // video from ffmpeg) while this object holds its lock; commit() then renames what it wrote.
+  const std::filesystem::path& temporary() const { return temp_; }
 
   // Flushes, syncs, closes and renames the temporary over the output. Returns the size.
   std::uint64_t commit();

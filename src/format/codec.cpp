@@ -30,6 +30,8 @@ struct DecodeContext {
 struct ChunkCodecUnit {
   Codec id;
   std::string_view name;
+  // Most raw bytes one stored byte can decode to, and a constant for the smallest inputs.
+  std::uint64_t max_ratio, max_extra;
   void (*encode)(std::span<const std::byte> raw, int level, EncodedChunk& out);
   void (*decode)(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out);
 };
@@ -80,9 +82,9 @@ void zstd_decode(const DecodeContext& ctx, std::span<const std::byte> stored, st
 }
 
 constexpr std::array<ChunkCodecUnit, 3> kUnits{{
-    {Codec::Raw, "raw", raw_encode, raw_decode},
-    {Codec::Lz4, "lz4", lz4_encode, lz4_decode},
-    {Codec::Zstd, "zstd", zstd_encode, zstd_decode},
+    {Codec::Raw, "raw", 1, 0, raw_encode, raw_decode},
+    {Codec::Lz4, "lz4", 255, 255, lz4_encode, lz4_decode},
+    {Codec::Zstd, "zstd", 32768, 0, zstd_encode, zstd_decode},
 }};
 
 const ChunkCodecUnit* unit_of(Codec codec) {
@@ -97,6 +99,12 @@ const ChunkCodecUnit* unit_of(Codec codec) {
 std::string_view codec_name(Codec codec) {
   const ChunkCodecUnit* u = unit_of(codec);
   return u ? u->name : "?";
+}
+
+std::uint64_t max_decoded_size(Codec codec, std::uint64_t stored) {
+  const ChunkCodecUnit* u = unit_of(codec);
+  if (u == nullptr) return 0;
+  return stored > (UINT64_MAX - u->max_extra) / u->max_ratio ? UINT64_MAX : stored * u->max_ratio + u->max_extra;
 }
 
 std::uint64_t checksum(std::span<const std::byte> bytes) { return XXH3_64bits(bytes.data(), bytes.size()); }

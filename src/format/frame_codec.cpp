@@ -49,7 +49,18 @@ std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame) {
   return frame;
 }
 
-FrameDecoder::FrameDecoder(const Metadata& meta, std::string name) : meta_(meta), name_(std::move(name)) {
+FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit)
+    : meta_(meta), name_(std::move(name)) {
+  const std::uint64_t limit = memory_limit ? memory_limit : unbudgeted_memory_limit(meta);
+  const std::uint64_t needed = meta.codec.codec == FrameCodec::Particle ? particle_unit_state_bytes(meta) : 0;
+  if (needed > limit) {
+    throw OptionError(
+        "budget",
+        fmt::format("{}: max_count {} particles needs {:.1f} MiB of particle decoder state, more than {} "
+                    "({:.1f} MiB); set a memory `budget` to allow it",
+                    name_, meta.max_count, needed / 1048576.0,
+                    memory_limit ? "the memory budget" : "the clip's stored bytes justify", limit / 1048576.0));
+  }
   switch (meta.codec.codec) {
     case FrameCodec::Records: unit_ = std::make_unique<RecordsUnit>(meta_, name_); break;
     case FrameCodec::Particle: unit_ = make_particle_unit(meta_, name_); break;

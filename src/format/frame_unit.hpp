@@ -26,5 +26,7 @@ class FrameUnit {
 };
 
 std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name);
+// The bytes make_particle_unit() allocates for `meta`, known before anything is allocated.
+std::uint64_t particle_unit_state_bytes(const Metadata& meta);
 
 }  // namespace pstream::format

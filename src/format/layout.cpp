@@ -48,6 +48,23 @@ std::uint64_t Metadata::total_particles() const {
   return n;
 }
 
+std::uint64_t unbudgeted_memory_limit(const Metadata& meta) {
+  const std::uint64_t stored = meta.stream_size();
+  return std::max(kUnbudgetedMemoryFloor,
+                  stored > UINT64_MAX / kMemoryPerStoredByte ? UINT64_MAX : stored * kMemoryPerStoredByte);
+}
+
+std::vector<std::byte> frame_buffer(const Metadata& meta, std::string_view name) {
+  const std::uint64_t bytes = meta.max_count * meta.record_size;  // both bounded by the header's checks
+  if (bytes > unbudgeted_memory_limit(meta)) {
+    throw OptionError("budget", fmt::format("{}: max_count {} particles of {} bytes need {:.1f} MiB a frame, more "
+                                            "than the clip's stored bytes justify ({:.1f} MiB)",
+                                            name, meta.max_count, meta.record_size, bytes / 1048576.0,
+                                            unbudgeted_memory_limit(meta) / 1048576.0));
+  }
+  return std::vector<std::byte>(bytes);
+}
+
 double Metadata::particles_per_chunk() const {
   const std::uint64_t stored = stream_size(), particles = total_particles();
   // Stored bytes per particle: the record size, or what the codec made of it.

@@ -244,6 +244,9 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   m.fps = h.get<double>("fps");
   if (!(m.fps > 0.0) || !std::isfinite(m.fps)) h.fail(fmt::format("fps is {}, expected a positive number", m.fps));
   m.time_of_frame0 = h.get<double>("time_of_frame0");
+  if (!(std::abs(m.time_of_frame0) <= kMaxTime)) {
+    h.fail(fmt::format("time_of_frame0 is {}, expected a finite time within +-{:g} s", m.time_of_frame0, kMaxTime));
+  }
   header.frame_count = h.get<std::uint64_t>("frame_count");
   m.chunk_size = h.get<std::uint64_t>("chunk_size");
   if (!std::has_single_bit(m.chunk_size) || m.chunk_size < kMinChunkSize || m.chunk_size > kMaxChunkSize) {
@@ -387,6 +390,13 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
     if (!std::isfinite(f.time) || (i > 0 && !(f.time > m.frames.back().time))) {
       t.fail(fmt::format("frame {} has time {}, expected a finite time after the previous frame's", i, f.time));
     }
+    // Frames lie on the clip's grid, time_of_frame0 + i / fps (playback finds frames by it): within
+    // 1 % of a frame.
+    const double on_grid = m.time_of_frame0 + double(i) / m.fps;
+    if (!(std::abs(f.time - on_grid) <= 0.01 / m.fps)) {
+      t.fail(fmt::format("frame {} has time {}, expected {} (time_of_frame0 {} + {} / {} fps)", i, f.time, on_grid,
+                         m.time_of_frame0, i, m.fps));
+    }
     if (particle) {
       if (f.count > kMaxFrameParticles) {
         t.fail(fmt::format("frame {} claims {} particles, more than the particle codec's limit of {}", i, f.count,
@@ -455,6 +465,23 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
           fmt::format("{}: at offset {}: chunk {} lies at bytes {}..{} but the payload is {}..{} (chunk table "
                       "points past the end or into the tables)",
                       name, at, i, c.file_offset, c.file_offset + c.stored_size, payload_start, payload_end));
+    }
+    // Chunks follow each other: none shares bytes with the one before (a table that repeats a
+    // chunk's bytes could claim a huge stream from a tiny file).
+    const std::uint64_t previous_end =
+        m.chunks.empty() ? payload_start : m.chunks.back().file_offset + m.chunks.back().stored_size;
+    if (c.file_offset < previous_end) {
+      throw Error(
+          fmt::format("{}: at offset {}: chunk {} starts at byte {}, inside the chunk before it (which ends "
+                      "at byte {}); chunks must be disjoint and in order",
+                      name, at, i, c.file_offset, previous_end));
+    }
+    const std::uint64_t raw_size = std::min(m.chunk_size, stream_size - i * m.chunk_size);
+    if (raw_size > max_decoded_size(c.codec, c.stored_size)) {
+      throw Error(fmt::format(
+          "{}: at offset {}: chunk {} claims {} bytes of stream from {} stored bytes, expected "
+          "at most {} from {} data of that size",
+          name, at, i, raw_size, c.stored_size, max_decoded_size(c.codec, c.stored_size), codec_name(c.codec)));
     }
     m.chunks.push_back(c);
   }

@@ -963,6 +963,15 @@ class GroupEncoder {
 
 }  // namespace
 
+std::uint64_t particle_unit_state_bytes(const Metadata& meta) {
+  const WordPlan plan(meta.codec);
+  const std::uint64_t n = meta.max_count, coded = plan.coded.size();
+  const bool ids = plan.id_word >= 0;
+  // Per particle: Q and D of every coded word in two states, ids in two states, a residual.
+  return n * (coded * 16 + (ids ? 16 : 0) + 4) + ((n + kBlock - 1) >> kBlockShift) * 4 +
+         std::uint64_t(plan.words) * kTile * 4 + body_capacity(n, coded, ids);
+}
+
 std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name) {
   return std::make_unique<ParticleUnit>(meta, name);
 }

@@ -105,7 +105,7 @@ void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) largest = std::max(largest, frame_packet(m, f).size);
     d.packet.resize(largest);
     d.scratch.resize(std::min(m.chunk_size, m.stream_size()));
-    d.decoded.resize(m.max_count * m.record_size);
+    d.decoded = frame_buffer(m, d.name);
   }
   // Forward from the keyframe, or on from the frame decoded last.
   std::uint64_t f = keyframe_of(m, frame);

@@ -58,7 +58,9 @@ struct FrameSlot {
 }  // namespace
 
 std::size_t cache_slots(const format::Metadata& m, double seconds) {
-  if (m.chunk_count() == 0) return 0;
+  // A clip of empty frames has no chunks: one slot keeps the ring's arithmetic whole (it is never
+  // loaded, and the cache behind it is empty).
+  if (m.chunk_count() == 0) return 1;
   const double wanted = std::ceil(seconds * m.fps * double(m.max_count) / m.particles_per_chunk());
   // Every frame must fit: the most chunks any one frame's packet spans, read from the frame index.
   std::uint64_t frame_chunks = 1;
@@ -147,7 +149,7 @@ struct ParticleStream::Impl {
 
   // Starts loads in playback order into Empty slots, up to the allowed number in flight.
   void issue_locked() {
-    if (closing || failed) return;
+    if (closing || failed || meta->chunks.empty()) return;
     const std::uint64_t N = range_chunks();
     while (in_flight < requests.size() && next - oldest < slot_count) {
       if (!loop && next >= N) return;  // never past the last chunk unless looping
@@ -415,14 +417,15 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
     slots = std::max(floor, std::min(slots, options.max_slots));
   }
   impl->slot_count = slots;
-  impl->cache_bytes = slots * m.chunk_size;
+  impl->cache_bytes = m.chunk_count() ? slots * m.chunk_size : 0;
   // The decoding side: the ring of decoded frames, the frame decoder's state, a packet's staging.
   // Interpolating holds two frames and decodes ahead: at least three.
   const std::size_t frame_slots = std::max<std::size_t>(options.interpolate ? 3 : 2, options.decoded_frames);
   impl->frame_bytes = (m.max_count * m.record_size + 63) / 64 * 64;
   std::uint64_t max_packet = 0;
   for (std::uint64_t f = 0; f < m.frame_count(); ++f) max_packet = std::max(max_packet, m.frames[f].packet_size);
-  impl->frame_decoder = std::make_unique<format::FrameDecoder>(s->meta_, impl->name);
+  impl->frame_decoder =
+      std::make_unique<format::FrameDecoder>(s->meta_, impl->name, options.budget ? options.budget->total() : 0);
   // Interpolating, each decoded frame also keeps how its particles continue the frame before: room
   // for runs of one particle in eight changing (more than that: the pair is not matched).
   impl->match_capacity = options.interpolate ? std::size_t(m.max_count / 8 + 64) : 0;
@@ -430,6 +433,14 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
       frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) + max_packet +
       impl->frame_decoder->state_bytes();
   const std::uint64_t total_bytes = impl->cache_bytes + decode_bytes;
+  // Without the host's budget, the decoded side is held to what the clip's stored bytes justify.
+  if (!options.budget && decode_bytes > format::unbudgeted_memory_limit(m)) {
+    throw OptionError("budget", fmt::format("{}: max_count {} particles needs {} decoded frames and decoding state of "
+                                            "{:.1f} MiB, more than the clip's stored bytes justify ({:.1f} MiB); set "
+                                            "a memory `budget` to allow it",
+                                            impl->name, m.max_count, frame_slots, decode_bytes / 1048576.0,
+                                            format::unbudgeted_memory_limit(m) / 1048576.0));
+  }
   if (options.budget && !options.budget->try_reserve(total_bytes)) {
     throw OptionError("budget", fmt::format("{}: its cache of {} slots x {} KiB plus {} decoded frames and decoding "
                                             "state, {:.1f} MiB in all, does not fit "
@@ -441,7 +452,7 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->budget = options.budget;
   // The cache: one allocation of s x chunk_size bytes, one for the decoded frames, made here and
   // never again.
-  impl->cache = aligned_bytes(slots * m.chunk_size);
+  impl->cache = aligned_bytes(impl->cache_bytes);
   impl->decoded = aligned_bytes(frame_slots * impl->frame_bytes);
   impl->matching.reset(new format::MatchRun[std::max<std::size_t>(frame_slots * impl->match_capacity, 1)]);
   impl->frame_slots.assign(frame_slots, FrameSlot{});

@@ -1,0 +1,297 @@
+// Regression tests for issue #25 (hardening, round three): valid output that crashed us (a clip of
+// empty frames), fields the checksums cover that were trusted without being checked (times,
+// overlapping chunks, particle counts a file cannot justify), and temporaries on folders shared
+// across PID namespaces. Every hostile file is made here: a cooked clip with one field changed
+// and its checksums written again, so only the validator stands between it and the player.
+#include <gtest/gtest.h>
+
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+
+#include <fmt/format.h>
+
+#include "base/output_file.hpp"
+#include "hostile_inputs.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+#include "particlestream/playback.hpp"
+#include "particlestream/stream.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using namespace pstream;
+namespace fs = std::filesystem;
+
+std::string q(const fs::path& p) { return fmt::format("'{}'", p.string()); }
+
+void expect_error(const test::CommandResult& r, const std::string& fragment) {
+  EXPECT_NE(r.exit_code, 0) << r.output;
+  EXPECT_LT(r.exit_code, 128) << "ended by a signal: " << r.output;
+  EXPECT_EQ(r.output.find("internal error"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(fragment), std::string::npos) << "expected '" << fragment << "' in:\n" << r.output;
+}
+
+template <typename T>
+T get(const std::string& bytes, std::size_t at) {
+  T v;
+  std::memcpy(&v, bytes.data() + at, sizeof v);
+  return v;
+}
+template <typename T>
+void put(std::string& bytes, std::size_t at, T v) {
+  std::memcpy(bytes.data() + at, &v, sizeof v);
+}
+
+// Writes the tables' and the header's checksums of a version 2 file again (docs/format.md:
+// tables_offset at 128, tables_size at 136, tables_checksum at 144, header_checksum at 184).
+void rechecksum(std::string& bytes) {
+  const auto offset = get<std::uint64_t>(bytes, 128), size = get<std::uint64_t>(bytes, 136);
+  put(bytes, 144, format::checksum(std::as_bytes(std::span(bytes.data() + offset, size))));
+  put(bytes, 184, format::checksum(std::as_bytes(std::span(bytes.data(), 184))));
+}
+
+fs::path cook_clip(const fs::path& dir, const std::string& name, const std::string& codec, std::int64_t first = -1,
+                   std::int64_t end = -1) {
+  cook::Options o;
+  o.input = test::data_path("alembic/" + name + ".abc");
+  o.output = dir / (name + "-" + codec + ".pstream");
+  o.chunk_size = format::kMinChunkSize;
+  cook::set_codec(o, codec);
+  if (first >= 0) {
+    o.frame_begin = first;
+    o.frame_end = end;
+  }
+  cook::cook(o);
+  return o.output;
+}
+
+// ---- A clip of empty frames is a clip -----------------------------------------------------------
+
+TEST(HardeningRound3, AClipOfEmptyFramesPlaysEverywhere) {
+  const fs::path dir = test::fresh_dir();
+  // Frames 12 and 13 of the fixture have no particles: the cook writes a valid clip of 0 chunks.
+  const fs::path clip = cook_clip(dir, "points_empty_frames", "raw", 12, 14);
+  const format::Reader reader = format::Reader::open(clip);
+  ASSERT_EQ(reader.metadata().frame_count(), 2u);
+  ASSERT_EQ(reader.metadata().chunk_count(), 0u);
+
+  // The stream, blocking (offline rendering) and real time: every update returns, frames are empty.
+  for (const bool blocking : {true, false}) {
+    stream::StreamOptions options;
+    options.blocking = blocking;
+    auto s = stream::ParticleStream::open(clip, std::move(options));
+    s->set_loop(true);
+    s->play();
+    for (int i = 0; i < 10; ++i) {
+      s->update(1.0 / 24);
+      EXPECT_NE(s->state(), stream::PlayState::Error) << s->error();
+      EXPECT_EQ(s->frame().count, 0u);
+    }
+  }
+  // The player, interpolating, with a sort.
+  const std::vector<fs::path> files{clip};
+  auto player = playback::Player::open(files);
+  player->play();
+  for (int i = 0; i < 10; ++i) {
+    const auto& stats = player->advance(1.0 / 60, render::identity(), sort::SortMode::BackToFront);
+    EXPECT_EQ(stats.particles, 0u);
+  }
+  player->check();
+
+  // Every command: a correct (empty) result and exit code 0.
+  for (const std::string& command :
+       {fmt::format("verify {} --against {}", q(clip), q(test::data_path("alembic/points_empty_frames.abc"))),
+        fmt::format("render {} --out {} -q", q(clip), q(dir / "frames")),
+        fmt::format("bench stream {} --laps 1 --json", q(clip)),
+        fmt::format("export {} -o {}", q(clip), q(dir / "e.abc")), fmt::format("info {} --json", q(clip))}) {
+    const auto r = test::run_cli(command);
+    EXPECT_EQ(r.exit_code, 0) << command << "\n" << r.output;
+  }
+  EXPECT_TRUE(fs::exists(dir / "frames" / "frame_00000.png"));
+  const auto bench = test::run_cli(fmt::format("bench stream {} --laps 1 --json", q(clip)));
+  EXPECT_NE(bench.output.find("\"stalls\":0"), std::string::npos) << bench.output;
+  EXPECT_EQ(bench.output.find("null"), std::string::npos) << "a 0/0 figure: " << bench.output;
+}
+
+// ---- Times ------------------------------------------------------------------------------------
+
+TEST(HardeningRound3, HeaderTimesMustBeFiniteAndOnTheFramesGrid) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = cook_clip(dir, "points_constant", "raw");
+  const std::string good = test::read_text(clip);
+  for (const double bad : {std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity(),
+                           -std::numeric_limits<double>::infinity(), 1e300}) {
+    std::string bytes = good;
+    put(bytes, 32, bad);  // time_of_frame0
+    rechecksum(bytes);
+    test::write_file(dir / "bad.pstream", bytes);
+    expect_error(test::run_cli("verify " + q(dir / "bad.pstream")), "time_of_frame0 is");
+    expect_error(test::run_cli(fmt::format("render {} --out {} -q", q(dir / "bad.pstream"), q(dir / "frames"))),
+                 "time_of_frame0 is");
+    EXPECT_THROW(stream::ParticleStream::open(dir / "bad.pstream"), Error);
+  }
+  // A finite origin that the frame index does not follow: playback would pick frames by a grid
+  // the frames are not on.
+  std::string bytes = good;
+  put(bytes, 32, get<double>(good, 32) + 10.0);
+  rechecksum(bytes);
+  test::write_file(dir / "off_grid.pstream", bytes);
+  expect_error(test::run_cli("verify " + q(dir / "off_grid.pstream")), "(time_of_frame0");
+}
+
+// ---- Chunks that share bytes, and counts the bytes cannot hold ------------------------------------
+
+TEST(HardeningRound3, ChunksMustBeDisjointAndHoldWhatTheyClaim) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = cook_clip(dir, "points_large", "zstd");
+  const format::Metadata m = format::Reader::open(clip).metadata();
+  ASSERT_GE(m.chunk_count(), 3u);
+  const std::string good = test::read_text(clip);
+  const std::size_t table = get<std::uint64_t>(good, 128) + get<std::uint64_t>(good, 136) - 32 * m.chunk_count();
+  ASSERT_EQ(get<std::uint64_t>(good, table), m.chunks[0].file_offset);  // the chunk table is last
+
+  // Chunk 1 pointing at chunk 0's bytes.
+  std::string shared = good;
+  put(shared, table + 32, m.chunks[0].file_offset);
+  put(shared, table + 32 + 8, m.chunks[0].stored_size);
+  rechecksum(shared);
+  test::write_file(dir / "shared.pstream", shared);
+  expect_error(test::run_cli("verify " + q(dir / "shared.pstream")), "inside the chunk before it");
+
+  // A 64 KiB raw chunk claimed from 16 stored bytes.
+  const fs::path raw = cook_clip(dir, "points_large", "raw");
+  const format::Metadata mr = format::Reader::open(raw).metadata();
+  std::string tiny = test::read_text(raw);
+  const std::size_t raw_table = get<std::uint64_t>(tiny, 128) + get<std::uint64_t>(tiny, 136) - 32 * mr.chunk_count();
+  put(tiny, raw_table + 8, std::uint64_t{16});
+  rechecksum(tiny);
+  test::write_file(dir / "tiny.pstream", tiny);
+  expect_error(test::run_cli("verify " + q(dir / "tiny.pstream")), "expected at most 16 from raw data");
+
+  EXPECT_EQ(format::max_decoded_size(format::Codec::Raw, 100), 100u);
+  EXPECT_EQ(format::max_decoded_size(format::Codec::Zstd, 10), 327680u);
+  EXPECT_EQ(format::max_decoded_size(format::Codec::Zstd, UINT64_MAX), UINT64_MAX);  // saturates
+}
+
+TEST(HardeningRound3, AParticleCountTheFileCannotJustifyIsRefusedBeforeAllocating) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = cook_clip(dir, "points_constant", "particle");
+  std::string bytes = test::read_text(clip);
+  const format::Metadata m = format::Reader::open(clip).metadata();
+  ASSERT_LT(bytes.size(), 1u << 20);
+  // max_count 2^26 (the particle codec's limit) in the header and in the last frame's index entry
+  // (the frame index must agree with the header; the last frame's count moves no later offset).
+  put(bytes, 88, std::uint64_t{1} << 26);
+  const format::FrameEntry& last = m.frames.back();
+  const std::size_t tables = get<std::uint64_t>(bytes, 128);
+  std::size_t at = tables;
+  for (; at + 16 <= bytes.size(); ++at) {
+    if (get<std::uint64_t>(bytes, at) == last.count && get<std::uint64_t>(bytes, at + 8) == last.byte_offset) break;
+  }
+  ASSERT_LT(at + 16, bytes.size());
+  put(bytes, at, std::uint64_t{1} << 26);
+  rechecksum(bytes);
+  test::write_file(dir / "claims.pstream", bytes);
+
+  // Refused at open, with the field and what it would need, and no allocation of gigabytes (the
+  // address-space limit below would turn one into a crash).
+  try {
+    stream::ParticleStream::open(dir / "claims.pstream");
+    ADD_FAILURE() << "opened";
+  } catch (const OptionError& e) {
+    EXPECT_EQ(e.option(), "budget");
+    EXPECT_NE(std::string(e.what()).find("max_count 67108864 particles"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("claims.pstream"), std::string::npos) << e.what();
+  }
+#ifdef PSTREAM_SANITIZED
+  const std::string limit;  // ASan reserves terabytes of address space
+#else
+  const std::string limit = "ulimit -v 1048576; ";  // 1 GiB
+#endif
+  const auto r = test::run_cli_raw(fmt::format("{}{} verify {}", limit, PSTREAM_CLI, q(dir / "claims.pstream")));
+  expect_error(r, "max_count 67108864 particles");
+  // A host that sets a budget decides: too small a budget is still an error naming it.
+  stream::StreamOptions options;
+  options.budget = std::make_shared<stream::MemoryBudget>(64 << 20);
+  EXPECT_THROW(stream::ParticleStream::open(dir / "claims.pstream", std::move(options)), OptionError);
+}
+
+// ---- Temporaries on shared folders ------------------------------------------------------------------
+
+bool has_temporary(const fs::path& dir) {
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (e.path().filename().string().find(".partial-") != std::string::npos) return true;
+  }
+  return false;
+}
+
+TEST(HardeningRound3, ACookInAnotherPidNamespaceNeverDeletesALiveTemporary) {
+  if (::geteuid() != 0 || test::run_cli_raw("unshare --pid --fork true").exit_code != 0) {
+    GTEST_SKIP() << "needs root and unshare (CI runs as root)";
+  }
+  const fs::path dir = test::fresh_dir();
+  // This process writes an output; its temporary is live.
+  OutputFile mine = OutputFile::create(dir / "mine.pstream");
+  mine.append(std::string(4096, 'x').data(), 4096);
+  ASSERT_TRUE(has_temporary(dir));
+  // A cook in a new PID namespace, where this process's id means nothing (it once decided "dead"
+  // from kill(pid, 0) and deleted the temporary), writes into the same folder.
+  const auto r =
+      test::run_cli_raw(fmt::format("unshare --pid --fork {} cook {} -o {} -q", PSTREAM_CLI,
+                                    q(test::data_path("alembic/points_constant.abc")), q(dir / "theirs.pstream")));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_TRUE(fs::exists(mine.temporary())) << "a live temporary was deleted";
+  EXPECT_EQ(mine.commit(), 4096u);
+  EXPECT_EQ(fs::file_size(dir / "mine.pstream"), 4096u);
+}
+
+TEST(HardeningRound3, ASigkilledWritersTemporaryIsRemovedByTheNextWriter) {
+  const fs::path dir = test::fresh_dir();
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    OutputFile out = OutputFile::create(dir / "killed.pstream");
+    out.append(std::string(1 << 16, 'x').data(), 1 << 16);
+    out.write_at(0, std::as_bytes(std::span("x", 1)));
+    ::raise(SIGKILL);
+  }
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFSIGNALED(status));
+  ASSERT_TRUE(has_temporary(dir)) << "SIGKILL leaves the temporary";
+  test::write_file(dir / ".notes.partial-draft", "a user's file that only looks similar");
+  ASSERT_EQ(test::run_cli(fmt::format("cook {} -o {} -q", q(test::data_path("alembic/points_constant.abc")),
+                                      q(dir / "next.pstream")))
+                .exit_code,
+            0);
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string name = e.path().filename().string();
+    EXPECT_TRUE(name == "next.pstream" || name == ".notes.partial-draft") << "left: " << name;
+  }
+}
+
+TEST(HardeningRound3, TemporariesFitNameMax) {
+  const fs::path dir = test::fresh_dir();
+  const std::string name = std::string(254, 'n');  // a valid name, one short of NAME_MAX
+  const fs::path output = dir / name;
+  {
+    OutputFile out = OutputFile::create(output);
+    EXPECT_LE(out.temporary().filename().string().size(), 255u);
+    out.append(std::string("abc").data(), 3);
+    out.commit();
+  }
+  EXPECT_EQ(fs::file_size(output), 3u);
+  const auto r = test::run_cli(
+      fmt::format("cook {} -o {} -q", q(test::data_path("alembic/points_constant.abc")), q(dir / (name + "x"))));
+  // 255 characters: the longest name there is.
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+}
+
+}  // namespace
