@@ -14,11 +14,14 @@
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
 
+#include <cmath>
 #include <cstring>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
+
+#include <fmt/format.h>
 
 #include "particlestream/alembic.hpp"
 #include "particlestream/cook.hpp"
@@ -29,6 +32,20 @@ namespace py = pybind11;
 using namespace pstream;
 
 namespace {
+
+// Names and messages as Python text: a name in a file need not be valid UTF-8, and an invalid
+// byte shows as \xNN instead of raising UnicodeDecodeError.
+py::str text(std::string_view s) {
+  PyObject* o = PyUnicode_DecodeUTF8(s.data(), static_cast<Py_ssize_t>(s.size()), "backslashreplace");
+  if (o == nullptr) throw py::error_already_set();
+  return py::reinterpret_steal<py::str>(o);
+}
+
+// What the C API refuses, refused here too: a time or a step that is not a finite number.
+double finite(double value, const char* what) {
+  if (!std::isfinite(value)) throw Error(fmt::format("{} is {}, expected a finite number", what, value));
+  return value;
+}
 
 // The archive and its points objects, shared by the arrays that view its mapping.
 struct PyArchive {
@@ -82,7 +99,7 @@ py::dtype record_dtype(const format::Metadata& m) {
                        : a.type == format::AttributeType::Unorm8 ? "u1"
                        : a.type == format::AttributeType::Uint32 ? "<u4"
                                                                  : "<u8";
-    names.append(a.name);
+    names.append(text(a.name));
     formats.append(a.components == 1 ? py::str(base) : py::str(std::to_string(a.components) + base));
     offsets.append(a.offset);
   }
@@ -97,7 +114,7 @@ py::dtype record_dtype(const format::Metadata& m) {
 py::list layout_of(const format::Metadata& m) {
   py::list out;
   for (const format::Attribute& a : m.layout)
-    out.append(py::make_tuple(a.name, std::string(format::attribute_type_name(a.type)), a.components, a.offset));
+    out.append(py::make_tuple(text(a.name), std::string(format::attribute_type_name(a.type)), a.components, a.offset));
   return out;
 }
 
@@ -119,24 +136,34 @@ struct PyPlayer {
 PYBIND11_MODULE(particlestream, m) {
   m.doc() = "ParticleStream: read Alembic point caches, cook them to .pstream, play them back.";
   static py::exception<Error> error(m, "Error", PyExc_RuntimeError);
+  // Every failure of the library is particlestream.Error with its message; Python's own errors
+  // (a wrong argument type, a numpy error) stay what they are.
   py::register_exception_translator([](std::exception_ptr p) {
     try {
       if (p) std::rethrow_exception(p);
+    } catch (const py::error_already_set&) {
+      throw;
+    } catch (const py::builtin_exception&) {
+      throw;
     } catch (const Error& e) {
-      error(e.what());
+      PyErr_SetObject(error.ptr(), text(e.what()).ptr());
+    } catch (const std::bad_alloc&) {
+      PyErr_SetObject(error.ptr(), text("out of memory").ptr());
+    } catch (const std::exception& e) {
+      PyErr_SetObject(error.ptr(), text(std::string("internal error: ") + e.what()).ptr());
     }
   });
   m.attr("__version__") = "0.1.0";
 
   py::class_<PyArchive, std::shared_ptr<PyArchive>>(m, "Archive", "An Alembic archive (our reader), mapped.")
       .def(py::init<std::filesystem::path>(), py::arg("path"))
-      .def_property_readonly("name", [](const PyArchive& a) { return a.archive.name(); })
+      .def_property_readonly("name", [](const PyArchive& a) { return text(a.archive.name()); })
       .def_property_readonly("start_end_time", [](const PyArchive& a) { return a.archive.start_end_time(); })
       .def(
           "points",
           [](const PyArchive& a) {
-            std::vector<std::string> names;
-            for (const auto& o : a.points) names.push_back(o.full_name());
+            py::list names;
+            for (const auto& o : a.points) names.append(text(o.full_name()));
             return names;
           },
           "The full names of the points objects.")
@@ -241,6 +268,8 @@ PYBIND11_MODULE(particlestream, m) {
   py::class_<PyPlayer>(m, "Player", "Playback of one or more clips (the C++ playback::Player).")
       .def(py::init([](std::vector<std::filesystem::path> paths, const std::string& interpolation, bool blocking,
                        bool loop, const std::string& sort, double cache_seconds) {
+             if (!(cache_seconds > 0.0) || !std::isfinite(cache_seconds))
+               throw Error(fmt::format("cache_seconds is {}, expected a finite number > 0", cache_seconds));
              playback::PlayerOptions o;
              o.interpolation = playback::parse_interpolation(interpolation);
              o.stream.blocking = blocking;
@@ -255,10 +284,13 @@ PYBIND11_MODULE(particlestream, m) {
            py::arg("sort") = "none", py::arg("cache_seconds") = 1.0)
       .def("play", [](PyPlayer& p) { p.player->play(); })
       .def("pause", [](PyPlayer& p) { p.player->pause(); })
-      .def("seek", [](PyPlayer& p, double t) { p.player->seek(t); })
-      .def("set_speed", [](PyPlayer& p, double s) { p.player->set_speed(s); })
+      .def("seek", [](PyPlayer& p, double t) { p.player->seek(finite(t, "seek: time")); })
+      .def("set_speed", [](PyPlayer& p, double s) { p.player->set_speed(finite(s, "set_speed: speed")); })
       .def("set_loop", [](PyPlayer& p, bool l) { p.player->set_loop(l); })
-      .def("set_range", [](PyPlayer& p, double a, double b) { p.player->set_range(a, b); })
+      .def("set_range",
+           [](PyPlayer& p, double a, double b) {
+             p.player->set_range(finite(a, "set_range: start"), finite(b, "set_range: end"));
+           })
       .def_property_readonly("clip_count", [](const PyPlayer& p) { return p.player->clip_count(); })
       .def(
           "time", [](const PyPlayer& p, std::size_t i) { return p.player->clip(i).time(); }, py::arg("clip") = 0)
@@ -266,6 +298,8 @@ PYBIND11_MODULE(particlestream, m) {
           "update",
           [](PyPlayer& p, double dt,
              std::optional<py::array_t<float, py::array::c_style | py::array::forcecast>> view) {
+            if (!(dt >= 0.0) || !std::isfinite(dt))
+              throw Error(fmt::format("update: dt is {}, expected a finite number >= 0", dt));
             render::Mat4 v = render::identity();
             if (view) {  // numpy's M[row, col] (M @ p), to the column-major Mat4
               if (view->ndim() != 2 || view->shape(0) != 4 || view->shape(1) != 4)

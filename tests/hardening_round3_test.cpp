@@ -111,7 +111,9 @@ TEST(HardeningRound3, AClipOfEmptyFramesPlaysEverywhere) {
         fmt::format("render {} --out {} -q", q(clip), q(dir / "frames")),
         fmt::format("bench stream {} --laps 1 --json", q(clip)),
         fmt::format("export {} -o {}", q(clip), q(dir / "e.abc")), fmt::format("info {} --json", q(clip))}) {
-    const auto r = test::run_cli(command);
+    // Mesa leaks a little at exit (see tests/CMakeLists.txt): no leak checking for render.
+    const auto r = test::run_cli_raw(fmt::format(
+        "{}{} {}", command.starts_with("render") ? "ASAN_OPTIONS=detect_leaks=0 " : "", PSTREAM_CLI, command));
     EXPECT_EQ(r.exit_code, 0) << command << "\n" << r.output;
   }
   EXPECT_TRUE(fs::exists(dir / "frames" / "frame_00000.png"));

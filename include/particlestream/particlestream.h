@@ -118,7 +118,11 @@ typedef struct pstream_attribute {
 typedef struct pstream_archive pstream_archive;
 
 PSTREAM_API pstream_result pstream_archive_open(const char* path, pstream_archive** out);
-PSTREAM_API void pstream_archive_close(pstream_archive* archive);
+/* Closes the handle (NULL: nothing to do, PSTREAM_OK). Closing it again, or one that no open
+ * returned, is PSTREAM_ERROR_ARGUMENT
+ * (never a crash); so is any other call with a closed handle. (The library tells only handles it
+ * holds open: once closed, a handle's address may be reused by a later open.) */
+PSTREAM_API pstream_result pstream_archive_close(pstream_archive* archive);
 /* The archive's points objects (AbcGeom_Points_v1), in depth-first order. */
 PSTREAM_API pstream_result pstream_archive_points_count(const pstream_archive* archive, size_t* count);
 /* Object `index`'s full name ("/fx/sparks"; valid while the archive is open) and its samples. */
@@ -182,7 +186,8 @@ typedef struct pstream_clip_info {
 } pstream_clip_info;
 
 PSTREAM_API pstream_result pstream_clip_open(const char* path, pstream_clip** out);
-PSTREAM_API void pstream_clip_close(pstream_clip* clip);
+/* As pstream_archive_close(). */
+PSTREAM_API pstream_result pstream_clip_close(pstream_clip* clip);
 PSTREAM_API pstream_result pstream_clip_info_get(const pstream_clip* clip, pstream_clip_info* out);
 PSTREAM_API pstream_result pstream_clip_attribute(const pstream_clip* clip, uint32_t index, pstream_attribute* out);
 /* Frame `frame`'s particle count and time. */
@@ -251,6 +256,12 @@ typedef struct pstream_player_options {
   const pstream_io* io;
   /* Optional: run the IO and decoding on the host's jobs (NULL: the library's IO thread). */
   const pstream_tasks* tasks;
+  /* A read_async completion that has not come after this many seconds puts its clip in the
+   * error state, and pstream_player_close() stops waiting for it (the read's buffer then stays
+   * allocated, so a late completion is ignored and writes into nothing freed). A completion
+   * called twice does the same at once. 0: 30 s. (Added in 0.1.1: an older struct_size is
+   * accepted, with the default.) */
+  double io_timeout_seconds;
 } pstream_player_options;
 
 /* A clip's frame as update() prepared it, valid until the next update() or close(). */
@@ -278,7 +289,8 @@ PSTREAM_API void pstream_player_options_init(pstream_player_options* options);
 /* Opens `count` clips. With options->io, `paths` may be NULL. `options` may be NULL (defaults). */
 PSTREAM_API pstream_result pstream_player_open(const char* const* paths, size_t count,
                                                const pstream_player_options* options, pstream_player** out);
-PSTREAM_API void pstream_player_close(pstream_player* player);
+/* As pstream_archive_close(). */
+PSTREAM_API pstream_result pstream_player_close(pstream_player* player);
 
 PSTREAM_API pstream_result pstream_player_play(pstream_player* player);
 PSTREAM_API pstream_result pstream_player_pause(pstream_player* player);

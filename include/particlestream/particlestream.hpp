@@ -58,7 +58,7 @@ using PlayerStats = pstream_player_stats;
 
 namespace detail {
 // A C handle with its close function, movable and not copyable.
-template <class T, void (*Close)(T*)>
+template <class T, pstream_result (*Close)(T*)>
 class Handle {
  public:
   Handle() = default;
@@ -75,7 +75,7 @@ class Handle {
   Handle& operator=(const Handle&) = delete;
   ~Handle() { reset(); }
   void reset() {
-    if (h_ != nullptr) Close(h_);
+    if (h_ != nullptr) (void)Close(h_);  // a handle this object owns is open
     h_ = nullptr;
   }
   T* get() const { return h_; }

@@ -48,6 +48,14 @@ class IoBackend {
   }
   virtual std::uint64_t size() const = 0;
   virtual const std::string& name() const = 0;
+  // A host that breaks start_read()'s contract: a completion called twice, or one that has not
+  // come within the backend's timeout. Empty while all is well; otherwise the message the stream
+  // fails with (its Error state: update() and a blocking update() return, nothing waits on).
+  virtual std::string fault() const { return {}; }
+  // Called by the stream's close() when a read never completed (fault() said so): completions
+  // that come later must be ignored. The stream then leaves the backend and the read's buffers
+  // allocated (a bounded leak) instead of waiting forever or freeing memory the host may write.
+  virtual void abandon() {}
 };
 
 // pread() on a file descriptor.

@@ -4,14 +4,20 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <filesystem>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <new>
+#include <set>
 #include <string>
 #include <vector>
+
+#include <fmt/format.h>
 
 #include "base/memory.hpp"
 #include "capi/callback_io.hpp"
@@ -59,6 +65,36 @@ pstream_result check_readable(const char* path) {
 }
 
 pstream_result null_argument(const char* what) { return fail(PSTREAM_ERROR_ARGUMENT, std::string(what) + " is NULL"); }
+
+// The handles that are open, so that a closed one (closed twice, used after close) or a pointer
+// no open returned is an error code and never a crash. Node-based: an empty set holds no memory,
+// so once every handle is closed the library holds nothing from the host's allocator.
+std::mutex g_handles_mutex;
+std::set<const void*>& open_handles() {
+  static std::set<const void*> handles;
+  return handles;
+}
+template <class T>
+T* opened(T* handle) {
+  std::lock_guard lock(g_handles_mutex);
+  open_handles().insert(handle);
+  return handle;
+}
+bool is_open(const void* handle) {
+  if (handle == nullptr) return false;
+  std::lock_guard lock(g_handles_mutex);
+  return open_handles().count(handle) != 0;
+}
+// Forgets `handle`; false when it was not open.
+bool forget(const void* handle) {
+  std::lock_guard lock(g_handles_mutex);
+  return open_handles().erase(handle) != 0;
+}
+pstream_result not_open(const char* what, const void* handle) {
+  if (handle == nullptr) return null_argument(what);
+  return fail(PSTREAM_ERROR_ARGUMENT,
+              fmt::format("{} ({}) is not open: it was closed already, or no open returned it", what, handle));
+}
 
 void fill_attribute(const format::Attribute& a, pstream_attribute* out) {
   out->name = a.name.c_str();
@@ -136,22 +172,28 @@ pstream_result pstream_archive_open(const char* path, pstream_archive** out) {
     for (const alembic::Object& o : a->archive.objects()) {
       if (alembic::Points::matches(o)) a->points.push_back(o);
     }
-    *out = a.release();
+    *out = opened(a.release());
     return PSTREAM_OK;
   });
 }
 
-void pstream_archive_close(pstream_archive* archive) { delete archive; }
+pstream_result pstream_archive_close(pstream_archive* archive) {
+  if (archive == nullptr) return PSTREAM_OK;  // as free(NULL)
+  if (!forget(archive)) return not_open("the archive", archive);
+  delete archive;
+  return PSTREAM_OK;
+}
 
 pstream_result pstream_archive_points_count(const pstream_archive* archive, size_t* count) {
-  if (archive == nullptr || count == nullptr) return null_argument("the archive or count");
+  if (!is_open(archive)) return not_open("the archive", archive);
+  if (count == nullptr) return null_argument("count");
   *count = archive->points.size();
   return PSTREAM_OK;
 }
 
 pstream_result pstream_archive_points_info(const pstream_archive* archive, size_t index, const char** full_name,
                                            uint32_t* samples) {
-  if (archive == nullptr) return null_argument("the archive");
+  if (!is_open(archive)) return not_open("the archive", archive);
   if (index >= archive->points.size())
     return fail(PSTREAM_ERROR_ARGUMENT,
                 "points object " + std::to_string(index) + " of " + std::to_string(archive->points.size()));
@@ -164,7 +206,7 @@ pstream_result pstream_archive_points_info(const pstream_archive* archive, size_
 
 pstream_result pstream_archive_points_sample(const pstream_archive* archive, size_t index, uint32_t sample,
                                              uint64_t* count, double* time) {
-  if (archive == nullptr) return null_argument("the archive");
+  if (!is_open(archive)) return not_open("the archive", archive);
   if (index >= archive->points.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no points object " + std::to_string(index));
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
     const alembic::Points points(archive->points[index]);
@@ -179,7 +221,8 @@ pstream_result pstream_archive_points_sample(const pstream_archive* archive, siz
 
 pstream_result pstream_archive_read_positions(const pstream_archive* archive, size_t index, uint32_t sample, float* out,
                                               uint64_t capacity) {
-  if (archive == nullptr || out == nullptr) return null_argument("the archive or out");
+  if (!is_open(archive)) return not_open("the archive", archive);
+  if (out == nullptr) return null_argument("out");
   if (index >= archive->points.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no points object " + std::to_string(index));
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
     const alembic::Points points(archive->points[index]);
@@ -266,21 +309,28 @@ pstream_result pstream_clip_open(const char* path, pstream_clip** out) {
   *out = nullptr;
   if (const pstream_result r = check_readable(path); r != PSTREAM_OK) return r;
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
-    *out = new pstream_clip{format::Reader::open(path)};
+    *out = opened(new pstream_clip{format::Reader::open(path)});
     return PSTREAM_OK;
   });
 }
 
-void pstream_clip_close(pstream_clip* clip) { delete clip; }
+pstream_result pstream_clip_close(pstream_clip* clip) {
+  if (clip == nullptr) return PSTREAM_OK;  // as free(NULL)
+  if (!forget(clip)) return not_open("the clip", clip);
+  delete clip;
+  return PSTREAM_OK;
+}
 
 pstream_result pstream_clip_info_get(const pstream_clip* clip, pstream_clip_info* out) {
-  if (clip == nullptr || out == nullptr) return null_argument("the clip or out");
+  if (!is_open(clip)) return not_open("the clip", clip);
+  if (out == nullptr) return null_argument("out");
   fill_info(clip->reader.metadata(), out);
   return PSTREAM_OK;
 }
 
 pstream_result pstream_clip_attribute(const pstream_clip* clip, uint32_t index, pstream_attribute* out) {
-  if (clip == nullptr || out == nullptr) return null_argument("the clip or out");
+  if (!is_open(clip)) return not_open("the clip", clip);
+  if (out == nullptr) return null_argument("out");
   const auto& layout = clip->reader.metadata().layout;
   if (index >= layout.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no attribute " + std::to_string(index));
   fill_attribute(layout[index], out);
@@ -288,7 +338,7 @@ pstream_result pstream_clip_attribute(const pstream_clip* clip, uint32_t index, 
 }
 
 pstream_result pstream_clip_frame_info(const pstream_clip* clip, uint64_t frame, uint64_t* count, double* time) {
-  if (clip == nullptr) return null_argument("the clip");
+  if (!is_open(clip)) return not_open("the clip", clip);
   const format::Metadata& m = clip->reader.metadata();
   if (frame >= m.frame_count())
     return fail(PSTREAM_ERROR_ARGUMENT, "frame " + std::to_string(frame) + " of " + std::to_string(m.frame_count()));
@@ -298,7 +348,8 @@ pstream_result pstream_clip_frame_info(const pstream_clip* clip, uint64_t frame,
 }
 
 pstream_result pstream_clip_read_frame(pstream_clip* clip, uint64_t frame, void* out, uint64_t capacity) {
-  if (clip == nullptr || out == nullptr) return null_argument("the clip or out");
+  if (!is_open(clip)) return not_open("the clip", clip);
+  if (out == nullptr) return null_argument("out");
   const format::Metadata& m = clip->reader.metadata();
   if (frame >= m.frame_count())
     return fail(PSTREAM_ERROR_ARGUMENT, "frame " + std::to_string(frame) + " of " + std::to_string(m.frame_count()));
@@ -332,9 +383,12 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
   pstream_player_options o;
   pstream_player_options_init(&o);
   if (options) {
-    if (options->struct_size < sizeof(pstream_player_options))
-      return fail(PSTREAM_ERROR_ARGUMENT, "pstream_player_options.struct_size is smaller than this library's");
-    o = *options;
+    // Older callers' structs end before the fields added since: what they have, then defaults.
+    constexpr std::size_t kFirstRelease = offsetof(pstream_player_options, io_timeout_seconds);
+    if (options->struct_size < kFirstRelease)
+      return fail(PSTREAM_ERROR_ARGUMENT, "pstream_player_options.struct_size is smaller than any release's");
+    std::memcpy(&o, options, std::min(options->struct_size, sizeof o));
+    o.struct_size = sizeof o;
   }
   if (count == 0) return fail(PSTREAM_ERROR_ARGUMENT, "a player needs at least one clip");
   if (o.io == nullptr) {
@@ -354,6 +408,8 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
   if (o.sort < PSTREAM_SORT_NONE || o.sort > PSTREAM_SORT_FRONT_TO_BACK)
     return fail(PSTREAM_ERROR_ARGUMENT, "unknown sort " + std::to_string(o.sort));
   if (!(o.cache_seconds >= 0.0)) return fail(PSTREAM_ERROR_ARGUMENT, "cache_seconds must be 0 or more");
+  if (!(o.io_timeout_seconds >= 0.0) || !std::isfinite(o.io_timeout_seconds))
+    return fail(PSTREAM_ERROR_ARGUMENT, "io_timeout_seconds must be a finite number of seconds, 0 or more");
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
     playback::PlayerOptions po;
     po.interpolation = static_cast<playback::Interpolation>(o.interpolation);
@@ -371,7 +427,7 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
     std::vector<std::filesystem::path> files(count);
     for (size_t i = 0; i < count; ++i) {
       if (o.io) {
-        po.io.push_back(capi::callback_io(o.io[i]));
+        po.io.push_back(capi::callback_io(o.io[i], o.io_timeout_seconds));
         files[i] = o.io[i].name ? o.io[i].name : "pstream_io";
       } else {
         files[i] = paths[i];
@@ -386,16 +442,21 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
       const stream::DebugInfo d = p->player->clip(i).debug();
       p->cache_bytes += d.cache_bytes + d.decode_bytes;
     }
-    *out = p.release();
+    *out = opened(p.release());
     return PSTREAM_OK;
   });
 }
 
-void pstream_player_close(pstream_player* player) { delete player; }
+pstream_result pstream_player_close(pstream_player* player) {
+  if (player == nullptr) return PSTREAM_OK;  // as free(NULL)
+  if (!forget(player)) return not_open("the player", player);
+  delete player;
+  return PSTREAM_OK;
+}
 
 #define PSTREAM_PLAYER_CALL(player, body)                        \
   do {                                                           \
-    if ((player) == nullptr) return null_argument("the player"); \
+    if (!is_open(player)) return not_open("the player", player); \
     return guarded(PSTREAM_ERROR_STATE, [&] {                    \
       body;                                                      \
       return PSTREAM_OK;                                         \
@@ -421,7 +482,8 @@ pstream_result pstream_player_set_range(pstream_player* player, double start, do
 }
 
 pstream_result pstream_player_set_transform(pstream_player* player, size_t clip, const float world[16]) {
-  if (player == nullptr || world == nullptr) return null_argument("the player or world");
+  if (!is_open(player)) return not_open("the player", player);
+  if (world == nullptr) return null_argument("world");
   if (clip >= player->player->clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
   render::Mat4 m;
   std::memcpy(m.data(), world, sizeof(float) * 16);
@@ -430,7 +492,7 @@ pstream_result pstream_player_set_transform(pstream_player* player, size_t clip,
 }
 
 pstream_result pstream_player_update(pstream_player* player, double dt, const float view[16]) {
-  if (player == nullptr) return null_argument("the player");
+  if (!is_open(player)) return not_open("the player", player);
   if (!(dt >= 0.0) || !std::isfinite(dt)) return fail(PSTREAM_ERROR_ARGUMENT, "update: dt must be finite and >= 0");
   render::Mat4 v = render::identity();
   if (view) std::memcpy(v.data(), view, sizeof(float) * 16);
@@ -441,17 +503,20 @@ pstream_result pstream_player_update(pstream_player* player, double dt, const fl
 }
 
 pstream_result pstream_player_check(const pstream_player* player) {
-  if (player == nullptr) return null_argument("the player");
+  if (!is_open(player)) return not_open("the player", player);
   return guarded(PSTREAM_ERROR_STATE, [&] {
     player->player->check();
     return PSTREAM_OK;
   });
 }
 
-size_t pstream_player_clip_count(const pstream_player* player) { return player ? player->player->clip_count() : 0; }
+size_t pstream_player_clip_count(const pstream_player* player) {
+  return is_open(player) ? player->player->clip_count() : 0;
+}
 
 pstream_result pstream_player_frame(const pstream_player* player, size_t clip, pstream_frame* out) {
-  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  if (!is_open(player)) return not_open("the player", player);
+  if (out == nullptr) return null_argument("out");
   const playback::Player& p = *player->player;
   if (clip >= p.clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
   *out = pstream_frame{};
@@ -474,7 +539,8 @@ pstream_result pstream_player_frame(const pstream_player* player, size_t clip, p
 }
 
 pstream_result pstream_player_merged_order(const pstream_player* player, const uint32_t** order, uint64_t* count) {
-  if (player == nullptr || order == nullptr || count == nullptr) return null_argument("the player, order or count");
+  if (!is_open(player)) return not_open("the player", player);
+  if (order == nullptr || count == nullptr) return null_argument("order or count");
   const std::span<const std::uint32_t> merged = player->player->merged_order();
   *order = merged.empty() ? nullptr : merged.data();
   *count = merged.size();
@@ -482,7 +548,8 @@ pstream_result pstream_player_merged_order(const pstream_player* player, const u
 }
 
 pstream_result pstream_player_clip_info(const pstream_player* player, size_t clip, pstream_clip_info* out) {
-  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  if (!is_open(player)) return not_open("the player", player);
+  if (out == nullptr) return null_argument("out");
   if (clip >= player->player->clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
   fill_info(player->player->clip(clip).metadata(), out);
   return PSTREAM_OK;
@@ -490,7 +557,8 @@ pstream_result pstream_player_clip_info(const pstream_player* player, size_t cli
 
 pstream_result pstream_player_attribute(const pstream_player* player, size_t clip, uint32_t index,
                                         pstream_attribute* out) {
-  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  if (!is_open(player)) return not_open("the player", player);
+  if (out == nullptr) return null_argument("out");
   if (clip >= player->player->clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
   const auto& layout = player->player->clip(clip).metadata().layout;
   if (index >= layout.size()) return fail(PSTREAM_ERROR_ARGUMENT, "no attribute " + std::to_string(index));
@@ -499,7 +567,8 @@ pstream_result pstream_player_attribute(const pstream_player* player, size_t cli
 }
 
 pstream_result pstream_player_stats_get(const pstream_player* player, pstream_player_stats* out) {
-  if (player == nullptr || out == nullptr) return null_argument("the player or out");
+  if (!is_open(player)) return not_open("the player", player);
+  if (out == nullptr) return null_argument("out");
   const playback::FrameStats& s = player->player->stats();
   *out = pstream_player_stats{};
   out->stream_ms = s.stream_ms;

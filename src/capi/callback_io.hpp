@@ -11,7 +11,12 @@
 
 namespace pstream::capi {
 
-// `io` must have `read` or `read_async` (or both); throws pstream::Error otherwise.
-std::unique_ptr<stream::IoBackend> callback_io(const pstream_io& io);
+// A read_async completion not called within this long puts the clip in its error state.
+inline constexpr double kDefaultIoTimeoutSeconds = 30.0;
+
+// `io` must have `read` or `read_async` (or both); throws pstream::Error otherwise. A host's
+// completion called twice, or not within `timeout_seconds` (0: kDefaultIoTimeoutSeconds), is
+// reported by fault(), so the stream fails with it instead of crashing or waiting forever.
+std::unique_ptr<stream::IoBackend> callback_io(const pstream_io& io, double timeout_seconds = 0.0);
 
 }  // namespace pstream::capi

@@ -2,6 +2,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include <fmt/format.h>
 
@@ -241,6 +242,8 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
     throw Error(fmt::format("{}: at offset {}: header checksum mismatch (the header is corrupted)", name, sum_at));
   }
   m.flags = h.get<std::uint64_t>("flags");
+  if ((m.flags & ~(kFlagXformsBaked | kFlagInterpolated)) != 0)
+    h.fail(fmt::format("flags {:#x} has bits this version does not define (expected only bits 0 and 1)", m.flags));
   m.fps = h.get<double>("fps");
   if (!(m.fps > 0.0) || !std::isfinite(m.fps)) h.fail(fmt::format("fps is {}, expected a positive number", m.fps));
   m.time_of_frame0 = h.get<double>("time_of_frame0");
@@ -267,6 +270,14 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   m.max_count = h.get<std::uint64_t>("max_count");
   m.avg_count = h.get<double>("avg_count");
   for (float& b : m.bounds) b = h.get<float>("bounds");
+  for (int axis = 0; axis < 3; ++axis) {  // each axis finite min <= max, or empty (+inf .. -inf)
+    const float lo = m.bounds[std::size_t(axis)], hi = m.bounds[std::size_t(axis + 3)];
+    const bool empty = lo == std::numeric_limits<float>::infinity() && hi == -std::numeric_limits<float>::infinity();
+    if (!empty && !(std::isfinite(lo) && std::isfinite(hi) && lo <= hi)) {
+      h.fail(fmt::format("bounds on axis {} are {} .. {}, expected finite min <= max (or +inf .. -inf: no particle)",
+                         "xyz"[axis], lo, hi));
+    }
+  }
   header.tables_offset = h.get<std::uint64_t>("tables_offset");
   header.tables_size = h.get<std::uint64_t>("tables_size");
   header.tables_checksum = h.get<std::uint64_t>("tables_checksum");
@@ -302,6 +313,50 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   }
   return header;
 }
+
+namespace {
+
+// Valid UTF-8 (no overlong forms, surrogates or code points past U+10FFFF), not empty, and no
+// control characters (C0, DEL, C1).
+bool is_printable_utf8(std::string_view s) {
+  if (s.empty()) return false;
+  for (std::size_t i = 0; i < s.size();) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    if (c < 0x20 || c == 0x7f) return false;
+    if (c < 0x80) {
+      ++i;
+      continue;
+    }
+    const std::size_t n = c >= 0xf0 ? 4 : c >= 0xe0 ? 3 : c >= 0xc2 ? 2 : 0;
+    if (n == 0 || c > 0xf4 || i + n > s.size()) return false;
+    std::uint32_t cp = c & (0xff >> (n + 1));
+    for (std::size_t k = 1; k < n; ++k) {
+      const auto cc = static_cast<unsigned char>(s[i + k]);
+      if ((cc & 0xc0) != 0x80) return false;
+      cp = (cp << 6) | (cc & 0x3f);
+    }
+    const std::uint32_t least = n == 2 ? 0x80 : n == 3 ? 0x800 : 0x10000;
+    if (cp < least || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff) || (cp >= 0x80 && cp < 0xa0)) return false;
+    i += n;
+  }
+  return true;
+}
+
+// A name as printable ASCII: other bytes as \xNN.
+std::string escaped(std::string_view s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto c = static_cast<unsigned char>(ch);
+    if (c >= 0x20 && c < 0x7f && c != '\\' && c != '"') {
+      out += ch;
+    } else {
+      out += fmt::format("\\x{:02x}", c);
+    }
+  }
+  return out;
+}
+
+}  // namespace
 
 Metadata parse_tables(const Header& header, std::span<const std::byte> tables, std::string_view name) {
   Metadata m = header.meta;
@@ -348,6 +403,29 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
                          attribute_type_name(a.type), a.offset, m.record_size));
     }
     m.layout.push_back(std::move(a));
+  }
+  // Names: unique, and text every tool can print and write (valid UTF-8 without control
+  // characters); attributes in record order covering it exactly, each at the 4-byte-aligned end
+  // of the one before.
+  std::uint32_t expected_offset_in_record = 0;
+  for (std::size_t i = 0; i < m.layout.size(); ++i) {
+    const Attribute& a = m.layout[i];
+    if (!is_printable_utf8(a.name)) {
+      t.fail(fmt::format("attribute {} has the name \"{}\", expected non-empty UTF-8 text without control characters",
+                         i, escaped(a.name)));
+    }
+    for (std::size_t j = 0; j < i; ++j) {
+      if (m.layout[j].name == a.name) t.fail(fmt::format("attributes {} and {} are both named '{}'", j, i, a.name));
+    }
+    if (a.offset != expected_offset_in_record) {
+      t.fail(fmt::format("attribute '{}' is at offset {} of the record, expected {} (the end of the one before)",
+                         a.name, a.offset, expected_offset_in_record));
+    }
+    expected_offset_in_record = (a.offset + a.size() + 3) / 4 * 4;
+  }
+  if (expected_offset_in_record != m.record_size) {
+    t.fail(fmt::format("the attributes cover {} bytes of the {}-byte record, expected all of it",
+                       expected_offset_in_record, m.record_size));
   }
   const auto& L = m.layout;
   if (L[0].name != "position" || L[0].type != AttributeType::Float32 || L[0].components != 3 || L[0].offset != 0 ||

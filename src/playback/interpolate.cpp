@@ -94,7 +94,7 @@ std::uint64_t FrameBlender::nearer_advected(std::span<const std::byte> a, std::u
   const bool first = t < 0.5;
   const std::span<const std::byte> from = first ? a : b;
   const std::uint64_t n = first ? na : nb;
-  std::memcpy(out, from.data(), n * stride_);
+  if (n > 0) std::memcpy(out, from.data(), n * stride_);  // an empty frame may have no storage at all
   if (velocity_ >= 0) {
     for (std::uint64_t i = 0; i < n; ++i) advect(out + i * stride_, first ? t * dt : -(1.0 - t) * dt, 1.0f);
   }

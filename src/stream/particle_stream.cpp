@@ -130,7 +130,18 @@ struct ParticleStream::Impl {
   bool blocking = false, current_valid = false, interpolate = false;  // host thread
   bool loop = false, closing = false, failed = false;                 // under `mutex`
   bool producing = false, produce_again = false, produce_queued = false, producer_done = false;
-  bool closed = false;
+  bool closed = false, abandoned = false;
+
+  // The backend's word on a host that broke its contract (fault()): the stream fails with it.
+  bool io_fault_locked() {
+    if (failed) return true;
+    std::string fault = io->fault();
+    if (fault.empty()) return false;
+    failed = true;
+    failure = std::move(fault);
+    loaded.notify_all();
+    return true;
+  }
 
   std::uint64_t range_chunks() const { return c1 - c0 + 1; }
   // A Ready slot's runs are written before it became Ready and read only while it is held.
@@ -479,7 +490,12 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   return s;
 }
 
-ParticleStream::~ParticleStream() { close(); }
+ParticleStream::~ParticleStream() {
+  close();
+  // A read the host never completed may still write into the cache and call back into the
+  // backend: both stay allocated (IoBackend::abandon()).
+  if (impl_ && impl_->abandoned) (void)impl_.release();
+}
 
 void ParticleStream::close() {
   if (!impl_ || impl_->closed) return;
@@ -487,7 +503,15 @@ void ParticleStream::close() {
   {
     std::unique_lock lock(d.mutex);
     d.closing = true;  // no new loads or decodes; wait for those under way, which write into the cache
-    d.loaded.wait(lock, [&] { return d.in_flight == 0 && !d.producing; });
+    // Until they end, or until the backend says a host's completion is overdue (then it is
+    // abandoned: close never hangs on a host that forgot a completion).
+    while (!d.loaded.wait_for(lock, std::chrono::milliseconds(50), [&] { return d.in_flight == 0 && !d.producing; })) {
+      if (!d.producing && !d.io->fault().empty()) {
+        d.io->abandon();
+        d.abandoned = true;
+        break;
+      }
+    }
   }
   d.scheduler->release(d.requests.size() + 1);
   if (d.budget) d.budget->release(d.cache_bytes + d.decode_bytes);
@@ -579,6 +603,7 @@ void ParticleStream::update(double dt) {
     d.current_valid = false;
     return true;
   };
+  d.io_fault_locked();
   if (failed()) return;
   d.host_seq = target_seq;
   const auto find = [&](std::uint64_t seq) {
@@ -628,10 +653,11 @@ void ParticleStream::update(double dt) {
   // 4. Blocking mode (offline rendering): wait for the frame instead of stalling.
   if (d.blocking) {
     const bool want_next = d.playhead.fraction > 0.0;  // interpolating: the next frame too
-    d.loaded.wait(lock, [&] {
+    const auto ready_or_failed = [&] {
       return d.failed || d.producer_done ||
              (find(target_seq) < d.frame_slots.size() && (!want_next || find(target_seq + 1) < d.frame_slots.size()));
-    });
+    };
+    while (!d.loaded.wait_for(lock, std::chrono::milliseconds(50), ready_or_failed)) d.io_fault_locked();
     if (failed()) return;
   }
   const std::size_t ready = find(target_seq);

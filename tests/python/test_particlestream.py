@@ -145,3 +145,28 @@ def test_errors_are_exceptions_with_the_librarys_message(tmp_path):
     with pytest.raises(ps.Error, match="no sample 60"):
         archive.positions("/particles", 60)
     assert issubclass(ps.Error, RuntimeError)
+
+
+def test_a_clip_of_empty_frames_plays():
+    # Every frame empty, so no chunks: it once killed the interpreter (a division by zero).
+    player = ps.Player([DATA / "pstream" / "empty_frames.pstream"], blocking=True, sort="back")
+    player.play()
+    for _ in range(20):
+        assert player.update(1 / 60)["particles"] == 0
+
+
+def test_what_the_c_api_refuses_raises_particlestream_error():
+    clip = DATA / "pstream" / "empty_frames.pstream"
+    player = ps.Player([clip])
+    for bad in (math.nan, -1.0, math.inf):
+        with pytest.raises(ps.Error, match="dt is"):
+            player.update(bad)
+    with pytest.raises(ps.Error, match="seek: time is nan"):
+        player.seek(math.nan)
+    with pytest.raises(ps.Error, match="set_speed: speed is inf"):
+        player.set_speed(math.inf)
+    with pytest.raises(ps.Error, match="cache_seconds is"):
+        ps.Player([clip], cache_seconds=math.nan)
+    # Only particlestream.Error (a RuntimeError) comes out of the library: never a raw C++ error.
+    with pytest.raises(ps.Error):
+        ps.Player([DATA / "alembic" / "points_varying.expected.json"])

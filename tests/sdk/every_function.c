@@ -242,7 +242,11 @@ int main(int argc, char** argv) {
                  PSTREAM_ERROR_FORMAT, "points_varying.expected.json");
     EXPECT_ERROR(pstream_archive_open(NULL, &archive), PSTREAM_ERROR_ARGUMENT, "NULL");
     EXPECT_ERROR(pstream_archive_points_count(NULL, &objects), PSTREAM_ERROR_ARGUMENT, "NULL");
-    pstream_archive_close(NULL); /* harmless */
+    CHECK(pstream_archive_close(NULL) == PSTREAM_OK); /* harmless */
+    CHECK(pstream_archive_open(join(0, data, "alembic/points_varying.abc"), &archive) == PSTREAM_OK);
+    CHECK(pstream_archive_close(archive) == PSTREAM_OK);
+    EXPECT_ERROR(pstream_archive_close(archive), PSTREAM_ERROR_ARGUMENT, "is not open");
+    EXPECT_ERROR(pstream_archive_points_count(archive, &objects), PSTREAM_ERROR_ARGUMENT, "is not open");
   }
 
   /* ---- Cooking ---- */
@@ -305,7 +309,9 @@ int main(int argc, char** argv) {
     EXPECT_ERROR(pstream_clip_read_frame(clip, 5, records, 3), PSTREAM_ERROR_ARGUMENT, "the buffer has 3");
     EXPECT_ERROR(pstream_clip_frame_info(clip, 60, &count, &time), PSTREAM_ERROR_ARGUMENT, "frame 60 of 60");
     free(records);
-    pstream_clip_close(clip);
+    CHECK(pstream_clip_close(clip) == PSTREAM_OK);
+    EXPECT_ERROR(pstream_clip_close(clip), PSTREAM_ERROR_ARGUMENT, "is not open");
+    EXPECT_ERROR(pstream_clip_info_get(clip, &info), PSTREAM_ERROR_ARGUMENT, "is not open");
     EXPECT_ERROR(pstream_clip_open(join(0, data, "alembic/points_varying.abc"), &clip), PSTREAM_ERROR_FORMAT,
                  "points_varying.abc");
   }
@@ -382,8 +388,39 @@ int main(int argc, char** argv) {
     EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_BUDGET, "memory budget");
     options.memory_budget = 0;
     EXPECT_ERROR(pstream_player_play(NULL), PSTREAM_ERROR_ARGUMENT, "NULL");
-    pstream_player_close(NULL);
+    CHECK(pstream_player_close(NULL) == PSTREAM_OK); /* as free(NULL) */
     CHECK(pstream_player_clip_count(NULL) == 0);
+
+    /* A closed handle is an error code, never a crash: closed twice, or used after close. */
+    CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+    CHECK(pstream_player_close(player) == PSTREAM_OK);
+    EXPECT_ERROR(pstream_player_close(player), PSTREAM_ERROR_ARGUMENT, "is not open");
+    EXPECT_ERROR(pstream_player_update(player, 0.01, NULL), PSTREAM_ERROR_ARGUMENT, "is not open");
+    EXPECT_ERROR(pstream_player_play(player), PSTREAM_ERROR_ARGUMENT, "is not open");
+    CHECK(pstream_player_clip_count(player) == 0);
+    EXPECT_ERROR(pstream_player_close((pstream_player*)&options), PSTREAM_ERROR_ARGUMENT, "no open returned it");
+  }
+
+  /* ---- A clip whose frames are all empty (0 chunks) plays: it once divided by zero ---- */
+  {
+    pstream_player* player = NULL;
+    pstream_player_options options;
+    pstream_frame frame;
+    const char* clips[1];
+    int k, i;
+    clips[0] = join(3, data, "pstream/empty_frames.pstream");
+    pstream_player_options_init(&options);
+    for (k = 0; k < 2; ++k) {
+      options.blocking = k; /* blocking (offline) and real time */
+      CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+      CHECK(pstream_player_play(player) == PSTREAM_OK);
+      for (i = 0; i < 20; ++i) {
+        CHECK(pstream_player_update(player, 1.0 / 60.0, NULL) == PSTREAM_OK);
+        CHECK(pstream_player_frame(player, 0, &frame) == PSTREAM_OK && frame.count == 0);
+      }
+      CHECK(pstream_player_check(player) == PSTREAM_OK);
+      CHECK(pstream_player_close(player) == PSTREAM_OK);
+    }
   }
 
   /* ---- The allocator hook (tests/sdk/allocator.c checks what it sees) ---- */
