@@ -18,6 +18,7 @@
 
 #include "base/output_file.hpp"
 #include "hostile_inputs.hpp"
+#include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
@@ -223,6 +224,62 @@ TEST(HardeningRound3, AParticleCountTheFileCannotJustifyIsRefusedBeforeAllocatin
   stream::StreamOptions options;
   options.budget = std::make_shared<stream::MemoryBudget>(64 << 20);
   EXPECT_THROW(stream::ParticleStream::open(dir / "claims.pstream", std::move(options)), OptionError);
+}
+
+// ---- Values a cook must not take silently ---------------------------------------------------------
+
+TEST(HardeningRound3, NanInfiniteOrNegativeWidthsAreRefusedOrDropped) {
+  const fs::path dir = test::fresh_dir();
+  constexpr std::size_t n = 40;
+  std::vector<float> positions(n * 3), widths(n, 0.1f);
+  for (std::size_t i = 0; i < n * 3; ++i) positions[i] = float(i) * 0.01f;
+  widths[3] = std::numeric_limits<float>::quiet_NaN();
+  widths[17] = -0.5f;
+  widths[31] = std::numeric_limits<float>::infinity();
+  for (const std::string extra : {"", " --attributes id"}) {  // the direct path, and the general one
+    fs::remove(dir / "out.pstream");
+    std::vector<std::uint64_t> ids(n);
+    for (std::size_t i = 0; i < n; ++i) ids[i] = i;
+    alembic::PointsWriterOptions po;
+    po.widths = true;
+    po.velocities = false;
+    {
+      alembic::ArchiveWriter w(dir / "in.abc", "test", "bad widths", 24.0, 0.0, po);
+      alembic::PointsSample sample;
+      sample.positions = positions;
+      sample.ids = ids;
+      sample.widths = widths;
+      w.write_sample(sample);
+      w.write_sample(sample);
+      w.close();
+    }
+    expect_error(test::run_cli(fmt::format("cook {} -o {} -q{}", q(dir / "in.abc"), q(dir / "out.pstream"), extra)),
+                 "frame 0: 3 particles have a NaN, infinite or negative size (the first is particle 3, size nan); "
+                 "--drop-invalid drops them");
+    EXPECT_FALSE(fs::exists(dir / "out.pstream"));
+    const auto r = test::run_cli(
+        fmt::format("cook {} -o {} -q --drop-invalid{}", q(dir / "in.abc"), q(dir / "out.pstream"), extra));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    const format::Reader reader = format::Reader::open(dir / "out.pstream");
+    EXPECT_EQ(reader.metadata().frames[0].count, n - 3);
+    std::vector<std::byte> records = format::frame_buffer(reader.metadata(), reader.name());
+    reader.read_frame(0, records);
+    for (std::size_t i = 0; i < n - 3; ++i) {
+      const float s = get<float>(std::string(reinterpret_cast<const char*>(records.data()), records.size()),
+                                 i * reader.metadata().record_size + render::kScaleOffset);
+      EXPECT_EQ(s, 0.05f) << "particle " << i;
+    }
+  }
+}
+
+TEST(HardeningRound3, AnUnknownRampAttributeIsRefusedBeforeRendering) {
+  const fs::path dir = test::fresh_dir();
+  const std::string clip = test::data_path("pstream_v1/points_varying_lz4.pstream");
+  const auto r =
+      test::run_cli_raw(fmt::format("ASAN_OPTIONS=detect_leaks=0 {} render {} --out {} -q --ramp-attribute nope",
+                                    PSTREAM_CLI, q(clip), q(dir / "frames")));
+  expect_error(r, "--ramp-attribute 'nope' is not one of its float attributes");
+  EXPECT_FALSE(fs::exists(dir / "frames" / "frame_00000.png"));
 }
 
 // ---- Temporaries on shared folders ------------------------------------------------------------------

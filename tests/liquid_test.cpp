@@ -58,7 +58,7 @@ class LiquidTest : public ::testing::Test {
     playback::DrawStyle draw;
     draw.look = Look::Liquid;
     draw.liquid = style;
-    player_->draw(renderer_, draw);
+    renderer_.draw(player_->draw_data(draw));
     renderer_.end_frame();
     rgba_ = ctx_.read_rgba();
   }

@@ -80,6 +80,8 @@ std::string in_cli_terms(std::string message) {
       {"`fps`", "--fps"},
       {"`seconds`", "--seconds"},
       {"`particles`", "--particles"},
+      {"`ramp_attribute`", "--ramp-attribute"},
+      {"`budget`", "a memory budget (the library's StreamOptions::budget)"},
   };
   for (const auto& [name, flag] : flags) {
     for (auto at = message.find(name); at != std::string::npos; at = message.find(name, at)) {

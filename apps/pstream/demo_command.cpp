@@ -27,9 +27,6 @@
 
 namespace pstream::app {
 
-render::Camera camera_for(const std::string& spec, const std::array<float, 6>& bounds,
-                          float aspect);  // render_command.cpp
-
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -177,7 +174,7 @@ int run_demo(const DemoCli& cli) {
     const std::filesystem::path files[] = {co.output};
     const auto player = playback::Player::open(files);
     const format::Metadata& m = player->clip(0).metadata();
-    const render::Camera camera = camera_for("auto", m.bounds, 16.0f / 9.0f);
+    const render::Camera camera = playback::framing_camera(files, 16.0f / 9.0f);
     player->set_loop(false);
     player->play();
     const double dt = 1.0 / m.fps;

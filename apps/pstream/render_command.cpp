@@ -35,50 +35,11 @@ render::Vec3 parse_vec3(const std::string& text) {
   return v;
 }
 
-// What the automatic camera frames: per axis, the 0.5th to 99.5th percentile of the particles'
-// positions in four frames of each clip (a quarter, half, three quarters, the end), so that a few
-// stray particles do not shrink the clip to a corner of the picture. The clips' whole bounds when
-// that finds nothing.
-std::array<float, 6> framing_bounds(const std::vector<std::filesystem::path>& files, std::array<float, 6> whole) {
-  std::array<std::vector<float>, 3> axes;
-  for (const auto& file : files) {
-    const format::Reader reader = format::Reader::open(file);
-    const format::Metadata& m = reader.metadata();
-    std::vector<std::byte> records;
-    for (const double at : {0.25, 0.5, 0.75, 1.0}) {
-      if (m.frame_count() == 0) break;
-      const auto f = std::min<std::uint64_t>(m.frame_count() - 1, std::uint64_t(at * double(m.frame_count() - 1)));
-      records.resize(m.frames[f].count * m.record_size);
-      reader.read_frame(f, records);
-      const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
-      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) {
-        float p[3];
-        std::memcpy(p, records.data() + i * m.record_size, sizeof p);
-        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))
-          for (int a = 0; a < 3; ++a) axes[std::size_t(a)].push_back(p[a]);
-      }
-    }
-  }
-  if (axes[0].size() < 16) return whole;
-  std::array<float, 6> box{};
-  for (std::size_t a = 0; a < 3; ++a) {
-    auto& v = axes[a];
-    const auto lo = v.begin() + std::ptrdiff_t(v.size() / 200),
-               hi = v.begin() + std::ptrdiff_t(v.size() - 1 - v.size() / 200);
-    std::nth_element(v.begin(), lo, v.end());
-    box[a] = *lo;
-    std::nth_element(v.begin(), hi, v.end());
-    box[a + 3] = *hi;
-  }
-  return box;
-}
-
 }  // namespace
 
-render::Camera camera_for(const std::string& spec, const std::array<float, 6>& bounds, float aspect) {
-  if (spec.empty() || spec == "auto") {
-    return render::Camera::framing({bounds[0], bounds[1], bounds[2]}, {bounds[3], bounds[4], bounds[5]}, aspect);
-  }
+// --camera: auto (the library's framing rule, as the viewer and the demo use it) or eye:target.
+render::Camera camera_for(const std::string& spec, std::span<const std::filesystem::path> files, float aspect) {
+  if (spec.empty() || spec == "auto") return playback::framing_camera(files, aspect);
   const auto colon = spec.find(':');
   if (colon == std::string::npos) throw Error(fmt::format("--camera '{}': expected auto or x,y,z:tx,ty,tz", spec));
   render::Camera c;
@@ -192,6 +153,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     }
   }
   const playback::DrawStyle style = draw_style(cli, bounds);  // flags checked before anything is written
+  player->check_style(style);
   std::int64_t first = 0, last = std::int64_t(m.frame_count());
   if (!cli.frames.empty()) {
     const auto [a, b] = parse_frame_range(cli.frames);
@@ -221,8 +183,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
-  const render::Camera camera = camera_for(cli.camera, cli.camera == "auto" ? framing_bounds(files, bounds) : bounds,
-                                           float(width) / float(height));
+  const render::Camera camera = camera_for(cli.camera, files, float(width) / float(height));
   const playback::SortPlan plan =
       playback::sort_plan(style, camera.view(), renderer.light_direction(), sort::parse_sort_mode(cli.sort));
 
@@ -238,7 +199,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     const auto start = std::chrono::steady_clock::now();
     context.bind();
     renderer.begin_frame(width, height, camera, {0.02f, 0.025f, 0.035f, 1.0f});
-    player->draw(renderer, style);
+    renderer.draw(player->draw_data(style));
     renderer.end_frame();
     const std::vector<std::uint8_t> pixels = context.read_rgba();
     if (stats)

@@ -38,16 +38,20 @@ struct Orbit {
     c.far = distance * 100.0f;
     return c;
   }
-  void frame(const format::Metadata& m) {
-    target = {(m.bounds[0] + m.bounds[3]) / 2, (m.bounds[1] + m.bounds[4]) / 2, (m.bounds[2] + m.bounds[5]) / 2};
-    const float dx = m.bounds[3] - m.bounds[0], dy = m.bounds[4] - m.bounds[1], dz = m.bounds[5] - m.bounds[2];
-    const float radius = std::max(0.5f * std::sqrt(dx * dx + dy * dy + dz * dz), 1e-3f);
-    distance = radius / std::sin(22.5f * std::numbers::pi_v<float> / 180.0f) * 1.05f;
+  // The library's automatic camera (the one `render` and the demo use), as an orbit around its
+  // target.
+  void frame(const render::Camera& c) {
+    target = c.target;
+    const float dx = c.eye[0] - c.target[0], dy = c.eye[1] - c.target[1], dz = c.eye[2] - c.target[2];
+    distance = std::max(std::sqrt(dx * dx + dy * dy + dz * dz), 1e-3f);
+    pitch = std::asin(std::clamp(dy / distance, -1.0f, 1.0f));
+    yaw = std::atan2(dx, dz);
   }
 };
 
 struct Ui {
   Orbit orbit;
+  render::Camera home;  // what F returns to
   bool dragging_left = false, dragging_right = false;
   double last_x = 0, last_y = 0;
   float speed = 1.0f, size = 1.0f;
@@ -84,7 +88,7 @@ void on_key(GLFWwindow* window, int key, int, int action, int) {
   } else if (key == GLFW_KEY_LEFT) {
     step_frames(player, -1);
   } else if (key == GLFW_KEY_F) {
-    ui.orbit.frame(player.clip(0).metadata());
+    ui.orbit.frame(ui.home);
   } else if (key == GLFW_KEY_ESCAPE) {
     glfwSetWindowShouldClose(window, GLFW_TRUE);
   }
@@ -160,13 +164,17 @@ int run_viewer(const ViewerCli& cli) {
       cli.sprite_look.preset.empty() ? playback::DrawStyle{} : playback::look_preset(cli.sprite_look.preset);
   if (!cli.look.empty()) style.look = render::parse_look(cli.look);
   apply_look(cli.sprite_look, style);
+  player->check_style(style);
 
   Ui ui;
   ui.look = style.look == render::Look::Liquid ? 1 : 0;
   ui.blend = style.blend == render::BlendMode::Alpha ? 0 : style.blend == render::BlendMode::Additive ? 1 : 2;
   ui.backdrop = ui.look == 1 || style.sprites.shadows;
   ui.player = player.get();
-  ui.orbit.frame(player->clip(0).metadata());
+  int window_width = 0, window_height = 0;
+  glfwGetWindowSize(window, &window_width, &window_height);
+  ui.home = playback::framing_camera(files, window_height > 0 ? float(window_width) / float(window_height) : 1.0f);
+  ui.orbit.frame(ui.home);
   glfwSetWindowUserPointer(window, &ui);
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();
@@ -242,7 +250,7 @@ int run_viewer(const ViewerCli& cli) {
     const playback::SortPlan plan = playback::sort_plan(style, camera.view(), renderer->light_direction(), mode);
     const playback::FrameStats& frame = player->advance(dt, plan.view, plan.mode);
     const auto t_draw0 = Clock::now();
-    player->draw(*renderer, style);
+    renderer->draw(player->draw_data(style));
     const double t_draw = std::chrono::duration<double, std::milli>(Clock::now() - t_draw0).count();
     const double t_stream = frame.stream_ms, t_sort = frame.sort_ms;
     const std::uint64_t drawn = frame.particles;

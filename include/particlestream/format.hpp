@@ -150,6 +150,13 @@ struct Metadata {
   const Attribute* find(std::string_view name) const;
 };
 
+// Attribute names are text every tool can print and write: non-empty valid UTF-8 (no overlong
+// forms, surrogates or code points past U+10FFFF) without control characters (C0, DEL, C1).
+// The reader refuses other names; the cook refuses to make them.
+bool is_valid_name(std::string_view name);
+// `name` as printable ASCII for messages: other bytes, quotes and backslashes as \xNN.
+std::string escaped_name(std::string_view name);
+
 // The default record: position float32x3 at 0, scale float32 at 12.
 std::vector<Attribute> default_layout();
 // Appends an attribute at the end of the record (4-byte aligned); returns the new record size.

@@ -5,12 +5,14 @@
 // the application calls advance(dt, view) and gets the frame ready to draw: per clip, the
 // records contiguous in memory, the draw order, the layout facts a renderer needs and the world
 // transform; several clips are sorted together so that where they overlap they blend in depth
-// order. draw() hands that frame to a render::Renderer. An application is its own argument
-// parsing, window or image output, and these two calls; the viewer, `pstream render` and
-// `pstream demo` are exactly that.
+// order. draw_data(style) describes that frame in the GL-free frame model (frame.hpp), and a
+// renderer draws it: render::Renderer::draw(player.draw_data(style)), or an engine's own. This
+// library neither includes nor links a renderer. An application is its own argument parsing,
+// window or image output, and these calls; the viewer, `pstream render` and `pstream demo` are
+// exactly that.
 //
 // Memory is fixed when the Player opens (the clips' caches, the sorters, the scratch for an
-// interpolated frame); advance() and draw() allocate nothing.
+// interpolated frame); advance() and draw_data() allocate nothing.
 #pragma once
 
 #include <array>
@@ -22,7 +24,7 @@
 #include <string_view>
 #include <vector>
 
-#include "particlestream/render.hpp"
+#include "particlestream/frame.hpp"
 #include "particlestream/sort.hpp"
 #include "particlestream/stream.hpp"
 
@@ -86,6 +88,14 @@ SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, cons
 // the choices for another name.
 DrawStyle look_preset(std::string_view name);
 
+// The automatic camera, one rule for `pstream render`, the viewer and the demo: per axis, the
+// 0.5th to 99.5th percentile of the particles' positions in four frames of each clip (a quarter,
+// half, three quarters, the end), so that a few stray particles do not shrink the clip into a
+// corner; the clips' whole bounds when that finds too few particles. framing_camera() frames
+// that box by render::Camera::framing (the default camera when no clip has a particle).
+std::array<float, 6> framing_box(std::span<const std::filesystem::path> files);
+render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect);
+
 // Where the time of a host frame went (milliseconds, this frame).
 struct FrameStats {
   double stream_ms = 0.0;  // update() of every clip
@@ -143,8 +153,14 @@ class Player {
   // What the last advance() measured.
   const FrameStats& stats() const { return stats_; }
   std::span<const std::uint32_t> merged_order() const;
-  // Draws what advance() prepared with `renderer` (between its begin_frame and end_frame).
-  void draw(render::Renderer& renderer, const DrawStyle& style);
+  // What advance() prepared, styled for drawing: each batch's blend, size, texture, tint and
+  // ramp attribute from `style`, the light buffer's bounds and the ground filled in from the
+  // clips' world box. Valid until the next advance() or draw_data(); allocates nothing.
+  const render::DrawData& draw_data(const DrawStyle& style);
+  // Throws OptionError naming the setting when `style` asks for what a clip lacks: a
+  // `ramp_attribute` that is not one of every clip's float attributes (the message lists the
+  // ones it has), or colouring by attribute with none named. Call it once, before drawing.
+  void check_style(const DrawStyle& style) const;
 
   // The bytes every clip's frame can take at most (an interpolated frame holds the particles of
   // both cached frames at most): what a renderer's buffers must hold.
@@ -160,6 +176,7 @@ class Player {
   std::vector<Clip*> sorted_by_;  // the clip of each batch
   std::vector<sort::DepthSorter::Source> sources_;
   std::span<const std::uint32_t> merged_order_;
+  render::DrawData draw_data_;
   FrameStats stats_;
   Interpolation interpolation_ = Interpolation::Hermite;
 };

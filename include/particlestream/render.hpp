@@ -13,170 +13,17 @@
 #include <vector>
 
 #include "particlestream/error.hpp"
+#include "particlestream/frame.hpp"
 
 namespace pstream::render {
 
-using Mat4 = std::array<float, 16>;  // column-major, as OpenGL takes it
-using Vec3 = std::array<float, 3>;
-
-Mat4 identity();
-Mat4 multiply(const Mat4& a, const Mat4& b);  // a * b
-Mat4 translation(const Vec3& t);
-Mat4 look_at(const Vec3& eye, const Vec3& target, const Vec3& up);
-Mat4 perspective(float fov_y_degrees, float aspect, float near, float far);
-
-struct Camera {
-  Vec3 eye{0, 0, 5}, target{0, 0, 0}, up{0, 1, 0};
-  float fov_y_degrees = 45.0f, near = 0.01f, far = 1000.0f;
-  Mat4 view() const { return look_at(eye, target, up); }
-  Mat4 projection(float aspect) const { return perspective(fov_y_degrees, aspect, near, far); }
-  // A camera that frames the box [lo, hi] from a three-quarter view above the front, as close as
-  // keeps all of it in a view of this width / height.
-  static Camera framing(const Vec3& lo, const Vec3& hi, float aspect = 16.0f / 9.0f);
-};
-
-enum class BlendMode { Alpha, Additive, AlphaTest };
-BlendMode parse_blend(const std::string& name);  // "alpha", "additive", "alphatest"
-
-// One stream's frame, as the stream hands it out.
-struct ParticleBatch {
-  std::span<const std::byte> first, second;  // the records (second: a second part, when not contiguous)
-  std::uint64_t count = 0;
-  std::uint32_t record_size = 16;
-  std::int32_t color_offset = -1;  // an RGBA8 attribute in the record, or -1
-  // A float32 x3 velocity (units per second) in the record, or -1: as cooked, and between cached
-  // frames the derivative of the interpolated motion (playback.hpp), for motion blur and
-  // stretched sprites.
-  std::int32_t velocity_offset = -1;
-  std::int32_t scalar_offset = -1;       // a float32 attribute for ColorBy::Attribute, or -1
-  Mat4 world = identity();               // object -> world
-  std::span<const std::uint32_t> order;  // draw order (back to front); empty: stored order
-  BlendMode blend = BlendMode::Alpha;
-  std::array<float, 4> color{0.45f, 0.65f, 0.95f, 0.9f};  // when the record has no colour
-  std::array<float, 4> tint{1, 1, 1, 1};                  // multiplies this stream's colours (telling streams apart)
-  float size_multiplier = 1.0f;
-  std::string texture;  // optional sprite image (PNG); empty: the soft round sprite
-};
-
-// ---- Sprites: colour, light, motion -------------------------------------------------------------
-
-// Where a sprite's colour comes from: the record's colour (Cd) or the batch's, or a ramp over the
-// particle's speed (from its velocity) or over a float attribute (ParticleBatch::scalar_offset).
-enum class ColorBy { Stored, Speed, Attribute };
-ColorBy parse_color_by(const std::string& name);  // "stored", "speed", "attribute"
-
-// A colour ramp: up to 8 stops spread evenly over [low, high] (values outside take the end
-// colours), linear RGB.
-struct Ramp {
-  std::array<std::array<float, 3>, 8> stops{};
-  int count = 0;
-  float low = 0.0f, high = 1.0f;
-  std::array<float, 3> at(float value) const;  // what the shaders compute, for tests and tools
-  // "fire" (black, red, orange, yellow, white), "ice", "viridis", "grey".
-  static Ramp named(const std::string& name, float low, float high);
-};
-
-enum class ToneMap {
-  Filmic,  // a filmic curve on each pixel's largest channel, scaling the others with it: bright
-           // additive light saturates towards its own hue, never to white
-  Linear,  // exposure, then clamp (what 8-bit additive blending did before HDR)
-};
-ToneMap parse_tone_map(const std::string& name);  // "filmic", "linear"
-
-// How sprites are coloured, lit and moved. Sprites accumulate in a half-float buffer and are
-// tone-mapped over what is already drawn (the backdrop).
-struct SpriteStyle {
-  ColorBy color_by = ColorBy::Stored;
-  Ramp ramp = Ramp::named("fire", 0.0f, 1.0f);
-  std::array<float, 4> tint{1, 1, 1, 1};  // multiplies every colour (a stream's tint)
-  float opacity = 1.0f;                   // multiplies alpha
-  bool lit = true;                        // key/fill/rim lighting of a sphere under the sprite; false: flat colour
-  // Volumetric self-shadowing by half-angle slicing (Green 2008): the particles are sorted along
-  // the vector halfway between the view and the light (sort_for_shadows()) and drawn in
-  // `slices` batches, each into the eye buffer (lit by what the light buffer lets through) and
-  // then into the light buffer (as opacity × shadow_density). The ground receives the light
-  // buffer's final shadow.
-  bool shadows = false;
-  int slices = 32;              // 1..256
-  float shadow_density = 1.0f;  // a particle's opacity to light, × its alpha
-  bool shadow_blur = true;      // a 5-tap blur when the light buffer is read
-  int shadow_resolution = 512;  // the light buffer's size, 64..4096
-  std::array<float, 6>
-      bounds{};  // world box the light buffer covers (lo xyz, hi xyz); all 0: the camera's target ± its distance
-  std::optional<float> ground_height;  // a ground plane that receives the shadows (and hides what is under it)
-  // Motion: sprites stretch along their screen-space velocity over `shutter` seconds (0: round
-  // sprites), keeping their energy (a longer streak is fainter).
-  float shutter = 0.0f;
-  // Below `min_pixels` of radius a sprite is drawn at that radius with its alpha scaled by the
-  // area it lost, so a receding cloud keeps its brightness instead of flickering away.
-  float min_pixels = 1.0f;
-  float exposure = 1.0f;
-  ToneMap tone_map = ToneMap::Filmic;
-};
-
-// The order self-shadowed sprites are drawn in: sort front to back in `sort_view` (whose view
-// axis is the half-angle vector), and whether the eye buffer then blends front to back (the
-// light is behind the viewer) or back to front.
-struct HalfAngle {
-  Mat4 sort_view = identity();
-  bool eye_front_to_back = true;
-};
-HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction);
-
-// How a draw shows its particles: each as a lit round sprite, or the surface of a liquid made
-// from them in screen space (below).
-enum class Look { Sprites, Liquid };
-Look parse_look(const std::string& name);  // "sprites", "liquid"
-
-// Screen-space liquid (van der Laan, Green and Sainz 2009; Truong and Yuksel 2018). Every
-// particle is splatted as a sphere into a depth buffer and, additively, into a thickness buffer;
-// the depth is smoothed by a separable filter whose radius is a world-space length (so it
-// shrinks with distance in pixels); normals come from the smoothed depth; the surface reflects
-// the sky (Fresnel), refracts and absorbs what is behind it by its thickness (Beer-Lambert) and
-// takes a highlight from the key light. Isolated or fast particles are drawn over it as white
-// spray. Lengths are in particle radii, so one style suits any scene scale.
-enum class LiquidFilter {
-  NarrowRange,  // Truong and Yuksel: neighbours far in front are another surface (ignored), far
-                // behind or empty are clamped just behind: smooth surfaces, sharp silhouettes
-  Bilateral,    // Gaussian in space and in depth (the classic filter, for comparison)
-  Gaussian,     // depth-blind Gaussian (blends layers: halos; for comparison)
-  None,         // the raw sphere splats (what sprites look like as a surface)
-};
-LiquidFilter parse_liquid_filter(const std::string& name);  // "narrow-range", "bilateral", "gaussian", "none"
-
-enum class LiquidOutput { Shaded, Depth, Normals, Thickness };  // Depth, Normals, Thickness: inspection views
-LiquidOutput parse_liquid_output(const std::string& name);      // "shaded", "depth", "normals", "thickness"
-
-struct LiquidStyle {
-  float particle_radius = 0.0f;  // world units; 0: the median radius of up to 255 records of the frame
-  float resolution = 1.0f;       // depth and thickness buffers at this fraction of the viewport, 0.25..1
-  LiquidFilter filter = LiquidFilter::NarrowRange;
-  float smoothing = 4.0f;                           // filter radius, in particle radii
-  int iterations = 2;                               // applications of the separable (horizontal, vertical) filter, 0..8
-  float depth_range = 4.0f;                         // the narrow range: farther than this (in radii) is another layer
-  std::array<float, 3> color{0.30f, 0.66f, 0.82f};  // what `color_depth` of liquid lets through
-  float color_depth = 16.0f;                        // in particle radii
-  float refraction = 1.0f;                          // how far the normal bends what is behind, 0..4
-  float foam_speed = 0.0f;      // world units per second: faster particles are spray (0: off; needs velocities)
-  float foam_isolation = 3.0f;  // particles where the liquid is thinner than this (radii) are spray (0: off)
-  LiquidOutput output = LiquidOutput::Shaded;
-};
+// The frame model (math, camera, batches, styles) is GL-free, in frame.hpp.
 
 // The buffers of the last liquid draw, read back as floats (tests and tools; allocates).
 enum class LiquidBuffer { RawDepth, Depth, Normals, Thickness };  // Normals: 3 floats a pixel, view space
 struct LiquidImage {
   int width = 0, height = 0, channels = 1;
   std::vector<float> values;  // bottom row first, as OpenGL stores it; depth: distance along the view axis, 0: none
-};
-
-// A context for what is drawn: a sky gradient and a ground plane with a grid (which the liquid
-// refracts and reflects).
-struct Backdrop {
-  bool ground = true;
-  float ground_height = 0.0f;  // world y of the ground plane
-  float grid_spacing = 1.0f;   // world units between grid lines
-  // The ground under the box [lo, hi] (y up), with a grid of about ten lines across it.
-  static Backdrop under(const Vec3& lo, const Vec3& hi);
 };
 
 struct RendererOptions {
@@ -196,10 +43,10 @@ class Renderer {
 
   void begin_frame(int width, int height, const Camera& camera, const std::array<float, 4>& background);
   void draw(const ParticleBatch& batch, const SpriteStyle& style = {});
-  // Several streams' frames as one draw, in a merged order whose entries are (batch << 28) |
-  // index — sort::DepthSorter::sort_merged makes it — so overlapping streams blend in depth
-  // order. The first batch's blend mode and sprite apply to all.
-  static constexpr std::size_t kMaxMergedBatches = 8;
+  // Several streams' frames as one draw, in a merged order (frame.hpp: kMergedIndexBits, at most
+  // kMaxMergedBatches batches), so overlapping streams blend in depth order. The first batch's
+  // blend mode and sprite apply to all.
+  static constexpr std::size_t kMaxMergedBatches = render::kMaxMergedBatches;
   void draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order,
                    const SpriteStyle& style = {});
   // Several streams drawn as one liquid surface (Look::Liquid). Needs no draw order; the
@@ -212,6 +59,9 @@ class Renderer {
   void draw_backdrop(const Backdrop& backdrop);
   // The edges of the world box [lo, hi] as lines (context: where the clip can be), depth-tested.
   void draw_box(const Vec3& lo, const Vec3& hi, const std::array<float, 4>& color);
+  // A whole frame as the playback layer describes it (frame.hpp): the backdrop, the box, then the
+  // batches as sprites (merged or each in its order) or as one liquid surface.
+  void draw(const DrawData& frame);
   void end_frame();                     // fences this frame's buffer region
   const Vec3& light_direction() const;  // RendererOptions::light_direction
   static std::string gl_renderer();

@@ -11,6 +11,8 @@
 #include <span>
 #include <string_view>
 
+#include "particlestream/frame.hpp"
+
 namespace pstream::sort {
 
 namespace detail {
@@ -79,9 +81,10 @@ class DepthSorter {
   // Several streams sorted together (overlapping streams blend correctly only in one order):
   // each source's records go through its own (view x world) matrix. The entries of the returned
   // order are (source << kMergedIndexBits) | index within that source. The total count must not
-  // exceed capacity(); at most kMaxMergedSources sources of fewer than 2^28 particles each.
-  static constexpr int kMergedIndexBits = 28;
-  static constexpr std::size_t kMaxMergedSources = 8;
+  // exceed capacity(); at most kMaxMergedSources sources of fewer than 2^kMergedIndexBits
+  // particles each. The packing is the frame model's (frame.hpp), which renderers unpack.
+  static constexpr int kMergedIndexBits = static_cast<int>(render::kMergedIndexBits);
+  static constexpr std::size_t kMaxMergedSources = render::kMaxMergedBatches;
   struct Source {
     const std::byte* records = nullptr;
     std::size_t count = 0, stride = 16;

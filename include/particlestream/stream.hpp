@@ -207,6 +207,7 @@ class ParticleStream {
   double time() const;                                 // the playhead, clip seconds
   bool seeking() const { return seeking_; }
   const format::Metadata& metadata() const { return meta_; }
+  const std::string& name() const;  // the file's (or the IO backend's) name, as messages give it
   std::span<const format::Attribute> layout() const { return meta_.layout; }
 
   // The current frame: zero-copy spans into the cache, valid until the next update().

@@ -1,6 +1,8 @@
 // Particles from an Alembic archive: one points object, a mesh's vertices, or every points
 // object merged; positions baked into world space with the object's transform hierarchy.
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <unordered_map>
 
 #include <fmt/format.h>
@@ -221,7 +223,14 @@ class AlembicSource final : public Source {
     const SampleView widths = w->values().sample_at(c.sampling().sample_time(index)).first;
     if (widths.pod() != Pod::Float32 || widths.extent() != 1 || widths.size() != out.count)
       return false;  // general path
-    out.widths = widths.bytes().data();
+    // Widths that are NaN, infinite or negative: the general path names them (or drops them).
+    const std::span<const std::byte> bytes = widths.bytes();
+    for (std::size_t i = 0; i < out.count; ++i) {
+      float w;
+      std::memcpy(&w, bytes.data() + i * 4, 4);
+      if (!(w >= 0.0f && w <= std::numeric_limits<float>::max())) return false;
+    }
+    out.widths = bytes.data();
     return true;
   }
 

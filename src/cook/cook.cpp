@@ -124,11 +124,15 @@ Plan make_plan(const Options& options, const Source& source, Report& report, flo
   return plan;
 }
 
-// Bounds of the finite positions, and how many are not finite (one pass over the frame).
+// Bounds of the valid particles, and how many are not valid (one pass over the frame): a position
+// that is not finite, or a size (scale) that is NaN, infinite or negative.
 struct Scan {
   std::array<float, 6> bounds;
   std::uint64_t invalid = 0, first_invalid = 0;
+  std::uint64_t bad_scale = 0, first_bad_scale = 0;  // of those, with a valid position but not size
 };
+
+bool valid_scale(float s) { return s >= 0.0f && s <= std::numeric_limits<float>::max(); }
 
 // One pass over `count` positions given by `position(i, p)`.
 template <class PositionOf>
@@ -151,7 +155,19 @@ Scan scan_positions(std::uint64_t count, PositionOf position) {
 }
 
 Scan scan(const ParticleFrame& f) {
-  return scan_positions(f.count, [&](std::uint64_t i, float* p) { std::copy_n(&f.position[i * 3], 3, p); });
+  const bool sized = f.scale.size() >= f.count;
+  Scan s = scan_positions(f.count, [&](std::uint64_t i, float* p) {
+    std::copy_n(&f.position[i * 3], 3, p);
+    if (sized && !valid_scale(f.scale[i])) p[0] = std::numeric_limits<float>::quiet_NaN();  // counted invalid
+  });
+  if (s.invalid == 0 || !sized) return s;
+  for (std::uint64_t i = 0; i < f.count; ++i) {
+    const float* p = &f.position[i * 3];
+    if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]) && !valid_scale(f.scale[i])) {
+      if (s.bad_scale++ == 0) s.first_bad_scale = i;
+    }
+  }
+  return s;
 }
 
 // Removes particles whose position is not finite, or fails naming the frame.
@@ -159,6 +175,13 @@ std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan,
                            std::uint64_t frame, const std::string& source) {
   const std::uint64_t bad = scan.invalid, first_bad = scan.first_invalid;
   if (bad == 0) return 0;
+  if (!options.drop_invalid && scan.bad_scale > 0) {
+    const std::uint64_t i = scan.first_bad_scale;
+    throw OptionError("drop_invalid",
+                      fmt::format("{}: frame {}: {} particles have a NaN, infinite or negative size (the first is "
+                                  "particle {}, size {}); `drop_invalid` drops them",
+                                  source, frame, scan.bad_scale, i, f.scale[i]));
+  }
   if (!options.drop_invalid) {
     throw OptionError("drop_invalid",
                       fmt::format("{}: frame {}: {} particles have NaN or infinite positions (the first is particle "
@@ -169,6 +192,7 @@ std::uint64_t drop_invalid(ParticleFrame& f, const Scan& scan, const Plan& plan,
   for (std::uint64_t i = 0; i < f.count; ++i) {
     const float* p = &f.position[i * 3];
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
+    if (f.scale.size() >= f.count && !valid_scale(f.scale[i])) continue;
     const auto move = [&](auto& v, std::size_t k) {
       if (v.size() >= f.count * k)
         std::copy_n(v.begin() + static_cast<std::ptrdiff_t>(i * k), k,

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include "particlestream/format.hpp"
+#include "particlestream/frame.hpp"
 
 namespace pstream::format {
 
@@ -119,10 +120,51 @@ std::uint32_t record_size_of(const std::vector<Attribute>& layout) {
   return (end + 3u) & ~3u;
 }
 
+bool is_valid_name(std::string_view s) {
+  if (s.empty()) return false;
+  for (std::size_t i = 0; i < s.size();) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    if (c < 0x20 || c == 0x7f) return false;
+    if (c < 0x80) {
+      ++i;
+      continue;
+    }
+    const std::size_t n = c >= 0xf0 ? 4 : c >= 0xe0 ? 3 : c >= 0xc2 ? 2 : 0;
+    if (n == 0 || c > 0xf4 || i + n > s.size()) return false;
+    std::uint32_t cp = c & (0xff >> (n + 1));
+    for (std::size_t k = 1; k < n; ++k) {
+      const auto cc = static_cast<unsigned char>(s[i + k]);
+      if ((cc & 0xc0) != 0x80) return false;
+      cp = (cp << 6) | (cc & 0x3f);
+    }
+    const std::uint32_t least = n == 2 ? 0x80 : n == 3 ? 0x800 : 0x10000;
+    if (cp < least || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff) || (cp >= 0x80 && cp < 0xa0)) return false;
+    i += n;
+  }
+  return true;
+}
+
+std::string escaped_name(std::string_view s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto c = static_cast<unsigned char>(ch);
+    if (c >= 0x20 && c < 0x7f && c != '\\' && c != '"') {
+      out += ch;
+    } else {
+      out += fmt::format("\\x{:02x}", c);
+    }
+  }
+  return out;
+}
+
 std::uint32_t append_attribute(std::vector<Attribute>& layout, std::string name, AttributeType type,
                                std::uint8_t components) {
   if (name.empty() || name.size() >= kAttributeNameSize) {
-    throw Error(fmt::format("attribute name '{}' must have 1 to {} characters", name, kAttributeNameSize - 1));
+    throw Error(
+        fmt::format("attribute name \"{}\" must have 1 to {} bytes", escaped_name(name), kAttributeNameSize - 1));
+  }
+  if (!is_valid_name(name)) {
+    throw Error(fmt::format("attribute name \"{}\" is not UTF-8 text without control characters", escaped_name(name)));
   }
   for (const Attribute& a : layout) {
     if (a.name == name) throw Error(fmt::format("attribute '{}' appears twice in the record layout", name));
@@ -134,7 +176,8 @@ std::uint32_t append_attribute(std::vector<Attribute>& layout, std::string name,
 }
 
 std::vector<Attribute> default_layout() {
-  return {{"position", AttributeType::Float32, 3, 0}, {"scale", AttributeType::Float32, 1, 12}};
+  return {{"position", AttributeType::Float32, 3, render::kPositionOffset},
+          {"scale", AttributeType::Float32, 1, render::kScaleOffset}};
 }
 
 }  // namespace pstream::format

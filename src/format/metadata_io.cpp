@@ -314,50 +314,6 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   return header;
 }
 
-namespace {
-
-// Valid UTF-8 (no overlong forms, surrogates or code points past U+10FFFF), not empty, and no
-// control characters (C0, DEL, C1).
-bool is_printable_utf8(std::string_view s) {
-  if (s.empty()) return false;
-  for (std::size_t i = 0; i < s.size();) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    if (c < 0x20 || c == 0x7f) return false;
-    if (c < 0x80) {
-      ++i;
-      continue;
-    }
-    const std::size_t n = c >= 0xf0 ? 4 : c >= 0xe0 ? 3 : c >= 0xc2 ? 2 : 0;
-    if (n == 0 || c > 0xf4 || i + n > s.size()) return false;
-    std::uint32_t cp = c & (0xff >> (n + 1));
-    for (std::size_t k = 1; k < n; ++k) {
-      const auto cc = static_cast<unsigned char>(s[i + k]);
-      if ((cc & 0xc0) != 0x80) return false;
-      cp = (cp << 6) | (cc & 0x3f);
-    }
-    const std::uint32_t least = n == 2 ? 0x80 : n == 3 ? 0x800 : 0x10000;
-    if (cp < least || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff) || (cp >= 0x80 && cp < 0xa0)) return false;
-    i += n;
-  }
-  return true;
-}
-
-// A name as printable ASCII: other bytes as \xNN.
-std::string escaped(std::string_view s) {
-  std::string out;
-  for (const char ch : s) {
-    const auto c = static_cast<unsigned char>(ch);
-    if (c >= 0x20 && c < 0x7f && c != '\\' && c != '"') {
-      out += ch;
-    } else {
-      out += fmt::format("\\x{:02x}", c);
-    }
-  }
-  return out;
-}
-
-}  // namespace
-
 Metadata parse_tables(const Header& header, std::span<const std::byte> tables, std::string_view name) {
   Metadata m = header.meta;
   const std::uint64_t frame_count = header.frame_count, chunk_count = header.chunk_count;
@@ -410,9 +366,9 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
   std::uint32_t expected_offset_in_record = 0;
   for (std::size_t i = 0; i < m.layout.size(); ++i) {
     const Attribute& a = m.layout[i];
-    if (!is_printable_utf8(a.name)) {
+    if (!is_valid_name(a.name)) {
       t.fail(fmt::format("attribute {} has the name \"{}\", expected non-empty UTF-8 text without control characters",
-                         i, escaped(a.name)));
+                         i, escaped_name(a.name)));
     }
     for (std::size_t j = 0; j < i; ++j) {
       if (m.layout[j].name == a.name) t.fail(fmt::format("attributes {} and {} are both named '{}'", j, i, a.name));
@@ -428,9 +384,12 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
                        expected_offset_in_record, m.record_size));
   }
   const auto& L = m.layout;
-  if (L[0].name != "position" || L[0].type != AttributeType::Float32 || L[0].components != 3 || L[0].offset != 0 ||
-      L[1].name != "scale" || L[1].type != AttributeType::Float32 || L[1].components != 1 || L[1].offset != 12) {
-    t.fail("the record layout must start with position float32x3 at 0 and scale float32 at 12");
+  const std::vector<Attribute> head = default_layout();
+  if (L[0].name != head[0].name || L[0].type != head[0].type || L[0].components != head[0].components ||
+      L[0].offset != head[0].offset || L[1].name != head[1].name || L[1].type != head[1].type ||
+      L[1].components != head[1].components || L[1].offset != head[1].offset) {
+    t.fail(fmt::format("the record layout must start with position float32x3 at {} and scale float32 at {}",
+                       head[0].offset, head[1].offset));
   }
   if (particle) {
     m.codec.words.resize(word_entries);

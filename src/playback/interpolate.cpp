@@ -72,7 +72,7 @@ void FrameBlender::advect(std::byte* r, double seconds, float grow) const {
   if (velocity_ >= 0) {
     for (int c = 0; c < 3; ++c) store(r + 4 * c, float(load(r + 4 * c) + seconds * load(r + velocity_ + 4 * c)));
   }
-  store(r + 12, load(r + 12) * grow);
+  store(r + render::kScaleOffset, load(r + render::kScaleOffset) * grow);
 }
 
 void FrameBlender::blend_colors(const std::byte* a, const std::byte* b, std::size_t records, float t,

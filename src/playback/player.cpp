@@ -115,7 +115,7 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
   sources_.clear();
   merged_order_ = {};
   const bool sorting = mode != sort::SortMode::None;
-  const bool merge = sorting && merged_sorter_ && clips_.size() <= render::Renderer::kMaxMergedBatches;
+  const bool merge = sorting && merged_sorter_ && clips_.size() <= render::kMaxMergedBatches;
   for (auto& c : clips_) {
     const auto t0 = Clock::now();
     c.stream->update(dt);

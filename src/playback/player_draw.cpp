@@ -1,14 +1,16 @@
-// Player::draw, apart from the rest of the player: the only part that needs OpenGL, so that
-// what links the player without drawing (the C API's shared library) does not pull in the
-// renderer.
+// Player::draw_data: the frame advance() prepared, styled and described in the frame model
+// (frame.hpp) for a renderer to draw. No graphics API here.
 #include <algorithm>
 #include <cmath>
+#include <string>
+
+#include <fmt/format.h>
 
 #include "particlestream/playback.hpp"
 
 namespace pstream::playback {
 
-void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
+const render::DrawData& Player::draw_data(const DrawStyle& style) {
   const std::span<render::ParticleBatch> batches(batches_.data(), batch_count_);
   render::SpriteStyle sprites = style.sprites;
   const bool fit_bounds = std::all_of(sprites.bounds.begin(), sprites.bounds.end(), [](float v) { return v == 0; });
@@ -45,21 +47,42 @@ void Player::draw(render::Renderer& renderer, const DrawStyle& style) {
   }
   const bool box_found = std::all_of(box.begin(), box.end(), [](float v) { return std::isfinite(v); });
   if (fit_bounds && box_found) sprites.bounds = box;
-  if (style.backdrop) {
-    renderer.draw_backdrop(*style.backdrop);
-    if (style.backdrop->ground && !sprites.ground_height) sprites.ground_height = style.backdrop->ground_height;
+  render::DrawData& d = draw_data_;
+  d.batches = batches;
+  d.merged_order = merged_order_;
+  d.look = style.look;
+  d.liquid = style.liquid;
+  d.backdrop = style.backdrop;
+  if (style.backdrop && style.backdrop->ground && !sprites.ground_height)
+    sprites.ground_height = style.backdrop->ground_height;
+  d.sprites = sprites;
+  d.box.reset();
+  if (style.bounds_box && box_found) d.box = box;
+  return d;
+}
+
+void Player::check_style(const DrawStyle& style) const {
+  if (style.sprites.color_by == render::ColorBy::Attribute && style.ramp_attribute.empty() &&
+      style.look == render::Look::Sprites) {
+    throw OptionError("ramp_attribute",
+                      "colouring by attribute needs a `ramp_attribute`: the float attribute to colour by");
   }
-  if (style.bounds_box && box_found)
-    renderer.draw_box({box[0], box[1], box[2]}, {box[3], box[4], box[5]}, {0.9f, 0.75f, 0.3f, 0.6f});
-  if (style.look == render::Look::Liquid) {  // one surface from every clip; needs no order
-    renderer.draw_liquid(batches, style.liquid);
-    return;
+  if (style.ramp_attribute.empty()) return;
+  for (std::size_t i = 0; i < clip_count(); ++i) {
+    const stream::ParticleStream& c = clip(i);
+    std::string floats;
+    bool found = false;
+    for (const format::Attribute& a : c.layout()) {
+      if (a.type != format::AttributeType::Float32 || a.components != 1) continue;
+      found = found || a.name == style.ramp_attribute;
+      floats += (floats.empty() ? "" : ", ") + a.name;
+    }
+    if (!found) {
+      throw OptionError("ramp_attribute",
+                        fmt::format("{}: `ramp_attribute` '{}' is not one of its float attributes ({})", c.name(),
+                                    style.ramp_attribute, floats));
+    }
   }
-  if (!merged_order_.empty()) {
-    renderer.draw_merged(batches, merged_order_, sprites);
-    return;
-  }
-  for (const auto& b : batches) renderer.draw(b, sprites);
 }
 
 }  // namespace pstream::playback

@@ -6,6 +6,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <string>
 
 #include <fmt/format.h>
 
@@ -18,7 +19,8 @@ namespace {
 // Splats, one instanced quad per particle of one batch. Pass 0: the sphere's front depth
 // (distance along the view axis) with depth testing; 1: its thickness (chord length) added up;
 // 2: spray, for particles where the liquid is thin (isolated) or that move fast.
-constexpr const char* kSplatVertex = R"(#version 450 core
+// After its prelude (splat_vertex_source()): kScaleWord.
+constexpr const char* kSplatVertex = R"(
 layout(std430, binding = 0) readonly buffer Records { uint words[]; };
 uniform mat4 u_model_view;
 uniform mat4 u_projection;
@@ -39,7 +41,7 @@ float word(uint w) { return uintBitsToFloat(words[w]); }
 void main() {
   uint w = u_base + uint(gl_InstanceID) * u_stride;
   float world_scale = length(u_model_view[0].xyz);
-  float r = (u_fixed_radius > 0.0 ? u_fixed_radius : word(w + 3u) * u_size) * world_scale;
+  float r = (u_fixed_radius > 0.0 ? u_fixed_radius : word(w + kScaleWord) * u_size) * world_scale;
   vec4 view = u_model_view * vec4(word(w), word(w + 1u), word(w + 2u), 1.0);
   v_corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
   v_center = view.xyz;
@@ -70,6 +72,10 @@ void main() {
   gl_Position = u_projection * view;
 }
 )";
+
+std::string splat_vertex_source() {
+  return fmt::format("#version 450 core\nconst uint kScaleWord = {}u;\n", kScaleOffset / 4) + kSplatVertex;
+}
 
 constexpr const char* kSplatFragment = R"(#version 450 core
 in vec2 v_corner;
@@ -278,7 +284,7 @@ float median_radius(std::span<const ParticleBatch> batches) {
         i -= b.count;
         continue;
       }
-      const std::uint64_t at = i * b.record_size + 12;  // scale: the radius, after position
+      const std::uint64_t at = i * b.record_size + kScaleOffset;  // scale: the radius
       const std::span<const std::byte> part = at < b.first.size() ? b.first : b.second;
       const std::uint64_t in = at < b.first.size() ? at : at - b.first.size();
       float radius = 0;
@@ -350,7 +356,7 @@ void LiquidPass::Impl::resize(int w, int h, float resolution) {
 
 LiquidPass::LiquidPass() : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
-  d.splat = link_program(kSplatVertex, kSplatFragment);
+  d.splat = link_program(splat_vertex_source().c_str(), kSplatFragment);
   const std::string header = std::string("#version 450 core\n") + kViewPosition;
   d.filter = link_program(kFullScreenVertexShader, kFilterFragment);
   d.normals = link_program(kFullScreenVertexShader, (header + kNormalFragment).c_str());

@@ -34,9 +34,6 @@ struct StagedBatches {
   std::array<float, 16 * kMaxBatches> model_view{};
 };
 
-// A world direction in view space (no translation), unit length (zero stays zero).
-Vec3 view_direction(const Mat4& view, const Vec3& world);
-
 // A triangle that covers the viewport (no vertex buffer: positions from gl_VertexID).
 extern const char* const kFullScreenVertexShader;
 

@@ -106,7 +106,7 @@ void Renderer::begin_frame(int width, int height, const Camera& camera, const st
   d.frame.width = std::max(width, 1);
   d.frame.height = std::max(height, 1);
   const Vec3& l = d.options.light_direction;
-  d.frame.light_view = detail::view_direction(d.frame.view, l);
+  d.frame.light_view = view_direction(d.frame.view, l);
   const float lw = std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
   d.frame.light_world = lw > 0 ? Vec3{l[0] / lw, l[1] / lw, l[2] / lw} : Vec3{0, 1, 0};
   glViewport(0, 0, width, height);
@@ -121,6 +121,23 @@ void Renderer::draw(const ParticleBatch& b, const SpriteStyle& style) {
 }
 
 const Vec3& Renderer::light_direction() const { return impl_->options.light_direction; }
+
+void Renderer::draw(const DrawData& frame) {
+  if (frame.backdrop) draw_backdrop(*frame.backdrop);
+  if (frame.box) {
+    const std::array<float, 6>& b = *frame.box;
+    draw_box({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, {0.9f, 0.75f, 0.3f, 0.6f});
+  }
+  if (frame.look == Look::Liquid) {  // one surface from every clip; needs no order
+    draw_liquid(frame.batches, frame.liquid);
+    return;
+  }
+  if (!frame.merged_order.empty()) {
+    draw_merged(frame.batches, frame.merged_order, frame.sprites);
+    return;
+  }
+  for (const ParticleBatch& b : frame.batches) draw(b, frame.sprites);
+}
 
 void Renderer::draw_merged(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order,
                            const SpriteStyle& style) {

@@ -15,10 +15,13 @@
 namespace pstream::render::detail {
 namespace {
 
-constexpr const char* kVertexShader = R"(#version 450 core
+// What the sprite shader shares with the C++ side, written once (frame.hpp).
+std::string sprite_vertex_source();
+
+// After the prelude (sprite_vertex_source()): kBatches, kMergedIndexBits, kScaleWord.
+constexpr const char* kVertexShader = R"(
 layout(std430, binding = 0) readonly buffer Records { uint words[]; };
 layout(std430, binding = 1) readonly buffer Order { uint order[]; };
-const int kBatches = 8;                  // streams drawn together in one merged order
 uniform mat4 u_model_view[kBatches];
 uniform mat4 u_light_model_view[kBatches];  // object -> the light's view
 uniform mat4 u_projection;
@@ -32,7 +35,7 @@ uniform vec4 u_color[kBatches];
 uniform vec4 u_batch_tint[kBatches];
 uniform float u_size[kBatches];
 uniform bool u_use_order;
-uniform bool u_merged;                   // order entries are (batch << 28) | index
+uniform bool u_merged;                   // order entries are (batch << kMergedIndexBits) | index
 uniform uint u_first;                    // the slice's first entry
 uniform bool u_points;
 uniform int u_pass;                      // 0: the eye, 1: the light buffer
@@ -66,11 +69,11 @@ vec3 ramp(float x) {
 void main() {
   uint slot = uint(gl_InstanceID) + u_first;
   uint entry = u_use_order ? order[slot] : slot;
-  uint b = u_merged ? entry >> 28u : 0u;
-  uint index = u_merged ? entry & 0x0FFFFFFFu : entry;
+  uint b = u_merged ? entry >> kMergedIndexBits : 0u;
+  uint index = u_merged ? entry & ((1u << kMergedIndexBits) - 1u) : entry;
   uint w = u_base_words[b] + index * u_stride_words[b];
   vec3 p = vec3(word(w), word(w + 1u), word(w + 2u));
-  float radius = word(w + 3u) * u_size[b] * length(u_model_view[b][0].xyz);
+  float radius = word(w + kScaleWord) * u_size[b] * length(u_model_view[b][0].xyz);
   vec4 color = u_color_word[b] >= 0 ? unpackUnorm4x8(words[w + uint(u_color_word[b])]) : u_color[b];
   vec3 velocity = vec3(0.0);
   if (u_velocity_word[b] >= 0) {
@@ -132,6 +135,14 @@ void main() {
   gl_Position = u_projection * view;
 }
 )";
+
+std::string sprite_vertex_source() {
+  return fmt::format(
+             "#version 450 core\nconst int kBatches = {};\nconst uint kMergedIndexBits = {}u;\n"
+             "const uint kScaleWord = {}u;\n",
+             kMaxMergedBatches, kMergedIndexBits, kScaleOffset / 4) +
+         kVertexShader;
+}
 
 constexpr const char* kFragmentShader = R"(#version 450 core
 in vec2 v_local;
@@ -318,7 +329,7 @@ struct SpritePass::Impl {
 
 SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
-  d.program = link_program(kVertexShader, kFragmentShader);
+  d.program = link_program(sprite_vertex_source().c_str(), kFragmentShader);
   const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
   d.u = Uniforms{loc("u_model_view"),   loc("u_light_model_view"),
                  loc("u_projection"),   loc("u_light_projection"),

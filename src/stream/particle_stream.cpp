@@ -518,6 +518,8 @@ void ParticleStream::close() {
   d.closed = true;
 }
 
+const std::string& ParticleStream::name() const { return impl_->name; }
+
 void ParticleStream::play() {
   if (state_ == PlayState::Error) return;
   state_ = PlayState::Playing;

@@ -4,8 +4,7 @@
 
 #include <fmt/format.h>
 
-#include "particlestream/render.hpp"
-#include "passes.hpp"
+#include "particlestream/frame.hpp"
 
 namespace pstream::render {
 namespace {
@@ -97,15 +96,11 @@ Backdrop Backdrop::under(const Vec3& lo, const Vec3& hi) {
   return b;
 }
 
-namespace detail {
-
 Vec3 view_direction(const Mat4& view, const Vec3& world) {
   return normalize({view[0] * world[0] + view[4] * world[1] + view[8] * world[2],
                     view[1] * world[0] + view[5] * world[1] + view[9] * world[2],
                     view[2] * world[0] + view[6] * world[1] + view[10] * world[2]});
 }
-
-}  // namespace detail
 
 HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction) {
   // The camera's forward axis in world space (the view matrix's third row, negated), and the

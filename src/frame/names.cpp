@@ -4,7 +4,8 @@
 
 #include <fmt/format.h>
 
-#include "particlestream/render.hpp"
+#include "particlestream/error.hpp"
+#include "particlestream/frame.hpp"
 
 namespace pstream::render {
 

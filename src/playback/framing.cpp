@@ -1,0 +1,56 @@
+// The automatic camera: one rule for `pstream render`, the viewer and the demo.
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "particlestream/format.hpp"
+#include "particlestream/playback.hpp"
+
+namespace pstream::playback {
+
+std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
+  std::array<std::vector<float>, 3> axes;
+  std::array<float, 6> whole{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+  for (const auto& file : files) {
+    const format::Reader reader = format::Reader::open(file);
+    const format::Metadata& m = reader.metadata();
+    for (std::size_t a = 0; a < 3; ++a) {
+      whole[a] = std::min(whole[a], m.bounds[a]);
+      whole[a + 3] = std::max(whole[a + 3], m.bounds[a + 3]);
+    }
+    std::vector<std::byte> records;
+    for (const double at : {0.25, 0.5, 0.75, 1.0}) {
+      if (m.frame_count() == 0) break;
+      const auto f = std::min<std::uint64_t>(m.frame_count() - 1, std::uint64_t(at * double(m.frame_count() - 1)));
+      if (records.empty()) records = format::frame_buffer(m, reader.name());
+      reader.read_frame(f, records);
+      const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
+      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) {
+        float p[3];
+        std::memcpy(p, records.data() + i * m.record_size + render::kPositionOffset, sizeof p);
+        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))
+          for (std::size_t a = 0; a < 3; ++a) axes[a].push_back(p[a]);
+      }
+    }
+  }
+  if (axes[0].size() < 16) return whole;
+  std::array<float, 6> box{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    auto& v = axes[a];
+    const auto lo = v.begin() + std::ptrdiff_t(v.size() / 200),
+               hi = v.begin() + std::ptrdiff_t(v.size() - 1 - v.size() / 200);
+    std::nth_element(v.begin(), lo, v.end());
+    box[a] = *lo;
+    std::nth_element(v.begin(), hi, v.end());
+    box[a + 3] = *hi;
+  }
+  return box;
+}
+
+render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect) {
+  const std::array<float, 6> b = framing_box(files);
+  const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);  // no particle anywhere
+  return empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, aspect);
+}
+
+}  // namespace pstream::playback
