@@ -78,6 +78,22 @@ fs::path cook_clip(const fs::path& dir, const std::string& name, const std::stri
 TEST(HardeningRound3, AClipOfEmptyFramesPlaysEverywhere) {
   const fs::path dir = test::fresh_dir();
   // Frames 12 and 13 of the fixture have no particles: the cook writes a valid clip of 0 chunks.
+  // The particle codec cooks one too (it once failed: "an error bound of -inf"), and it plays.
+  const fs::path particle = cook_clip(dir, "points_empty_frames", "particle", 12, 14);
+  {
+    const format::Reader r = format::Reader::open(particle);
+    ASSERT_EQ(r.metadata().frame_count(), 2u);
+    EXPECT_EQ(r.metadata().max_count, 0u);
+    stream::StreamOptions options;
+    options.blocking = true;
+    auto s = stream::ParticleStream::open(particle, std::move(options));
+    s->play();
+    for (int i = 0; i < 5; ++i) {
+      s->update(1.0 / 24);
+      EXPECT_NE(s->state(), stream::PlayState::Error) << s->error();
+      EXPECT_EQ(s->frame().count, 0u);
+    }
+  }
   const fs::path clip = cook_clip(dir, "points_empty_frames", "raw", 12, 14);
   const format::Reader reader = format::Reader::open(clip);
   ASSERT_EQ(reader.metadata().frame_count(), 2u);
@@ -280,6 +296,68 @@ TEST(HardeningRound3, AnUnknownRampAttributeIsRefusedBeforeRendering) {
                                     PSTREAM_CLI, q(clip), q(dir / "frames")));
   expect_error(r, "--ramp-attribute 'nope' is not one of its float attributes");
   EXPECT_FALSE(fs::exists(dir / "frames" / "frame_00000.png"));
+}
+
+TEST(HardeningRound3, NamesAreDataNotSyntaxInExportedPly) {
+  const fs::path dir = test::fresh_dir();
+  format::Metadata meta;
+  meta.fps = 24;
+  meta.chunk_size = format::kMinChunkSize;
+  meta.layout = format::default_layout();
+  meta.record_size = format::append_attribute(meta.layout, "two words", format::AttributeType::Float32, 1);
+  meta.source_file = "a.abc\nproperty float injected";
+  meta.source_object = "/obj\nend_header";
+  {
+    format::Writer writer(dir / "names.pstream", meta);
+    writer.append_frame(1, 0.0, {0, 0, 0, 0, 0, 0});
+    const float record[5] = {0, 0, 0, 0.1f, 7.0f};
+    const auto raw = std::as_bytes(std::span(record));
+    writer.append_chunk(raw, format::Codec::Raw, 0, format::checksum(raw));
+    writer.commit();
+  }
+  expect_error(test::run_cli(fmt::format("export {} --out {} -q", q(dir / "names.pstream"), q(dir / "ply"))),
+               "the attribute \"two words\" cannot be a PLY property name");
+  EXPECT_FALSE(fs::exists(dir / "ply"));
+  // A name with a control character is refused where a layout is made, and by the reader.
+  std::vector<format::Attribute> layout = format::default_layout();
+  EXPECT_THROW(format::append_attribute(layout, "bad\nname", format::AttributeType::Float32, 1), Error);
+  // Source names with line breaks are escaped in the PLY header's comment: one line, no injection.
+  format::Metadata plain = meta;
+  plain.layout = format::default_layout();
+  plain.record_size = 16;
+  {
+    format::Writer writer(dir / "plain.pstream", plain);
+    writer.append_frame(1, 0.0, {0, 0, 0, 0, 0, 0});
+    const float record[4] = {0, 0, 0, 0.1f};
+    const auto raw = std::as_bytes(std::span(record));
+    writer.append_chunk(raw, format::Codec::Raw, 0, format::checksum(raw));
+    writer.commit();
+  }
+  ASSERT_EQ(test::run_cli(fmt::format("export {} --out {} -q", q(dir / "plain.pstream"), q(dir / "ply2"))).exit_code,
+            0);
+  const std::string ply = test::read_text(dir / "ply2" / "frame.0001.ply");
+  EXPECT_EQ(ply.find("\nproperty float injected"), std::string::npos) << ply.substr(0, 300);
+  EXPECT_EQ(ply.find("\nend_header"), ply.rfind("\nend_header"));
+  EXPECT_NE(ply.find("a.abc\\x0aproperty float injected"), std::string::npos) << ply.substr(0, 300);
+}
+
+TEST(HardeningRound3, AVideoHoldsExactlyTheFramesOfThisRender) {
+  if (test::run_cli_raw("ffprobe -version").exit_code != 0) GTEST_SKIP() << "no ffprobe";
+  const fs::path dir = test::fresh_dir();
+  const std::string clip = test::data_path("pstream_v1/points_varying_lz4.pstream");
+  const auto render = [&](const std::string& frames) {
+    return test::run_cli_raw(
+        fmt::format("ASAN_OPTIONS=detect_leaks=0 {} render {} --out {} --video {} --frames {} -q "
+                    "--size 160x90",
+                    PSTREAM_CLI, q(clip), q(dir / "frames"), q(dir / "v.mp4"), frames));
+  };
+  ASSERT_EQ(render("0:30").exit_code, 0);  // 30 frames in the folder
+  const auto second = render("0:8");       // then 8 into the same folder
+  ASSERT_EQ(second.exit_code, 0) << second.output;
+  const auto probe = test::run_cli_raw(fmt::format(
+      "ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=nb_read_frames -of csv=p=0 {}",
+      q(dir / "v.mp4")));
+  EXPECT_EQ(std::stoi(probe.output), 8) << "the video took older frames from the folder: " << probe.output;
 }
 
 // ---- Temporaries on shared folders ------------------------------------------------------------------

@@ -129,7 +129,7 @@ int bench_stream(const BenchStreamOptions& o) {
     const stream::DebugInfo d = s->debug();
     // Every slot loaded once (a clip of empty frames has no chunk to load), and the decoded ring full.
     return d.loads_done >= std::min<std::uint64_t>(d.slots.size(), m.chunk_count()) &&
-           d.decoded_ready + 1 >= d.decoded_slots;
+           (d.decoded_ready + 1 >= d.decoded_slots || d.decoded_ready >= m.frame_count());  // short clips too
   };
   while (!primed() && s->state() != stream::PlayState::Error && Clock::now() - prime_start < std::chrono::seconds(30)) {
     s->update(0);

@@ -71,6 +71,19 @@ void split(const Metadata& m, std::span<const std::byte> records, std::uint64_t 
   }
 }
 
+// A PLY header is lines of words: a name is data, never syntax. Names with a space (or anything
+// the reader's validation lets through but a PLY word cannot hold) are refused; text in the
+// comment is escaped.
+const std::string& ply_word(const std::string& name, const fs::path& input) {
+  if (name.find_first_of(" \t\r\n\v\f") != std::string::npos || !format::is_valid_name(name)) {
+    throw Error(
+        fmt::format("{}: the attribute \"{}\" cannot be a PLY property name (it is not one word); export "
+                    "to Alembic (-o NAME.abc) instead",
+                    input.string(), format::escaped_name(name)));
+  }
+  return name;
+}
+
 // A binary little-endian PLY of one frame, complete or not at all (never over `input`).
 void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::uint64_t n, const fs::path& input) {
   bool ids32 = true;
@@ -79,15 +92,15 @@ void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::u
       "ply\nformat binary_little_endian 1.0\ncomment pstream export of {} {}\n"
       "element vertex {}\nproperty float x\nproperty float y\nproperty float z\n"
       "property float pscale\n",
-      m.source_file, m.source_object, n);
+      format::escaped_name(m.source_file), format::escaped_name(m.source_object), n);
   if (!c.velocity.empty()) header += "property float vx\nproperty float vy\nproperty float vz\n";
   if (!c.color.empty())
     header += "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n";
   if (!c.id.empty()) header += ids32 ? "property uint id\n" : "property double id\n";
   for (const Attribute* a : c.float_attributes) {
     for (std::size_t k = 0; k < a->components; ++k)
-      header += a->components == 1 ? fmt::format("property float {}\n", a->name)
-                                   : fmt::format("property float {}_{}\n", a->name, k);
+      header += a->components == 1 ? fmt::format("property float {}\n", ply_word(a->name, input))
+                                   : fmt::format("property float {}_{}\n", ply_word(a->name, input), k);
   }
   header += "end_header\n";
   std::vector<std::byte> body(reinterpret_cast<const std::byte*>(header.data()),
@@ -135,6 +148,7 @@ int run_export(const ExportCli& cli) {
   if (!cli.out.empty()) {
     if (fs::exists(cli.out) && !fs::is_directory(cli.out))
       throw Error(fmt::format("--out {}: exists and is not a folder", cli.out));
+    for (const Attribute* a : c.float_attributes) ply_word(a->name, cli.file);  // before anything is written
     fs::create_directories(cli.out);
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
       reader.read_frame(f, records);

@@ -80,7 +80,7 @@ ProgramResult run_program(const std::vector<std::string>& argv, bool capture, bo
 
 std::string self_executable() { return std::filesystem::read_symlink("/proc/self/exe").string(); }
 
-void encode_video(const std::string& frames_dir, double fps, const std::string& video) {
+void encode_video(const std::string& frames_dir, std::uint64_t frames, double fps, const std::string& video) {
   if (!have_program("ffmpeg")) {
     throw Error(
         fmt::format("{}: writing a video needs the ffmpeg program, which is not installed (apt-get install "
@@ -92,10 +92,26 @@ void encode_video(const std::string& frames_dir, double fps, const std::string& 
   OutputFile out = OutputFile::create(video);
   const std::filesystem::path temp = out.temporary();
   if (temp.empty()) throw Error(fmt::format("{}: a video is written to a regular file", video));
-  const ProgramResult r =
-      run_program({"ffmpeg", "-nostdin", "-y", "-loglevel", "error", "-framerate", fmt::format("{}", fps), "-i",
-                   (std::filesystem::path(frames_dir) / "frame_%05d.png").string(), "-c:v", "libx264", "-pix_fmt",
-                   "yuv420p", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-f", "mp4", temp.string()});
+  const ProgramResult r = run_program({"ffmpeg",
+                                       "-nostdin",
+                                       "-y",
+                                       "-loglevel",
+                                       "error",
+                                       "-framerate",
+                                       fmt::format("{}", fps),
+                                       "-i",
+                                       (std::filesystem::path(frames_dir) / "frame_%05d.png").string(),
+                                       "-frames:v",
+                                       fmt::format("{}", frames),
+                                       "-c:v",
+                                       "libx264",
+                                       "-pix_fmt",
+                                       "yuv420p",
+                                       "-vf",
+                                       "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+                                       "-f",
+                                       "mp4",
+                                       temp.string()});
   struct stat st {};
   const bool written = ::stat(temp.c_str(), &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0;
   if (r.exit_code != 0 || !written) {

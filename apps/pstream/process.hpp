@@ -2,6 +2,7 @@
 // vector goes straight to execvp, so no path or option is ever parsed as shell syntax.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -22,8 +23,9 @@ ProgramResult run_program(const std::vector<std::string>& argv, bool capture = f
 // This executable's path (to run pstream's own subcommands).
 std::string self_executable();
 
-// Encodes DIR/frame_NNNNN.png into an H.264 MP4 with ffmpeg, then checks the file was written:
+// Encodes DIR/frame_00000.png .. frame_{frames-1}.png into an H.264 MP4 with ffmpeg (exactly
+// those: older frames further on in the folder are not taken), then checks the file was written:
 // throws pstream::Error saying what went wrong otherwise.
-void encode_video(const std::string& frames_dir, double fps, const std::string& video);
+void encode_video(const std::string& frames_dir, std::uint64_t frames, double fps, const std::string& video);
 
 }  // namespace pstream::app

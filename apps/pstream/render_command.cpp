@@ -211,7 +211,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   if (!cli.quiet)
     fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
   if (!cli.video.empty()) {
-    encode_video(cli.out, fps, cli.video);  // no shell; checks the file was written
+    encode_video(cli.out, outputs, fps, cli.video);  // no shell; exactly this render's frames
     if (!cli.quiet) fmt::print("video -> {}\n", cli.video);
   }
   return 0;

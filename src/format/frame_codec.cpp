@@ -281,7 +281,7 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
       }
     } else if (at.name == "id" && at.type == AttributeType::Uint64 && info.order == FrameOrder::Id) {
       info.words[first].coding = info.words[first + 1].coding = WordCoding::Id;
-    } else if (is_float && !options.lossless) {
+    } else if (is_float && !options.lossless && stats.particles() > 0) {  // no particles: nothing to grid
       double error = 0.0;
       if (at.name == "position" || at.name == "scale")
         error = position_error;
