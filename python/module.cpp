@@ -268,8 +268,8 @@ PYBIND11_MODULE(particlestream, m) {
   py::class_<PyPlayer>(m, "Player", "Playback of one or more clips (the C++ playback::Player).")
       .def(py::init([](std::vector<std::filesystem::path> paths, const std::string& interpolation, bool blocking,
                        bool loop, const std::string& sort, double cache_seconds) {
-             if (!(cache_seconds > 0.0) || !std::isfinite(cache_seconds))
-               throw Error(fmt::format("cache_seconds is {}, expected a finite number > 0", cache_seconds));
+             if (!(cache_seconds >= 0.0) || !std::isfinite(cache_seconds))  // as the C API
+               throw Error(fmt::format("cache_seconds is {}, expected a finite number >= 0", cache_seconds));
              playback::PlayerOptions o;
              o.interpolation = playback::parse_interpolation(interpolation);
              o.stream.blocking = blocking;

@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <new>
 #include <string>
+#include <system_error>
 #include <vector>
 
 #include <fmt/format.h>
@@ -501,6 +502,22 @@ int main(int argc, char** argv) {
     if (bench_all_cmd->parsed()) return bench_all(bench_all_opts);
     return 0;
   };
+  // Which command on which input ran out of a resource: the message a user can act on.
+  const auto out_of_resources = [&](const std::string& what) {
+    std::string inputs;
+    for (const std::string* f : {&info_file, &cook.input, &verify_file, &export_cli.file, &bench_stream_opts.file,
+                                 &bench_playback_opts.file}) {
+      if (!f->empty()) inputs += " " + *f;
+    }
+    for (const auto* files : {&render_cli.files, &viewer.files})
+      for (const std::string& f : *files) inputs += " " + f;
+    std::string command;
+    for (const CLI::App* sub = &app; !sub->get_subcommands().empty();) {
+      sub = sub->get_subcommands().front();
+      command += (command.empty() ? "" : " ") + sub->get_name();
+    }
+    return fmt::format("{}{}: {}", command, inputs, what);
+  };
   int status = 0;
   std::string error;
   try {
@@ -509,7 +526,18 @@ int main(int argc, char** argv) {
     error = in_cli_terms(e.what());
     status = 1;
   } catch (const std::bad_alloc&) {
-    error = "out of memory (an input asks for more than this machine has; see docs/reliability.md for the limits)";
+    error = out_of_resources(
+        "out of memory: the input asks for more than this machine has (see "
+        "docs/reliability.md for the limits and how to raise or lower them)");
+    status = 1;
+  } catch (const std::filesystem::filesystem_error& e) {  // names the path and the system's reason
+    error = out_of_resources(e.what());
+    status = 1;
+  } catch (const std::system_error& e) {  // the system refused a thread or a lock
+    error =
+        out_of_resources(fmt::format("the system refused a resource ({}); try again with fewer other programs "
+                                     "running, or a higher limit (ulimit)",
+                                     e.what()));
     status = 1;
   } catch (const std::exception& e) {
     fmt::print(stderr, "pstream: internal error: {}\n", e.what());

@@ -165,8 +165,9 @@ def test_what_the_c_api_refuses_raises_particlestream_error():
         player.seek(math.nan)
     with pytest.raises(ps.Error, match="set_speed: speed is inf"):
         player.set_speed(math.inf)
-    with pytest.raises(ps.Error, match="cache_seconds is"):
-        ps.Player([clip], cache_seconds=math.nan)
+    for bad in (math.nan, -1.0, math.inf):
+        with pytest.raises(ps.Error, match="cache_seconds is"):
+            ps.Player([clip], cache_seconds=bad)
     # Only particlestream.Error (a RuntimeError) comes out of the library: never a raw C++ error.
     with pytest.raises(ps.Error):
         ps.Player([DATA / "alembic" / "points_varying.expected.json"])
