@@ -1,10 +1,14 @@
 // `pstream bench sort`: the seed's sorting comparison, every contender on the same key-index
 // pairs, medians of several runs, plus a memcpy of the same bytes as the bandwidth yardstick.
+#include <epoxy/gl.h>
+#include <time.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
 #include <map>
+#include <optional>
 #include <random>
 #include <sstream>
 
@@ -14,6 +18,8 @@
 #include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/error.hpp"
+#include "particlestream/render.hpp"
+#include "particlestream/sort.hpp"
 #include "progress.hpp"
 #include "sort_contenders.hpp"
 
@@ -92,6 +98,42 @@ std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, d
   return s + "</svg>\n";
 }
 
+double thread_cpu_ms() {
+  timespec t{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return double(t.tv_sec) * 1e3 + double(t.tv_nsec) / 1e6;
+}
+
+// The GPU radix sort (render::GpuSorter) on whatever OpenGL the headless context finds (Mesa's
+// llvmpipe on CI, the GPU where there is one): its wall time to completion (glFinish) and the
+// host thread's CPU time to issue it (CLOCK_THREAD_CPUTIME_ID: the driver's own threads do not
+// count). Keys are the depths' order-preserving keys, uploaded once, as a GPU path would have
+// them from its key pass.
+struct GpuSortBench {
+  render::HeadlessContext context{16, 16};
+  render::GpuSorter sorter;
+  explicit GpuSortBench(std::size_t n) : sorter((context.bind(), static_cast<std::uint32_t>(n))) {}
+  std::pair<double, double> run(const std::vector<float>& depths, int reps) {
+    std::vector<std::uint32_t> keys(depths.size());
+    for (std::size_t i = 0; i < depths.size(); ++i) keys[i] = sort::order_preserving_key(depths[i]);
+    const std::vector<std::uint32_t> order = sorter.sort_indices(keys);  // checked once
+    for (std::size_t i = 1; i < order.size(); ++i) {
+      if (depths[order[i]] < depths[order[i - 1]]) throw Error("bench sort: the GPU sort did not sort");
+    }
+    std::vector<double> wall, host;
+    for (int r = 0; r < reps; ++r) {
+      glFinish();
+      const double c0 = thread_cpu_ms();
+      const auto t0 = Clock::now();
+      sorter.sort(static_cast<std::uint32_t>(depths.size()));
+      host.push_back(thread_cpu_ms() - c0);
+      glFinish();
+      wall.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    }
+    return {median(wall), median(host)};
+  }
+};
+
 }  // namespace
 
 int bench_sort(const BenchSortOptions& o) {
@@ -103,6 +145,14 @@ int bench_sort(const BenchSortOptions& o) {
   std::vector<std::byte> copy_from(sizes.back() * 8), copy_to(sizes.back() * 8);
   nlohmann::ordered_json results = nlohmann::ordered_json::array();
   std::map<std::string, std::vector<std::pair<double, double>>> series;  // random input, for the plot
+  std::optional<GpuSortBench> gpu;
+  std::string gpu_renderer = "none";
+  try {
+    gpu.emplace(*std::max_element(sizes.begin(), sizes.end()));
+    gpu_renderer = render::Renderer::gl_renderer();
+  } catch (const Error& e) {  // no OpenGL 4.3 here: the CPU contenders alone
+    if (!o.json) fmt::print(stderr, "note: no GPU sort measured: {}\n", e.what());
+  }
   ProgressBar bar("bench sort", !o.json);
   const std::size_t total = sizes.size() * inputs.size();
   std::size_t done = 0;
@@ -135,6 +185,12 @@ int bench_sort(const BenchSortOptions& o) {
         }
         row[std::string(c.name) + "_ms"] = median(ms);
         if (input == "random") series[std::string(c.name)].emplace_back(double(n), median(ms));
+      }
+      if (gpu && input == "random") {
+        const auto [wall, host] = gpu->run(depths, reps);
+        row["gpu_radix_ms"] = wall;
+        row["gpu_radix_host_thread_ms"] = host;
+        series["gpu_radix"].emplace_back(double(n), wall);
       }
       row["ratio_vs_vqsort"] = row["vqsort_ms"].get<double>() / row["ours_ms"].get<double>();
       row["ratio_vs_std_sort"] = row["std_sort_ms"].get<double>() / row["ours_ms"].get<double>();
@@ -174,16 +230,21 @@ int bench_sort(const BenchSortOptions& o) {
                              {"memcpy_pairs_ms", r["memcpy_pairs_ms"]},
                              {"ratio_vs_vqsort", r["ratio_vs_vqsort"]},
                              {"ratio_vs_std_sort", r["ratio_vs_std_sort"]},
+                             {"gpu_renderer", gpu_renderer},
+                             {"gpu_radix_ms", r.value("gpu_radix_ms", 0.0)},
+                             {"gpu_radix_host_thread_ms", r.value("gpu_radix_host_thread_ms", 0.0)},
                              {"contenders", r}};
     if (o.json) {
       fmt::print("{}\n", j.dump());
     } else {
       fmt::print(
           "{} random depths: ours {:.2f} ms (2 threads {:.2f}, 16-bit {:.2f}), vqsort {:.2f} ms, std::sort {:.2f} ms, "
-          "memcpy of the pairs {:.2f} ms\n  vqsort / ours = {:.2f}x (goal 3x)\n",
+          "memcpy of the pairs {:.2f} ms\n  vqsort / ours = {:.2f}x (goal 3x)\n"
+          "  GPU radix sort on {}: {:.2f} ms to completion, {:.3f} ms of the host thread\n",
           o.n, r["ours_ms"].get<double>(), r["ours_2threads_ms"].get<double>(), r["ours_16bit_ms"].get<double>(),
           r["vqsort_ms"].get<double>(), r["std_sort_ms"].get<double>(), r["memcpy_pairs_ms"].get<double>(),
-          r["ratio_vs_vqsort"].get<double>());
+          r["ratio_vs_vqsort"].get<double>(), gpu_renderer, r.value("gpu_radix_ms", 0.0),
+          r.value("gpu_radix_host_thread_ms", 0.0));
     }
     return 0;
   }

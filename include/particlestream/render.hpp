@@ -73,6 +73,43 @@ class Renderer {
   std::unique_ptr<Impl> impl_;
 };
 
+// A stable LSD radix sort of (key, value) pairs in compute shaders (OpenGL 4.3; no subgroup
+// operations, so it runs on Mesa's llvmpipe as on GPUs): 4-bit digits, 8 passes for 32-bit keys
+// or 4 for 16-bit ones. Pairs with equal keys keep their order, so values 0..n-1 sorted by
+// (key, index) give exactly the CPU radix sort's order (sort::DepthSorter). Its buffers for
+// `capacity` pairs are made once; sort() allocates nothing. Needs a current context.
+class GpuSorter {
+ public:
+  explicit GpuSorter(std::uint32_t capacity);
+  ~GpuSorter();
+  GpuSorter(const GpuSorter&) = delete;
+  GpuSorter& operator=(const GpuSorter&) = delete;
+  std::uint32_t capacity() const;
+  // The GL buffers (names) holding the pairs: fill the first `count` keys and values, sort(), and
+  // read the sorted pairs from the same buffers.
+  std::uint32_t keys_buffer() const;
+  std::uint32_t values_buffer() const;
+  // Sorts the first `count` pairs ascending by key (`key_bits` 16: keys below 65536).
+  void sort(std::uint32_t count, int key_bits = 32);
+  // Fills the pairs with depth keys for the camera: for record i of the GL buffer `records`
+  // (from byte `offset`, `stride` bytes apart), depth = dot(position, axis.xyz) + axis.w with the
+  // CPU's operations (sort::depth_axis gives the axis of a view x world matrix), its
+  // order-preserving key (flipped when `back_to_front`), and i. Then sort(count) gives exactly
+  // sort::DepthSorter's order.
+  void depth_keys(std::uint32_t records, std::uint64_t offset, std::uint32_t count, std::uint32_t stride,
+                  const std::array<float, 4>& axis, bool back_to_front);
+  // For tests: the depth order of host records (uploaded to a temporary buffer). Allocates.
+  std::vector<std::uint32_t> order_by_depth(std::span<const std::byte> records, std::uint32_t stride,
+                                            const std::array<float, 4>& axis, bool back_to_front);
+  // For tests and benchmarks: uploads `keys` with values 0..n-1, sorts, returns the values (the
+  // order). Allocates.
+  std::vector<std::uint32_t> sort_indices(std::span<const std::uint32_t> keys, int key_bits = 32);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
 // An offscreen OpenGL 4.5 context and framebuffer: EGL's device platform (GPU machines) or
 // Mesa's surfaceless platform, no display needed.
 class HeadlessContext {

@@ -1,6 +1,7 @@
 #include "gl_program.hpp"
 
 #include <array>
+#include <initializer_list>
 
 #include <fmt/format.h>
 
@@ -19,10 +20,30 @@ GLuint compile(GLenum type, const char* source) {
     std::array<char, 2048> log{};
     glGetShaderInfoLog(s, GLsizei(log.size()), nullptr, log.data());
     glDeleteShader(s);
-    throw Error(
-        fmt::format("{} shader compilation failed: {}", type == GL_VERTEX_SHADER ? "vertex" : "fragment", log.data()));
+    throw Error(fmt::format("{} shader compilation failed: {}",
+                            type == GL_VERTEX_SHADER    ? "vertex"
+                            : type == GL_COMPUTE_SHADER ? "compute"
+                                                        : "fragment",
+                            log.data()));
   }
   return s;
+}
+
+// Links the compiled shaders (and deletes them), or throws with the driver's log.
+GLuint link(std::initializer_list<GLuint> shaders) {
+  const GLuint program = glCreateProgram();
+  for (const GLuint s : shaders) glAttachShader(program, s);
+  glLinkProgram(program);
+  for (const GLuint s : shaders) glDeleteShader(s);
+  GLint ok = 0;
+  glGetProgramiv(program, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    std::array<char, 2048> log{};
+    glGetProgramInfoLog(program, GLsizei(log.size()), nullptr, log.data());
+    glDeleteProgram(program);
+    throw Error(fmt::format("shader link failed: {}", log.data()));
+  }
+  return program;
 }
 
 }  // namespace
@@ -36,21 +57,9 @@ GLuint link_program(const char* vertex_source, const char* fragment_source) {
     glDeleteShader(vs);
     throw;
   }
-  const GLuint program = glCreateProgram();
-  glAttachShader(program, vs);
-  glAttachShader(program, fs);
-  glLinkProgram(program);
-  glDeleteShader(vs);
-  glDeleteShader(fs);
-  GLint ok = 0;
-  glGetProgramiv(program, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    std::array<char, 2048> log{};
-    glGetProgramInfoLog(program, GLsizei(log.size()), nullptr, log.data());
-    glDeleteProgram(program);
-    throw Error(fmt::format("shader link failed: {}", log.data()));
-  }
-  return program;
+  return link({vs, fs});
 }
+
+GLuint link_compute_program(const char* compute_source) { return link({compile(GL_COMPUTE_SHADER, compute_source)}); }
 
 }  // namespace pstream::render::detail

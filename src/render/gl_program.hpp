@@ -8,5 +8,7 @@ namespace pstream::render::detail {
 // Links a program from a vertex and a fragment shader; throws pstream::Error with the driver's
 // log when either fails to compile or the program fails to link.
 GLuint link_program(const char* vertex_source, const char* fragment_source);
+// A compute program, the same way.
+GLuint link_compute_program(const char* compute_source);
 
 }  // namespace pstream::render::detail

@@ -1,0 +1,78 @@
+// The GPU radix sort (render::GpuSorter) on Mesa's llvmpipe: a stable sort whose order equals
+// std::stable_sort's, and the CPU depth sorter's, exactly.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <numeric>
+#include <random>
+#include <vector>
+
+#include "particlestream/render.hpp"
+#include "particlestream/sort.hpp"
+
+namespace {
+
+using namespace pstream;
+
+std::vector<std::uint32_t> stable_order(const std::vector<std::uint32_t>& keys) {
+  std::vector<std::uint32_t> order(keys.size());
+  std::iota(order.begin(), order.end(), 0u);
+  std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return keys[a] < keys[b]; });
+  return order;
+}
+
+TEST(GpuSort, StableAndEqualToTheCpuOrderAtEverySize) {
+  render::HeadlessContext context(16, 16);
+  context.bind();
+  render::GpuSorter sorter(1u << 20);
+  std::mt19937 rng(7);
+  // Sizes around the block (4096 pairs) and thread-run (16) borders, and a million.
+  for (const std::uint32_t n : {0u, 1u, 2u, 15u, 17u, 4095u, 4096u, 4097u, 70001u, 1u << 20}) {
+    for (const std::uint32_t range : {7u, 1000u, 0xffffffffu}) {  // many ties, some, few
+      std::vector<std::uint32_t> keys(n);
+      for (auto& k : keys) k = range == 0xffffffffu ? rng() : rng() % range;
+      const std::vector<std::uint32_t> gpu = sorter.sort_indices(keys);
+      ASSERT_EQ(gpu, stable_order(keys)) << n << " keys below " << range;
+    }
+  }
+  // 16-bit keys: four passes.
+  std::vector<std::uint32_t> keys(100000);
+  for (auto& k : keys) k = rng() & 0xffffu;
+  EXPECT_EQ(sorter.sort_indices(keys, 16), stable_order(keys));
+  EXPECT_THROW(sorter.sort((1u << 20) + 1), Error);
+  EXPECT_THROW(sorter.sort(10, 8), Error);
+}
+
+TEST(GpuSort, DepthKeysGiveTheDepthSortersOrder) {
+  render::HeadlessContext context(16, 16);
+  context.bind();
+  constexpr std::size_t n = 200000;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-5.0f, 5.0f);
+  std::vector<float> records(n * 4);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) records[i * 4 + c] = std::round(u(rng) * 64.0f) / 64.0f;  // many equal depths
+    records[i * 4 + 3] = 0.01f;
+  }
+  const render::Mat4 view = render::look_at({3, 4, 9}, {0, 0, 0}, {0, 1, 0});
+  sort::DepthSorter cpu(n);
+  render::GpuSorter gpu(n);
+  for (const sort::SortMode mode : {sort::SortMode::BackToFront, sort::SortMode::FrontToBack}) {
+    const auto cpu_order = cpu.sort(reinterpret_cast<const std::byte*>(records.data()), n, 16, view, mode);
+    const std::vector<std::uint32_t> expected(cpu_order.begin(), cpu_order.end());
+    std::vector<std::uint32_t> keys(n);
+    const auto depths = cpu.depths();
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t k = sort::order_preserving_key(depths[i]);
+      keys[i] = mode == sort::SortMode::BackToFront ? ~k : k;
+    }
+    EXPECT_EQ(gpu.sort_indices(keys), expected);
+    // The keys made on the GPU from the records, with the CPU's arithmetic: the same order.
+    const sort::DepthAxis a = sort::depth_axis(view);
+    EXPECT_EQ(gpu.order_by_depth(std::as_bytes(std::span(records)), 16, {a.x, a.y, a.z, a.offset},
+                                 mode == sort::SortMode::BackToFront),
+              expected);
+  }
+}
+
+}  // namespace
