@@ -179,6 +179,20 @@ inline constexpr std::uint32_t kPositionOffset = 0;
 inline constexpr std::uint32_t kScaleOffset = 12;
 inline constexpr std::uint32_t kRecordHeadSize = 16;
 
+// How interpolation makes each 4-byte word of a record from the two cached frames (the CPU
+// kernel, playback/interpolate.hpp, and the GPU one, render::GpuInterpolator, follow the same
+// table): copied from the earlier frame (ids, colours' word, integers), blended linearly (scale
+// and other floats), or along the Hermite curve (position) and its derivative (velocity).
+enum class RecordLane : std::uint8_t { Copy, Lerp, Position, Velocity };
+
+// GPU interpolation's pair table: per particle of the interpolated frame, its index in the
+// earlier cached frame (`a`) and the later one (`b`), kNoParticle where it has none (born: only
+// b; dying: only a), in the order the CPU path writes them. 8 bytes a particle.
+inline constexpr std::uint32_t kNoParticle = 0xFFFFFFFFu;
+struct ParticlePair {
+  std::uint32_t a = kNoParticle, b = kNoParticle;
+};
+
 // Most batches one merged draw takes: a merged order's entry is (batch << kMergedIndexBits) |
 // index (sort::DepthSorter::sort_merged makes it), so 32 - kMergedIndexBits bits name the batch.
 inline constexpr unsigned kMergedIndexBits = 28;

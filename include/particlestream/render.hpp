@@ -110,6 +110,31 @@ class GpuSorter {
   std::unique_ptr<Impl> impl_;
 };
 
+// Interpolation between two cached frames in a compute shader: the playback layer's rules
+// (playback/interpolate.hpp: FrameBlender::blend), word by word as `lanes` says (frame.hpp),
+// for the particles of a pair table (frame.hpp: ParticlePair; playback::pair_table makes it).
+// Within 2 ulps of the CPU path (the CPU kernel may fuse multiply-adds where the GPU does not);
+// ids, colours' other words and integers copied bit for bit. Needs a current context.
+class GpuInterpolator {
+ public:
+  GpuInterpolator(std::span<const RecordLane> lanes, std::int32_t velocity_offset, std::int32_t color_offset);
+  ~GpuInterpolator();
+  GpuInterpolator(const GpuInterpolator&) = delete;
+  GpuInterpolator& operator=(const GpuInterpolator&) = delete;
+  // Records of frames a and b (GL buffers), the pair table (`count` entries), out: count records.
+  // `hermite`: along the curve (when the records have velocities); `nearer`: the pair table is
+  // the nearer frame alone (no matching), moved along its velocities without shrinking.
+  void run(std::uint32_t a, std::uint32_t b, std::uint32_t pairs, std::uint32_t count, double t, double dt,
+           bool hermite, bool nearer, std::uint32_t out);
+  // For tests: host records in, host records out (temporary buffers). Allocates.
+  std::vector<std::byte> run_host(std::span<const std::byte> a, std::span<const std::byte> b,
+                                  std::span<const ParticlePair> pairs, double t, double dt, bool hermite, bool nearer);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
 // An offscreen OpenGL 4.5 context and framebuffer: EGL's device platform (GPU machines) or
 // Mesa's surfaceless platform, no display needed.
 class HeadlessContext {

@@ -227,9 +227,9 @@ OutputFile& OutputFile::operator=(OutputFile&& other) noexcept {
 OutputFile::~OutputFile() { discard(); }
 
 void OutputFile::discard() noexcept {
+  if (!temp_.empty()) ::unlink(temp_.c_str());  // while still locked (see commit())
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
-  if (!temp_.empty()) ::unlink(temp_.c_str());
   temp_.clear();
   unregister_temporary(std::exchange(slot_, -1));
 }
@@ -276,8 +276,8 @@ std::uint64_t OutputFile::commit() {
   flush();
   if (!direct_ && ::fsync(fd_) != 0)
     throw Error(fmt::format("{}: cannot sync {}: {}", path_.string(), temp_.string(), std::strerror(errno)));
-  const int fd = std::exchange(fd_, -1);
-  if (::close(fd) != 0) throw Error(fmt::format("{}: cannot close: {}", path_.string(), std::strerror(errno)));
+  // Renamed while the descriptor (and so the temporary's lock) is still held: once it is closed,
+  // another process's cleanup may take the lock and remove the temporary as stale.
   if (!direct_) {
     if (::rename(temp_.c_str(), path_.c_str()) != 0) {
       throw Error(
@@ -286,6 +286,8 @@ std::uint64_t OutputFile::commit() {
     temp_.clear();
     unregister_temporary(std::exchange(slot_, -1));
   }
+  const int fd = std::exchange(fd_, -1);
+  if (::close(fd) != 0) throw Error(fmt::format("{}: cannot close: {}", path_.string(), std::strerror(errno)));
   return end_;
 }
 

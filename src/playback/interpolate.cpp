@@ -7,8 +7,11 @@
 namespace pstream::playback {
 namespace {
 
-// What a lane (a 4-byte word of a record) is.
+// What a lane (a 4-byte word of a record) is (frame.hpp: RecordLane).
 enum Lane : std::uint8_t { kCopy, kLerp, kPosition, kVelocity };
+static_assert(kCopy == std::uint8_t(render::RecordLane::Copy) && kLerp == std::uint8_t(render::RecordLane::Lerp) &&
+              kPosition == std::uint8_t(render::RecordLane::Position) &&
+              kVelocity == std::uint8_t(render::RecordLane::Velocity));
 
 float load(const std::byte* p) {
   float v;
@@ -19,19 +22,56 @@ void store(std::byte* p, float v) { std::memcpy(p, &v, 4); }
 
 }  // namespace
 
-FrameBlender::FrameBlender(const format::Metadata& m) : stride_(m.record_size) {
-  const std::size_t words = stride_ / 4;  // records are whole words (format.md)
-  kind_.assign(words, kCopy);
-  for (std::size_t w = 0; w < 3; ++w) kind_[w] = kPosition;
+std::vector<render::RecordLane> record_lanes(const format::Metadata& m) {
+  std::vector<render::RecordLane> kind(m.record_size / 4, render::RecordLane::Copy);  // whole words (format.md)
+  for (std::size_t w = 0; w < 3; ++w) kind[render::kPositionOffset / 4 + w] = render::RecordLane::Position;
   for (const format::Attribute& a : m.layout) {
     if (a.name == "position") continue;
     if (a.name == "velocity" && a.type == format::AttributeType::Float32 && a.components == 3) {
+      for (std::size_t c = 0; c < 3; ++c) kind[a.offset / 4 + c] = render::RecordLane::Velocity;
+    } else if (a.type == format::AttributeType::Float32) {
+      for (std::size_t c = 0; c < a.components; ++c) kind[a.offset / 4 + c] = render::RecordLane::Lerp;
+    }
+  }
+  return kind;
+}
+
+std::uint64_t pair_table(std::uint64_t na, std::uint64_t nb, const std::span<const format::MatchRun>* matching,
+                         double t, std::span<render::ParticlePair> out, bool& nearer) {
+  std::uint64_t covers_a = 0, covers_b = 0;
+  if (matching != nullptr) {
+    for (const format::MatchRun& r : *matching)
+      covers_a += std::uint64_t(r.keep) + r.drop, covers_b += std::uint64_t(r.keep) + r.insert;
+  }
+  nearer = matching == nullptr || covers_a != na || covers_b != nb;
+  std::uint64_t n = 0;
+  if (nearer) {  // as FrameBlender::nearer_advected
+    const bool first = t < 0.5;
+    const std::uint64_t count = first ? na : nb;
+    for (std::uint64_t i = 0; i < count; ++i)
+      out[n++] = first ? render::ParticlePair{std::uint32_t(i), render::kNoParticle}
+                       : render::ParticlePair{render::kNoParticle, std::uint32_t(i)};
+    return n;
+  }
+  std::uint32_t i = 0, j = 0;
+  for (const format::MatchRun& r : *matching) {
+    for (std::uint32_t k = 0; k < r.keep; ++k) out[n++] = {i++, j++};
+    for (std::uint32_t k = 0; k < r.drop; ++k) out[n++] = {i++, render::kNoParticle};
+    for (std::uint32_t k = 0; k < r.insert; ++k) out[n++] = {render::kNoParticle, j++};
+  }
+  return n;
+}
+
+FrameBlender::FrameBlender(const format::Metadata& m) : stride_(m.record_size) {
+  const std::size_t words = stride_ / 4;
+  const std::vector<render::RecordLane> lanes = record_lanes(m);
+  kind_.resize(words);
+  for (std::size_t w = 0; w < words; ++w) kind_[w] = std::uint8_t(lanes[w]);
+  for (const format::Attribute& a : m.layout) {
+    if (a.name == "velocity" && a.type == format::AttributeType::Float32 && a.components == 3) {
       velocity_ = std::int32_t(a.offset);
-      for (std::size_t c = 0; c < 3; ++c) kind_[a.offset / 4 + c] = kVelocity;
     } else if (a.name == "color" && a.type == format::AttributeType::Unorm8 && a.components == 4) {
       color_ = std::int32_t(a.offset);
-    } else if (a.type == format::AttributeType::Float32) {
-      for (std::size_t c = 0; c < a.components; ++c) kind_[a.offset / 4 + c] = kLerp;  // scale and any float
     }
   }
   plan_.words = words;

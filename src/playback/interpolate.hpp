@@ -35,6 +35,16 @@ struct LanePlan {
 // touched (copied from `a` as every copy lane is): the caller blends them.
 void blend_matched(const LanePlan& plan, const std::byte* a, const std::byte* b, std::size_t records, std::byte* out);
 
+// What interpolation does with each word of `meta`'s records (frame.hpp: RecordLane).
+std::vector<render::RecordLane> record_lanes(const format::Metadata& meta);
+
+// The pair table of the GPU path for the frame FrameBlender::blend() would make: `out` (room for
+// na + nb) receives, in blend()'s order, each particle's indices in frames a and b. Returns the
+// count; `nearer` is set when there is no (covering) matching, so the nearer frame alone is shown,
+// moved along its velocities without shrinking (blend()'s fallback).
+std::uint64_t pair_table(std::uint64_t na, std::uint64_t nb, const std::span<const format::MatchRun>* matching,
+                         double t, std::span<render::ParticlePair> out, bool& nearer);
+
 // Interpolates a clip's frames: built once when the clip opens (every table allocated then), used
 // every host frame between two cached frames with no allocation.
 class FrameBlender {
