@@ -9,10 +9,12 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -387,6 +389,31 @@ TEST(HardeningRound3, ACookInAnotherPidNamespaceNeverDeletesALiveTemporary) {
   EXPECT_TRUE(fs::exists(mine.temporary())) << "a live temporary was deleted";
   EXPECT_EQ(mine.commit(), 4096u);
   EXPECT_EQ(fs::file_size(dir / "mine.pstream"), 4096u);
+}
+
+TEST(HardeningRound3, ConcurrentWritersInOneFolderNeverRemoveEachOthersTemporaries) {
+  // Every writer cleans the folder of stale temporaries when it starts; none may take another's
+  // live one (a lock released before the rename once let a cleanup remove it: "cannot rename").
+  const fs::path dir = test::fresh_dir();
+  std::vector<std::thread> writers;
+  std::atomic<int> failures{0};
+  for (int w = 0; w < 4; ++w) {
+    writers.emplace_back([&, w] {
+      for (int k = 0; k < 150; ++k) {
+        try {
+          OutputFile out = OutputFile::create(dir / fmt::format("w{}-{}.bin", w, k));
+          out.append("0123456789abcdef", 16);
+          out.commit();
+        } catch (const Error&) {
+          ++failures;
+        }
+      }
+    });
+  }
+  for (auto& t : writers) t.join();
+  EXPECT_EQ(failures.load(), 0);
+  EXPECT_FALSE(has_temporary(dir));
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator{}), 600);
 }
 
 TEST(HardeningRound3, ASigkilledWritersTemporaryIsRemovedByTheNextWriter) {
