@@ -4,12 +4,15 @@
 // and without velocities, and the nearer frame when there is no matching.
 #include <gtest/gtest.h>
 
+#include <epoxy/gl.h>
+
 #include <bit>
 #include <cmath>
 #include <cstring>
 #include <random>
 #include <vector>
 
+#include "alloc_counter.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/render.hpp"
 #include "playback/interpolate.hpp"
@@ -139,6 +142,36 @@ TEST(GpuInterpolation, EqualsTheCpuPathWithin2Ulps) {
   }
   EXPECT_GT(compared, 50000u);
   std::printf("%zu float values compared, %zu bit-identical\n", compared, exact);
+}
+
+TEST(GpuInterpolation, AHostFrameAllocatesNothing) {
+  render::HeadlessContext context(16, 16);
+  context.bind();
+  std::mt19937 rng(9);
+  const Clip c = make_clip(true);
+  render::GpuInterpolator gpu(playback::record_lanes(c.meta), c.velocity, c.color);
+  std::uint32_t na = 0, nb = 0;
+  const std::vector<format::MatchRun> runs = random_runs(na, nb, rng);
+  const std::vector<std::byte> a = random_records(c, na, rng), b = random_records(c, nb, rng);
+  std::vector<render::ParticlePair> pairs(na + nb);
+  bool nearer = false;
+  const std::span<const format::MatchRun> matching(runs);
+  pairs.resize(playback::pair_table(na, nb, &matching, 0.5, pairs, nearer));
+  (void)gpu.run_host(a, b, pairs, 0.5, 1.0 / 24, true, nearer);  // compiles, warms up
+  GLuint buffers[4] = {};
+  glCreateBuffers(4, buffers);
+  glNamedBufferStorage(buffers[0], GLsizeiptr(a.size()), a.data(), 0);
+  glNamedBufferStorage(buffers[1], GLsizeiptr(b.size()), b.data(), 0);
+  glNamedBufferStorage(buffers[2], GLsizeiptr(pairs.size() * sizeof(render::ParticlePair)), pairs.data(), 0);
+  glNamedBufferStorage(buffers[3], GLsizeiptr(pairs.size() * c.meta.record_size), nullptr, 0);
+  const std::uint64_t before = test::allocation_count();
+  for (int frame = 0; frame < 10; ++frame) {
+    gpu.run(buffers[0], buffers[1], buffers[2], std::uint32_t(pairs.size()), 0.1 * frame, 1.0 / 24, true, nearer,
+            buffers[3]);
+  }
+  glFinish();
+  EXPECT_EQ(test::allocation_count(), before);
+  glDeleteBuffers(4, buffers);
 }
 
 }  // namespace

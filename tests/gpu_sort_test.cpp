@@ -2,11 +2,14 @@
 // std::stable_sort's, and the CPU depth sorter's, exactly.
 #include <gtest/gtest.h>
 
+#include <epoxy/gl.h>
+
 #include <algorithm>
 #include <numeric>
 #include <random>
 #include <vector>
 
+#include "alloc_counter.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 
@@ -41,6 +44,31 @@ TEST(GpuSort, StableAndEqualToTheCpuOrderAtEverySize) {
   EXPECT_EQ(sorter.sort_indices(keys, 16), stable_order(keys));
   EXPECT_THROW(sorter.sort((1u << 20) + 1), Error);
   EXPECT_THROW(sorter.sort(10, 8), Error);
+}
+
+TEST(GpuSort, KeysAndSortAllocateNothing) {
+  // What a host frame of the GPU path would call: depth keys from a records buffer, then the sort
+  // (buffers made once, at construction). The driver's own memory is its business; ours is none.
+  render::HeadlessContext context(16, 16);
+  context.bind();
+  constexpr std::uint32_t n = 50000;
+  std::vector<float> records(n * 4, 1.0f);
+  for (std::uint32_t i = 0; i < n; ++i) records[i * 4 + 2] = float(i % 977);
+  GLuint buffer = 0;
+  render::GpuSorter sorter(n);
+  const std::vector<std::uint32_t> warm =
+      sorter.order_by_depth(std::as_bytes(std::span(records)), 16, {0, 0, -1, 0}, true);  // compiles, warms up
+  ASSERT_EQ(warm.size(), n);
+  glCreateBuffers(1, &buffer);
+  glNamedBufferStorage(buffer, GLsizeiptr(records.size() * 4), records.data(), 0);
+  const std::uint64_t before = test::allocation_count();
+  for (int frame = 0; frame < 10; ++frame) {
+    sorter.depth_keys(buffer, 0, n, 16, {0, 0, -1, 0}, frame % 2 == 0);
+    sorter.sort(n);
+  }
+  glFinish();
+  EXPECT_EQ(test::allocation_count(), before);
+  glDeleteBuffers(1, &buffer);
 }
 
 TEST(GpuSort, DepthKeysGiveTheDepthSortersOrder) {
