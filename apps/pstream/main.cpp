@@ -1,9 +1,11 @@
 // pstream: the ParticleStream command-line tool.
+#include <algorithm>
 #include <cstdio>
 #include <exception>
 #include <filesystem>
 #include <new>
 #include <string>
+#include <string_view>
 #include <system_error>
 #include <vector>
 
@@ -68,6 +70,87 @@ std::vector<std::string> given_flags(const CLI::App& cmd) {
     if (o->count() > 0) names.push_back(o->get_name());
   }
   return names;
+}
+
+}  // namespace
+
+namespace {
+
+// Levenshtein distance, for "did you mean".
+std::size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = up;
+    }
+  }
+  return row[b.size()];
+}
+
+// The closest of `names` to `word`, when it is close enough to be a typo of it.
+std::string closest(std::string_view word, const std::vector<std::string>& names) {
+  std::string best;
+  std::size_t best_distance = SIZE_MAX;
+  for (const std::string& n : names) {
+    const std::size_t d = edit_distance(word, n);
+    if (d < best_distance) best_distance = d, best = n;
+  }
+  return best_distance <= std::max<std::size_t>(1, word.size() / 3) ? best : std::string();
+}
+
+// An unknown subcommand or --flag on the command line, with the nearest real one; empty when the
+// words are all known (CLI11 then parses and checks them).
+std::string typo_message(CLI::App& app, int argc, char** argv) {
+  CLI::App* at = &app;
+  std::vector<CLI::App*> chain{at};
+  bool expect_subcommand = true;
+  for (int i = 1; i < argc; ++i) {
+    const std::string_view word = argv[i];
+    if (word == "--") break;
+    if (word.starts_with("--")) {
+      const std::string_view name =
+          word.substr(2, word.find('=') == std::string_view::npos ? std::string_view::npos : word.find('=') - 2);
+      std::vector<std::string> names;
+      bool known = false;
+      for (const CLI::App* a : chain) {
+        for (const CLI::Option* o : a->get_options()) {
+          for (const std::string& l : o->get_lnames()) {
+            names.push_back(l);
+            known = known || l == name;
+          }
+        }
+      }
+      if (known || name.empty()) continue;
+      const std::string guess = closest(name, names);
+      return guess.empty() ? fmt::format("unknown option --{} for `{}` (see its --help)", name, at->get_name())
+                           : fmt::format("unknown option --{}; did you mean --{}?", name, guess);
+    }
+    if (word.starts_with("-") || !expect_subcommand) continue;
+    const std::vector<CLI::App*> subs = at->get_subcommands([](CLI::App*) { return true; });
+    if (subs.empty()) {
+      expect_subcommand = false;
+      continue;
+    }
+    std::vector<std::string> names;
+    CLI::App* next = nullptr;
+    for (CLI::App* sub : subs) {
+      names.push_back(sub->get_name());
+      if (sub->get_name() == word) next = sub;
+    }
+    if (next == nullptr) {
+      const std::string guess = closest(word, names);
+      if (guess.empty()) return {};  // a positional argument or a real mistake: CLI11 says which
+      return fmt::format("unknown command `{}`; did you mean `{}`?", word, guess);
+    }
+    at = next;
+    chain.push_back(at);
+  }
+  return {};
 }
 
 }  // namespace
@@ -451,6 +534,12 @@ int main(int argc, char** argv) {
   bench_all_cmd->add_option("--out", bench_all_opts.out, "The page to write (a plot is written beside it)")
       ->capture_default_str();
 
+  // Typos first: an unknown subcommand or flag gets "did you mean" (CLI11 would report the file
+  // that the misread arguments named, or "a subcommand is required").
+  if (const std::string typo = typo_message(app, argc, argv); !typo.empty()) {
+    fmt::print(stderr, "pstream: error: {}\nRun with --help for more information.\n", typo);
+    return 2;
+  }
   CLI11_PARSE(app, argc, argv);
   render_cli.sprite_look.given = given_flags(*render_cmd);
   viewer.sprite_look.given = given_flags(*play_cmd);
