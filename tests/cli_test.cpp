@@ -23,6 +23,15 @@ TEST(Cli, TyposGetDidYouMean) {
   expect_suggestion("cook --helpp", "did you mean --help?");
   // Far from every name: said plainly, with where to look.
   expect_suggestion("cook x.abc --zzzzzzzz", "unknown option --zzzzzzzz for `cook` (see its --help)");
+  // Choices the library parses: its message, with the nearest choice.
+  const std::string abc = pstream::test::data_path("alembic/points_constant.abc");
+  const auto codec = run_cli("cook '" + abc + "' -o /nonexistent/dir/x.pstream --codec partcle");
+  EXPECT_NE(codec.output.find("--codec 'partcle': expected particle"), std::string::npos) << codec.output;
+  EXPECT_NE(codec.output.find("(did you mean 'particle'?)"), std::string::npos) << codec.output;
+  const auto look = run_cli("render '" + pstream::test::data_path("pstream_v1/points_varying_lz4.pstream") +
+                            "' --out /nonexistent/dir -q --look liqud");
+  EXPECT_NE(look.output.find("look 'liqud': expected sprites or liquid (did you mean 'liquid'?)"), std::string::npos)
+      << look.output;
   // Known words still parse (and fail, here, on the missing file, as before).
   const auto r = run_cli("info /no/such/file.abc");
   EXPECT_NE(r.output.find("/no/such/file.abc"), std::string::npos) << r.output;

@@ -13,6 +13,7 @@
 #include <CLI/CLI.hpp>
 
 #include "base/mapped_file.hpp"
+#include "base/names.hpp"
 #include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/error.hpp"
@@ -76,31 +77,10 @@ std::vector<std::string> given_flags(const CLI::App& cmd) {
 
 namespace {
 
-// Levenshtein distance, for "did you mean".
-std::size_t edit_distance(std::string_view a, std::string_view b) {
-  std::vector<std::size_t> row(b.size() + 1);
-  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
-  for (std::size_t i = 1; i <= a.size(); ++i) {
-    std::size_t diagonal = row[0];
-    row[0] = i;
-    for (std::size_t j = 1; j <= b.size(); ++j) {
-      const std::size_t up = row[j];
-      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
-      diagonal = up;
-    }
-  }
-  return row[b.size()];
-}
-
-// The closest of `names` to `word`, when it is close enough to be a typo of it.
+// The closest of `names` (owned strings, as CLI11 gives them), by the library's one rule.
 std::string closest(std::string_view word, const std::vector<std::string>& names) {
-  std::string best;
-  std::size_t best_distance = SIZE_MAX;
-  for (const std::string& n : names) {
-    const std::size_t d = edit_distance(word, n);
-    if (d < best_distance) best_distance = d, best = n;
-  }
-  return best_distance <= std::max<std::size_t>(1, word.size() / 3) ? best : std::string();
+  const std::vector<std::string_view> views(names.begin(), names.end());
+  return pstream::closest_name(word, views);
 }
 
 // An unknown subcommand or --flag on the command line, with the nearest real one; empty when the

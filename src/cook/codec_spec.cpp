@@ -4,6 +4,7 @@
 
 #include <fmt/format.h>
 
+#include "base/names.hpp"
 #include "particlestream/cook.hpp"
 
 namespace pstream::cook {
@@ -37,8 +38,8 @@ void set_codec(Options& o, std::string_view spec) {
     o.codec = format::Codec::Zstd;
   else
     throw Error(fmt::format(
-        "`codec` '{}': expected particle[:LEVEL], particle-lossless[:LEVEL], raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL",
-        text));
+        "`codec` '{}': expected particle[:LEVEL], particle-lossless[:LEVEL], raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL{}",
+        text, did_you_mean(name, {"particle", "particle-lossless", "raw", "lz4", "zstd"})));
   if (colon != std::string::npos) {
     const std::string level = text.substr(colon + 1);
     const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.codec_level);

@@ -4,6 +4,7 @@
 
 #include <fmt/format.h>
 
+#include "base/names.hpp"
 #include "particlestream/error.hpp"
 #include "particlestream/frame.hpp"
 
@@ -13,13 +14,14 @@ BlendMode parse_blend(const std::string& name) {
   if (name == "alpha") return BlendMode::Alpha;
   if (name == "additive") return BlendMode::Additive;
   if (name == "alphatest") return BlendMode::AlphaTest;
-  throw Error(fmt::format("blend mode '{}': expected alpha, additive or alphatest", name));
+  throw Error(fmt::format("blend mode '{}': expected alpha, additive or alphatest{}", name,
+                          did_you_mean(name, {"alpha", "additive", "alphatest"})));
 }
 
 Look parse_look(const std::string& name) {
   if (name == "sprites") return Look::Sprites;
   if (name == "liquid") return Look::Liquid;
-  throw Error(fmt::format("look '{}': expected sprites or liquid", name));
+  throw Error(fmt::format("look '{}': expected sprites or liquid{}", name, did_you_mean(name, {"sprites", "liquid"})));
 }
 
 LiquidFilter parse_liquid_filter(const std::string& name) {
@@ -27,7 +29,8 @@ LiquidFilter parse_liquid_filter(const std::string& name) {
   if (name == "bilateral") return LiquidFilter::Bilateral;
   if (name == "gaussian") return LiquidFilter::Gaussian;
   if (name == "none") return LiquidFilter::None;
-  throw Error(fmt::format("liquid filter '{}': expected narrow-range, bilateral, gaussian or none", name));
+  throw Error(fmt::format("liquid filter '{}': expected narrow-range, bilateral, gaussian or none{}", name,
+                          did_you_mean(name, {"narrow-range", "bilateral", "gaussian", "none"})));
 }
 
 LiquidOutput parse_liquid_output(const std::string& name) {
@@ -35,20 +38,23 @@ LiquidOutput parse_liquid_output(const std::string& name) {
   if (name == "depth") return LiquidOutput::Depth;
   if (name == "normals") return LiquidOutput::Normals;
   if (name == "thickness") return LiquidOutput::Thickness;
-  throw Error(fmt::format("liquid output '{}': expected shaded, depth, normals or thickness", name));
+  throw Error(fmt::format("liquid output '{}': expected shaded, depth, normals or thickness{}", name,
+                          did_you_mean(name, {"shaded", "depth", "normals", "thickness"})));
 }
 
 ColorBy parse_color_by(const std::string& name) {
   if (name == "stored") return ColorBy::Stored;
   if (name == "speed") return ColorBy::Speed;
   if (name == "attribute") return ColorBy::Attribute;
-  throw Error(fmt::format("colour source '{}': expected stored, speed or attribute", name));
+  throw Error(fmt::format("colour source '{}': expected stored, speed or attribute{}", name,
+                          did_you_mean(name, {"stored", "speed", "attribute"})));
 }
 
 ToneMap parse_tone_map(const std::string& name) {
   if (name == "filmic") return ToneMap::Filmic;
   if (name == "linear") return ToneMap::Linear;
-  throw Error(fmt::format("tone map '{}': expected filmic or linear", name));
+  throw Error(
+      fmt::format("tone map '{}': expected filmic or linear{}", name, did_you_mean(name, {"filmic", "linear"})));
 }
 
 Ramp Ramp::named(const std::string& name, float low, float high) {

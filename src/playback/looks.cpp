@@ -1,6 +1,7 @@
 // Looks as a whole: the presets a user picks by name, and the sort order a look needs.
 #include <fmt/format.h>
 
+#include "base/names.hpp"
 #include "particlestream/playback.hpp"
 
 namespace pstream::playback {
@@ -65,7 +66,8 @@ DrawStyle look_preset(std::string_view name) {
     s.look = render::Look::Liquid;
     return s;
   }
-  throw Error(fmt::format("look preset '{}': expected sprites, smoke, sparks, liquid-sprites, liquid or debug", name));
+  throw Error(fmt::format("look preset '{}': expected sprites, smoke, sparks, liquid-sprites, liquid or debug{}", name,
+                          did_you_mean(name, {"sprites", "smoke", "sparks", "liquid-sprites", "liquid", "debug"})));
 }
 
 }  // namespace pstream::playback

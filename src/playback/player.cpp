@@ -3,6 +3,7 @@
 
 #include <fmt/format.h>
 
+#include "base/names.hpp"
 #include "particlestream/playback.hpp"
 #include "playback/interpolate.hpp"
 
@@ -27,7 +28,8 @@ Interpolation parse_interpolation(std::string_view name) {
   if (name == "none") return Interpolation::None;
   if (name == "linear") return Interpolation::Linear;
   if (name == "hermite") return Interpolation::Hermite;
-  throw Error(fmt::format("`interpolation` '{}': expected none, linear or hermite", name));
+  throw Error(fmt::format("`interpolation` '{}': expected none, linear or hermite{}", name,
+                          did_you_mean(name, {"none", "linear", "hermite"})));
 }
 
 Player::~Player() = default;

@@ -1,0 +1,45 @@
+#include "base/names.hpp"
+
+#include <algorithm>
+#include <cstdint>
+#include <vector>
+
+#include <fmt/format.h>
+
+namespace pstream {
+namespace {
+
+// Levenshtein distance.
+std::size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = up;
+    }
+  }
+  return row[b.size()];
+}
+
+}  // namespace
+
+std::string closest_name(std::string_view word, std::span<const std::string_view> names) {
+  std::string_view best;
+  std::size_t best_distance = SIZE_MAX;
+  for (const std::string_view n : names) {
+    const std::size_t d = edit_distance(word, n);
+    if (d < best_distance) best_distance = d, best = n;
+  }
+  return best_distance <= std::max<std::size_t>(1, word.size() / 3) ? std::string(best) : std::string();
+}
+
+std::string did_you_mean(std::string_view word, std::initializer_list<std::string_view> names) {
+  const std::string guess = closest_name(word, std::span(names.begin(), names.size()));
+  return guess.empty() ? std::string() : fmt::format(" (did you mean '{}'?)", guess);
+}
+
+}  // namespace pstream
