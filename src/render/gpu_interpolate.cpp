@@ -20,8 +20,8 @@ namespace {
 
 constexpr std::uint32_t kThreads = 64;
 
-constexpr const char* kInterpolate = R"(#version 430
-layout(local_size_x = 64) in;
+// After the version and work-group size (interpolate_source()).
+constexpr const char* kInterpolate = R"(
 layout(std430, binding = 0) readonly buffer A { uint wa[]; };
 layout(std430, binding = 1) readonly buffer B { uint wb[]; };
 layout(std430, binding = 2) readonly buffer Pairs { uvec2 pairs[]; };
@@ -104,6 +104,10 @@ void main() {
 }
 )";
 
+std::string interpolate_source() {
+  return fmt::format("#version 430\nlayout(local_size_x = {}) in;\n", kThreads) + kInterpolate;
+}
+
 }  // namespace
 
 struct GpuInterpolator::Impl {
@@ -129,7 +133,7 @@ GpuInterpolator::GpuInterpolator(std::span<const RecordLane> lanes, std::int32_t
   std::transform(lanes.begin(), lanes.end(), kinds.begin(), [](RecordLane l) { return std::uint32_t(l); });
   glCreateBuffers(1, &d.lanes);
   glNamedBufferStorage(d.lanes, GLsizeiptr(kinds.size() * 4), kinds.data(), 0);
-  d.program = detail::link_compute_program(kInterpolate);
+  d.program = detail::link_compute_program(interpolate_source().c_str());
 }
 
 GpuInterpolator::~GpuInterpolator() = default;

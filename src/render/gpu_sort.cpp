@@ -10,7 +10,9 @@
 //             order, so the sort is stable and equal keys keep the order of their values.
 // 32-bit keys take 8 passes, 16-bit keys 4; both end in the first buffer pair.
 #include <algorithm>
+#include <initializer_list>
 #include <numeric>
+#include <string>
 
 #include <epoxy/gl.h>
 #include <fmt/format.h>
@@ -21,11 +23,20 @@
 namespace pstream::render {
 namespace {
 
-constexpr std::uint32_t kThreads = 256, kThreadItems = 16, kBlockItems = kThreads * kThreadItems, kDigits = 16;
+constexpr std::uint32_t kThreads = 256, kThreadItems = 16, kBlockItems = kThreads * kThreadItems;
+constexpr std::uint32_t kDigitBits = 4, kDigits = 1u << kDigitBits;
 
-// Shared by the three kernels: the buffers and the pass's parameters.
-constexpr const char* kPrelude = R"(#version 430
-layout(local_size_x = 256) in;
+// Every kernel's first lines: the version, the work-group size and the constants above (written
+// once, here), and the record head's position word (frame.hpp).
+std::string glsl_header() {
+  return fmt::format(
+      "#version 430\nlayout(local_size_x = {0}) in;\nconst uint kThreads = {0}u, kThreadItems = {1}u, "
+      "kBlockItems = {2}u, kDigits = {3}u, kPositionWord = {4}u;\n",
+      kThreads, kThreadItems, kBlockItems, kDigits, kPositionOffset / 4);
+}
+
+// Shared by the three sorting kernels: the buffers and the pass's parameters.
+constexpr const char* kPrelude = R"(
 layout(std430, binding = 0) readonly buffer KeysIn { uint keys_in[]; };
 layout(std430, binding = 1) readonly buffer ValuesIn { uint values_in[]; };
 layout(std430, binding = 2) writeonly buffer KeysOut { uint keys_out[]; };
@@ -34,15 +45,14 @@ layout(std430, binding = 4) buffer Counts { uint counts[]; };  // [digit * block
 uniform uint u_count;
 uniform uint u_shift;
 uniform uint u_blocks;
-const uint kThreadItems = 16u, kBlockItems = 4096u;
-uint digit_of(uint key) { return (key >> u_shift) & 15u; }
+uint digit_of(uint key) { return (key >> u_shift) & (kDigits - 1u); }
 )";
 
 constexpr const char* kCount = R"(
-shared uint block_counts[16];
+shared uint block_counts[kDigits];
 void main() {
   uint t = gl_LocalInvocationID.x, b = gl_WorkGroupID.x;
-  if (t < 16u) block_counts[t] = 0u;
+  if (t < kDigits) block_counts[t] = 0u;
   barrier();
   uint first = b * kBlockItems + t * kThreadItems;
   for (uint k = 0u; k < kThreadItems; ++k) {
@@ -50,22 +60,23 @@ void main() {
     if (i < u_count) atomicAdd(block_counts[digit_of(keys_in[i])], 1u);
   }
   barrier();
-  if (t < 16u) counts[t * u_blocks + b] = block_counts[t];
+  if (t < kDigits) counts[t * u_blocks + b] = block_counts[t];
 }
 )";
 
 constexpr const char* kScan = R"(
-shared uint partial[256];
+shared uint partial[kThreads];
 void main() {
   uint t = gl_LocalInvocationID.x;
-  uint n = 16u * u_blocks, per = (n + 255u) / 256u, begin = min(t * per, n), end = min(begin + per, n);
+  uint n = kDigits * u_blocks, per = (n + kThreads - 1u) / kThreads, begin = min(t * per, n),
+       end = min(begin + per, n);
   uint sum = 0u;
   for (uint i = begin; i < end; ++i) sum += counts[i];
   partial[t] = sum;
   barrier();
   if (t == 0u) {
     uint running = 0u;
-    for (uint j = 0u; j < 256u; ++j) {
+    for (uint j = 0u; j < kThreads; ++j) {
       uint c = partial[j];
       partial[j] = running;
       running += c;
@@ -82,29 +93,29 @@ void main() {
 )";
 
 constexpr const char* kScatter = R"(
-shared uint before[16 * 256];  // [digit * 256 + thread]: that digit's pairs in earlier threads' runs
+shared uint before[kDigits * kThreads];  // [digit * kThreads + thread]: that digit's pairs in earlier threads' runs
 void main() {
   uint t = gl_LocalInvocationID.x, b = gl_WorkGroupID.x;
   uint first = b * kBlockItems + t * kThreadItems;
-  uint mine[16];
-  for (uint d = 0u; d < 16u; ++d) mine[d] = 0u;
+  uint mine[kDigits];
+  for (uint d = 0u; d < kDigits; ++d) mine[d] = 0u;
   for (uint k = 0u; k < kThreadItems; ++k) {
     uint i = first + k;
     if (i < u_count) mine[digit_of(keys_in[i])] += 1u;
   }
-  for (uint d = 0u; d < 16u; ++d) before[d * 256u + t] = mine[d];
+  for (uint d = 0u; d < kDigits; ++d) before[d * kThreads + t] = mine[d];
   barrier();
-  if (t < 16u) {
+  if (t < kDigits) {
     uint running = 0u;
-    for (uint j = 0u; j < 256u; ++j) {
-      uint c = before[t * 256u + j];
-      before[t * 256u + j] = running;
+    for (uint j = 0u; j < kThreads; ++j) {
+      uint c = before[t * kThreads + j];
+      before[t * kThreads + j] = running;
       running += c;
     }
   }
   barrier();
-  uint at[16];
-  for (uint d = 0u; d < 16u; ++d) at[d] = counts[d * u_blocks + b] + before[d * 256u + t];
+  uint at[kDigits];
+  for (uint d = 0u; d < kDigits; ++d) at[d] = counts[d * u_blocks + b] + before[d * kThreads + t];
   for (uint k = 0u; k < kThreadItems; ++k) {
     uint i = first + k;
     if (i < u_count) {
@@ -122,8 +133,7 @@ void main() {
 // Depth keys for the camera: depth = dot(position, axis.xyz) + axis.w in exactly the CPU's
 // operations and order (`precise`: no fused multiply-add), mapped to an order-preserving
 // unsigned key (flipped for back to front), with the particle's index as the value.
-constexpr const char* kDepthKeys = R"(#version 430
-layout(local_size_x = 256) in;
+constexpr const char* kDepthKeys = R"(
 layout(std430, binding = 0) readonly buffer Records { uint words[]; };
 layout(std430, binding = 2) writeonly buffer KeysOut { uint keys_out[]; };
 layout(std430, binding = 3) writeonly buffer ValuesOut { uint values_out[]; };
@@ -145,7 +155,11 @@ void main() {
 }
 )";
 
-GLuint program(const char* body) { return detail::link_compute_program((std::string(kPrelude) + body).c_str()); }
+GLuint program(std::initializer_list<const char*> parts) {
+  std::string source = glsl_header();
+  for (const char* p : parts) source += p;
+  return detail::link_compute_program(source.c_str());
+}
 
 }  // namespace
 
@@ -176,13 +190,10 @@ GpuSorter::GpuSorter(std::uint32_t capacity) : impl_(std::make_unique<Impl>()) {
     glNamedBufferStorage(d.values[i], bytes, nullptr, GL_DYNAMIC_STORAGE_BIT);
   }
   glNamedBufferStorage(d.counts, GLsizeiptr(kDigits) * d.max_blocks * 4, nullptr, GL_DYNAMIC_STORAGE_BIT);
-  d.count = program(kCount);
-  d.scan = program(kScan);
-  d.scatter = program(kScatter);
-  const std::string keys = std::string(kDepthKeys)
-                               .replace(std::string(kDepthKeys).find("void main"), 0,
-                                        fmt::format("const uint kPositionWord = {}u;\n", kPositionOffset / 4));
-  d.depth_keys = detail::link_compute_program(keys.c_str());
+  d.count = program({kPrelude, kCount});
+  d.scan = program({kPrelude, kScan});
+  d.scatter = program({kPrelude, kScatter});
+  d.depth_keys = program({kDepthKeys});
 }
 
 void GpuSorter::depth_keys(std::uint32_t records, std::uint64_t offset, std::uint32_t count, std::uint32_t stride,
@@ -240,13 +251,13 @@ void GpuSorter::sort(std::uint32_t count, int key_bits) {
     glUniform1ui(glGetUniformLocation(p, "u_blocks"), blocks);
   };
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, d.counts);
-  for (int pass = 0; pass < key_bits / 4; ++pass) {
+  for (int pass = 0; pass < key_bits / int(kDigitBits); ++pass) {
     const int from = pass & 1, to = from ^ 1;
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, d.keys[from]);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, d.values[from]);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, d.keys[to]);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, d.values[to]);
-    const std::uint32_t shift = std::uint32_t(pass) * 4;
+    const std::uint32_t shift = std::uint32_t(pass) * kDigitBits;
     set(d.count, shift);
     glDispatchCompute(blocks, 1, 1);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
