@@ -1,11 +1,14 @@
-// `pstream bench playback [FILE]`: the per-host-frame cost of the playback layer — update,
-// interpolation between the two cached frames, depth sort — against a memcpy of the frame's
-// bytes measured in the same run.
+// `pstream bench playback [FILE]`: the per-host-frame cost of the playback layer on the GPU path
+// and the CPU path side by side — the host thread's CPU time, and the bytes uploaded per host
+// frame and per cached frame — at several particle counts (docs/playback.md).
+#include <epoxy/gl.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <vector>
@@ -16,18 +19,11 @@
 #include "commands.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
+#include "particlestream/render.hpp"
 #include "progress.hpp"
 
 namespace pstream::app {
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
 
 // `count` particles with velocities and ascending ids, orbiting a centre, at 24 fps: the records
 // [x y z scale vx vy vz id64], in raw chunks.
@@ -60,78 +56,165 @@ void generate(const std::filesystem::path& path, std::uint64_t count, std::uint6
   writer.commit();
 }
 
-}  // namespace
+double thread_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
+}
 
-int bench_playback(const BenchPlaybackOptions& o) {
-  namespace fs = std::filesystem;
-  fs::path file = o.file, temp;
-  if (file.empty()) {
-    temp = fs::temp_directory_path() / fmt::format("pstream-bench-playback-{}", ::getpid());
-    fs::create_directories(temp);
-    file = temp / "generated.pstream";
-    generate(file, o.particles, std::max<std::uint64_t>(o.frames, 2), !o.json);
-  }
-  struct Cleanup {
-    fs::path dir;
-    ~Cleanup() {
-      std::error_code ec;
-      if (!dir.empty()) fs::remove_all(dir, ec);
-    }
-  } cleanup{temp};
+double percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, std::size_t(p * double(v.size())))];
+}
 
+// One row: `path` played through a clip at host_hz. The host thread's CPU time per host frame
+// covers what the playback costs it: advance() (stream update; on the CPU path interpolation
+// and sort), draw_data() and the renderer's preparation of the frame (the CPU path's copy into
+// the mapped buffer; the GPU path's uploads of new cached frames and its compute dispatches).
+// The draw calls themselves are left out (the same on both paths); glFinish() after each frame,
+// outside the timing, keeps the GPU's work from piling up.
+nlohmann::ordered_json measure(const std::filesystem::path& file, playback::PlaybackPath path, double host_hz,
+                               bool show) {
   playback::PlayerOptions options;
   options.stream.blocking = true;  // the playback layer's own cost, not the disk's
   options.stream.cache_seconds = 1e9;
   options.loop = false;
-  const fs::path files[] = {file};
+  options.path = path;
+  const std::filesystem::path files[] = {file};
   const auto player = playback::Player::open(files, std::move(options));
   const format::Metadata& m = player->clip(0).metadata();
-  std::vector<std::byte> copy(2 * m.max_count * m.record_size);
-  std::vector<double> update_ms, interpolate_ms, sort_ms, memcpy_ms;
-  const render::Mat4 view = render::look_at({0, 3, 6}, {0, 0, 0}, {0, 1, 0});
+  render::HeadlessContext context(64, 64);
+  render::RendererOptions ro;
+  ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
+  render::Renderer renderer(ro);
+  GLuint query = 0;
+  glGenQueries(1, &query);
+  std::vector<double> host_ms, gpu_ms, steady_upload, interpolate_ms, sort_ms, memcpy_ms;
+  std::vector<std::byte> copy(2 * m.max_count * m.record_size);  // the baseline: a memcpy of the frame
+  std::uint64_t total_upload = 0, new_pairs = 0;
+  const render::Camera camera{{0, 3, 6}, {0, 0, 0}, {0, 1, 0}};
+  const render::Mat4 view = camera.view();
+  const playback::DrawStyle style;
   const double duration = m.frames.back().time - m.frames.front().time;
-  const auto steps = static_cast<std::uint64_t>(std::floor(duration * o.host_hz));
+  const auto steps = static_cast<std::uint64_t>(std::floor(duration * host_hz));
   player->play();
-  {
-    ProgressBar bar("playback", !o.json);
-    for (std::uint64_t k = 0; k <= steps; ++k) {
-      const playback::FrameStats& s =
-          player->advance(k == 0 ? 0.0 : 1.0 / o.host_hz, view, sort::SortMode::BackToFront);
-      player->check();
-      if (s.interpolate_ms > 0) {  // a host frame between two cached frames
-        update_ms.push_back(s.stream_ms);
+  std::uint64_t last_frame = ~0ull;
+  ProgressBar bar(path == playback::PlaybackPath::Gpu ? "playback, gpu" : "playback, cpu", show);
+  for (std::uint64_t k = 0; k <= steps; ++k) {
+    renderer.begin_frame(64, 64, camera, {0, 0, 0, 1});
+    glBeginQuery(GL_TIME_ELAPSED, query);
+    const double t0 = thread_ms();
+    const playback::FrameStats& s = player->advance(k == 0 ? 0.0 : 1.0 / host_hz, view, sort::SortMode::BackToFront);
+    const double ta = thread_ms();
+    renderer.prepare(player->draw_data(style));
+    const double t1 = thread_ms();
+    if (std::getenv("PSTREAM_BENCH_DEBUG") != nullptr) {
+      fmt::print(stderr, "advance {:.3f} ms, prepare {:.3f} ms, fraction {:.3f}, uploaded {} bytes\n", ta - t0, t1 - ta,
+                 player->clip(0).fraction(), renderer.stats().upload_bytes);
+    }
+    glEndQuery(GL_TIME_ELAPSED);
+    renderer.end_frame();
+    glFinish();
+    player->check();
+    const std::uint64_t frame = player->clip(0).frame().frame;
+    const std::uint64_t bytes = renderer.stats().upload_bytes;
+    if (k > 0) {  // the first frame uploads the first pair on the GPU path
+      total_upload += bytes;
+      if (frame != last_frame) ++new_pairs;
+      if (s.pair_table_ms > 0 || frame != last_frame) {
+        // a new cached frame or pair of them: what is uploaded once per cached frame
+      } else {
+        steady_upload.push_back(double(bytes));  // a host frame within the same pair of cached frames
+      }
+      if (player->clip(0).fraction() > 0) {  // between two cached frames
+        host_ms.push_back(t1 - t0);
+        GLuint64 ns = 0;
+        glGetQueryObjectui64v(query, GL_QUERY_RESULT, &ns);
+        gpu_ms.push_back(double(ns) * 1e-6);
         interpolate_ms.push_back(s.interpolate_ms);
         sort_ms.push_back(s.sort_ms);
-        const auto& b = player->batches()[0];
-        const auto t0 = Clock::now();
-        std::memcpy(copy.data(), b.first.data(), b.first.size());
-        memcpy_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+        if (path == playback::PlaybackPath::Cpu && !player->batches().empty()) {
+          const auto& b = player->batches()[0];
+          const auto c0 = std::chrono::steady_clock::now();
+          std::memcpy(copy.data(), b.first.data(), b.first.size());
+          memcpy_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - c0).count());
+        }
       }
-      bar.update(k + 1, steps + 1, "host frames");
     }
+    last_frame = frame;
+    bar.update(k + 1, steps + 1, "host frames");
   }
-  if (interpolate_ms.empty()) throw Error(fmt::format("{}: no host frame fell between two frames", file.string()));
-  const double interp = median(interpolate_ms), copy_ms = median(memcpy_ms);
-  nlohmann::ordered_json j{{"file", o.file.empty() ? "generated" : o.file},
-                           {"particles_per_frame", m.max_count},
-                           {"record_bytes", m.record_size},
-                           {"host_hz", o.host_hz},
-                           {"host_frames_measured", interpolate_ms.size()},
-                           {"update_ms_median", median(update_ms)},
-                           {"interpolate_ms_median", interp},
-                           {"sort_ms_median", median(sort_ms)},
-                           {"memcpy_ms_median", copy_ms},
-                           {"interpolate_vs_memcpy", interp / copy_ms}};
+  glDeleteQueries(1, &query);
+  if (host_ms.empty()) throw Error(fmt::format("{}: no host frame fell between two frames", file.string()));
+  double mean = 0;
+  for (double v : host_ms) mean += v / double(host_ms.size());
+  return nlohmann::ordered_json{
+      {"path", path == playback::PlaybackPath::Gpu ? "gpu" : "cpu"},
+      {"particles", m.max_count},
+      {"record_bytes", m.record_size},
+      {"host_frames", host_ms.size()},
+      {"host_thread_ms", percentile(host_ms, 0.5)},
+      {"host_thread_ms_mean", mean},
+      {"host_thread_ms_max", percentile(host_ms, 1.0)},
+      {"upload_bytes_per_host_frame", percentile(steady_upload, 1.0)},
+      {"upload_bytes_per_cached_frame", new_pairs ? total_upload / new_pairs : 0},
+      {"gpu_ms", percentile(gpu_ms, 0.5)},
+      // The CPU path's stages, and the baseline of the same run: a memcpy of the interpolated frame.
+      {"interpolate_ms", percentile(interpolate_ms, 0.5)},
+      {"sort_ms", percentile(sort_ms, 0.5)},
+      {"memcpy_ms", percentile(memcpy_ms, 0.5)},
+      {"interpolate_vs_memcpy", memcpy_ms.empty() ? 0.0 : percentile(interpolate_ms, 0.5) / percentile(memcpy_ms, 0.5)},
+      {"gl_renderer", render::Renderer::gl_renderer()}};
+}
+
+}  // namespace
+
+int bench_playback(const BenchPlaybackOptions& o) {
+  namespace fs = std::filesystem;
+  std::vector<std::uint64_t> counts = o.particles;
+  if (counts.empty()) counts = {100'000, 1'000'000, 4'000'000};
+  if (!o.file.empty()) counts = {0};
+  std::vector<playback::PlaybackPath> paths;
+  for (const std::string& p : o.paths) paths.push_back(playback::parse_playback_path(p));
+  if (paths.empty()) paths = {playback::PlaybackPath::Gpu, playback::PlaybackPath::Cpu};
+  nlohmann::ordered_json rows = nlohmann::ordered_json::array();
+  for (const std::uint64_t count : counts) {
+    fs::path file = o.file, temp;
+    if (file.empty()) {
+      temp = fs::temp_directory_path() / fmt::format("pstream-bench-playback-{}", ::getpid());
+      fs::create_directories(temp);
+      file = temp / "generated.pstream";
+      generate(file, count, std::max<std::uint64_t>(o.frames, 2), !o.json);
+    }
+    struct Cleanup {
+      fs::path dir;
+      ~Cleanup() {
+        std::error_code ec;
+        if (!dir.empty()) fs::remove_all(dir, ec);
+      }
+    } cleanup{temp};
+    for (const playback::PlaybackPath path : paths) rows.push_back(measure(file, path, o.host_hz, !o.json));
+  }
+  nlohmann::ordered_json j{
+      {"file", o.file.empty() ? "generated" : o.file}, {"host_hz", o.host_hz}, {"clip_fps", 24}, {"rows", rows}};
   if (o.json) {
     fmt::print("{}\n", j.dump());
     return 0;
   }
-  fmt::print("{} particles a frame ({} bytes each), host frames at {:g} Hz between 24 fps frames\n", m.max_count,
-             m.record_size, o.host_hz);
-  fmt::print("  update           median {:.3f} ms\n", median(update_ms));
-  fmt::print("  interpolate      median {:.3f} ms  ({:.2f}x a memcpy of the frame, {:.3f} ms; target <= 2)\n", interp,
-             interp / copy_ms, copy_ms);
-  fmt::print("  sort             median {:.3f} ms\n", median(sort_ms));
+  fmt::print(
+      "host frames at {:g} Hz between cached frames; host thread CPU time (CLOCK_THREAD_CPUTIME_ID) per host "
+      "frame: advance + draw_data + the renderer's preparation ({})\n",
+      o.host_hz, rows.empty() ? "" : rows[0]["gl_renderer"].get<std::string>());
+  fmt::print("  {:4} {:>10} {:>12} {:>12} {:>18} {:>20} {:>10} {:>14}\n", "path", "particles", "host ms", "host ms max",
+             "upload B/host fr", "upload B/cached fr", "GPU ms", "interp/memcpy");
+  for (const auto& r : rows) {
+    fmt::print("  {:4} {:>10} {:>12.3f} {:>12.3f} {:>18} {:>20} {:>10.2f} {:>14.2f}\n", r["path"].get<std::string>(),
+               r["particles"].get<std::uint64_t>(), r["host_thread_ms"].get<double>(),
+               r["host_thread_ms_max"].get<double>(), r["upload_bytes_per_host_frame"].get<double>(),
+               r["upload_bytes_per_cached_frame"].get<std::uint64_t>(), r["gpu_ms"].get<double>(),
+               r["interpolate_vs_memcpy"].get<double>());
+  }
   return 0;
 }
 

@@ -81,8 +81,10 @@ struct BenchStreamOptions {
 int bench_stream(const BenchStreamOptions& options);
 
 struct BenchPlaybackOptions {
-  std::string file;  // empty: generate 1M particles with velocities and ids in a temporary folder
-  std::uint64_t particles = 1u << 20, frames = 6;
+  std::string file;                      // empty: generate clips with velocities and ids in a temporary folder
+  std::vector<std::uint64_t> particles;  // generated clips' sizes; empty: 100k, 1M and 4M
+  std::vector<std::string> paths;        // "gpu", "cpu"; empty: both
+  std::uint64_t frames = 3;
   double host_hz = 120.0;
   bool json = false;
 };
@@ -104,6 +106,7 @@ struct RenderCli {
   std::vector<std::string> files;  // drawn together (merged depth order; one liquid surface)
   std::string out = "frames", frames, size = "1280x720", camera = "auto", video, blend = "alpha", sort = "back",
               texture, interpolation = "hermite", look = "sprites", backdrop = "auto";
+  std::string playback = "gpu";  // where interpolation and sorting run: gpu (compute shaders) or cpu
   std::string liquid_filter, liquid_output, liquid_color;  // empty: the library's defaults
   render::LiquidStyle liquid;                              // the numbers, bound to their flags
   LookCli sprite_look;
@@ -124,12 +127,13 @@ struct ViewerCli {
   int frames_to_run = 0;   // > 0: quit after that many frames (scripted runs, tests)
   std::string screenshot;  // with frames_to_run: save the last frame (PNG)
   std::string look;        // sprites or liquid; empty: sprites
+  std::string playback = "gpu";
   LookCli sprite_look;
 };
 int run_viewer(const ViewerCli& cli);
 
 struct DemoCli {
-  std::string preset = "fountain", out = "demo", size = "960x540";
+  std::string preset = "fountain", out = "demo", size = "960x540", playback = "gpu";
   std::uint64_t particles = 250000;
   double seconds = 10.0, fps = 30.0;
   std::uint64_t seed = 1;

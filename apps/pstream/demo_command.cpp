@@ -163,6 +163,7 @@ int run_demo(const DemoCli& cli) {
     ViewerCli viewer;
     viewer.files = {co.output.string()};
     viewer.sprite_look = look;
+    viewer.playback = cli.playback;
     return run_viewer(viewer);
   }
 
@@ -202,6 +203,7 @@ int run_demo(const DemoCli& cli) {
   rc.size = cli.size;
   rc.quiet = cli.quiet;
   rc.sprite_look = look;
+  rc.playback = cli.playback;
   if (cli.preset == "fountain") {
     rc.size_multiplier = 0.45f;
     rc.backdrop = "ground";

@@ -139,6 +139,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   options.stream.blocking = true;  // offline: wait for every frame instead of skipping
   options.loop = false;
   options.interpolation = playback::parse_interpolation(cli.interpolation);
+  options.path = playback::parse_playback_path(cli.playback);
   const std::vector<std::filesystem::path> files(cli.files.begin(), cli.files.end());
   const auto player = playback::Player::open(files, std::move(options));
   // The first clip's frames number the render (--frames); the camera frames every clip.

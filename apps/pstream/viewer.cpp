@@ -155,7 +155,9 @@ int run_viewer(const ViewerCli& cli) {
   glfwSwapInterval(cli.frames_to_run > 0 ? 0 : 1);
 
   std::vector<std::filesystem::path> files(cli.files.begin(), cli.files.end());
-  const auto player = playback::Player::open(files);  // loops by default
+  playback::PlayerOptions options;  // loops by default
+  options.path = playback::parse_playback_path(cli.playback);
+  const auto player = playback::Player::open(files, std::move(options));
   player->play();
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);

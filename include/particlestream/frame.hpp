@@ -36,6 +36,13 @@ struct Camera {
 };
 
 enum class BlendMode { Alpha, Additive, AlphaTest };
+
+// Which way particles are ordered by their depth along a view (sort.hpp sorts on the CPU,
+// render::GpuSorter on the GPU): not at all, far to near (alpha blending), near to far (the
+// self-shadow slices along the half-angle).
+enum class SortMode { None, BackToFront, FrontToBack };
+
+struct FramePair;                                // below
 BlendMode parse_blend(const std::string& name);  // "alpha", "additive", "alphatest"
 
 // One stream's frame, as the stream hands it out.
@@ -56,6 +63,10 @@ struct ParticleBatch {
   std::array<float, 4> tint{1, 1, 1, 1};                  // multiplies this stream's colours (telling streams apart)
   float size_multiplier = 1.0f;
   std::string texture;  // optional sprite image (PNG); empty: the soft round sprite
+  // The GPU path (playback.hpp: PlaybackPath::Gpu): when set, `first` and `second` are empty and
+  // the renderer makes the `count` records on the GPU from this pair of cached frames (and sorts
+  // them as DrawData::sort says); `order` is empty.
+  const FramePair* pair = nullptr;
 };
 
 // ---- Sprites: colour, light, motion -------------------------------------------------------------
@@ -193,6 +204,30 @@ struct ParticlePair {
   std::uint32_t a = kNoParticle, b = kNoParticle;
 };
 
+// What a renderer needs to make a clip's frame itself, on the GPU, between two cached frames:
+// both frames' records as the stream decoded them, the pair table, the fraction and the rules.
+// A frame's records are the same bytes whenever the same (source, frame) comes again, so a
+// renderer uploads each cached frame once and the table once per pair of frames (when
+// `pairs_version` changes), and nothing between cached frames.
+struct FramePair {
+  std::uint64_t source = 0;  // the clip, unique in the process (a renderer keeps buffers per source)
+  std::uint32_t record_size = 16;
+  std::uint64_t max_count = 0;        // the clip's largest frame: what each cached frame's buffer holds
+  std::span<const RecordLane> lanes;  // per word of a record (playback::record_lanes)
+  std::int32_t velocity_offset = -1, color_offset = -1;
+  std::span<const std::byte> a;  // the earlier cached frame's records
+  std::uint64_t a_frame = 0, a_count = 0;
+  // Between two frames (`pairs` not empty): the later one, the table (the interpolated frame's
+  // particles, in order) and how to blend. Otherwise the frame is `a` as it is.
+  std::span<const std::byte> b;
+  std::uint64_t b_frame = 0, b_count = 0;
+  std::span<const ParticlePair> pairs;
+  std::uint64_t pairs_version = 0;  // changes whenever `pairs` holds a new table
+  double t = 0.0, dt = 0.0;         // the fraction from a to b, and the seconds between them
+  bool hermite = false;             // along the curve through the velocities (else straight lines)
+  bool nearer = false;              // no matching: the table is the nearer frame, moved along its velocities
+};
+
 // Most batches one merged draw takes: a merged order's entry is (batch << kMergedIndexBits) |
 // index (sort::DepthSorter::sort_merged makes it), so 32 - kMergedIndexBits bits name the batch.
 inline constexpr unsigned kMergedIndexBits = 28;
@@ -211,6 +246,12 @@ struct DrawData {
   LiquidStyle liquid;
   std::optional<Backdrop> backdrop;         // drawn first when set
   std::optional<std::array<float, 6>> box;  // the clips' world box as lines, when asked for
+  // The GPU path: how the renderer is to order the batches' records it makes (the CPU path
+  // ordered them already: ParticleBatch::order, merged_order), by depth along `sort_view`
+  // (world -> view: the camera, or the half-angle for self-shadowed sprites); several batches
+  // are sorted together.
+  SortMode sort = SortMode::None;
+  Mat4 sort_view = identity();
 };
 
 }  // namespace pstream::render

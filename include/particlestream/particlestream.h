@@ -206,6 +206,18 @@ typedef enum pstream_interpolation {
   PSTREAM_INTERPOLATION_HERMITE = 2 /* along cubic curves through their velocities (default) */
 } pstream_interpolation;
 
+/* Where the per-frame work runs (pstream_player_options.playback). */
+typedef enum pstream_playback {
+  /* The library interpolates and sorts on the host thread; pstream_player_frame() gives the
+   * records and their order (the default). */
+  PSTREAM_PLAYBACK_CPU = 0,
+  /* The host's own shaders do it: pstream_player_update() only advances the clips (no
+   * interpolation, no sort: its cost does not grow with the particle count), and
+   * pstream_player_frame_pair() gives what they need; pstream_frame.records and .order are NULL.
+   * The rules, as reference GLSL, are in docs/embedding.md. */
+  PSTREAM_PLAYBACK_GPU = 1
+} pstream_playback;
+
 typedef enum pstream_sort {
   PSTREAM_SORT_NONE = 0, /* stored order (additive blending) */
   PSTREAM_SORT_BACK_TO_FRONT = 1,
@@ -262,6 +274,9 @@ typedef struct pstream_player_options {
    * called twice does the same at once. 0: 30 s. (Added in 0.1.1: an older struct_size is
    * accepted, with the default.) */
   double io_timeout_seconds;
+  /* A pstream_playback (added after io_timeout_seconds: an older struct_size gets
+   * PSTREAM_PLAYBACK_CPU). */
+  int32_t playback;
 } pstream_player_options;
 
 /* A clip's frame as update() prepared it, valid until the next update() or close(). */
@@ -276,6 +291,43 @@ typedef struct pstream_frame {
   double time;             /* the playhead, clip seconds */
   double fraction;         /* how far towards the next cached frame (interpolated when > 0) */
 } pstream_frame;
+
+/* How a word (4 bytes) of a record is made between two cached frames (pstream_frame_pair.lanes). */
+typedef enum pstream_lane {
+  PSTREAM_LANE_COPY = 0,     /* from the earlier frame's record (ids, integers, the colour word: see below) */
+  PSTREAM_LANE_LERP = 1,     /* a float blended linearly (scale, other float attributes) */
+  PSTREAM_LANE_POSITION = 2, /* along the Hermite curve through positions and velocities */
+  PSTREAM_LANE_VELOCITY = 3  /* the curve's derivative */
+} pstream_lane;
+
+/* PSTREAM_PLAYBACK_GPU: what a host's shaders need to make clip `clip`'s frame between two cached
+ * frames. Upload `a` and `b` when their frame numbers first appear (the same frame number always
+ * has the same bytes), the pair table when `pairs_version` changes, and nothing else between
+ * cached frames. Valid until the next update() or close(). */
+#define PSTREAM_NO_PARTICLE 0xFFFFFFFFu
+typedef struct pstream_frame_pair {
+  const void* a;    /* the earlier cached frame's records (a_count x record_size bytes) */
+  uint64_t a_frame; /* its frame number */
+  uint64_t a_count;
+  /* Between cached frames (pair_count > 0): the later frame, and per particle of the frame to
+   * draw its index in a and in b (PSTREAM_NO_PARTICLE: born in b, or dying after a). With
+   * pair_count 0 the frame is `a` as it is (b is NULL). */
+  const void* b;
+  uint64_t b_frame;
+  uint64_t b_count;
+  const uint32_t* pairs; /* pair_count x 2 (a, b) */
+  uint64_t pair_count;
+  uint64_t pairs_version; /* changes whenever the table does */
+  double t;               /* 0..1 from a to b */
+  double dt;              /* seconds from a to b */
+  int hermite;            /* along the curves (needs velocities), else straight lines */
+  int nearer;             /* no matching: the table is the nearer frame alone, moved along its velocities */
+  uint32_t record_size;
+  uint32_t lane_count;     /* record_size / 4 */
+  const uint8_t* lanes;    /* a pstream_lane per word */
+  int32_t velocity_offset; /* float32 x3, or -1 */
+  int32_t color_offset;    /* RGBA8, blended per byte, or -1 */
+} pstream_frame_pair;
 
 typedef struct pstream_player_stats {
   double stream_ms, interpolate_ms, sort_ms; /* the last update() */
@@ -311,6 +363,10 @@ PSTREAM_API pstream_result pstream_player_check(const pstream_player* player);
 PSTREAM_API size_t pstream_player_clip_count(const pstream_player* player);
 /* Clip `clip`'s current frame (count 0 when it has none yet). */
 PSTREAM_API pstream_result pstream_player_frame(const pstream_player* player, size_t clip, pstream_frame* out);
+/* PSTREAM_PLAYBACK_GPU: clip `clip`'s pair of cached frames (all zero when it has no frame yet).
+ * PSTREAM_ERROR_ARGUMENT on a player opened with PSTREAM_PLAYBACK_CPU. */
+PSTREAM_API pstream_result pstream_player_frame_pair(const pstream_player* player, size_t clip,
+                                                     pstream_frame_pair* out);
 /* With several clips sorted together (they blend in depth order where they overlap), the order
  * across them: entries are (batch << 28) | index, batch counting the clips that have particles
  * this frame in clip order; each clip's pstream_frame.order is then NULL. Empty (count 0)

@@ -297,6 +297,13 @@ class Player {
     check(pstream_player_frame(h_.get(), clip, &f.raw));
     return f;
   }
+  // A player opened with PSTREAM_PLAYBACK_GPU: what an engine's shaders interpolate clip `clip`'s
+  // frame from (particlestream.h: pstream_frame_pair; the rules in docs/embedding.md).
+  pstream_frame_pair frame_pair(std::size_t clip) const {
+    pstream_frame_pair p{};
+    check(pstream_player_frame_pair(h_.get(), clip, &p));
+    return p;
+  }
   std::span<const std::uint32_t> merged_order() const {
     const std::uint32_t* order = nullptr;
     std::uint64_t n = 0;

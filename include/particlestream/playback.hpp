@@ -40,8 +40,26 @@ enum class Interpolation {
 // "none", "linear" or "hermite"; throws pstream::Error naming `interpolation` otherwise.
 Interpolation parse_interpolation(std::string_view name);
 
+// Where the per-frame work (interpolation between cached frames, the depth sort) happens.
+enum class PlaybackPath {
+  // On the GPU: advance() hands each clip's pair of cached frames and its pair table to the
+  // renderer (ParticleBatch::pair, frame.hpp), which uploads each cached frame once and
+  // interpolates, sorts and draws in compute shaders (render::Renderer does; an engine may, with
+  // the rules in docs/embedding.md). The host thread's cost per frame does not grow with the
+  // particle count. What the viewer, `pstream render` and `pstream demo` use.
+  Gpu,
+  // On the host thread: advance() interpolates and sorts, and batches() holds the records
+  // (the reference, and for hosts that want the records on the CPU).
+  Cpu,
+};
+// "gpu" or "cpu"; throws pstream::Error naming `playback` otherwise.
+PlaybackPath parse_playback_path(std::string_view name);
+
 struct PlayerOptions {
   Interpolation interpolation = Interpolation::Hermite;
+  // The CPU path by default here, because batches() then holds the records a host can read; a
+  // renderer that runs compute shaders asks for Gpu (the apps do, unless told `--playback cpu`).
+  PlaybackPath path = PlaybackPath::Cpu;
   // For every clip (`blocking` for offline rendering: no frame skipped); `io` is not used: see below.
   stream::StreamOptions stream;
   // Where each clip's bytes come from (an engine's file system, a pak), one per clip; empty (or a
@@ -101,6 +119,8 @@ struct FrameStats {
   double stream_ms = 0.0;  // update() of every clip
   double sort_ms = 0.0;
   double interpolate_ms = 0.0;  // blending two cached frames (when between them)
+  // The GPU path: making pair tables (only when a clip reaches a new pair of cached frames).
+  double pair_table_ms = 0.0;
   std::uint64_t particles = 0;
   std::size_t failed_clips = 0;  // clips in the Error state (they draw nothing; check() throws their error)
   // Clips between two frames whose particles the stream could not match (no ids and no codec
@@ -165,10 +185,12 @@ class Player {
   // The bytes every clip's frame can take at most (an interpolated frame holds the particles of
   // both cached frames at most): what a renderer's buffers must hold.
   std::uint64_t max_frame_bytes() const;
+  PlaybackPath path() const { return path_; }
 
  private:
   Player() = default;
   struct Clip;
+  std::uint64_t gpu_pair(Clip& c, const stream::FrameView& f);  // the GPU path: fills c's FramePair
   std::vector<Clip> clips_;
   std::unique_ptr<sort::DepthSorter> merged_sorter_;
   std::vector<render::ParticleBatch> batches_;  // one slot per clip; the first batch_count_ are this frame's
@@ -179,6 +201,9 @@ class Player {
   render::DrawData draw_data_;
   FrameStats stats_;
   Interpolation interpolation_ = Interpolation::Hermite;
+  PlaybackPath path_ = PlaybackPath::Cpu;
+  render::SortMode sort_mode_ = render::SortMode::None;
+  render::Mat4 sort_view_ = render::identity();
 };
 
 }  // namespace pstream::playback

@@ -33,6 +33,13 @@ struct RendererOptions {
   bool points = false;                              // draw GL points instead of quads (benchmark)
 };
 
+// What the renderer moved from host memory to the GPU since begin_frame(): on the CPU path every
+// frame's records and order; on the GPU path (ParticleBatch::pair) a cached frame's records and
+// its pair table when they first appear, and nothing between cached frames.
+struct RendererStats {
+  std::uint64_t upload_bytes = 0;
+};
+
 // Needs a current OpenGL 4.5 core context. Throws pstream::Error naming what is missing.
 class Renderer {
  public:
@@ -60,8 +67,16 @@ class Renderer {
   // The edges of the world box [lo, hi] as lines (context: where the clip can be), depth-tested.
   void draw_box(const Vec3& lo, const Vec3& hi, const std::array<float, 4>& color);
   // A whole frame as the playback layer describes it (frame.hpp): the backdrop, the box, then the
-  // batches as sprites (merged or each in its order) or as one liquid surface.
+  // batches as sprites (merged or each in its order) or as one liquid surface. Batches with a
+  // FramePair (the GPU path) are made here: each clip's cached frames and pair table go to GPU
+  // buffers once, then compute shaders interpolate (GpuInterpolator) and sort (GpuSorter, every
+  // batch together, as DrawData::sort says), and the draw reads the results where they are.
   void draw(const DrawData& frame);
+  // What draw() does before its draw calls, alone: the frame's records (and order) made resident
+  // on the GPU — the GPU path's uploads and compute passes, the CPU path's copy into the mapped
+  // buffer. For measuring the playback cost apart from the drawing (`pstream bench playback`).
+  void prepare(const DrawData& frame);
+  const RendererStats& stats() const;
   void end_frame();                     // fences this frame's buffer region
   const Vec3& light_direction() const;  // RendererOptions::light_direction
   static std::string gl_renderer();
@@ -95,9 +110,11 @@ class GpuSorter {
   // (from byte `offset`, `stride` bytes apart), depth = dot(position, axis.xyz) + axis.w with the
   // CPU's operations (sort::depth_axis gives the axis of a view x world matrix), its
   // order-preserving key (flipped when `back_to_front`), and i. Then sort(count) gives exactly
-  // sort::DepthSorter's order.
+  // sort::DepthSorter's order. Several batches sorted together: each writes its pairs from
+  // `first` on, its values or-ed with `tag` ((batch << kMergedIndexBits), as
+  // sort::DepthSorter::sort_merged makes them).
   void depth_keys(std::uint32_t records, std::uint64_t offset, std::uint32_t count, std::uint32_t stride,
-                  const std::array<float, 4>& axis, bool back_to_front);
+                  const std::array<float, 4>& axis, bool back_to_front, std::uint32_t first = 0, std::uint32_t tag = 0);
   // For tests: the depth order of host records (uploaded to a temporary buffer). Allocates.
   std::vector<std::uint32_t> order_by_depth(std::span<const std::byte> records, std::uint32_t stride,
                                             const std::array<float, 4>& axis, bool back_to_front);
@@ -121,11 +138,12 @@ class GpuInterpolator {
   ~GpuInterpolator();
   GpuInterpolator(const GpuInterpolator&) = delete;
   GpuInterpolator& operator=(const GpuInterpolator&) = delete;
-  // Records of frames a and b (GL buffers), the pair table (`count` entries), out: count records.
+  // Records of frames a and b (GL buffers), the pair table (`count` entries), out: count records
+  // from byte `out_offset` (a multiple of GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT) on.
   // `hermite`: along the curve (when the records have velocities); `nearer`: the pair table is
   // the nearer frame alone (no matching), moved along its velocities without shrinking.
   void run(std::uint32_t a, std::uint32_t b, std::uint32_t pairs, std::uint32_t count, double t, double dt,
-           bool hermite, bool nearer, std::uint32_t out);
+           bool hermite, bool nearer, std::uint32_t out, std::uint64_t out_offset = 0);
   // For tests: host records in, host records out (temporary buffers). Allocates.
   std::vector<std::byte> run_host(std::span<const std::byte> a, std::span<const std::byte> b,
                                   std::span<const ParticlePair> pairs, double t, double dt, bool hermite, bool nearer);

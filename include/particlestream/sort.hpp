@@ -20,7 +20,7 @@ template <int kDigits, int kBits>
 struct Histogram;
 }
 
-enum class SortMode { None, BackToFront, FrontToBack };
+using SortMode = render::SortMode;  // frame.hpp
 // "none", "back" (back to front) or "front" (front to back); throws pstream::Error otherwise.
 SortMode parse_sort_mode(std::string_view name);
 

@@ -388,6 +388,8 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
     if (options->struct_size < kFirstRelease)
       return fail(PSTREAM_ERROR_ARGUMENT, "pstream_player_options.struct_size is smaller than any release's");
     std::memcpy(&o, options, std::min(options->struct_size, sizeof o));
+    if (options->struct_size < offsetof(pstream_player_options, playback) + sizeof o.playback)
+      o.playback = PSTREAM_PLAYBACK_CPU;
     o.struct_size = sizeof o;
   }
   if (count == 0) return fail(PSTREAM_ERROR_ARGUMENT, "a player needs at least one clip");
@@ -408,11 +410,14 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
   if (o.sort < PSTREAM_SORT_NONE || o.sort > PSTREAM_SORT_FRONT_TO_BACK)
     return fail(PSTREAM_ERROR_ARGUMENT, "unknown sort " + std::to_string(o.sort));
   if (!(o.cache_seconds >= 0.0)) return fail(PSTREAM_ERROR_ARGUMENT, "cache_seconds must be 0 or more");
+  if (o.playback != PSTREAM_PLAYBACK_CPU && o.playback != PSTREAM_PLAYBACK_GPU)
+    return fail(PSTREAM_ERROR_ARGUMENT, "unknown playback " + std::to_string(o.playback) + " (0: cpu, 1: gpu)");
   if (!(o.io_timeout_seconds >= 0.0) || !std::isfinite(o.io_timeout_seconds))
     return fail(PSTREAM_ERROR_ARGUMENT, "io_timeout_seconds must be a finite number of seconds, 0 or more");
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
     playback::PlayerOptions po;
     po.interpolation = static_cast<playback::Interpolation>(o.interpolation);
+    po.path = o.playback == PSTREAM_PLAYBACK_GPU ? playback::PlaybackPath::Gpu : playback::PlaybackPath::Cpu;
     po.stream.cache_seconds = o.cache_seconds;
     po.stream.blocking = o.blocking != 0;
     po.loop = o.loop != 0;
@@ -530,11 +535,51 @@ pstream_result pstream_player_frame(const pstream_player* player, size_t clip, p
   const std::ptrdiff_t batch = p.batch_of(clip);
   if (batch < 0) return PSTREAM_OK;
   const render::ParticleBatch& b = p.batches()[static_cast<std::size_t>(batch)];
-  out->records = b.first.data();
+  out->records = b.pair != nullptr ? nullptr : b.first.data();  // the GPU path: pstream_player_frame_pair()
   out->count = b.count;
   out->color_offset = b.color_offset;
   out->velocity_offset = b.velocity_offset;
   out->order = b.order.empty() ? nullptr : b.order.data();
+  return PSTREAM_OK;
+}
+
+pstream_result pstream_player_frame_pair(const pstream_player* player, size_t clip, pstream_frame_pair* out) {
+  if (!is_open(player)) return not_open("the player", player);
+  if (out == nullptr) return null_argument("out");
+  const playback::Player& p = *player->player;
+  if (clip >= p.clip_count()) return fail(PSTREAM_ERROR_ARGUMENT, "no clip " + std::to_string(clip));
+  if (p.path() != playback::PlaybackPath::Gpu)
+    return fail(PSTREAM_ERROR_ARGUMENT, "pstream_player_frame_pair needs a player opened with PSTREAM_PLAYBACK_GPU");
+  *out = pstream_frame_pair{};
+  const std::ptrdiff_t batch = p.batch_of(clip);
+  if (batch < 0) return PSTREAM_OK;
+  const render::FramePair& f = *p.batches()[static_cast<std::size_t>(batch)].pair;
+  static_assert(sizeof(render::ParticlePair) == 8 && sizeof(render::RecordLane) == 1);
+  static_assert(std::uint8_t(render::RecordLane::Copy) == PSTREAM_LANE_COPY &&
+                std::uint8_t(render::RecordLane::Lerp) == PSTREAM_LANE_LERP &&
+                std::uint8_t(render::RecordLane::Position) == PSTREAM_LANE_POSITION &&
+                std::uint8_t(render::RecordLane::Velocity) == PSTREAM_LANE_VELOCITY);
+  static_assert(render::kNoParticle == PSTREAM_NO_PARTICLE);
+  out->a = f.a.data();
+  out->a_frame = f.a_frame;
+  out->a_count = f.a_count;
+  if (!f.pairs.empty()) {
+    out->b = f.b.data();
+    out->b_frame = f.b_frame;
+    out->b_count = f.b_count;
+    out->pairs = reinterpret_cast<const std::uint32_t*>(f.pairs.data());
+    out->pair_count = f.pairs.size();
+  }
+  out->pairs_version = f.pairs_version;
+  out->t = f.t;
+  out->dt = f.dt;
+  out->hermite = f.hermite ? 1 : 0;
+  out->nearer = f.nearer ? 1 : 0;
+  out->record_size = f.record_size;
+  out->lane_count = static_cast<std::uint32_t>(f.lanes.size());
+  out->lanes = reinterpret_cast<const std::uint8_t*>(f.lanes.data());
+  out->velocity_offset = f.velocity_offset;
+  out->color_offset = f.color_offset;
   return PSTREAM_OK;
 }
 

@@ -1,3 +1,4 @@
+#include <atomic>
 #include <chrono>
 #include <utility>
 
@@ -20,9 +21,21 @@ struct Player::Clip {
   std::unique_ptr<sort::DepthSorter> sorter;
   std::int32_t color_offset = -1, velocity_offset = -1;
   render::Mat4 world = render::identity();
-  std::unique_ptr<FrameBlender> blender;  // with interpolation
+  std::unique_ptr<FrameBlender> blender;  // with interpolation (the CPU path)
   std::vector<std::byte> blended;         // an interpolated frame: up to both frames' particles
+  // The GPU path: what the renderer makes the frame from, the pair table (room for both frames'
+  // particles) and which pair of frames (and, unmatched, which side) it was made for.
+  render::FramePair pair;
+  std::vector<render::RecordLane> lanes;
+  std::vector<render::ParticlePair> pairs;
+  std::uint64_t pairs_a = ~0ull, pairs_b = ~0ull;
+  int pairs_side = -1;
+  std::uint64_t pairs_count = 0;
 };
+
+namespace {
+std::atomic<std::uint64_t> next_source{1};
+}
 
 Interpolation parse_interpolation(std::string_view name) {
   if (name == "none") return Interpolation::None;
@@ -30,6 +43,12 @@ Interpolation parse_interpolation(std::string_view name) {
   if (name == "hermite") return Interpolation::Hermite;
   throw Error(fmt::format("`interpolation` '{}': expected none, linear or hermite{}", name,
                           did_you_mean(name, {"none", "linear", "hermite"})));
+}
+
+PlaybackPath parse_playback_path(std::string_view name) {
+  if (name == "gpu") return PlaybackPath::Gpu;
+  if (name == "cpu") return PlaybackPath::Cpu;
+  throw Error(fmt::format("`playback` '{}': expected gpu or cpu{}", name, did_you_mean(name, {"gpu", "cpu"})));
 }
 
 Player::~Player() = default;
@@ -55,21 +74,39 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     c.stream = stream::ParticleStream::open(file, std::move(o));
     const format::Metadata& m = c.stream->metadata();
     const std::uint64_t most = options.interpolation != Interpolation::None ? 2 * m.max_count : m.max_count;
-    c.sorter = std::make_unique<sort::DepthSorter>(most, options.sorter);
-    if (options.interpolation != Interpolation::None) {
-      c.blender = std::make_unique<FrameBlender>(m);
-      c.blended.resize(most * m.record_size);
-    }
     if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
     const format::Attribute* v = m.find("velocity");
     if (v && v->type == format::AttributeType::Float32 && v->components == 3)
       c.velocity_offset = std::int32_t(v->offset);
+    if (options.path == PlaybackPath::Cpu) {
+      c.sorter = std::make_unique<sort::DepthSorter>(most, options.sorter);
+      if (options.interpolation != Interpolation::None) {
+        c.blender = std::make_unique<FrameBlender>(m);
+        c.blended.resize(most * m.record_size);
+      }
+    } else {
+      c.lanes = record_lanes(m);
+      if (options.interpolation != Interpolation::None) c.pairs.resize(most);
+      render::FramePair& fp = c.pair;
+      fp.source = next_source.fetch_add(1);
+      fp.record_size = m.record_size;
+      fp.max_count = m.max_count;
+      fp.lanes = c.lanes;
+      fp.velocity_offset = c.velocity_offset;
+      const format::Attribute* color = m.find("color");
+      fp.color_offset = color && color->type == format::AttributeType::Unorm8 && color->components == 4
+                            ? std::int32_t(color->offset)
+                            : -1;
+      fp.hermite = options.interpolation == Interpolation::Hermite;
+    }
     c.stream->set_loop(options.loop);
     total += most;
     p->clips_.push_back(std::move(c));
   }
   p->interpolation_ = options.interpolation;
-  if (p->clips_.size() > 1) p->merged_sorter_ = std::make_unique<sort::DepthSorter>(total, options.sorter);
+  p->path_ = options.path;
+  if (p->clips_.size() > 1 && options.path == PlaybackPath::Cpu)
+    p->merged_sorter_ = std::make_unique<sort::DepthSorter>(total, options.sorter);
   p->batches_.resize(p->clips_.size());
   p->sorted_by_.resize(p->clips_.size());  // reused every frame (a texture name is not copied again)
   p->sources_.reserve(p->clips_.size());
@@ -116,7 +153,9 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
   batch_count_ = 0;
   sources_.clear();
   merged_order_ = {};
-  const bool sorting = mode != sort::SortMode::None;
+  sort_mode_ = mode;
+  sort_view_ = view;
+  const bool sorting = mode != sort::SortMode::None && path_ == PlaybackPath::Cpu;
   const bool merge = sorting && merged_sorter_ && clips_.size() <= render::kMaxMergedBatches;
   for (auto& c : clips_) {
     const auto t0 = Clock::now();
@@ -134,6 +173,21 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
     auto t1 = Clock::now();
     stats_.stream_ms += ms(t0, t1);
     const format::Metadata& m = c.stream->metadata();
+    if (path_ == PlaybackPath::Gpu) {
+      if (!f.valid || f.count == 0) continue;
+      b.count = gpu_pair(c, f);
+      b.pair = &c.pair;
+      b.first = {};
+      b.record_size = m.record_size;
+      b.color_offset = c.color_offset;
+      b.velocity_offset = c.velocity_offset;
+      b.world = c.world;
+      stats_.particles += b.count;
+      sorted_by_[batch_count_] = &c;
+      ++batch_count_;
+      continue;
+    }
+    b.pair = nullptr;
     if (interpolation_ != Interpolation::None && c.stream->fraction() > 0.0) {
       const stream::FrameView next = c.stream->next_frame();
       if (next.valid && f.valid) {
@@ -180,6 +234,45 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
     stats_.sort_ms += ms(t0, Clock::now());
   }
   return stats_;
+}
+
+std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
+  render::FramePair& p = c.pair;
+  p.a = f.first.first(f.count * p.record_size);
+  p.a_frame = f.frame;
+  p.a_count = f.count;
+  p.b = {};
+  p.pairs = {};
+  p.t = 0.0;
+  p.nearer = false;
+  if (interpolation_ == Interpolation::None || c.stream->fraction() <= 0.0) return f.count;
+  const stream::FrameView next = c.stream->next_frame();
+  if (!next.valid) return f.count;
+  const bool matched = next.matched && next.frame == f.frame + 1;
+  if (!matched) ++stats_.unmatched_clips;
+  const double t = c.stream->fraction();
+  // The table changes with the pair of frames and, unmatched, with the nearer side: once per
+  // cached frame, never between.
+  const int side = matched ? 0 : (t < 0.5 ? 1 : 2);
+  std::uint64_t& n = c.pairs_count;
+  if (c.pairs_a != f.frame || c.pairs_b != next.frame || c.pairs_side != side) {
+    const auto t0 = Clock::now();
+    bool nearer = false;
+    n = pair_table(f.count, next.count, matched ? &next.matching : nullptr, t, c.pairs, nearer);
+    c.pairs_a = f.frame;
+    c.pairs_b = next.frame;
+    c.pairs_side = side;
+    ++p.pairs_version;
+    stats_.pair_table_ms += ms(t0, Clock::now());
+  }
+  p.b = next.first.first(next.count * p.record_size);
+  p.b_frame = next.frame;
+  p.b_count = next.count;
+  p.pairs = std::span<const render::ParticlePair>(c.pairs).first(n);
+  p.t = t;
+  p.dt = next.time - f.time;
+  p.nearer = !matched;
+  return n;
 }
 
 void Player::check() const {

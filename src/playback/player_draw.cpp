@@ -56,6 +56,8 @@ const render::DrawData& Player::draw_data(const DrawStyle& style) {
   if (style.backdrop && style.backdrop->ground && !sprites.ground_height)
     sprites.ground_height = style.backdrop->ground_height;
   d.sprites = sprites;
+  d.sort = path_ == PlaybackPath::Gpu ? sort_mode_ : render::SortMode::None;
+  d.sort_view = sort_view_;
   d.box.reset();
   if (style.bounds_box && box_found) d.box = box;
   return d;

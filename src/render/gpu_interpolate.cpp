@@ -139,7 +139,7 @@ GpuInterpolator::GpuInterpolator(std::span<const RecordLane> lanes, std::int32_t
 GpuInterpolator::~GpuInterpolator() = default;
 
 void GpuInterpolator::run(std::uint32_t a, std::uint32_t b, std::uint32_t pairs, std::uint32_t count, double t,
-                          double dt, bool hermite, bool nearer, std::uint32_t out) {
+                          double dt, bool hermite, bool nearer, std::uint32_t out, std::uint64_t out_offset) {
   const Impl& d = *impl_;
   if (count == 0) return;
   const GLuint p = d.program;
@@ -175,7 +175,8 @@ void GpuInterpolator::run(std::uint32_t a, std::uint32_t b, std::uint32_t pairs,
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, b);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, pairs);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, d.lanes);
-  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, out);
+  glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 4, out, GLintptr(out_offset),
+                    GLsizeiptr(std::uint64_t(count) * d.words * 4));
   glDispatchCompute((count + kThreads - 1) / kThreads, 1, 1);
   glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
   glUseProgram(0);

@@ -142,6 +142,8 @@ uniform uint u_stride_words;
 uniform uint u_base_words;
 uniform vec4 u_axis;
 uniform bool u_back_to_front;
+uniform uint u_first;  // where this batch's pairs start
+uniform uint u_tag;    // or-ed into the values: (batch << kMergedIndexBits) for a merged sort
 void main() {
   uint i = gl_GlobalInvocationID.x;
   if (i >= u_count) return;
@@ -150,8 +152,8 @@ void main() {
   precise float d = ((p.x * u_axis.x + p.y * u_axis.y) + p.z * u_axis.z) + u_axis.w;
   uint u = floatBitsToUint(d);
   uint key = u ^ ((u & 0x80000000u) != 0u ? 0xFFFFFFFFu : 0x80000000u);
-  keys_out[i] = u_back_to_front ? ~key : key;
-  values_out[i] = i;
+  keys_out[u_first + i] = u_back_to_front ? ~key : key;
+  values_out[u_first + i] = u_tag | i;
 }
 )";
 
@@ -197,9 +199,11 @@ GpuSorter::GpuSorter(std::uint32_t capacity) : impl_(std::make_unique<Impl>()) {
 }
 
 void GpuSorter::depth_keys(std::uint32_t records, std::uint64_t offset, std::uint32_t count, std::uint32_t stride,
-                           const std::array<float, 4>& axis, bool back_to_front) {
+                           const std::array<float, 4>& axis, bool back_to_front, std::uint32_t first,
+                           std::uint32_t tag) {
   Impl& d = *impl_;
-  if (count > d.capacity) throw Error(fmt::format("GpuSorter: {} pairs, capacity {}", count, d.capacity));
+  if (std::uint64_t(first) + count > d.capacity)
+    throw Error(fmt::format("GpuSorter: {} pairs, capacity {}", std::uint64_t(first) + count, d.capacity));
   if (stride % 4 != 0 || offset % 4 != 0) throw Error("GpuSorter: records must be 4-byte aligned");
   if (count == 0) return;
   glUseProgram(d.depth_keys);
@@ -208,6 +212,8 @@ void GpuSorter::depth_keys(std::uint32_t records, std::uint64_t offset, std::uin
   glUniform1ui(glGetUniformLocation(d.depth_keys, "u_base_words"), std::uint32_t(offset / 4));
   glUniform4f(glGetUniformLocation(d.depth_keys, "u_axis"), axis[0], axis[1], axis[2], axis[3]);
   glUniform1i(glGetUniformLocation(d.depth_keys, "u_back_to_front"), back_to_front ? 1 : 0);
+  glUniform1ui(glGetUniformLocation(d.depth_keys, "u_first"), first);
+  glUniform1ui(glGetUniformLocation(d.depth_keys, "u_tag"), tag);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, records);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, d.keys[0]);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, d.values[0]);

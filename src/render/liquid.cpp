@@ -273,20 +273,23 @@ float scale_of(const Mat4& world) { return std::sqrt(world[0] * world[0] + world
 // The median radius (view units) of up to 255 records spread over the batches.
 float median_radius(std::span<const ParticleBatch> batches) {
   std::uint64_t total = 0;
-  for (const ParticleBatch& b : batches) total += b.count;
+  // A batch on the GPU path samples its earlier cached frame (its records are made on the GPU).
+  const auto count_of = [](const ParticleBatch& b) { return b.pair ? b.pair->a_count : b.count; };
+  for (const ParticleBatch& b : batches) total += count_of(b);
   std::array<float, 255> sample{};
   std::size_t n = 0;
   const std::uint64_t want = std::min<std::uint64_t>(total, sample.size());
   for (std::uint64_t k = 0; k < want; ++k) {
     std::uint64_t i = total <= want ? k : k * total / want;
     for (const ParticleBatch& b : batches) {
-      if (i >= b.count) {
-        i -= b.count;
+      if (i >= count_of(b)) {
+        i -= count_of(b);
         continue;
       }
       const std::uint64_t at = i * b.record_size + kScaleOffset;  // scale: the radius
-      const std::span<const std::byte> part = at < b.first.size() ? b.first : b.second;
-      const std::uint64_t in = at < b.first.size() ? at : at - b.first.size();
+      const std::span<const std::byte> first = b.pair ? b.pair->a : b.first;
+      const std::span<const std::byte> part = at < first.size() ? first : b.second;
+      const std::uint64_t in = at < first.size() ? at : at - first.size();
       float radius = 0;
       std::memcpy(&radius, part.data() + in, sizeof radius);
       if (std::isfinite(radius) && radius > 0) sample[n++] = radius * b.size_multiplier * scale_of(b.world);

@@ -102,4 +102,27 @@ class BackdropPass {
   GLint b_view_projection_ = -1, b_lo_ = -1, b_hi_ = -1, b_color_ = -1;
 };
 
+// The GPU path's frames (ParticleBatch::pair): per clip, the cached frames' records and the pair
+// table in GPU buffers, each uploaded once (a frame when it first appears, the table when its
+// version changes); per host frame, compute passes interpolate every batch into one records
+// buffer and, when asked, sort them all together by depth. stage() then leaves the records bound
+// at shader storage binding 0 and the order at 1, as the CPU path's staging does, so every pass
+// (sprites, shadow slices, motion blur, liquid) draws them the same way.
+class GpuFrames {
+ public:
+  GpuFrames(std::uint64_t max_bytes_per_frame, GLint ssbo_alignment);
+  ~GpuFrames();
+  GpuFrames(const GpuFrames&) = delete;
+  GpuFrames& operator=(const GpuFrames&) = delete;
+  // Fills `staged` for `batches` (all with a pair) and returns the order's length (0: stored
+  // order); `merged` tells whether its entries carry the batch.
+  std::uint64_t stage(std::span<const ParticleBatch> batches, SortMode sort, const Mat4& sort_view, const Mat4& view,
+                      StagedBatches& staged, bool& merged);
+  std::uint64_t uploaded_bytes = 0;  // since the last reset by the renderer
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
 }  // namespace pstream::render::detail

@@ -29,9 +29,15 @@ struct Renderer::Impl {
   std::unique_ptr<detail::LiquidPass> liquid;      // made on the first liquid draw
   std::unique_ptr<detail::BackdropPass> backdrop;  // made on the first backdrop
   std::unique_ptr<detail::SpritePass> sprites;
+  std::unique_ptr<detail::GpuFrames> gpu;  // the GPU playback path, made on its first frame
+  RendererStats stats;
   // Copies the batches' records (and the order) into this frame's region of the mapped buffers,
   // binds them, and fills `staged`; false when there is nothing to draw.
   bool stage(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order);
+  // The GPU path's staging (GpuFrames): the order's length, and whether it is merged.
+  std::uint64_t stage_gpu(const DrawData& frame, bool& merged);
+  void draw_staged(std::span<const ParticleBatch> batches, std::uint64_t order_count, bool merged,
+                   const SpriteStyle& style);
   GLuint records = 0, order = 0, sprite = 0;
   std::string sprite_path;
   std::byte* records_map = nullptr;
@@ -101,6 +107,7 @@ void Renderer::begin_frame(int width, int height, const Camera& camera, const st
     d.fences[std::size_t(d.region)] = nullptr;
   }
   d.records_used = d.order_used = 0;
+  d.stats = {};
   d.frame.view = camera.view();
   d.frame.projection = camera.projection(float(width) / float(std::max(height, 1)));
   d.frame.width = std::max(width, 1);
@@ -121,12 +128,42 @@ void Renderer::draw(const ParticleBatch& b, const SpriteStyle& style) {
 }
 
 const Vec3& Renderer::light_direction() const { return impl_->options.light_direction; }
+const RendererStats& Renderer::stats() const { return impl_->stats; }
+
+void Renderer::prepare(const DrawData& frame) {
+  Impl& d = *impl_;
+  if (frame.batches.empty()) return;
+  if (frame.batches.front().pair != nullptr) {
+    bool merged = false;
+    d.stage_gpu(frame, merged);
+  } else {
+    d.stage(frame.batches, frame.merged_order.empty() ? frame.batches.front().order : frame.merged_order);
+  }
+}
 
 void Renderer::draw(const DrawData& frame) {
   if (frame.backdrop) draw_backdrop(*frame.backdrop);
   if (frame.box) {
     const std::array<float, 6>& b = *frame.box;
     draw_box({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, {0.9f, 0.75f, 0.3f, 0.6f});
+  }
+  const bool gpu =
+      std::any_of(frame.batches.begin(), frame.batches.end(), [](const ParticleBatch& b) { return b.pair != nullptr; });
+  if (gpu) {  // the GPU path: the records are made (and ordered) here, in compute shaders
+    Impl& d = *impl_;
+    if (!std::all_of(frame.batches.begin(), frame.batches.end(),
+                     [](const ParticleBatch& b) { return b.pair != nullptr; }))
+      throw Error("a frame's batches are all on the GPU path or all on the CPU path");
+    if (frame.batches.empty()) return;
+    bool merged = false;
+    const std::uint64_t order = d.stage_gpu(frame, merged);
+    if (frame.look == Look::Liquid) {
+      if (!d.liquid) d.liquid = std::make_unique<detail::LiquidPass>();
+      d.liquid->draw(d.frame, d.staged, frame.batches, frame.liquid);
+      return;
+    }
+    d.draw_staged(frame.batches, order, merged, frame.sprites);
+    return;
   }
   if (frame.look == Look::Liquid) {  // one surface from every clip; needs no order
     draw_liquid(frame.batches, frame.liquid);
@@ -201,13 +238,29 @@ bool Renderer::Impl::stage(std::span<const ParticleBatch> batches, std::span<con
     glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 1, d.order, 0, 4);
   }
   d.records_used = at + bytes;
+  d.stats.upload_bytes += bytes + order.size_bytes();
   return true;
+}
+
+std::uint64_t Renderer::Impl::stage_gpu(const DrawData& f, bool& merged) {
+  Impl& d = *this;
+  if (!d.gpu) d.gpu = std::make_unique<detail::GpuFrames>(d.options.max_bytes_per_frame, d.ssbo_alignment);
+  d.gpu->uploaded_bytes = 0;
+  const std::uint64_t order = d.gpu->stage(f.batches, f.sort, f.sort_view, d.frame.view, d.staged, merged);
+  d.stats.upload_bytes += d.gpu->uploaded_bytes;
+  return order;
 }
 
 void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const std::uint32_t> order, bool merged,
                          const SpriteStyle& style) {
   Impl& d = *impl_;
   if (!d.stage(batches, order)) return;
+  d.draw_staged(batches, order.size(), merged, style);
+}
+
+void Renderer::Impl::draw_staged(std::span<const ParticleBatch> batches, std::uint64_t order_count, bool merged,
+                                 const SpriteStyle& style) {
+  Impl& d = *this;
   const detail::StagedBatches& s = d.staged;
   const ParticleBatch& first = batches.front();                    // blend mode and sprite of the draw
   if (!first.texture.empty() && first.texture != d.sprite_path) {  // an artist's sprite, loaded once
@@ -222,7 +275,7 @@ void Renderer::impl_draw(std::span<const ParticleBatch> batches, std::span<const
   }
   detail::SpriteDraw what;
   for (std::size_t k = 0; k < s.n; ++k) what.instances += s.count[k];
-  what.order_count = order.size();
+  what.order_count = order_count;
   what.merged = merged;
   what.points = d.options.points;
   what.blend = first.blend;

@@ -367,6 +367,34 @@ int main(int argc, char** argv) {
     EXPECT_ERROR(pstream_player_seek(player, NAN), PSTREAM_ERROR_ARGUMENT, "not finite");
     pstream_player_close(player);
 
+    /* The GPU path for an engine's own shaders: no records, a frame pair (tests/sdk/frame_pair.c
+     * checks its values against the CPU path). */
+    options.playback = PSTREAM_PLAYBACK_GPU;
+    CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+    CHECK(pstream_player_set_speed(player, 0.5) == PSTREAM_OK);
+    CHECK(pstream_player_play(player) == PSTREAM_OK);
+    {
+      pstream_frame_pair pair;
+      int pairs = 0;
+      for (k = 0; k < 40; ++k) {
+        CHECK(pstream_player_update(player, k == 0 ? 0.0 : 1.0 / 96, NULL) == PSTREAM_OK);
+        CHECK(pstream_player_frame(player, 0, &frame) == PSTREAM_OK && frame.records == NULL);
+        CHECK(pstream_player_frame_pair(player, 0, &pair) == PSTREAM_OK);
+        if (pair.pair_count > 0) {
+          CHECK(pair.a != NULL && pair.b != NULL && pair.pairs != NULL && pair.lanes != NULL);
+          CHECK(pair.b_frame == pair.a_frame + 1 && pair.t > 0 && pair.t < 1 && pair.dt > 0);
+          CHECK(pair.lane_count == info.record_size / 4 && pair.velocity_offset == 20);
+          CHECK(pair.lanes[0] == PSTREAM_LANE_POSITION && pair.lanes[3] == PSTREAM_LANE_LERP);
+          ++pairs;
+        }
+      }
+      CHECK(pairs > 20);
+      EXPECT_ERROR(pstream_player_frame_pair(player, 4, &pair), PSTREAM_ERROR_ARGUMENT, "no clip 4");
+      EXPECT_ERROR(pstream_player_frame_pair(player, 0, NULL), PSTREAM_ERROR_ARGUMENT, "out");
+    }
+    pstream_player_close(player);
+    options.playback = PSTREAM_PLAYBACK_CPU;
+
     /* Two clips sorted together: one order across both. */
     CHECK(pstream_player_open(clips, 2, &options, &player) == PSTREAM_OK);
     CHECK(pstream_player_play(player) == PSTREAM_OK);
