@@ -197,8 +197,12 @@ PYBIND11_MODULE(particlestream, m) {
       "cook",
       [](const std::filesystem::path& input, const std::filesystem::path& output, double fps, const std::string& codec,
          std::vector<std::string> attributes, const std::string& object, bool interpolate,
-         const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
+         const std::function<void(std::uint64_t, std::uint64_t)>& progress, const std::string& error,
+         const std::string& scale_error, const std::string& attribute_error) {
         cook::Options o;
+        cook::set_error_bound(o, error, "error");  // the command line's rules
+        cook::set_scale_error(o, scale_error, "scale_error");
+        cook::set_attribute_error(o, attribute_error, "attribute_error");
         o.input = input;
         o.output = output;
         o.fps = fps;
@@ -225,11 +229,15 @@ PYBIND11_MODULE(particlestream, m) {
         d["seconds"] = r.seconds;
         return d;
       },
-      py::arg("input"), py::arg("output"), py::arg("fps") = 0.0, py::arg("codec") = "raw",
+      py::arg("input"), py::arg("output"), py::arg("fps") = 0.0, py::arg("codec") = "particle",
       py::arg("attributes") = std::vector<std::string>{}, py::arg("object") = "", py::arg("interpolate") = false,
-      py::arg("progress") = nullptr,
+      py::arg("progress") = nullptr, py::arg("error") = "1e-4", py::arg("scale_error") = "1%",
+      py::arg("attribute_error") = "1e-3",
       "Cooks an Alembic archive (or a PLY sequence) into a .pstream. progress(frames_done, frame_count) is "
-      "called after each frame. Returns the report (frames, particles, file_bytes, seconds).");
+      "called after each frame. The particle codec's bounds are the command line's --error (a fraction of the "
+      "bounds diagonal, 'rel:1e-4', or 'abs:0.001' in scene units) and --scale-error (each scale relative to "
+      "itself: '1%') and --attribute-error (velocity and other floats, a fraction of their range: '1e-3'). Returns the "
+      "report (frames, particles, file_bytes, seconds).");
 
   py::class_<PyClip>(m, "Clip", "A .pstream read directly.")
       .def(py::init<std::filesystem::path>(), py::arg("path"))

@@ -46,6 +46,7 @@ fs::path cook_with(const fs::path& dir, const Fixture& fx, const std::string& na
                    const format::ParticleCodecOptions& particle = {}, unsigned threads = 0,
                    bool keep_source_order = false) {
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.keep_source_order = keep_source_order;
   o.input = test::data_path(fx.file);
   o.object = fx.object;
@@ -98,6 +99,10 @@ TEST(ParticleCodec, EveryDecodedValueIsWithinItsBoundOnEveryFixture) {
         ++quantized;
         EXPECT_LE(c.max_error[w], double(e.error)) << "word " << w;
         EXPECT_GT(e.error, 0.0f);
+      } else if (e.coding == format::WordCoding::Relative) {  // scale: within 1 % of each particle's own
+        EXPECT_EQ(w, 3u);
+        EXPECT_FLOAT_EQ(e.error, 0.01f);
+        EXPECT_LE(c.max_relative_error[w], double(e.error)) << "word " << w;
       } else {
         EXPECT_EQ(c.max_error[w], 0.0) << "word " << w << " must be exact";
       }
@@ -172,8 +177,8 @@ TEST(ParticleCodec, BytesPerParticleOnTheSims) {
     cook::Options o;
     o.input = test::data_path(fx.file);
     o.output = dir / (name + ".pstream");
-    o.frame_codec = format::FrameCodec::Particle;
-    o.color_from = "none";  // the [x y z scale] record
+    o.color_from = "none";  // the [x y z scale] record (the default cook: the particle codec)
+    o.keep_velocity = false;
     cook::cook(o);
     const auto m = format::Reader::open(o.output).metadata();
     return double(m.stream_size()) / double(m.total_particles());
@@ -321,6 +326,78 @@ namespace {
 
 // The tools around the codec, through the CLI: verify --against passes within the bound and fails
 // against another source; export writes PLY and Alembic that cook back to the decoded values.
+// Sizes that span 100x in a scene 40 units across: each particle's scale within 1 % of its own
+// (an absolute bound of 1e-4 of the diagonal, 4 mm here, would turn the smallest into a few
+// values), and no two scales that differ by more than twice the bound decode to the same value.
+TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
+  constexpr std::uint32_t kCount = 4000, kFrames = 6;
+  std::vector<format::Attribute> layout = format::default_layout();
+  format::append_attribute(layout, "id", format::AttributeType::Uint64, 1);
+  const std::uint32_t rs = format::record_size_of(layout);
+  std::vector<std::vector<std::byte>> records(kFrames, std::vector<std::byte>(kCount * rs));
+  std::vector<std::vector<std::uint64_t>> ids(kFrames, std::vector<std::uint64_t>(kCount));
+  format::ClipStats stats(layout);
+  for (std::uint32_t f = 0; f < kFrames; ++f) {
+    for (std::uint32_t i = 0; i < kCount; ++i) {
+      const double u = double((i * 2654435761u) % kCount) / kCount;
+      const float r[4] = {float(20 * std::sin(i * 0.37) + f * 0.05), float(20 * std::cos(i * 0.11)),
+                          float(20 * std::sin(i * 0.73 + 1)),
+                          float(0.002 * std::pow(100.0, u) * (1.0 + 0.01 * f))};  // 2 mm to 20 cm, growing
+      std::memcpy(records[f].data() + std::size_t(i) * rs, r, 16);
+      const std::uint64_t id = i;
+      std::memcpy(records[f].data() + std::size_t(i) * rs + 16, &id, 8);
+      ids[f][i] = id;
+    }
+    stats.add(records[f], kCount);
+  }
+  const format::CodecInfo info = format::plan_particle_codec(layout, stats, 24.0, true, {});
+  ASSERT_EQ(info.words[3].coding, format::WordCoding::Relative);
+  std::vector<format::SourceFrame> frames;
+  for (std::uint32_t f = 0; f < kFrames; ++f) frames.push_back({records[f], ids[f], kCount});
+  const auto encoded = format::encode_group(info, frames, nullptr, 0);
+  format::Metadata meta;
+  meta.layout = layout;
+  meta.record_size = rs;
+  meta.codec = info;
+  meta.max_count = kCount;
+  for (const auto& e : encoded) {
+    format::FrameEntry entry;
+    entry.count = e.count;
+    entry.keyframe = e.keyframe;
+    entry.packet_size = e.packet.size();
+    meta.frames.push_back(entry);
+  }
+  format::FrameDecoder decoder(meta, "generated");
+  std::vector<std::byte> out(kCount * rs);
+  double worst = 0.0;
+  for (std::uint32_t f = 0; f < kFrames; ++f) {
+    decoder.decode(f, encoded[f].packet, out);
+    std::vector<std::pair<float, float>> scales;  // (source, decoded), by id (the frame is in id order)
+    for (std::uint32_t i = 0; i < kCount; ++i) {
+      float src, dec;
+      std::memcpy(&src, records[f].data() + std::size_t(i) * rs + 12, 4);
+      std::memcpy(&dec, out.data() + std::size_t(i) * rs + 12, 4);
+      worst = std::max(worst, std::abs(double(dec) - double(src)) / double(src));
+      scales.push_back({src, dec});
+    }
+    // Sorted by the source, the decoded scales never go down, and they change wherever the
+    // source has moved on by more than twice the bound since the last change.
+    std::sort(scales.begin(), scales.end());
+    float run_start = scales[0].first, last = scales[0].second;
+    std::size_t clusters = 1, distinct = 1;
+    for (std::size_t k = 1; k < scales.size(); ++k) {
+      ASSERT_GE(scales[k].second, scales[k - 1].second);
+      if (scales[k].second != last) ++distinct, last = scales[k].second;
+      if (double(scales[k].first) > double(run_start) * (1 + 2 * 0.01)) ++clusters, run_start = scales[k].first;
+    }
+    EXPECT_GE(distinct, clusters) << "frame " << f;
+    EXPECT_GT(distinct, 200u);  // 100x spans 230 steps of 2 %
+  }
+  EXPECT_LE(worst, 0.01);
+  EXPECT_GT(worst, 0.001);  // a lossy bound, not an exact copy
+  std::printf("scales spanning 100x: worst relative error %.4f%% (bound 1%%)\n", 100 * worst);
+}
+
 TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
   const fs::path dir = test::fresh_dir();
   const std::string sparks = test::data_path("sims/blender_sparks.abc");
@@ -336,7 +413,16 @@ TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
   for (const auto& a : j["against"]["attributes"]) {
     EXPECT_LE(a["max_error"].get<double>(), a["bound"].get<double>()) << a.dump();
     EXPECT_TRUE(a["ok"].get<bool>());
+    if (a["name"] == "scale") {  // each attribute against its own bound: scale relative to itself
+      EXPECT_TRUE(a["relative"].get<bool>());
+      EXPECT_DOUBLE_EQ(a["bound"].get<double>(), double(0.01f));
+      EXPECT_GT(a["distinct_clip"].get<std::uint64_t>(), 20u);
+    }
   }
+  // The text report prints each attribute's error beside its bound.
+  r = test::run_cli(fmt::format("verify {} --against {}", clip.string(), sparks));
+  EXPECT_NE(r.output.find("scale"), std::string::npos);
+  EXPECT_NE(r.output.find("% of each value"), std::string::npos) << r.output;
   // Against another cache the values are far off: a failure, naming the attribute.
   r = test::run_cli(
       fmt::format("verify {} --against {}", clip.string(), test::data_path("alembic/points_varying.abc")));
@@ -349,6 +435,7 @@ TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
   EXPECT_TRUE(fs::exists(dir / "ply" / "frame.0001.ply"));
   EXPECT_TRUE(fs::exists(dir / "ply" / "frame.0048.ply"));
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = dir / "back.abc";
   o.output = dir / "back.pstream";
   o.attributes = {"id", "velocity", "age"};

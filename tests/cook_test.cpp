@@ -115,6 +115,8 @@ TEST_P(CookFixture, EveryFrameEqualsTheSource) {
   const auto& [c, codec, chunk_size] = GetParam();
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
+  o.keep_velocity = false;                      // the fixture's [x y z scale] (+ colour) records
   o.input = test::data_path(std::string("alembic/") + c.file + ".abc");
   o.output = dir / "out.pstream";
   o.object = c.objects.front();
@@ -165,6 +167,7 @@ INSTANTIATE_TEST_SUITE_P(Cook, CookFixture,
 TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_multi.abc");
   o.output = dir / "merged.pstream";
   o.merge = true;
@@ -194,6 +197,7 @@ TEST(Cook, MergedObjectsKeepTheirOwnTransforms) {
 TEST(Cook, AttributesColourVelocityIdAndFloats) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_varying.abc");
   o.output = dir / "attrs.pstream";
   o.attributes = {"velocity", "id", "age"};
@@ -250,6 +254,7 @@ TEST(Cook, AttributesColourVelocityIdAndFloats) {
 TEST(Cook, InterpolationBlendsParticlesMatchedById) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_constant.abc");
   o.output = dir / "interp.pstream";
   o.fps = 48;
@@ -279,6 +284,7 @@ TEST(Cook, InterpolationBlendsParticlesMatchedById) {
 TEST(Cook, SameInputSameBytes) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_varying.abc");
   o.codec = format::Codec::Zstd;
   o.chunk_size = format::kMinChunkSize;
@@ -316,6 +322,7 @@ void expect_cook_error(const cook::Options& o, const std::string& fragment) {
 TEST(CookBadInput, MissingObjectNoPointsZeroFramesTooMany) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.output = dir / "out.pstream";
   o.input = test::data_path("alembic/points_constant.abc");
   o.object = "/nope";
@@ -383,6 +390,7 @@ TEST(Cook, WithoutWidthsTheScaleIsHalfTheSpacing) {
       w.close();
     }
     cook::Options o;
+    o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
     o.input = dir / "grid.abc";
     o.output = dir / "grid.pstream";
     const cook::Report r = cook::cook(o);
@@ -442,6 +450,7 @@ TEST(CookBadInput, NanAndInfPositionsFailTheFrameOrAreDropped) {
           w.close();
         }
         cook::Options o;
+        o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
         o.input = dir / "in.abc";
         o.output = dir / "out.pstream";
         o.chunk_size = format::kMinChunkSize;
@@ -485,6 +494,7 @@ TEST(CookPly, AsciiAndBinarySequencesCookExactly) {
       write_ply(dir / fmt::format("frame.{:04d}.ply", f), pts, binary);
     }
     cook::Options o;
+    o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
     o.input = dir / "frame.0001.ply";
     o.output = dir / "ply.pstream";
     cook::cook(o);
@@ -506,6 +516,7 @@ TEST(CookPly, GapsMismatchesAndNaN) {
   write_ply(dir / "a.0001.ply", {{0, 0, 0, 1}}, false);
   write_ply(dir / "a.0003.ply", {{0, 0, 0, 1}}, false);
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = dir / "a.0001.ply";
   o.output = dir / "out.pstream";
   expect_cook_error(o, "frame 2 is missing");

@@ -63,6 +63,7 @@ void rechecksum(std::string& bytes) {
 fs::path cook_clip(const fs::path& dir, const std::string& name, const std::string& codec, std::int64_t first = -1,
                    std::int64_t end = -1) {
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/" + name + ".abc");
   o.output = dir / (name + "-" + codec + ".pstream");
   o.chunk_size = format::kMinChunkSize;

@@ -151,6 +151,7 @@ TEST(Hardening, FrameTimesMustBeFiniteAndIncreasing) {
 TEST(Hardening, BenchStreamReportsTheStreamsError) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_constant.abc");
   o.output = dir / "clip.pstream";
   o.chunk_size = format::kMinChunkSize;
@@ -215,7 +216,8 @@ TEST(Hardening, CooksThatCannotFitAreStoppedEarly) {
     // 400 frames of 800 KB do not fit in 64 MiB: refused once 16 frames show the size.
     SmallDisk disk(dir / "small", "64M");
     if (!disk.mounted) GTEST_SKIP() << "cannot mount a tmpfs here";
-    const auto r = test::run_cli(fmt::format("cook {} --fps 480 -o {}", large, q(disk.dir / "out.pstream")));
+    const auto r =
+        test::run_cli(fmt::format("cook {} --fps 480 --codec raw -o {}", large, q(disk.dir / "out.pstream")));
     expect_error(r, "the cook would write about 0.3 GB");
     EXPECT_FALSE(fs::exists(disk.dir / "out.pstream"));
     expect_no_temporaries(disk.dir);
@@ -224,7 +226,7 @@ TEST(Hardening, CooksThatCannotFitAreStoppedEarly) {
     // A disk that fills up: the error names the output, the previous file survives.
     SmallDisk disk(dir / "tiny", "2M");
     write(disk.dir / "out.pstream", "the previous cook");
-    const auto r = test::run_cli(fmt::format("cook {} -o {}", large, q(disk.dir / "out.pstream")));
+    const auto r = test::run_cli(fmt::format("cook {} --codec raw -o {}", large, q(disk.dir / "out.pstream")));
     expect_error(r, "No space left on device");
     EXPECT_EQ(test::read_text(disk.dir / "out.pstream"), "the previous cook");
     expect_no_temporaries(disk.dir);
@@ -346,6 +348,7 @@ TEST(Hardening, CooksAreReproducibleWhereverTheyAreWritten) {
   fs::copy_file(test::data_path("alembic/points_varying.abc"), dir / "elsewhere" / "deeper" / "points_varying.abc");
   for (const std::string codec : {"raw", "zstd", "particle"}) {
     cook::Options o;
+    o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
     o.input = test::data_path("alembic/points_varying.abc");
     o.output = dir / "a.pstream";
     o.chunk_size = format::kMinChunkSize;
@@ -482,6 +485,7 @@ TEST(Hardening, CountsAndArticlesReadRight) {
 TEST(Hardening, LibraryErrorsUseTheLibrarysNames) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_constant.abc");
   o.output = dir / "o.pstream";
   o.max_particles = 10;

@@ -30,6 +30,7 @@ class LiquidTest : public ::testing::Test {
   static void SetUpTestSuite() {
     dir_ = new fs::path(test::fresh_dir("liquid"));
     cook::Options o;
+    o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
     o.input = test::data_path("sims/blender_flip_pour_small.abc");
     o.output = *dir_ / "flip.pstream";
     cook::cook(o);

@@ -27,6 +27,7 @@ namespace fs = std::filesystem;
 
 fs::path cook(const fs::path& dir, const std::string& fixture, format::FrameCodec codec) {
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/" + fixture + ".abc");
   o.output = dir / (fixture + (codec == format::FrameCodec::Particle ? "-particle" : "-raw") + ".pstream");
   o.chunk_size = format::kMinChunkSize;  // frames straddle chunks and the ring wraps
@@ -196,6 +197,7 @@ fs::path analytic_clip(const fs::path& dir, Motion motion) {
     w.close();
   }
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = abc;
   o.output = dir / (name + ".pstream");
   o.attributes = {"velocity", "id"};
@@ -364,6 +366,7 @@ void nearest_distances(const std::vector<std::array<float, 3>>& a, std::vector<s
 HalfwayError halfway(const fs::path& dir, const std::string& sim, bool ids,
                      format::FrameCodec codec = format::FrameCodec::Records) {
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("sims/" + sim + ".abc");
   o.attributes = ids ? std::vector<std::string>{"velocity", "id"} : std::vector<std::string>{"velocity"};
   o.output = dir / (sim + "_24.pstream");
@@ -604,6 +607,7 @@ TEST(Playback, ReversePlaybackIsInterpolatedToo) {
   const fs::path dir = test::fresh_dir();
   const fs::path records = analytic_clip(dir, Motion::Ballistic);
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = dir / "ballistic.abc";
   o.output = dir / "ballistic-particle.pstream";
   o.attributes = {"velocity", "id"};

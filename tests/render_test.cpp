@@ -175,6 +175,7 @@ TEST_F(RenderTest, OverlappingStreamsBlendInOneMergedOrder) {
 TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_varying.abc");
   o.output = dir / "v.pstream";
   cook::cook(o);
@@ -205,6 +206,7 @@ TEST(RenderCommand, WritesFramesAndAnMp4WithTheRightFrameCount) {
 TEST(RenderCommand, SlowMotionRendersInterpolatedImages) {
   const fs::path dir = test::fresh_dir();
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("sims/blender_sparks.abc");
   o.output = dir / "sparks.pstream";
   o.attributes = {"velocity", "id"};
@@ -236,6 +238,7 @@ TEST(RenderCommand, SlowMotionRendersInterpolatedImages) {
 // The 50k-particle fixture in 64 KiB chunks (frames straddle chunks), for the viewer's runs.
 cook::Options large_clip(const fs::path& dir) {
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path("alembic/points_large.abc");
   o.output = dir / "large.pstream";
   o.chunk_size = 64 << 10;

@@ -28,6 +28,7 @@ namespace fs = std::filesystem;
 fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::Codec codec,
                       std::vector<std::string> attributes = {}, const std::string& object = {}) {
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.object = object;
   o.input = test::data_path("alembic/" + fixture + ".abc");
   o.output = dir / (fixture + "-" + std::string(format::codec_name(codec)) + ".pstream");
@@ -50,6 +51,7 @@ std::unique_ptr<stream::ParticleStream> open_stream(const fs::path& file, stream
 fs::path cook_particle(const fs::path& dir, const std::string& fixture, std::vector<std::string> attributes = {},
                        std::uint32_t keyframes = 8) {
   cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path(fixture);
   o.output = dir / (fs::path(fixture).stem().string() + "-particle.pstream");
   o.chunk_size = format::kMinChunkSize;

@@ -77,6 +77,8 @@ std::vector<Frame> load_frames(const BenchCodecOptions& o, const std::filesystem
   c.object = o.object;
   c.output = temp / "source.pstream";
   c.color_from = "none";
+  c.frame_codec = format::FrameCodec::Records;  // the records as they are
+  c.keep_velocity = false;                      // [x y z scale] (+ id)
   c.attributes = {"id"};
   c.threads = 1;
   try {
@@ -110,30 +112,42 @@ std::vector<Frame> load_frames(const BenchCodecOptions& o, const std::filesystem
 void compare_in_order(std::span<const std::byte> decoded, std::span<const std::byte> source, std::uint64_t n,
                       format::FrameComparison& cmp) {
   cmp.max_error.resize(std::max<std::size_t>(cmp.max_error.size(), 4), 0.0);
+  cmp.max_relative_error.resize(std::max<std::size_t>(cmp.max_relative_error.size(), 4), 0.0);
   cmp.particles += n;
   for (std::uint64_t i = 0; i < n; ++i) {
     float a[4], b[4];
     std::memcpy(a, decoded.data() + i * kRecord, kRecord);
     std::memcpy(b, source.data() + i * kRecord, kRecord);
-    for (int w = 0; w < 4; ++w)
-      cmp.max_error[std::size_t(w)] = std::max(cmp.max_error[std::size_t(w)], double(std::abs(a[w] - b[w])));
+    for (std::size_t w = 0; w < 4; ++w) {
+      const double e = std::abs(double(a[w]) - double(b[w]));
+      cmp.max_error[w] = std::max(cmp.max_error[w], e);
+      if (e > 0) cmp.max_relative_error[w] = std::max(cmp.max_relative_error[w], e / std::abs(double(b[w])));
+    }
   }
 }
 
-// The grid a quantised coordinate or scale lives on, from the particle codec's plan.
+// The grid a quantised coordinate or scale lives on, from the particle codec's plan: a uniform
+// grid (positions), or the relative one (scale: the float's bits with low mantissa bits dropped).
 struct Grid {
-  float step, origin;
+  float step = 0.0f, origin = 0.0f;
+  std::uint32_t shift = 0;  // relative: the mantissa bits dropped
+  bool valid() const { return step > 0 || shift > 0; }
   std::uint32_t quantize(float v) const {
+    if (shift > 0) return format::relative_code(std::bit_cast<std::uint32_t>(v), shift);
     return static_cast<std::uint32_t>(std::max(0.0, std::nearbyint((double(v) - origin) / step)));
   }
-  float dequantize(std::uint32_t q) const { return static_cast<float>(q) * step + origin; }
+  float dequantize(std::uint32_t q) const {
+    if (shift > 0) return std::bit_cast<float>(format::relative_decode(q, shift));
+    return static_cast<float>(q) * step + origin;
+  }
 };
 
 Grid grid_of(const format::CodecInfo& info, std::size_t word) {
   const format::WordCodingEntry& e = info.words[word];
-  if (e.coding == format::WordCoding::Quantized) return {e.step, std::bit_cast<float>(e.base)};
-  if (e.coding == format::WordCoding::Constant) return {1.0f, std::bit_cast<float>(e.base)};
-  return {0.0f, 0.0f};
+  if (e.coding == format::WordCoding::Quantized) return {e.step, std::bit_cast<float>(e.base), 0};
+  if (e.coding == format::WordCoding::Relative) return {0.0f, 0.0f, e.base};
+  if (e.coding == format::WordCoding::Constant) return {1.0f, std::bit_cast<float>(e.base), 0};
+  return {};
 }
 
 std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::CodecInfo& lossless,
@@ -216,7 +230,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                        v[i * 4] = std::uint16_t(gx.quantize(r[0]));
                        v[i * 4 + 1] = std::uint16_t(gy.quantize(r[1]));
                        v[i * 4 + 2] = std::uint16_t(gz.quantize(r[2]));
-                       v[i * 4 + 3] = gs.step > 0 ? std::uint16_t(gs.quantize(r[3])) : 0;
+                       v[i * 4 + 3] = gs.valid() ? std::uint16_t(gs.quantize(r[3])) : 0;
                      }
                      buf.resize(meshopt_encodeVertexBufferBound(f.count, 8));
                      buf.resize(meshopt_encodeVertexBuffer(reinterpret_cast<unsigned char*>(buf.data()), buf.size(),
@@ -235,24 +249,26 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                    for (std::size_t i = 0; i < n; ++i) {
                      const std::uint16_t* q = vertices->data() + i * 4;
                      const float r[4] = {gx.dequantize(q[0]), gy.dequantize(q[1]), gz.dequantize(q[2]),
-                                         gs.step > 0 ? gs.dequantize(q[3]) : gs.origin};
+                                         gs.valid() ? gs.dequantize(q[3]) : gs.origin};
                      std::memcpy(out.data() + i * kRecord, r, kRecord);
                    }
                  }});
   // Draco's point-cloud codec, with quantisation bits that keep the same bound.
   const double bound = lossy.error;
+  const double scale_bound = lossy.words[3].coding == format::WordCoding::Relative ? lossy.words[3].error : 0.0;
   all.push_back({"draco",
-                 [bound](const std::vector<Frame>& frames) {
+                 [bound, scale_bound](const std::vector<Frame>& frames) {
                    std::vector<std::vector<std::byte>> out;
                    for (const Frame& f : frames) {
                      std::vector<float> xyz(f.count * 3), s(f.count);
-                     float lo = INFINITY, hi = -INFINITY;
+                     float lo = INFINITY, hi = -INFINITY, s_lo = INFINITY, s_hi = -INFINITY;
                      for (std::uint64_t i = 0; i < f.count; ++i) {
                        float r[4];
                        std::memcpy(r, f.records.data() + i * kRecord, kRecord);
                        std::copy_n(r, 3, &xyz[i * 3]);
                        s[i] = r[3];
                        for (int c = 0; c < 3; ++c) lo = std::min(lo, r[c]), hi = std::max(hi, r[c]);
+                       s_lo = std::min(s_lo, std::abs(r[3])), s_hi = std::max(s_hi, std::abs(r[3]));
                      }
                      draco::PointCloudBuilder b;
                      b.Start(static_cast<draco::PointIndex::ValueType>(f.count));
@@ -267,7 +283,15 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                      const double range = f.count ? std::max(double(hi - lo), 1e-9) : 1.0;
                      const int bits = std::clamp(int(std::ceil(std::log2(range / (2.0 * bound) + 1.0))), 1, 30);
                      enc.SetAttributeQuantization(draco::GeometryAttribute::POSITION, bits);
-                     enc.SetAttributeQuantization(draco::GeometryAttribute::GENERIC, bits);
+                     // Scale within its relative bound on a uniform grid: half a step within the
+                     // bound of the smallest scale.
+                     const double s_step = 2.0 * scale_bound * std::max(double(s_lo), 1e-9);
+                     const int s_bits =
+                         scale_bound > 0 && f.count
+                             ? std::clamp(int(std::ceil(std::log2(std::max(double(s_hi - s_lo), 1e-9) / s_step + 1.0))),
+                                          1, 30)
+                             : bits;
+                     enc.SetAttributeQuantization(draco::GeometryAttribute::GENERIC, s_bits);
                      enc.SetSpeedOptions(5, 5);
                      draco::EncoderBuffer buffer;
                      if (!enc.EncodePointCloudToBuffer(*pc, &buffer).ok()) throw Error("draco failed to encode");
@@ -471,6 +495,7 @@ int bench_codec(const BenchCodecOptions& o) {
                        {"ratio", raw_bytes / double(bytes)},
                        {"max_error_position", position_error},
                        {"max_error_scale", cmp.max_error[3]},
+                       {"max_relative_error_scale", cmp.max_relative_error[3]},
                        {"unmatched", cmp.unmatched},
                        {"encode_mb_s", raw_bytes / encode_s / 1e6},
                        {"decode_gb_s", raw_bytes / d / 1e9},

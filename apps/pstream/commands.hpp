@@ -45,7 +45,9 @@ int bench_read(const BenchReadOptions& options);
 // `pstream cook`: options as typed on the command line, converted by run_cook.
 struct CookCli {
   std::string input, output, object, scale_from = "widths", color_from = "auto", attributes, chunk_size = "2MiB",
-                                     codec = "raw", frames, error = "1e-4";
+                                     codec = "particle", frames, error = "1e-4", scale_error = "1%",
+                                     attribute_error = "1e-3";
+  bool no_velocity = false;
   bool merge = false, no_xforms = false, interpolate = false, drop_invalid = false, keep_order = false, quiet = false,
        json = false;
   double fps = 0.0;

@@ -1,6 +1,7 @@
 // `pstream cook IN -o OUT.pstream`: option parsing and the report printed at the end.
 #include <charconv>
 #include <cmath>
+#include <optional>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -30,24 +31,6 @@ std::uint64_t parse_size(const std::string& text) {
   if (value > (std::uint64_t{1} << 40) >> shift)  // far past the largest chunk, and no wrap-around below
     throw Error(fmt::format("--chunk-size '{}': too large; chunks are 64KiB to 64MiB", text));
   return value << shift;
-}
-
-// "1e-4" or "rel:1e-4": a fraction of the clip's bounds diagonal; "abs:0.001": scene units.
-void parse_error(const std::string& text, cook::Options& o) {
-  std::string number = text;
-  o.particle.error_relative = true;
-  if (text.rfind("abs:", 0) == 0 || text.rfind("rel:", 0) == 0) {
-    o.particle.error_relative = text[0] == 'r';
-    number = text.substr(4);
-  }
-  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), o.particle.error);
-  if (ec != std::errc() || ptr != number.data() + number.size() || !(o.particle.error > 0) ||
-      !std::isfinite(o.particle.error) || (o.particle.error_relative && o.particle.error >= 1)) {
-    throw Error(
-        fmt::format("--error '{}': expected a fraction of the bounds diagonal such as 1e-4 (or rel:1e-4), "
-                    "or abs:VALUE in scene units",
-                    text));
-  }
 }
 
 void parse_scale(const std::string& text, cook::Options& o) {
@@ -98,7 +81,10 @@ int run_cook(const CookCli& cli) {
   }
   o.chunk_size = parse_size(cli.chunk_size);
   cook::set_codec(o, cli.codec);
-  parse_error(cli.error, o);
+  o.keep_velocity = !cli.no_velocity;
+  cook::set_error_bound(o, cli.error, "--error");
+  cook::set_scale_error(o, cli.scale_error, "--scale-error");
+  cook::set_attribute_error(o, cli.attribute_error, "--attribute-error");
   o.particle.keyframe_interval = cli.keyframe_interval;
   if (!cli.frames.empty()) parse_frames(cli.frames, o);
   o.drop_invalid = cli.drop_invalid;
@@ -107,8 +93,16 @@ int run_cook(const CookCli& cli) {
   o.threads = cli.threads;
   o.max_frames = cli.max_frames;
 
-  ProgressBar bar("cook", !cli.quiet && !cli.json);
+  const bool show = !cli.quiet && !cli.json;
+  std::optional<ProgressBar> scan;  // the particle codec's first pass
+  ProgressBar bar("cook", show);
   const cook::Report r = cook::cook(o, [&](const cook::Progress& p) {
+    if (p.stage == cook::Stage::Scan) {
+      if (!scan) scan.emplace("cook: scan", show);
+      scan->update(p.frames_done, p.frame_count, "frames");
+      return;
+    }
+    scan.reset();  // done: its line ends
     bar.update(p.frames_done, p.frame_count, fmt::format("frames, {:.1f} MiB written", p.bytes_out / 1048576.0));
   });
   const double ratio = r.file_bytes ? double(r.stream_bytes) / double(r.file_bytes) : 0.0;

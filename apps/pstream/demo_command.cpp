@@ -87,7 +87,7 @@ int run_demo(const DemoCli& cli) {
   {
     alembic::PointsWriterOptions po;
     po.name = cli.preset;
-    po.velocities = false;  // the cook does not need them; they would double the file
+    po.velocities = true;  // as a studio's exporter writes them: motion blur and speed colours need them
     po.float_params = {{"Cd", 4}};
     alembic::ArchiveWriter writer(abc, "pstream demo", fmt::format("pstream demo --preset {}", cli.preset), cli.fps,
                                   1.0 / cli.fps, po);
@@ -103,6 +103,7 @@ int run_demo(const DemoCli& cli) {
       sample.positions = s.position;
       sample.ids = s.id;
       sample.widths = s.width;
+      sample.velocities = s.velocity;
       sample.params = {s.color};
       t0 = Clock::now();
       writer.write_sample(sample);

@@ -45,6 +45,7 @@ std::string_view coding_name(WordCoding c) {
     case WordCoding::Exact: return "exact";
     case WordCoding::Constant: return "constant";
     case WordCoding::Id: return "id";
+    case WordCoding::Relative: return "relative";
   }
   return "?";
 }
@@ -80,6 +81,9 @@ json codec_json(const Metadata& m) {
       if (e.coding == WordCoding::Quantized) {
         word["step"] = e.step;
         word["error"] = e.error;
+      } else if (e.coding == WordCoding::Relative) {
+        word["shift"] = e.base;
+        word["relative_error"] = e.error;
       }
       words.push_back(word);
     }
@@ -209,6 +213,8 @@ int info_pstream(const InfoPstreamOptions& options) {
         const WordCodingEntry& e = m.codec.words[w];
         if (e.coding == WordCoding::Quantized)
           fmt::print(" quantized(within {:.3g})", e.error);
+        else if (e.coding == WordCoding::Relative)
+          fmt::print(" relative(within {:.3g}% of its value)", 100.0 * e.error);
         else
           fmt::print(" {}", coding_name(e.coding));
         if (e.coding == WordCoding::Id) break;
@@ -219,141 +225,51 @@ int info_pstream(const InfoPstreamOptions& options) {
   return 0;
 }
 
-namespace {
-
-// The source cooked again as records with the clip's layout, fps and transforms, every frame
-// compared with the clip's frame of the same time.
-json compare_with_source(const Reader& reader, const std::string& source, std::vector<std::string>& errors) {
-  const Metadata& m = reader.metadata();
-  cook::Options o;
-  o.input = source;
-  o.object = m.source_object.find(',') == std::string::npos ? m.source_object : std::string();
-  o.merge = m.source_object.find(',') != std::string::npos;
-  o.bake_xforms = (m.flags & kFlagXformsBaked) != 0;
-  o.interpolate = (m.flags & kFlagInterpolated) != 0;
-  o.fps = m.fps;
-  o.color_from = m.find("color") ? "Cd" : "none";
-  for (const Attribute& a : m.layout) {
-    if (a.name == "position" || a.name == "scale" || a.name == "color") continue;
-    o.attributes.push_back(a.name == "id" && a.type == AttributeType::Uint32 ? "id32" : a.name);
-  }
-  const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-verify-{}.pstream", ::getpid());
-  o.output = temp;
-  struct Remove {
-    std::filesystem::path p;
-    ~Remove() {
-      std::error_code ec;
-      std::filesystem::remove(p, ec);
-    }
-  } remove{temp};
-  cook::cook(o);
-  const Reader src = Reader::open(temp);
-  const Metadata& sm = src.metadata();
-  if (sm.record_size != m.record_size) {
-    errors.push_back(
-        fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source, sm.record_size, m.record_size));
-    return json::object();
-  }
-  std::vector<std::byte> a = format::frame_buffer(m, reader.name()), b = format::frame_buffer(sm, source);
-  FrameComparison c;
-  std::uint64_t s = 0, compared = 0;
-  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
-    while (s < sm.frame_count() && sm.frames[s].time < m.frames[f].time - 0.25 / m.fps) ++s;
-    if (s == sm.frame_count() || std::abs(sm.frames[s].time - m.frames[f].time) > 0.25 / m.fps) {
-      errors.push_back(fmt::format("frame {} (time {}): the source has no frame at that time", f, m.frames[f].time));
-      continue;
-    }
-    reader.read_frame(f, a);
-    src.read_frame(s, b);
-    c.add(m.layout, a, m.frames[f].count, b, sm.frames[s].count, &m.codec);
-    ++compared;
-  }
-  json attributes = json::array();
-  for (const Attribute& at : m.layout) {
-    double worst = 0.0, bound = 0.0;
-    bool exact = true;
-    for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
-      worst = std::max(worst, c.max_error[w]);
-      if (m.codec.codec == FrameCodec::Particle && m.codec.words[w].coding == WordCoding::Quantized) {
-        exact = false;
-        bound = std::max(bound, double(m.codec.words[w].error));
-      }
-    }
-    const bool ok = exact ? worst == 0.0 : worst <= bound;
-    if (!ok) {
-      errors.push_back(
-          fmt::format("attribute '{}': decoded values differ from the source by up to {:.6g}, the bound "
-                      "is {}",
-                      at.name, worst, exact ? std::string("0 (exact)") : fmt::format("{:.6g}", bound)));
-    }
-    attributes.push_back({{"name", at.name}, {"max_error", worst}, {"bound", exact ? 0.0 : bound}, {"ok", ok}});
-  }
-  if (c.unmatched || c.count_mismatches) {
-    errors.push_back(fmt::format("{} particles found no partner in the source; {} frames have other particle counts",
-                                 c.unmatched, c.count_mismatches));
-  }
-  return json{
-      {"source", source}, {"frames_compared", compared}, {"particles", c.particles}, {"attributes", attributes}};
-}
-
-}  // namespace
-
 int verify_pstream(const std::string& file, bool as_json, const std::string& against) {
-  std::vector<std::string> errors;
-  std::uint64_t chunks = 0, frames = 0;
+  const cook::VerifyReport r = cook::verify(file, against);
+  json attributes = json::array();
+  for (const cook::AttributeCheck& a : r.attributes) {
+    attributes.push_back({{"name", a.name},
+                          {"max_error", a.max_error},
+                          {"bound", a.exact ? 0.0 : a.bound},
+                          {"relative", a.relative},
+                          {"distinct_source", a.distinct_source},
+                          {"distinct_clip", a.distinct_clip},
+                          {"ok", a.ok}});
+  }
   json comparison;
-  try {
-    const Reader reader = Reader::open(file);  // header, tables, frame index, chunk bounds
-    const Metadata& m = reader.metadata();
-    frames = m.frame_count();
-    std::vector<std::byte> scratch(m.chunk_size);
-    for (std::uint64_t c = 0; c < m.chunk_count(); ++c) {
-      try {
-        reader.read_chunk(c, scratch);  // checksum and decode
-        ++chunks;
-      } catch (const Error& e) {
-        errors.push_back(e.what());
-      }
-    }
-    // Every frame decodes (in order: a predicted frame needs the one before it).
-    if (errors.empty()) {
-      std::vector<std::byte> records = format::frame_buffer(m, file);
-      for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
-        try {
-          reader.read_frame(f, records);
-        } catch (const Error& e) {
-          errors.push_back(e.what());
-          break;
-        }
-      }
-    }
-    if (errors.empty() && !against.empty()) comparison = compare_with_source(reader, against, errors);
-  } catch (const Error& e) {
-    errors.push_back(e.what());
+  if (!r.source.empty()) {
+    comparison = json{{"source", r.source},
+                      {"frames_compared", r.frames_compared},
+                      {"particles", r.particles_compared},
+                      {"attributes", attributes}};
   }
   if (as_json) {
     fmt::print("{}\n", json{{"file", file},
-                            {"ok", errors.empty()},
-                            {"chunks_verified", chunks},
-                            {"frames", frames},
-                            {"errors", errors},
+                            {"ok", r.ok()},
+                            {"chunks_verified", r.chunks_verified},
+                            {"frames", r.frames},
+                            {"errors", r.errors},
                             {"against", comparison}}
                            .dump());
-  } else if (errors.empty()) {
-    fmt::print("{}: OK — {}, {}, every checksum and index entry verified{}\n", file, count_of(frames, "frame"),
-               count_of(chunks, "chunk"), against.empty() ? "" : ", every value within its bound of the source");
-    if (!comparison.is_null() && comparison.contains("attributes")) {
-      for (const auto& a : comparison["attributes"]) {
-        fmt::print("  {:<12} max error {:.6g} (bound {})\n", a["name"].get<std::string>(), a["max_error"].get<double>(),
-                   a["bound"].get<double>() == 0.0 ? std::string("0, exact")
-                                                   : fmt::format("{:.6g}", a["bound"].get<double>()));
-      }
+  } else if (r.ok()) {
+    fmt::print("{}: OK — {}, {}, every checksum and index entry verified{}\n", file, count_of(r.frames, "frame"),
+               count_of(r.chunks_verified, "chunk"),
+               against.empty() ? "" : ", every value within its bound of the source");
+    for (const cook::AttributeCheck& a : r.attributes) {
+      const std::string bound = a.exact      ? std::string("0, exact")
+                                : a.relative ? fmt::format("{:.3g}% of each value", 100.0 * a.bound)
+                                             : fmt::format("{:.6g}", a.bound);
+      const std::string error =
+          a.relative ? fmt::format("{:.3g}%", 100.0 * a.max_error) : fmt::format("{:.6g}", a.max_error);
+      fmt::print("  {:<12} max error {} (bound {}); {} distinct values, {} in the source\n", a.name, error, bound,
+                 a.distinct_clip, a.distinct_source);
     }
   } else {
-    for (const auto& e : errors) fmt::print(stderr, "{}\n", e);
-    fmt::print(stderr, "{}: FAILED — {} problem(s)\n", file, errors.size());
+    for (const auto& e : r.errors) fmt::print(stderr, "{}\n", e);
+    fmt::print(stderr, "{}: FAILED — {} problem(s)\n", file, r.errors.size());
   }
-  return errors.empty() ? 0 : 1;
+  return r.ok() ? 0 : 1;
 }
 
 }  // namespace pstream::app

@@ -200,16 +200,25 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cook_cmd
       ->add_option("--codec", cook.codec,
-                   "particle[:LEVEL]: error-bounded, predicted over time (about 1 byte per particle per frame; "
-                   "LEVEL, zstd's, 1..22, default 16: lower cooks faster, a little larger); particle-lossless: "
-                   "bit-exact, source order kept; raw, lz4[:HC level], zstd[:level]: the records as they are, "
-                   "chunk-compressed")
+                   "particle[:LEVEL] (the default): error-bounded (--error, --scale-error), predicted over time, "
+                   "about 1 byte per particle per frame (LEVEL, zstd's, 1..22, default 16: lower cooks faster, a "
+                   "little larger); particle-lossless: bit-exact, source order kept; raw, lz4[:HC level], "
+                   "zstd[:level]: the records as they are, chunk-compressed")
       ->capture_default_str();
   cook_cmd
       ->add_option("--error", cook.error,
                    "particle codec: the bound on every decoded position coordinate, as a fraction of the clip's bounds "
-                   "diagonal (1e-4, or rel:1e-4) or in scene units (abs:0.001). Scale shares it, velocity gets it per "
-                   "frame (x fps), other float attributes the same fraction of their range; colours and ids are exact")
+                   "diagonal (1e-4, or rel:1e-4) or in scene units (abs:0.001); colours and ids are exact")
+      ->capture_default_str();
+  cook_cmd
+      ->add_option("--attribute-error", cook.attribute_error,
+                   "particle codec: the bound on velocity and other float attributes, a fraction of each one's own "
+                   "range")
+      ->capture_default_str();
+  cook_cmd
+      ->add_option("--scale-error", cook.scale_error,
+                   "particle codec: the bound on each particle's scale, relative to its own (1% or 0.01): sizes keep "
+                   "their differences however small they are next to the scene")
       ->capture_default_str();
   cook_cmd
       ->add_option("--keyframe-interval", cook.keyframe_interval,
@@ -217,6 +226,9 @@ int main(int argc, char** argv) {
                    "past it")
       ->capture_default_str()
       ->check(CLI::Range(1, 1024));
+  cook_cmd->add_flag("--no-velocity", cook.no_velocity,
+                     "Leave out the source's velocities (kept by default when it has them: speed colours, motion "
+                     "blur, stretched sprites and smooth slow motion need them)");
   cook_cmd->add_option("--frames", cook.frames, "Output frames A:B (from A up to but not including B)");
   cook_cmd->add_flag("--keep-order", cook.keep_order,
                      "Keep each frame's particles in the source's order (records codec). By default a clip with "

@@ -20,19 +20,28 @@ class ProgressBar {
   void update(std::uint64_t done, std::uint64_t total, const std::string& detail = {}) {
     if (!enabled_ || total == 0) return;
     const int percent = static_cast<int>(100 * done / total);
+    // The rate so far and the time left at that rate (once there is a rate to speak of).
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+    std::string pace;
+    if (done > 0 && seconds > 0.2) {
+      const double rate = double(done) / seconds, left = double(total - done) / rate;
+      pace = fmt::format(" · {:.3g}/s", rate);
+      if (done < total)
+        pace += left < 90 ? fmt::format(", {:.0f} s left", left) : fmt::format(", {:.0f} min left", left / 60);
+    }
     if (tty_) {
       const auto now = std::chrono::steady_clock::now();
       if (done != total && now - last_ < std::chrono::milliseconds(50)) return;
       last_ = now;
       constexpr int width = 30;
       const int filled = static_cast<int>(width * done / total);
-      fmt::print(stderr, "\r{} [{}{}] {:3d}% {}/{} {}\x1b[K", label_, std::string(filled, '#'),
-                 std::string(width - filled, '.'), percent, done, total, detail);
+      fmt::print(stderr, "\r{} [{}{}] {:3d}% {}/{} {}{}\x1b[K", label_, std::string(filled, '#'),
+                 std::string(width - filled, '.'), percent, done, total, detail, pace);
       if (done == total) fmt::print(stderr, "\n");
     } else if (std::chrono::steady_clock::now() - start_ > std::chrono::seconds(1) &&
                (percent / 10 != last_decile_ || done == total)) {  // short jobs print nothing
       last_decile_ = percent / 10;
-      fmt::print(stderr, "{}: {}% ({}/{}) {}\n", label_, percent, done, total, detail);
+      fmt::print(stderr, "{}: {}% ({}/{}) {}{}\n", label_, percent, done, total, detail, pace);
     }
     std::fflush(stderr);
   }

@@ -37,11 +37,17 @@ class FrameUnit;  // a frame codec's decoding half (src/format/frame_unit.hpp)
 struct ParticleCodecOptions {
   bool lossless = false;
   // The bound on every decoded position coordinate: absolute (scene units), or relative to the
-  // clip's bounds diagonal. Scale shares the absolute bound; velocity gets bound × fps (per
-  // second); other float attributes the same fraction of their own range. Colours, ids and
-  // integer attributes are always exact.
+  // clip's bounds diagonal. Colours, ids and integer attributes are always exact.
   double error = 1e-4;
   bool error_relative = true;
+  // Velocity and other float attributes: within this fraction of their own range (per
+  // component); 1e-3 keeps a speed ramp's 256 colours and a streak's length. A velocity is also
+  // kept within the position bound × fps, so that it moves a Hermite curve between frames by no
+  // more than the position bound.
+  double attribute_error = 1e-3;
+  // Scale (the particle's radius): within this fraction of each particle's own scale, whatever
+  // the clip's extent (a relative grid: WordCoding::Relative).
+  double scale_error = 0.01;
   std::uint32_t keyframe_interval = kDefaultKeyframeInterval;
   int zstd_level = 0;  // 0: kDefaultParticleZstdLevel, or kDefaultLosslessParticleZstdLevel when lossless
 };
@@ -111,7 +117,8 @@ std::vector<EncodedFrame> encode_group(const CodecInfo& info, std::span<const So
 // bound in `codec`, when given: particles may nearly coincide in position and differ in velocity),
 // since the codec may re-order a frame without ids.
 struct FrameComparison {
-  std::vector<double> max_error;  // per record word
+  std::vector<double> max_error;           // per record word: |decoded - source| (float words)
+  std::vector<double> max_relative_error;  // per record word: |decoded - source| / |source| (0 when both are 0)
   std::uint64_t particles = 0, unmatched = 0, count_mismatches = 0;
   void add(const std::vector<Attribute>& layout, std::span<const std::byte> decoded, std::uint64_t decoded_count,
            std::span<const std::byte> source, std::uint64_t source_count, const CodecInfo* codec = nullptr);

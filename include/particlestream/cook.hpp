@@ -30,10 +30,13 @@ struct Options {
   std::string scale_attribute;
   std::string color_from = "auto";      // "Cd", "none", or "auto" (Cd when present)
   std::vector<std::string> attributes;  // "velocity", "id", "id32", or a float attribute name
+  // The source's velocities, whenever it has them, even when `attributes` does not name them:
+  // speed colours, motion blur, stretched sprites and Hermite interpolation need them.
+  bool keep_velocity = true;
   std::uint64_t chunk_size = format::kDefaultChunkSize;
   // How frames are stored: records (cut into chunks compressed by `codec`) or the particle codec
   // (`particle`; its chunks are raw: the packets are already compressed).
-  format::FrameCodec frame_codec = format::FrameCodec::Records;
+  format::FrameCodec frame_codec = format::FrameCodec::Particle;  // the default: error-bounded, ~10x smaller
   format::ParticleCodecOptions particle;
   format::Codec codec = format::Codec::Raw;
   int codec_level = 0;                           // zstd level (default 3 when 0), lz4: 0 fast, > 0 HC
@@ -53,14 +56,30 @@ struct Options {
 // chunks of that codec, level 0..22). Throws pstream::Error naming `codec` and what is expected.
 void set_codec(Options& options, std::string_view spec);
 
+// The particle codec's bounds from text, one rule for the CLI, the C API and Python:
+// set_error_bound: "1e-4" or "rel:1e-4" (a fraction of the clip's bounds diagonal, below 1) or
+// "abs:0.001" (scene units), for positions; set_scale_error: "1%" or "0.01", the bound on each particle's
+// scale relative to itself (above 0, below 50 %). Throw pstream::Error naming `what` (the flag or
+// argument) and what is expected.
+void set_error_bound(Options& options, std::string_view spec, std::string_view what = "error");
+void set_scale_error(Options& options, std::string_view spec, std::string_view what = "scale_error");
+// set_attribute_error: "1e-3", the bound on velocity and other float attributes as a fraction of
+// their own range (above 0, below 1).
+void set_attribute_error(Options& options, std::string_view spec, std::string_view what = "attribute_error");
+
 // What the file records about how it was made (its "cooked with" string): every setting that
 // changes the bytes, as key=value words, and the input's name and content hash. No paths, so
 // the same input and settings give the same file wherever either is.
 std::string describe_settings(const Options& options, std::uint64_t content_hash);
 
+// Where a cook is: the particle codec reads its source twice (a scan for the ranges its grids
+// need, then the encoding), each stage counting frames_done from 1 to frame_count (the clip's
+// frames); the records codec has the writing stage alone.
+enum class Stage { Scan, Write };
 struct Progress {
   std::uint64_t frames_done = 0, frame_count = 0;
   std::uint64_t bytes_out = 0;
+  Stage stage = Stage::Write;
 };
 
 struct Report {
@@ -84,5 +103,40 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
 
 // Scale stored in a record for an Alembic width (a diameter): the radius.
 inline float scale_from_width(float width) { return width * 0.5f; }
+
+}  // namespace pstream::cook
+
+namespace pstream::cook {
+
+// ---- Verifying a cooked clip ------------------------------------------------------------------
+
+// One attribute checked against the source: the largest difference found and the bound the clip
+// promises for it, in the bound's own terms (`relative`: a fraction of each value; otherwise
+// absolute, scene units for positions; 0 with `exact`).
+struct AttributeCheck {
+  std::string name;
+  double max_error = 0.0;  // absolute, or relative when `relative`
+  double bound = 0.0;
+  bool relative = false, exact = true, ok = true;
+  // Distinct values (per component, over the compared frames) in the source and in the clip: a
+  // bound that erases sizes shows as far fewer in the clip.
+  std::uint64_t distinct_source = 0, distinct_clip = 0;
+};
+
+struct VerifyReport {
+  std::string file;
+  std::uint64_t frames = 0, chunks_verified = 0;
+  std::vector<std::string> errors;  // each names the chunk, frame or attribute and what was expected
+  // With a source: every frame compared with the source cooked again as records.
+  std::string source;
+  std::uint64_t frames_compared = 0, particles_compared = 0;
+  std::vector<AttributeCheck> attributes;
+  bool ok() const { return errors.empty(); }
+};
+
+// Checks every chunk's checksum and decoding and decodes every frame; with `against` (the clip's
+// source: .abc or a PLY sequence), also every attribute of every frame against its bound
+// (docs/format.md: each word's coding). Errors are collected in the report, not thrown.
+VerifyReport verify(const std::filesystem::path& file, const std::filesystem::path& against = {});
 
 }  // namespace pstream::cook

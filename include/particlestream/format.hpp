@@ -18,9 +18,9 @@
 
 namespace pstream::format {
 
-inline constexpr std::uint32_t kVersion = 2;  // what the writer writes; the reader takes 1 and 2
+inline constexpr std::uint32_t kVersion = 3;  // what the writer writes; the reader takes 1, 2 and 3
 inline constexpr std::size_t kHeaderSizeV1 = 160;
-inline constexpr std::size_t kHeaderSize = 192;  // version 2
+inline constexpr std::size_t kHeaderSize = 192;  // versions 2 and 3
 inline constexpr std::uint32_t kDefaultKeyframeInterval = 64;
 inline constexpr int kDefaultParticleZstdLevel = 16;         // lossy: the optimal parser pays off on planes
 inline constexpr int kDefaultLosslessParticleZstdLevel = 3;  // lossless: float bits gain little from it
@@ -87,7 +87,24 @@ enum class WordCoding : std::uint8_t {
   Exact = 1,      // the 32 bits as they are
   Constant = 2,   // the same bits for every particle of the clip; not stored per particle
   Id = 3,         // the two words of the uint64 id: survivors inherit it, new particles code it
+  // (Version 3.) A float32 within a bound relative to its own value: its bits with the lowest
+  // `base` (the shift, 0..23) mantissa bits rounded off; q = bits >> shift after rounding. For
+  // sizes, which span orders of magnitude within a clip.
+  Relative = 4,
 };
+// The bits a Relative word keeps of a float (its sign, exponent and 23 - shift mantissa bits, the
+// magnitude rounded half up) and the float they decode to: exact integer operations, the same
+// everywhere. |decoded - x| <= 2^-(24 - shift) |x| for normal x.
+inline std::uint32_t relative_code(std::uint32_t bits, std::uint32_t shift) {
+  if (shift == 0) return bits;
+  const std::uint32_t sign = bits & 0x80000000u, magnitude = bits & 0x7FFFFFFFu;
+  return (sign >> shift) | ((magnitude + (1u << (shift - 1))) >> shift);
+}
+inline std::uint32_t relative_decode(std::uint32_t q, std::uint32_t shift) { return q << shift; }
+// The most mantissa bits a Relative word may round off and keep `error` (relative): 23 - k for
+// the fewest k kept bits with 2^-(k+1) <= error; 0 when the bound is finer than a float's own
+// precision (the word is then exact).
+std::uint32_t relative_shift_for(double error);
 // How the particle codec orders each frame.
 enum class FrameOrder : std::uint8_t {
   Source = 0,   // as the source wrote it; particle i is predicted from particle i of the last frame
@@ -99,8 +116,10 @@ enum class FrameOrder : std::uint8_t {
 struct WordCodingEntry {
   WordCoding coding = WordCoding::Exact;
   float step = 0.0f;       // Quantized: the grid step
-  float error = 0.0f;      // Quantized: the bound the encoder guarantees, |decoded - source| <= error
-  std::uint32_t base = 0;  // Quantized: the grid origin's float bits; Constant: the word's bits
+  float error = 0.0f;      // Quantized: the bound the encoder guarantees, |decoded - source| <= error;
+                           // Relative: |decoded - source| <= error × |source|
+  std::uint32_t base = 0;  // Quantized: the grid origin's float bits; Constant: the word's bits;
+                           // Relative: the mantissa bits rounded off (1..23)
 };
 
 struct CodecInfo {

@@ -142,7 +142,7 @@ typedef enum pstream_codec {
   PSTREAM_CODEC_RAW = 0,      /* records in raw chunks */
   PSTREAM_CODEC_LZ4 = 1,      /* records in LZ4 chunks */
   PSTREAM_CODEC_ZSTD = 2,     /* records in zstd chunks */
-  PSTREAM_CODEC_PARTICLE = 3, /* the particle codec, error-bounded (`error`) */
+  PSTREAM_CODEC_PARTICLE = 3, /* the particle codec, error-bounded (`error`, `scale_error`): the default */
   PSTREAM_CODEC_PARTICLE_LOSSLESS = 4
 } pstream_codec;
 
@@ -155,13 +155,20 @@ typedef struct pstream_cook_options {
   const char* input;      /* .abc, or one file of a numbered PLY sequence */
   const char* output;     /* .pstream; written to a temporary and renamed when complete */
   const char* object;     /* the points object's full name; NULL: the only one */
-  const char* attributes; /* comma-separated: "velocity,id,age"; NULL: none beyond position, scale, colour */
+  const char* attributes; /* comma-separated: "velocity,id,age"; NULL: none beyond position, scale, colour
+                           * and the source's velocities (kept whenever it has them) */
   double fps;             /* output frame rate; 0: the source's */
   int32_t codec;          /* a pstream_codec (a fixed-size field: enums' sizes differ between compilers) */
   double error;           /* particle codec: the bound, a fraction of the clip's bounds diagonal (default 1e-4) */
   int interpolate;        /* resample between samples (by id, or along velocities) instead of the nearest */
   pstream_progress_fn progress;
   void* progress_user;
+  /* Particle codec: the bound on each particle's scale relative to its own (default 0.01). Added
+   * after progress_user: an older struct_size gets the default. */
+  double scale_error;
+  /* Particle codec: the bound on velocity and other float attributes, a fraction of each one's
+   * own range (default 1e-3). Added with scale_error. */
+  double attribute_error;
 } pstream_cook_options;
 
 typedef struct pstream_cook_report {

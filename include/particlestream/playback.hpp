@@ -177,9 +177,10 @@ class Player {
   // ramp attribute from `style`, the light buffer's bounds and the ground filled in from the
   // clips' world box. Valid until the next advance() or draw_data(); allocates nothing.
   const render::DrawData& draw_data(const DrawStyle& style);
-  // Throws OptionError naming the setting when `style` asks for what a clip lacks: a
-  // `ramp_attribute` that is not one of every clip's float attributes (the message lists the
-  // ones it has), or colouring by attribute with none named. Call it once, before drawing.
+  // Throws OptionError naming the setting when `style` asks for what a clip lacks: colouring by
+  // speed or motion blur on a clip without velocities (the message names the cook flag that adds
+  // them), a `ramp_attribute` that is not one of every clip's float attributes (the message lists
+  // the ones it has), or colouring by attribute with none named. Call it once, before drawing.
   void check_style(const DrawStyle& style) const;
 
   // The bytes every clip's frame can take at most (an interpolated frame holds the particles of

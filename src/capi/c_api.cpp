@@ -244,14 +244,21 @@ void pstream_cook_options_init(pstream_cook_options* options) {
   if (options == nullptr) return;
   *options = pstream_cook_options{};
   options->struct_size = sizeof(pstream_cook_options);
-  options->codec = PSTREAM_CODEC_RAW;
+  options->codec = PSTREAM_CODEC_PARTICLE;
   options->error = 1e-4;
+  options->scale_error = 0.01;
+  options->attribute_error = 1e-3;
 }
 
 pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_report* report) {
   if (options == nullptr) return null_argument("options");
-  if (options->struct_size < sizeof(pstream_cook_options))
-    return fail(PSTREAM_ERROR_ARGUMENT, "pstream_cook_options.struct_size is smaller than this library's");
+  // Older callers' structs end before the fields added since: what they have, then defaults.
+  if (options->struct_size < offsetof(pstream_cook_options, scale_error))
+    return fail(PSTREAM_ERROR_ARGUMENT, "pstream_cook_options.struct_size is smaller than any release's");
+  pstream_cook_options given;
+  pstream_cook_options_init(&given);
+  std::memcpy(&given, options, std::min(options->struct_size, sizeof given));
+  options = &given;
   if (options->output == nullptr) return null_argument("options->output");
   if (const pstream_result r = check_readable(options->input); r != PSTREAM_OK) return r;
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
@@ -277,7 +284,10 @@ pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_re
       case PSTREAM_CODEC_PARTICLE_LOSSLESS:
         o.frame_codec = format::FrameCodec::Particle;
         o.particle.lossless = options->codec == PSTREAM_CODEC_PARTICLE_LOSSLESS;
-        if (options->error > 0) o.particle.error = options->error;
+        // The same rules as the command line's --error and --scale-error.
+        if (options->error > 0) cook::set_error_bound(o, fmt::format("rel:{}", options->error), "error");
+        cook::set_scale_error(o, fmt::format("{}", options->scale_error), "scale_error");
+        cook::set_attribute_error(o, fmt::format("{}", options->attribute_error), "attribute_error");
         break;
       default: return fail(PSTREAM_ERROR_ARGUMENT, "unknown codec " + std::to_string(options->codec));
     }

@@ -1,6 +1,7 @@
 // Codec specs ("particle:9", "zstd:5", "raw"): the names the cook's users write, read into
 // Options in one place for the command line and the bindings.
 #include <charconv>
+#include <cmath>
 
 #include <fmt/format.h>
 
@@ -27,6 +28,8 @@ void set_codec(Options& o, std::string_view spec) {
     }
     return;
   }
+  // The records codec: each frame's records as they are, chunks compressed by this.
+  if (name == "raw" || name == "lz4" || name == "zstd") o.frame_codec = format::FrameCodec::Records;
   if (name == "raw") {
     o.codec = format::Codec::Raw;
     if (colon != std::string::npos) throw Error(fmt::format("`codec` '{}': raw has no level; write raw", text));
@@ -47,6 +50,59 @@ void set_codec(Options& o, std::string_view spec) {
       throw Error(fmt::format("`codec` '{}': level must be 0..22", text));
     }
   }
+}
+
+}  // namespace pstream::cook
+
+namespace pstream::cook {
+
+void set_error_bound(Options& o, std::string_view spec, std::string_view what) {
+  std::string number(spec);
+  bool relative = true;
+  if (number.rfind("abs:", 0) == 0 || number.rfind("rel:", 0) == 0) {
+    relative = number[0] == 'r';
+    number = number.substr(4);
+  }
+  double value = 0.0;
+  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
+  if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !std::isfinite(value) ||
+      (relative && value >= 1)) {
+    throw Error(
+        fmt::format("{} '{}': expected a fraction of the bounds diagonal such as 1e-4 (or rel:1e-4), or abs:VALUE in "
+                    "scene units",
+                    what, spec));
+  }
+  o.particle.error = value;
+  o.particle.error_relative = relative;
+}
+
+void set_scale_error(Options& o, std::string_view spec, std::string_view what) {
+  std::string number(spec);
+  const bool percent = !number.empty() && number.back() == '%';
+  if (percent) number.pop_back();
+  double value = 0.0;
+  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
+  if (percent) value /= 100.0;
+  if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !(value < 0.5)) {
+    throw Error(fmt::format(
+        "{} '{}': expected the bound on each particle's scale relative to itself, such as 1% or 0.01 (above 0, "
+        "below 50%)",
+        what, spec));
+  }
+  o.particle.scale_error = value;
+}
+
+void set_attribute_error(Options& o, std::string_view spec, std::string_view what) {
+  const std::string number(spec);
+  double value = 0.0;
+  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
+  if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !(value < 1)) {
+    throw Error(fmt::format(
+        "{} '{}': expected the bound on velocity and other float attributes as a fraction of their own range, such "
+        "as 1e-3 (above 0, below 1)",
+        what, spec));
+  }
+  o.particle.attribute_error = value;
 }
 
 }  // namespace pstream::cook

@@ -107,6 +107,10 @@ Plan make_plan(const Options& options, const Source& source, Report& report, flo
       format::append_attribute(plan.layout, a, AttributeType::Float32, static_cast<std::uint8_t>(components));
     }
   }
+  if (options.keep_velocity && !r.velocity && source.has_velocity()) {
+    r.velocity = true;
+    format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
+  }
   plan.record_size = format::record_size_of(plan.layout);
   if (options.frame_codec == format::FrameCodec::Particle && !options.particle.lossless) {
     r.id = r.id || source.has_ids();  // frames are ordered and matched by id
@@ -356,7 +360,8 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   ParticleFrame frame;
   HeldFrame held;
   Progress state;
-  state.frame_count = 2 * frames;  // both passes
+  state.frame_count = frames;
+  state.stage = Stage::Scan;
   format::ClipStats stats(plan.layout);
   const std::uint64_t dropped_before = report.dropped_invalid;  // counted by the encoding pass
   for (std::uint64_t k = 0; k < frames; ++k) {
@@ -367,6 +372,8 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
     if (progress) progress(state);
   }
   report.dropped_invalid = dropped_before;
+  state.stage = Stage::Write;
+  state.frames_done = 0;
   meta.codec = format::plan_particle_codec(plan.layout, stats, meta.fps, plan.request.id && !options.particle.lossless,
                                            options.particle);
   report.error = meta.codec.error;
@@ -425,7 +432,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
         }
         state.bytes_out += e.packet.size();
         ++state.frames_done;
-        space(state.frames_done - frames, state.bytes_out);
+        space(state.frames_done, state.bytes_out);
         if (progress) progress(state);
       }
     }
@@ -489,8 +496,9 @@ std::string codec_setting(const Options& o) {
                       : o.particle.lossless ? format::kDefaultLosslessParticleZstdLevel
                                             : format::kDefaultParticleZstdLevel;
     if (o.particle.lossless) return fmt::format("particle-lossless:{}", level);
-    return fmt::format("particle:{} error={}:{:g} keyframe_interval={}", level,
-                       o.particle.error_relative ? "rel" : "abs", o.particle.error, o.particle.keyframe_interval);
+    return fmt::format("particle:{} error={}:{:g} scale_error={:g} attribute_error={:g} keyframe_interval={}", level,
+                       o.particle.error_relative ? "rel" : "abs", o.particle.error, o.particle.scale_error,
+                       o.particle.attribute_error, o.particle.keyframe_interval);
   }
   return fmt::format("{}:{}", format::codec_name(o.codec), o.codec_level);
 }
@@ -505,14 +513,15 @@ std::string describe_settings(const Options& o, std::uint64_t content_hash) {
                                                             : "attr";
   return fmt::format(
       "source={} source_xxh3={:016x} object={} merge={} bake_xforms={} fps={:g} interpolate={} scale_from={}{} "
-      "color_from={} attributes={} chunk_size={} codec={} frames={}:{} drop_invalid={} keep_source_order={}",
+      "color_from={} attributes={} keep_velocity={} chunk_size={} codec={} frames={}:{} drop_invalid={} "
+      "keep_source_order={}",
       o.input.filename().string(), content_hash, o.object.empty() ? "auto" : o.object, int(o.merge), int(o.bake_xforms),
       o.fps, int(o.interpolate), scale,
       o.scale_from == ScaleFrom::Constant    ? fmt::format(":{:g}", o.scale_constant)
       : o.scale_from == ScaleFrom::Attribute ? ":" + o.scale_attribute
                                              : std::string(),
-      o.color_from, attributes.empty() ? "none" : attributes, o.chunk_size, codec_setting(o), o.frame_begin,
-      o.frame_end < 0 ? std::string("end") : std::to_string(o.frame_end), int(o.drop_invalid),
+      o.color_from, attributes.empty() ? "none" : attributes, int(o.keep_velocity), o.chunk_size, codec_setting(o),
+      o.frame_begin, o.frame_end < 0 ? std::string("end") : std::to_string(o.frame_end), int(o.drop_invalid),
       int(o.keep_source_order));
 }
 

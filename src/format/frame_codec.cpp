@@ -218,6 +218,13 @@ double ClipStats::diagonal() const {
 
 // ---- Planning -----------------------------------------------------------------------------------
 
+std::uint32_t relative_shift_for(double error) {
+  for (std::uint32_t kept = 0; kept < 23; ++kept) {
+    if (std::ldexp(1.0, -int(kept) - 1) <= error) return 23 - kept;
+  }
+  return 0;
+}
+
 namespace {
 
 // A grid for values in [lo, hi] whose decoded floats stay within `error`: the step leaves room
@@ -265,8 +272,11 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
     }
     position_error = options.error_relative ? options.error * diagonal : options.error;
   }
-  // The same fraction of their own range for other float attributes.
-  const double fraction = options.error_relative ? options.error : diagonal > 0 ? options.error / diagonal : 1e-4;
+  // Velocity and other float attributes: a fraction of their own range.
+  const double fraction = options.attribute_error;
+  if (!options.lossless && (!(fraction > 0.0) || !(fraction < 1.0)))
+    throw Error(
+        fmt::format("the attribute error bound is {}, expected a fraction of a range, above 0 and below 1", fraction));
   info.error = position_error;
   std::size_t component = 0;
   for (std::size_t a = 0; a < layout.size(); ++a) {
@@ -282,14 +292,30 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
     } else if (at.name == "id" && at.type == AttributeType::Uint64 && info.order == FrameOrder::Id) {
       info.words[first].coding = info.words[first + 1].coding = WordCoding::Id;
     } else if (is_float && !options.lossless && stats.particles() > 0) {  // no particles: nothing to grid
-      double error = 0.0;
-      if (at.name == "position" || at.name == "scale")
-        error = position_error;
-      else if (at.name == "velocity")
-        error = position_error * fps;
+      // Position: the absolute bound. Scale: relative to each particle's own (sizes span orders
+      // of magnitude: an absolute bound would erase the small ones). Velocity and other floats:
+      // a fraction of their own range.
+      if (at.name == "scale" && at.components == 1) {
+        const double lo = stats.min()[component], hi = stats.max()[component];
+        const std::uint32_t shift = relative_shift_for(options.scale_error);
+        WordCodingEntry& entry = info.words[first];
+        entry = WordCodingEntry{};  // exact unless a relative grid applies
+        if (std::isfinite(lo) && std::isfinite(hi) && shift > 0) {
+          entry.coding = WordCoding::Relative;
+          entry.base = shift;
+          entry.error = static_cast<float>(options.scale_error);
+          if (double(entry.error) > options.scale_error) entry.error = std::nextafter(entry.error, 0.0f);
+        }
+        component += at.components;
+        continue;
+      }
+      const double error = at.name == "position" ? position_error : 0.0;
       for (std::uint32_t c = 0; c < at.components; ++c) {
         const double lo = stats.min()[component + c], hi = stats.max()[component + c];
-        const double e = error > 0 ? error : fraction * (hi - lo);
+        double e = error > 0 ? error : fraction * (hi - lo);
+        // A velocity never moves a position by more than the position bound over a frame (the
+        // Hermite curves between frames follow it).
+        if (at.name == "velocity" && fps > 0 && position_error > 0) e = std::min(e, position_error * fps);
         WordCodingEntry& entry = info.words[first + c];
         if (!make_grid(lo, hi, e, entry)) {
           if (at.name == "position") {
@@ -318,6 +344,7 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
                           const CodecInfo* codec) {
   const std::uint32_t rs = record_size_of(layout), words = rs / 4;
   if (max_error.size() < words) max_error.resize(words, 0.0);
+  if (max_relative_error.size() < words) max_relative_error.resize(words, 0.0);
   particles += decoded_count;
   if (decoded_count != source_count) ++count_mismatches;
   std::vector<bool> is_float(words, false);
@@ -340,6 +367,8 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
         const float fa = std::bit_cast<float>(a), fb = std::bit_cast<float>(b);
         e = (std::isnan(fa) && std::isnan(fb)) ? 0.0 : std::abs(double(fa) - double(fb));
         if (std::isnan(e)) e = std::numeric_limits<double>::infinity();
+        const double relative = e == 0.0 ? 0.0 : e / std::abs(double(fb));
+        max_relative_error[w] = std::max(max_relative_error[w], std::isnan(relative) ? INFINITY : relative);
       } else if (a != b) {
         e = std::numeric_limits<double>::infinity();
       }

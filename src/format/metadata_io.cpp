@@ -108,6 +108,13 @@ void validate_word_codings(const Metadata& m, Fail fail) {
                           w, a.name, e.step, origin, e.error));
         }
       }
+      if (e.coding == WordCoding::Relative &&
+          (!is_float || m.version < 3 || e.base < 1 || e.base > 23 || !(e.error > 0.0f) || !(e.error < 1.0f))) {
+        fail(
+            fmt::format("record word {} ('{}'): a relative word needs a float32 attribute, format version 3, a "
+                        "shift of 1 to 23 and a bound in (0, 1) (shift {}, bound {})",
+                        w, a.name, e.base, e.error));
+      }
       if (e.coding == WordCoding::Id && (!is_id || m.codec.order != FrameOrder::Id)) {
         fail(
             fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute "
@@ -225,8 +232,8 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   header.file_size = file_size;
   Metadata& m = header.meta;
   m.version = h.get<std::uint32_t>("version");
-  if (m.version != 1 && m.version != 2)
-    h.fail(fmt::format("unsupported format version {} (this build reads versions 1 and 2)", m.version));
+  if (m.version < 1 || m.version > 3)
+    h.fail(fmt::format("unsupported format version {} (this build reads versions 1 to 3)", m.version));
   const std::size_t expected_header_size = header_size_of(m.version);
   const auto header_size = h.get<std::uint32_t>("header_size");
   if (header_size != expected_header_size)
@@ -400,7 +407,7 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
       e.step = t.get<float>("word step");
       e.error = t.get<float>("word error");
       e.base = t.get<std::uint32_t>("word base");
-      if (coding > static_cast<std::uint8_t>(WordCoding::Id))
+      if (coding > static_cast<std::uint8_t>(WordCoding::Relative))
         t.fail(fmt::format("record word {} has unknown coding {}", w, coding));
       e.coding = static_cast<WordCoding>(coding);
     }

@@ -14,6 +14,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cfloat>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -87,7 +88,7 @@ struct WordPlan {
   explicit WordPlan(const CodecInfo& info) : words(static_cast<std::uint32_t>(info.words.size())) {
     for (std::uint32_t w = 0; w < words; ++w) {
       const WordCoding c = info.words[w].coding;
-      if (c == WordCoding::Quantized || c == WordCoding::Exact) coded.push_back(w);
+      if (c == WordCoding::Quantized || c == WordCoding::Exact || c == WordCoding::Relative) coded.push_back(w);
       if (c == WordCoding::Id && id_word < 0) id_word = w;
     }
   }
@@ -415,6 +416,12 @@ class ParticleUnit final : public FrameUnit {
               column[t] = std::bit_cast<std::uint32_t>(dequantize(q[t], step, origin));
             break;
           }
+          case WordCoding::Relative: {
+            const std::uint32_t* q = q_[cur_].data() + k++ * n + j0;
+            const std::uint32_t shift = e.base;
+            for (std::uint32_t t = 0; t < len; ++t) column[t] = relative_decode(q[t], shift);
+            break;
+          }
           case WordCoding::Exact: std::copy_n(q_[cur_].data() + k++ * n + j0, len, column); break;
           case WordCoding::Constant: std::fill_n(column, len, e.base); break;
           case WordCoding::Id: {
@@ -568,6 +575,23 @@ class GroupEncoder {
       v.resize(n);
       for (std::uint32_t j = 0; j < n; ++j)
         std::memcpy(&v[j], frame.records.data() + std::size_t(j) * record_size_ + 4 * w, 4);
+      if (e.coding == WordCoding::Relative) {
+        for (std::uint32_t j = 0; j < n; ++j) {
+          const float x = as_float(v[j]);
+          const std::uint32_t q = relative_code(v[j], e.base);
+          const float y = as_float(relative_decode(q, e.base));
+          // Within the bound relative to the value (subnormals: within the smallest normal's).
+          const double allowed = double(e.error) * std::max(double(std::abs(x)), double(FLT_MIN));
+          if (!std::isfinite(x) || !std::isfinite(y) || !(std::abs(double(y) - double(x)) <= allowed)) {
+            throw Error(
+                fmt::format("frame {}: particle {}: record word {} is {}, which a relative bound of {} "
+                            "cannot hold (not a finite number)",
+                            index, j, w, x, e.error));
+          }
+          v[j] = q;
+        }
+        continue;
+      }
       if (e.coding != WordCoding::Quantized) continue;
       const float origin = as_float(e.base);
       for (std::uint32_t j = 0; j < n; ++j) {

@@ -69,6 +69,23 @@ void Player::check_style(const DrawStyle& style) const {
     throw OptionError("ramp_attribute",
                       "colouring by attribute needs a `ramp_attribute`: the float attribute to colour by");
   }
+  // What needs velocities: colouring by speed, and motion blur (sprites stretched along their
+  // velocity). Without them the speed is 0 everywhere (a black or flat picture) and nothing
+  // streaks: say so, and how to get them, instead of drawing that.
+  const bool sprites = style.look == render::Look::Sprites;
+  const char* needs = !sprites                                           ? nullptr
+                      : style.sprites.color_by == render::ColorBy::Speed ? "colouring by speed"
+                      : style.sprites.shutter > 0.0f                     ? "motion blur (a shutter)"
+                                                                         : nullptr;
+  for (std::size_t i = 0; i < clip_count() && needs != nullptr; ++i) {
+    const format::Attribute* v = clip(i).metadata().find("velocity");
+    if (v == nullptr || v->type != format::AttributeType::Float32 || v->components != 3) {
+      throw OptionError("velocity",
+                        fmt::format("{}: {} needs velocities, and the clip has none: cook it again with `--attributes "
+                                    "velocity` (without `--no-velocity`; the source must have velocities)",
+                                    clip(i).name(), needs));
+    }
+  }
   if (style.ramp_attribute.empty()) return;
   for (std::size_t i = 0; i < clip_count(); ++i) {
     const stream::ParticleStream& c = clip(i);

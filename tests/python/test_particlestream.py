@@ -79,7 +79,7 @@ def test_positions_view_the_mapped_file_without_a_copy():
 def test_cook_clip_and_player_as_numpy(tmp_path):
     abc = DATA / "alembic" / "points_varying.abc"
     calls = []
-    report = ps.cook(abc, tmp_path / "v.pstream", attributes=["velocity", "id"],
+    report = ps.cook(abc, tmp_path / "v.pstream", attributes=["velocity", "id"], codec="raw",  # exact values
                      progress=lambda done, total: calls.append((done, total)))
     assert report["frames"] == 60 and report["particles"] > 0 and report["file_bytes"] > 0
     assert calls[-1] == (60, 60)
@@ -171,3 +171,29 @@ def test_what_the_c_api_refuses_raises_particlestream_error():
     # Only particlestream.Error (a RuntimeError) comes out of the library: never a raw C++ error.
     with pytest.raises(ps.Error):
         ps.Player([DATA / "alembic" / "points_varying.expected.json"])
+
+
+def test_default_cook_is_the_particle_codec_with_its_bounds(tmp_path):
+    abc = DATA / "sims" / "blender_sparks.abc"
+    calls = []
+    ps.cook(abc, tmp_path / "d.pstream", progress=lambda done, total: calls.append((done, total)))
+    # Two stages (scan, write), each counting the clip's 48 frames, never more.
+    assert calls[-1] == (48, 48) and max(total for _, total in calls) == 48
+    clip = ps.Clip(tmp_path / "d.pstream")
+    names = [a[0] for a in clip.layout]
+    assert "velocity" in names  # the source's velocities are kept by default
+    raw = tmp_path / "r.pstream"
+    ps.cook(abc, raw, codec="raw")
+    assert (tmp_path / "d.pstream").stat().st_size * 4 < raw.stat().st_size
+    # Each scale within 2 % of its own value (the bound set here); positions within their bound.
+    ps.cook(abc, tmp_path / "s.pstream", scale_error="2%", error="abs:0.001")
+    a, b = ps.Clip(tmp_path / "s.pstream"), ps.Clip(raw)
+    for f in (0, 20, 47):
+        x, y = a.read_frame(f), b.read_frame(f)
+        assert len(x) == len(y)
+        xs, ys = np.sort(x["scale"]), np.sort(y["scale"])
+        assert np.all(np.abs(xs - ys) <= 0.02 * ys + 1e-12)
+    with pytest.raises(ps.Error, match="scale_error '70%'"):
+        ps.cook(abc, tmp_path / "bad.pstream", scale_error="70%")
+    with pytest.raises(ps.Error, match="error 'rel:2'"):
+        ps.cook(abc, tmp_path / "bad.pstream", error="rel:2")

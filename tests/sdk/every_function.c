@@ -8,6 +8,7 @@
 #define _POSIX_C_SOURCE 200809L /* pthreads under -std=c99 */
 #include <math.h>
 #include <pthread.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -255,7 +256,7 @@ int main(int argc, char** argv) {
     pstream_cook_report report;
     FILE* exists;
     pstream_cook_options_init(&o);
-    CHECK(o.struct_size == sizeof o && o.codec == PSTREAM_CODEC_RAW);
+    CHECK(o.struct_size == sizeof o && o.codec == PSTREAM_CODEC_PARTICLE && o.scale_error == 0.01);
     o.input = join(0, data, "alembic/points_varying.abc");
     o.output = join(1, work, "particle.pstream");
     o.attributes = "velocity,id";
@@ -273,6 +274,19 @@ int main(int argc, char** argv) {
     EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_STATE, "cancelled");
     exists = fopen(join(3, work, "cancelled.pstream"), "rb");
     CHECK(exists == NULL); /* nothing written */
+    /* The scale's relative bound, by the command line's rules; a caller built before it existed
+     * (a struct_size that ends before scale_error) gets the default. */
+    o.progress = NULL;
+    o.codec = PSTREAM_CODEC_PARTICLE;
+    o.output = join(3, work, "scale.pstream");
+    o.scale_error = 0.7;
+    EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_FORMAT, "scale_error '0.7'");
+    o.scale_error = 0.001;
+    CHECK(pstream_cook(&o, NULL) == PSTREAM_OK);
+    o.struct_size = offsetof(pstream_cook_options, scale_error);
+    o.scale_error = 0.7; /* not read */
+    CHECK(pstream_cook(&o, NULL) == PSTREAM_OK);
+    o.struct_size = sizeof o;
     if (exists) fclose(exists);
     o.progress = NULL;
     o.codec = 99;

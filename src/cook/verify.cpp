@@ -1,0 +1,164 @@
+// cook::verify: a cooked clip's checksums, decoding, and every attribute against its bound.
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <unordered_set>
+
+#include <fmt/format.h>
+
+#include "particlestream/codec.hpp"
+#include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+
+namespace pstream::cook {
+namespace {
+
+using namespace pstream::format;
+
+// The source cooked again as records with the clip's layout, fps and transforms, every frame
+// compared with the clip's frame of the same time.
+void compare_with_source(const Reader& reader, const std::filesystem::path& source, VerifyReport& report) {
+  const Metadata& m = reader.metadata();
+  Options o;
+  o.input = source;
+  o.object = m.source_object.find(',') == std::string::npos ? m.source_object : std::string();
+  o.merge = m.source_object.find(',') != std::string::npos;
+  o.bake_xforms = (m.flags & kFlagXformsBaked) != 0;
+  o.interpolate = (m.flags & kFlagInterpolated) != 0;
+  o.fps = m.fps;
+  o.frame_codec = FrameCodec::Records;  // the source's exact values, raw
+  o.codec = Codec::Raw;
+  o.keep_velocity = false;  // the clip's attributes, no more
+  o.color_from = m.find("color") ? "Cd" : "none";
+  for (const Attribute& a : m.layout) {
+    if (a.name == "position" || a.name == "scale" || a.name == "color") continue;
+    o.attributes.push_back(a.name == "id" && a.type == AttributeType::Uint32 ? "id32" : a.name);
+  }
+  const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-verify-{}.pstream", ::getpid());
+  o.output = temp;
+  struct Remove {
+    std::filesystem::path p;
+    ~Remove() {
+      std::error_code ec;
+      std::filesystem::remove(p, ec);
+    }
+  } remove{temp};
+  cook(o);
+  const Reader src = Reader::open(temp);
+  const Metadata& sm = src.metadata();
+  report.source = source.string();
+  if (sm.record_size != m.record_size) {
+    report.errors.push_back(fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source.string(),
+                                        sm.record_size, m.record_size));
+    return;
+  }
+  std::vector<std::byte> a = frame_buffer(m, reader.name()), b = frame_buffer(sm, source.string());
+  FrameComparison c;
+  // Distinct values of float words, in the source and the clip (capped: a count, not a census).
+  const std::uint32_t words = m.record_size / 4;
+  constexpr std::size_t kDistinctCap = 1 << 16;
+  std::vector<std::unordered_set<std::uint32_t>> seen_source(words), seen_clip(words);
+  const auto note = [&](std::vector<std::unordered_set<std::uint32_t>>& seen, std::span<const std::byte> recs,
+                        std::uint64_t count) {
+    for (const Attribute& at : m.layout) {
+      if (at.type != AttributeType::Float32 || at.name == "position") continue;
+      for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
+        for (std::uint64_t i = 0; i < count && seen[w].size() < kDistinctCap; ++i) {
+          std::uint32_t v;
+          std::memcpy(&v, recs.data() + i * m.record_size + 4 * w, 4);
+          seen[w].insert(v);
+        }
+      }
+    }
+  };
+  std::uint64_t s = 0;
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    while (s < sm.frame_count() && sm.frames[s].time < m.frames[f].time - 0.25 / m.fps) ++s;
+    if (s == sm.frame_count() || std::abs(sm.frames[s].time - m.frames[f].time) > 0.25 / m.fps) {
+      report.errors.push_back(
+          fmt::format("frame {} (time {}): the source has no frame at that time", f, m.frames[f].time));
+      continue;
+    }
+    reader.read_frame(f, a);
+    src.read_frame(s, b);
+    c.add(m.layout, a, m.frames[f].count, b, sm.frames[s].count, &m.codec);
+    note(seen_clip, a, m.frames[f].count);
+    note(seen_source, b, sm.frames[s].count);
+    ++report.frames_compared;
+  }
+  report.particles_compared = c.particles;
+  const bool particle = m.codec.codec == FrameCodec::Particle;
+  for (const Attribute& at : m.layout) {
+    AttributeCheck check;
+    check.name = at.name;
+    for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
+      const WordCodingEntry* e = particle ? &m.codec.words[w] : nullptr;
+      const bool relative = e && e->coding == WordCoding::Relative;
+      const bool bounded = e && (e->coding == WordCoding::Quantized || relative);
+      check.relative = check.relative || relative;
+      if (bounded) {
+        check.exact = false;
+        check.bound = std::max(check.bound, double(e->error));
+      }
+      if (w < c.max_error.size())
+        check.max_error = std::max(check.max_error, relative ? c.max_relative_error[w] : c.max_error[w]);
+      check.distinct_source = std::max<std::uint64_t>(check.distinct_source, seen_source[w].size());
+      check.distinct_clip = std::max<std::uint64_t>(check.distinct_clip, seen_clip[w].size());
+    }
+    check.ok = check.exact ? check.max_error == 0.0 : check.max_error <= check.bound;
+    if (!check.ok) {
+      report.errors.push_back(
+          fmt::format("attribute '{}': decoded values differ from the source by up to {:.6g}{}, the bound is {}",
+                      at.name, check.max_error, check.relative ? " of their value" : "",
+                      check.exact ? std::string("0 (exact)")
+                                  : fmt::format("{:.6g}{}", check.bound, check.relative ? " of each value" : "")));
+    }
+    report.attributes.push_back(check);
+  }
+  if (c.unmatched || c.count_mismatches) {
+    report.errors.push_back(
+        fmt::format("{} particles found no partner in the source; {} frames have other particle counts", c.unmatched,
+                    c.count_mismatches));
+  }
+}
+
+}  // namespace
+
+VerifyReport verify(const std::filesystem::path& file, const std::filesystem::path& against) {
+  VerifyReport report;
+  report.file = file.string();
+  try {
+    const Reader reader = Reader::open(file);  // header, tables, frame index, chunk bounds
+    const Metadata& m = reader.metadata();
+    report.frames = m.frame_count();
+    std::vector<std::byte> scratch(m.chunk_size);
+    for (std::uint64_t c = 0; c < m.chunk_count(); ++c) {
+      try {
+        reader.read_chunk(c, scratch);  // checksum and decode
+        ++report.chunks_verified;
+      } catch (const Error& e) {
+        report.errors.push_back(e.what());
+      }
+    }
+    // Every frame decodes (in order: a predicted frame needs the one before it).
+    if (report.errors.empty()) {
+      std::vector<std::byte> records = frame_buffer(m, file.string());
+      for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+        try {
+          reader.read_frame(f, records);
+        } catch (const Error& e) {
+          report.errors.push_back(e.what());
+          break;
+        }
+      }
+    }
+    if (report.errors.empty() && !against.empty()) compare_with_source(reader, against, report);
+  } catch (const Error& e) {
+    report.errors.push_back(e.what());
+  }
+  return report;
+}
+
+}  // namespace pstream::cook
