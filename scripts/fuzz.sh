@@ -39,7 +39,8 @@ for codec in raw lz4 zstd particle particle-lossless; do
         -o "$work/pstream-seeds/$fixture-$codec.pstream"
   done
 done
-run_target fuzz_pstream "$work"/pstream-seeds/*.pstream
+# and the committed clips: version 1, 2 and 3 (a relative scale word), records and particle codec.
+run_target fuzz_pstream "$work"/pstream-seeds/*.pstream tests/data/pstream/*.pstream tests/data/pstream_v1/*.pstream
 
 # Particle-codec bodies, from the encoder itself.
 mkdir -p "$work/particle-seeds"

@@ -235,6 +235,62 @@ TEST(RenderCommand, SlowMotionRendersInterpolatedImages) {
   EXPECT_GE(repeats, 5u);
 }
 
+// A default cook (no flags) has what the looks need: the particle codec keeps the source's
+// velocities and matches particles, so colouring by speed is not black, sparks streak, and slow
+// motion of a liquid without ids is interpolated; a clip without velocities says so, naming the
+// flag, instead of drawing a black picture.
+TEST(RenderCommand, ADefaultCookHasWhatTheLooksNeed) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path sparks = dir / "sparks.pstream", flip = dir / "flip.pstream", bare = dir / "bare.pstream";
+  for (const auto& [in, out, flags] :
+       {std::tuple{"sims/blender_sparks.abc", sparks, ""}, std::tuple{"sims/blender_flip_pour_small.abc", flip, ""},
+        std::tuple{"sims/blender_sparks.abc", bare, " --no-velocity"}}) {
+    const auto r = test::run_cli(fmt::format("cook '{}' -o '{}' -q{}", test::data_path(in), out.string(), flags));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  const auto image = [&](const fs::path& clip, const std::string& name, const std::string& flags) {
+    const fs::path out = dir / name;
+    const auto r = test::run_cli(
+        fmt::format("render -q '{}' --out '{}' --size 480x270 --backdrop none {}", clip.string(), out.string(), flags));
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    int w = 0, h = 0;
+    return read_png(out / "frame_00000.png", w, h);
+  };
+  const auto count = [](const std::vector<std::uint8_t>& img, auto&& pixel) {
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < img.size(); i += 4) n += pixel(img.data() + i) ? 1 : 0;
+    return n;
+  };
+  // Speed colours: the fire ramp over the clip's speeds (0 to 4 units/s: black to white through
+  // red and orange), not the black of speed 0: hundreds of bright, red-dominated pixels.
+  const auto speed = image(sparks, "speed", "--frames 20:21 --color-by speed --ramp fire --ramp-range 0,4");
+  EXPECT_GT(count(speed, [](const std::uint8_t* p) { return p[0] > 80 && p[0] >= p[2]; }), 200u);
+  // Sparks streak: the same frame with the preset's shutter and without differ in thousands of
+  // pixels (LooksTest.MotionBlurLengthIsProportionalToVelocity measures the streaks' length).
+  const auto streaks = image(sparks, "streaks", "--frames 20:21 --preset sparks");
+  const auto dots = image(sparks, "dots", "--frames 20:21 --preset sparks --shutter 0");
+  ASSERT_EQ(streaks.size(), dots.size());
+  std::size_t changed = 0;
+  for (std::size_t i = 0; i < streaks.size(); i += 4) changed += std::abs(int(streaks[i]) - int(dots[i])) > 12;
+  EXPECT_GT(changed, 1000u);
+  // Slow motion of the FLIP liquid (no ids): each image interpolated, none repeated.
+  std::vector<std::vector<std::uint8_t>> slow{image(flip, "slow", "--frames 30:32 --speed 0.25")};
+  for (int k = 1; k < 5; ++k) {
+    int w = 0, h = 0;
+    slow.push_back(read_png(dir / "slow" / fmt::format("frame_{:05d}.png", k), w, h));
+    EXPECT_NE(slow[std::size_t(k)], slow[std::size_t(k - 1)]) << "image " << k << " repeats";
+  }
+  // A clip without velocities: the look that needs them says so before anything is written.
+  for (const std::string flags : {"--color-by speed", "--preset sparks"}) {
+    const auto r =
+        test::run_cli(fmt::format("render -q '{}' --out '{}' {}", bare.string(), (dir / "no").string(), flags));
+    EXPECT_NE(r.exit_code, 0) << flags;
+    EXPECT_NE(r.output.find("needs velocities"), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("--attributes velocity"), std::string::npos) << r.output;
+    EXPECT_FALSE(fs::exists(dir / "no"));
+  }
+}
+
 // The 50k-particle fixture in 64 KiB chunks (frames straddle chunks), for the viewer's runs.
 cook::Options large_clip(const fs::path& dir) {
   cook::Options o;

@@ -11,7 +11,7 @@
 int main(int argc, char** argv) {
   using namespace pstream;
   if (argc != 2) return 2;
-  for (std::uint8_t selector = 0; selector < 4; ++selector) {
+  for (std::uint8_t selector = 0; selector < 8; ++selector) {
     for (std::uint64_t n0 : {1u, 20u, 64u}) {
       const std::uint64_t n1 = n0 > 10 ? n0 - 7 : n0 + 3;  // deaths or births
       const format::Metadata meta = fuzz::particle_clip(selector, n0, n1);

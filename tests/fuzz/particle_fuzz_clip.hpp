@@ -1,7 +1,8 @@
 // The small clip the particle-codec fuzz target decodes against, shared with its seed generator.
 // A fuzz input is: [selector][u32 size of the keyframe body][keyframe body][predicted frame body],
 // bodies uncompressed (the target compresses them, so mutations land in the body, not in zstd's
-// framing). The selector picks the layout and the frame order.
+// framing). The selector picks the layout (bit 0), the frame order (bit 1) and whether the scale
+// is a version 3 relative word (bit 2).
 #pragma once
 
 #include <cstring>
@@ -31,6 +32,10 @@ inline format::Metadata particle_clip(std::uint8_t selector, std::uint64_t count
   m.codec.words.resize(m.record_size / 4);
   for (int w = 0; w < 4; ++w) {
     m.codec.words[w] = {WordCoding::Quantized, 0.01f, 0.005f, 0};
+  }
+  if ((selector & 4) != 0) {  // format version 3: the scale within 1 % of itself (a relative word)
+    m.version = 3;
+    m.codec.words[3] = {WordCoding::Relative, 0.0f, 0.01f, 17};
   }
   if (more) {
     m.codec.words[4].coding = WordCoding::Exact;

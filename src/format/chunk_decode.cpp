@@ -1,7 +1,7 @@
-// Chunk codecs. Every chunk is compressed on its own so that it decodes alone. Each codec is one
-// unit (its encode and decode side by side); ChunkDecoder is the only way chunks are decoded.
+// Chunk codecs, the decoding side: each codec a unit with its name, the most bytes a stored byte
+// can decode to, and its decoder (chunk_encode.cpp holds the encoders). Every chunk is compressed
+// on its own so that it decodes alone; ChunkDecoder is the only way chunks are decoded.
 #include <lz4.h>
-#include <lz4hc.h>
 #include <xxhash.h>
 #include <zstd.h>
 
@@ -32,30 +32,15 @@ struct ChunkCodecUnit {
   std::string_view name;
   // Most raw bytes one stored byte can decode to, and a constant for the smallest inputs.
   std::uint64_t max_ratio, max_extra;
-  void (*encode)(std::span<const std::byte> raw, int level, EncodedChunk& out);
   void (*decode)(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out);
 };
 
-void raw_encode(std::span<const std::byte> raw, int /*level*/, EncodedChunk& out) {
-  out.stored.assign(raw.begin(), raw.end());
-}
 void raw_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
   if (stored.size() != out.size())
     throw Error(fmt::format("{}: raw chunk holds {} bytes, expected {}", ctx.where(), stored.size(), out.size()));
   if (!out.empty() && stored.data() != out.data()) std::memcpy(out.data(), stored.data(), out.size());
 }
 
-void lz4_encode(std::span<const std::byte> raw, int level, EncodedChunk& out) {
-  if (raw.size() > static_cast<std::size_t>(LZ4_MAX_INPUT_SIZE)) throw Error("chunk too large for lz4");
-  out.stored.resize(static_cast<std::size_t>(LZ4_compressBound(static_cast<int>(raw.size()))));
-  const auto* src = reinterpret_cast<const char*>(raw.data());
-  auto* dst = reinterpret_cast<char*>(out.stored.data());
-  const int n = level > 0 ? LZ4_compress_HC(src, dst, int(raw.size()), int(out.stored.size()), level)
-                          : LZ4_compress_default(src, dst, int(raw.size()), int(out.stored.size()));
-  if (n <= 0) throw Error("lz4 compression failed");
-  out.stored.resize(static_cast<std::size_t>(n));
-  out.codec_param = static_cast<std::uint32_t>(std::max(level, 0));
-}
 void lz4_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
   const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(stored.data()), reinterpret_cast<char*>(out.data()),
                                     static_cast<int>(stored.size()), static_cast<int>(out.size()));
@@ -64,16 +49,6 @@ void lz4_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std
     throw Error(fmt::format("{}: lz4 data decodes to {} bytes, expected {}", ctx.where(), n, out.size()));
 }
 
-void zstd_encode(std::span<const std::byte> raw, int level, EncodedChunk& out) {
-  out.stored.resize(ZSTD_compressBound(raw.size()));
-  const std::unique_ptr<ZSTD_CCtx, decltype(&ZSTD_freeCCtx)> cctx(make_zstd_cctx(), &ZSTD_freeCCtx);
-  if (!cctx) throw Error("cannot create a zstd encoder");
-  const std::size_t n =
-      ZSTD_compressCCtx(cctx.get(), out.stored.data(), out.stored.size(), raw.data(), raw.size(), level);
-  if (ZSTD_isError(n)) throw Error(fmt::format("zstd compression failed: {}", ZSTD_getErrorName(n)));
-  out.stored.resize(n);
-  out.codec_param = static_cast<std::uint32_t>(level);
-}
 void zstd_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
   const std::size_t n = ZSTD_decompressDCtx(ctx.zstd, out.data(), out.size(), stored.data(), stored.size());
   if (ZSTD_isError(n)) throw Error(fmt::format("{}: zstd data does not decode: {}", ctx.where(), ZSTD_getErrorName(n)));
@@ -82,9 +57,9 @@ void zstd_decode(const DecodeContext& ctx, std::span<const std::byte> stored, st
 }
 
 constexpr std::array<ChunkCodecUnit, 3> kUnits{{
-    {Codec::Raw, "raw", 1, 0, raw_encode, raw_decode},
-    {Codec::Lz4, "lz4", 255, 255, lz4_encode, lz4_decode},
-    {Codec::Zstd, "zstd", 32768, 0, zstd_encode, zstd_decode},
+    {Codec::Raw, "raw", 1, 0, raw_decode},
+    {Codec::Lz4, "lz4", 255, 255, lz4_decode},
+    {Codec::Zstd, "zstd", 32768, 0, zstd_decode},
 }};
 
 const ChunkCodecUnit* unit_of(Codec codec) {
@@ -117,16 +92,6 @@ bool checksum_matches(std::span<const std::byte> bytes, std::uint64_t stored) {
 #else
   return checksum(bytes) == stored;
 #endif
-}
-
-EncodedChunk encode_chunk(std::span<const std::byte> raw, Codec codec, int level) {
-  const ChunkCodecUnit* u = unit_of(codec);
-  if (u == nullptr) throw Error(fmt::format("unknown chunk codec {}", static_cast<int>(codec)));
-  EncodedChunk out;
-  out.codec = codec;
-  u->encode(raw, level, out);
-  out.checksum = checksum(out.stored);
-  return out;
 }
 
 ChunkDecoder::ChunkDecoder() : zstd_(make_zstd_dctx()) {

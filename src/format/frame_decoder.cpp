@@ -1,0 +1,167 @@
+// Frame codecs, the decoding side: the records unit, the decoder that picks a clip's unit, and
+// matching by id. The encoding side (statistics, planning, comparison) is frame_plan.cpp.
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <unordered_map>
+
+#include <fmt/format.h>
+
+#include "format/frame_unit.hpp"
+#include "particlestream/codec.hpp"
+
+namespace pstream::format {
+namespace {
+
+// The records codec: the packet is the frame's records.
+class RecordsUnit final : public FrameUnit {
+ public:
+  RecordsUnit(const Metadata& meta, std::string_view name) : meta_(meta), name_(name) {}
+  std::size_t decode(std::uint64_t frame, bool /*keyframe*/, std::span<const std::byte> packet,
+                     std::span<std::byte> out, std::span<MatchRun> /*matching*/) override {
+    const std::uint64_t size = meta_.frames[frame].count * meta_.record_size;
+    if (packet.size() != size || out.size() < size) {
+      throw Error(
+          fmt::format("{}: frame {}: a records packet of {} bytes, expected {}", name_, frame, packet.size(), size));
+    }
+    if (size != 0) std::memcpy(out.data(), packet.data(), size);
+    return kNoMatching;  // every frame stands alone
+  }
+  void reset() override {}
+  std::uint64_t state_bytes() const override { return 0; }
+
+ private:
+  const Metadata& meta_;
+  std::string_view name_;
+};
+
+}  // namespace
+
+FramePacket frame_packet(const Metadata& meta, std::uint64_t frame) {
+  const FrameEntry& f = meta.frames[frame];
+  return {f.packet_offset, f.packet_size, f.keyframe};
+}
+
+std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame) {
+  while (frame > 0 && !meta.frames[frame].keyframe) --frame;
+  return frame;
+}
+
+FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit)
+    : meta_(meta), name_(std::move(name)) {
+  const std::uint64_t limit = memory_limit ? memory_limit : unbudgeted_memory_limit(meta);
+  const std::uint64_t needed = meta.codec.codec == FrameCodec::Particle ? particle_unit_state_bytes(meta) : 0;
+  if (needed > limit) {
+    throw OptionError(
+        "budget",
+        fmt::format("{}: max_count {} particles needs {:.1f} MiB of particle decoder state, more than {} "
+                    "({:.1f} MiB); set a memory `budget` to allow it",
+                    name_, meta.max_count, needed / 1048576.0,
+                    memory_limit ? "the memory budget" : "the clip's stored bytes justify", limit / 1048576.0));
+  }
+  switch (meta.codec.codec) {
+    case FrameCodec::Records: unit_ = std::make_unique<RecordsUnit>(meta_, name_); break;
+    case FrameCodec::Particle: unit_ = make_particle_unit(meta_, name_); break;
+  }
+  if (!unit_) throw Error(fmt::format("{}: unknown frame codec {}", name_, static_cast<int>(meta.codec.codec)));
+  state_bytes_ = unit_->state_bytes();
+}
+
+FrameDecoder::~FrameDecoder() = default;
+
+bool FrameDecoder::can_decode(std::uint64_t frame) const {
+  return frame < meta_.frame_count() && (meta_.frames[frame].keyframe || (last_ != UINT64_MAX && frame == last_ + 1));
+}
+
+void FrameDecoder::reset() {
+  unit_->reset();
+  last_ = UINT64_MAX;
+}
+
+std::size_t FrameDecoder::decode(std::uint64_t frame, std::span<const std::byte> packet, std::span<std::byte> out,
+                                 std::span<MatchRun> matching) {
+  if (!can_decode(frame)) {
+    throw Error(fmt::format("{}: frame {} is predicted from frame {}, which was not decoded just before it", name_,
+                            frame, frame == 0 ? 0 : frame - 1));
+  }
+  if (out.size() < meta_.frames[frame].count * meta_.record_size) {
+    throw Error(
+        fmt::format("{}: frame {}: {} bytes for {} records", name_, frame, out.size(), meta_.frames[frame].count));
+  }
+  last_ = UINT64_MAX;  // a failed decode leaves no reference
+  const std::size_t runs = unit_->decode(frame, meta_.frames[frame].keyframe, packet, out, matching);
+  last_ = frame;
+  return runs;
+}
+
+// ---- Matching ----------------------------------------------------------------------------------
+
+namespace {
+
+template <class Id>
+std::size_t merge_ids(std::uint32_t stride, std::uint32_t id_offset, const std::byte* a, std::uint64_t na,
+                      const std::byte* b, std::uint64_t nb, std::span<MatchRun> out) {
+  const auto id = [&](const std::byte* records, std::uint64_t i) {
+    Id v;
+    std::memcpy(&v, records + i * stride + id_offset, sizeof v);
+    return v;
+  };
+  std::size_t n = 0;
+  MatchRun run;
+  bool open = false;  // `run` holds something
+  // A keep after a drop or an insert starts a new run.
+  const auto flush = [&] {
+    if (!open) return true;
+    if (n == out.size()) return false;
+    out[n++] = run;
+    run = {};
+    open = false;
+    return true;
+  };
+  std::uint64_t i = 0, j = 0;
+  // Each frame's ids must strictly ascend: the last of each seen so far.
+  bool have_a = false, have_b = false;
+  Id last_a = 0, last_b = 0;
+  while (i < na || j < nb) {
+    const bool more_a = i < na, more_b = j < nb;
+    const Id x = more_a ? id(a, i) : 0, y = more_b ? id(b, j) : 0;
+    if ((more_a && have_a && x <= last_a) || (more_b && have_b && y <= last_b)) return kNoMatching;
+    if (more_a && more_b && x == y) {
+      if (run.drop != 0 || run.insert != 0) {
+        if (!flush()) return kNoMatching;
+      }
+      ++run.keep, open = true;
+      last_a = x, last_b = y, have_a = have_b = true;
+      ++i, ++j;
+    } else if (!more_b || (more_a && x < y)) {
+      ++run.drop, open = true;
+      last_a = x, have_a = true;
+      ++i;
+    } else {
+      ++run.insert, open = true;
+      last_b = y, have_b = true;
+      ++j;
+    }
+  }
+  if (!flush()) return kNoMatching;
+  return n;
+}
+
+}  // namespace
+
+std::size_t match_by_id(const Metadata& meta, std::span<const std::byte> prev, std::uint64_t prev_count,
+                        std::span<const std::byte> cur, std::uint64_t cur_count, std::span<MatchRun> out) {
+  const Attribute* id = meta.find("id");
+  if (id == nullptr || id->components != 1) return kNoMatching;
+  const std::uint64_t stride = meta.record_size;
+  if (prev.size() < prev_count * stride || cur.size() < cur_count * stride) return kNoMatching;
+  if (id->type == AttributeType::Uint64)
+    return merge_ids<std::uint64_t>(meta.record_size, id->offset, prev.data(), prev_count, cur.data(), cur_count, out);
+  if (id->type == AttributeType::Uint32)
+    return merge_ids<std::uint32_t>(meta.record_size, id->offset, prev.data(), prev_count, cur.data(), cur_count, out);
+  return kNoMatching;
+}
+
+}  // namespace pstream::format

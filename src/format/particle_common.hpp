@@ -1,0 +1,140 @@
+// What the particle codec's encoder (particle_encoder.cpp) and decoder (particle_decoder.cpp)
+// share: the packet's constants, the word plan, byte planes and the parsed body. The decoder
+// builds without the encoder (docs/format.md, "The particle codec").
+#pragma once
+
+#define ZSTD_STATIC_LINKING_ONLY  // ZSTD_c_useBlockSplitter: a parameter value, no static-only symbol
+#include <zstd.h>
+
+#include <algorithm>
+#include <bit>
+#include <cfloat>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <tuple>
+
+#include <fmt/format.h>
+
+#include "particlestream/codec.hpp"
+
+namespace pstream::format::particle {
+
+constexpr std::int64_t kGridLimit = (1 << 24) - 1;  // |q| below this converts to float exactly
+constexpr std::size_t kBodyHeader = 16;             // count, prev_count, op_count, new_count
+constexpr std::size_t kWordHeader = 8;              // predictor, keep/new/motion/bias bytes, reserved
+constexpr std::uint32_t kBlockShift = 10;           // survivors share a bias per block of 64
+constexpr std::uint32_t kBlock = 1u << kBlockShift;
+constexpr std::size_t kIdHeader = 4;
+constexpr std::size_t kOpSize = 12;
+constexpr std::uint32_t kTile = 256;  // particles written out at a time
+
+enum Predictor : std::uint8_t { kPrevious = 0, kLinear = 1 };
+
+inline std::uint32_t zigzag(std::uint32_t v) { return (v << 1) ^ (0u - (v >> 31)); }
+inline std::uint32_t unzigzag(std::uint32_t u) { return (u >> 1) ^ (0u - (u & 1u)); }
+inline std::uint64_t zigzag64(std::uint64_t v) { return (v << 1) ^ (0ull - (v >> 63)); }
+inline std::uint64_t unzigzag64(std::uint64_t u) { return (u >> 1) ^ (0ull - (u & 1ull)); }
+
+template <class T>
+inline unsigned bytes_for(T largest) {
+  unsigned n = 0;
+  while (largest != 0) {
+    largest >>= 8;
+    ++n;
+  }
+  return n;
+}
+
+// The decoded float of a grid value: two IEEE operations, each rounded once, the same on every
+// machine (this file is built with -ffp-contract=off, so no fused multiply-add).
+inline float dequantize(std::uint32_t q, float step, float origin) {
+  const float scaled = static_cast<float>(static_cast<std::int32_t>(q)) * step;
+  return scaled + origin;
+}
+
+inline float as_float(std::uint32_t bits) { return std::bit_cast<float>(bits); }
+
+struct Op {
+  std::uint32_t keep = 0, drop = 0, insert = 0;
+};
+
+// Survivors of one run: q = q1 + (d1 if linear) + bias + residual, and the step taken.
+inline void predict_run(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
+                        const std::uint32_t* __restrict d1, const std::uint32_t* __restrict r, std::uint32_t n,
+                        std::uint32_t linear_mask, std::uint32_t bias) {
+  for (std::uint32_t t = 0; t < n; ++t) {
+    const std::uint32_t step = (d1[t] & linear_mask) + bias + unzigzag(r[t]);
+    q0[t] = q1[t] + step;
+    d0[t] = step;
+  }
+}
+
+// The coded words of a layout (quantised or exact), and where the id's two words are.
+struct WordPlan {
+  std::vector<std::uint32_t> coded;  // record word indices
+  std::int64_t id_word = -1;         // first of the id's two words, or -1
+  std::uint32_t words = 0;
+  explicit WordPlan(const CodecInfo& info) : words(static_cast<std::uint32_t>(info.words.size())) {
+    for (std::uint32_t w = 0; w < words; ++w) {
+      const WordCoding c = info.words[w].coding;
+      if (c == WordCoding::Quantized || c == WordCoding::Exact || c == WordCoding::Relative) coded.push_back(w);
+      if (c == WordCoding::Id && id_word < 0) id_word = w;
+    }
+  }
+};
+
+inline std::uint64_t body_capacity(std::uint64_t max_count, std::size_t coded, bool ids) {
+  // Header, at most prev + count ops (each moves at least one particle), keep + new + motion
+  // planes of up to 4 bytes per word, up to 8 id bytes per new particle.
+  return kBodyHeader + coded * kWordHeader + kIdHeader + kOpSize * (2 * max_count + 1) +
+         coded * 4 * (2 * max_count + (max_count + kBlock - 1) / kBlock) + (ids ? 8 * max_count : 0);
+}
+
+// Byte planes: value t's byte b lives at planes[b * n + t].
+inline void write_planes(std::vector<std::byte>& out, std::span<const std::uint32_t> values, unsigned bytes) {
+  const std::size_t n = values.size(), at = out.size();
+  out.resize(at + n * bytes);
+  for (unsigned b = 0; b < bytes; ++b) {
+    std::byte* plane = out.data() + at + b * n;
+    for (std::size_t t = 0; t < n; ++t) plane[t] = static_cast<std::byte>(values[t] >> (8 * b));
+  }
+}
+
+inline void read_planes(const std::byte* planes, std::size_t n, unsigned bytes, std::uint32_t* out) {
+  if (bytes == 0) {
+    std::fill_n(out, n, 0u);
+    return;
+  }
+  const auto* p = reinterpret_cast<const std::uint8_t*>(planes);
+  for (std::size_t t = 0; t < n; ++t) out[t] = p[t];
+  for (unsigned b = 1; b < bytes; ++b) {
+    const std::uint8_t* plane = p + b * n;
+    const unsigned shift = 8 * b;
+    for (std::size_t t = 0; t < n; ++t) out[t] |= std::uint32_t(plane[t]) << shift;
+  }
+}
+
+template <class T>
+inline void put(std::vector<std::byte>& out, T v) {
+  const std::size_t at = out.size();
+  out.resize(at + sizeof(T));
+  std::memcpy(out.data() + at, &v, sizeof(T));
+}
+
+// Parsed, validated view of a packet body.
+struct Body {
+  std::uint32_t count = 0, prev_count = 0, op_count = 0, new_count = 0, keep_total = 0;
+  bool keyframe = false;
+  struct Word {
+    std::uint8_t predictor = 0, keep_bytes = 0, new_bytes = 0, motion_bytes = 0, bias_bytes = 0;
+    const std::byte *bias = nullptr, *keep = nullptr, *fresh = nullptr, *motion = nullptr;
+  };
+  std::span<Word> words;
+  unsigned id_bytes = 0;
+  const std::byte* ops = nullptr;
+  const std::byte* ids = nullptr;
+};
+
+}  // namespace pstream::format::particle

@@ -1,0 +1,348 @@
+// The particle codec's decoder (docs/format.md, "The particle codec"): a FrameUnit that keeps the
+// previous frame's state and reconstructs each packet bit for bit as the encoder did. It builds
+// and links without the encoder.
+//
+// Every record word is a 32-bit channel. A coded word (quantised or exact) keeps, per particle,
+// its value q and its last step d = q - q_previous (wrapping 32-bit arithmetic). A persisting
+// particle is predicted as q1 + bias (previous) or q1 + d1 + bias (linear), the predictor chosen
+// per word and frame, the bias per word and block of 64 survivors (local coherent motion: gravity,
+// drag of a cohort, a swirl); a new particle as the particle before it in the frame plus a
+// residual (spatial delta). Encoder and decoder keep identical state, so the encoder's
+// reconstruction is the decoder's output, bit for bit.
+#include "format/frame_unit.hpp"
+#include "format/particle_common.hpp"
+#include "format/zstd_memory.hpp"
+
+namespace pstream::format {
+namespace {
+
+using namespace particle;
+
+// ---- the decoding unit ----------------------------------------------------------------------
+
+class ParticleUnit final : public FrameUnit {
+ public:
+  ParticleUnit(const Metadata& meta, std::string_view name)
+      : meta_(meta), name_(name), plan_(meta.codec), zstd_(make_zstd_dctx()) {
+    if (zstd_ == nullptr) throw Error("cannot create a zstd decoder");
+    const std::uint64_t n = meta.max_count;
+    const std::size_t coded = plan_.coded.size();
+    for (int b = 0; b < 2; ++b) {
+      q_[b].assign(coded * n, 0);
+      d_[b].assign(coded * n, 0);
+      if (plan_.id_word >= 0) ids_[b].assign(n, 0);
+    }
+    residual_.assign(n, 0);
+    bias_.assign((n + kBlock - 1) >> kBlockShift, 0);
+    tile_.assign(std::size_t(plan_.words) * kTile, 0);
+    words_.resize(coded);
+    body_.resize(body_capacity(n, coded, plan_.id_word >= 0));
+  }
+  ~ParticleUnit() override { ZSTD_freeDCtx(zstd_); }
+
+  void reset() override { count_[cur_ ^ 1] = 0; }
+  std::uint64_t state_bytes() const override {
+    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size()) * 4;
+    for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8;
+    return bytes;
+  }
+
+  std::size_t decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet, std::span<std::byte> out,
+                     std::span<MatchRun> matching) override {
+    const Body b = parse(frame, keyframe, packet);
+    const int prev = cur_ ^ 1;
+    const std::uint64_t n = meta_.max_count;
+    for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
+      const Body::Word& w = b.words[k];
+      std::uint32_t* q0 = q_[cur_].data() + k * n;
+      std::uint32_t* d0 = d_[cur_].data() + k * n;
+      const std::uint32_t* q1 = q_[prev].data() + k * n;
+      const std::uint32_t* d1 = d_[prev].data() + k * n;
+      if (b.keyframe) {
+        read_planes(w.fresh, b.count, w.new_bytes, residual_.data());
+        std::uint32_t acc = 0;
+        for (std::uint32_t j = 0; j < b.count; ++j) q0[j] = acc += unzigzag(residual_[j]);
+        read_planes(w.motion, b.count, w.motion_bytes, residual_.data());
+        acc = 0;
+        for (std::uint32_t j = 0; j < b.count; ++j) d0[j] = acc += unzigzag(residual_[j]);
+        continue;
+      }
+      read_planes(w.keep, b.keep_total, w.keep_bytes, residual_.data());
+      const std::uint32_t blocks = (b.keep_total + kBlock - 1) >> kBlockShift;
+      read_planes(w.bias, blocks, w.bias_bytes, bias_.data());
+      for (std::uint32_t acc = 0, x = 0; x < blocks; ++x) bias_[x] = acc += unzigzag(bias_[x]);
+      const std::uint32_t* r = residual_.data();
+      const std::uint32_t* bias = bias_.data();
+      const std::uint32_t linear = w.predictor == kLinear ? ~0u : 0u;
+      std::uint32_t i = 0, j = 0, kt = 0, nt = 0;
+      for (std::uint32_t o = 0; o < b.op_count; ++o) {
+        const Op op = op_at(b, o);
+        // The run in pieces that share a bias (split at block borders), each a vector loop.
+        for (std::uint32_t t = 0; t < op.keep;) {
+          const std::uint32_t block = (kt + t) >> kBlockShift;
+          const std::uint32_t len = std::min(op.keep - t, ((block + 1) << kBlockShift) - (kt + t));
+          predict_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, r + kt + t, len, linear, bias[block]);
+          t += len;
+        }
+        i += op.keep + op.drop;
+        j += op.keep;
+        kt += op.keep;
+        if (op.insert != 0) {
+          const auto* p = reinterpret_cast<const std::uint8_t*>(w.fresh);
+          for (std::uint32_t t = 0; t < op.insert; ++t, ++nt, ++j) {
+            std::uint32_t v = 0;
+            for (unsigned byte = 0; byte < w.new_bytes; ++byte)
+              v |= std::uint32_t(p[byte * b.new_count + nt]) << (8 * byte);
+            q0[j] = (j == 0 ? 0u : q0[j - 1]) + unzigzag(v);
+            d0[j] = 0;
+          }
+        }
+      }
+    }
+    if (plan_.id_word >= 0) decode_ids(b, prev);
+    write_records(b.count, out);
+    count_[cur_] = b.count;
+    cur_ ^= 1;
+    // The operations pair survivors with the particles they continue (in id or matched order;
+    // in source order particle i is only predicted from particle i, which may be another one).
+    if (b.keyframe || meta_.codec.order == FrameOrder::Source || b.op_count > matching.size()) return kNoMatching;
+    static_assert(sizeof(Op) == sizeof(MatchRun));
+    if (b.op_count != 0) std::memcpy(matching.data(), b.ops, std::size_t(b.op_count) * kOpSize);
+    return b.op_count;
+  }
+
+ private:
+  static Op op_at(const Body& b, std::uint32_t o) {
+    Op op;
+    std::memcpy(&op, b.ops + o * kOpSize, kOpSize);
+    return op;
+  }
+
+  // "position.y", "color", "velocity.x": the attribute (and component) a record word belongs to.
+  std::string word_name(std::uint32_t w) const {
+    for (const Attribute& a : meta_.layout) {
+      if (w * 4 < a.offset || w * 4 >= a.offset + a.size()) continue;
+      if (a.type != AttributeType::Float32 || a.components == 1) return a.name;
+      const std::uint32_t c = (w * 4 - a.offset) / 4;
+      return a.components <= 4 ? fmt::format("{}.{}", a.name, "xyzw"[c]) : fmt::format("{}[{}]", a.name, c);
+    }
+    return fmt::format("record word {}", w);
+  }
+
+  [[noreturn]] void fail(std::uint64_t frame, std::string_view what, std::uint64_t offset) const {
+    throw Error(fmt::format("{}: frame {}: particle packet: at body offset {}: {}", name_, frame, offset, what));
+  }
+
+  Body parse(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet) {
+    const unsigned long long size = ZSTD_getFrameContentSize(packet.data(), packet.size());
+    if (size == ZSTD_CONTENTSIZE_ERROR || size == ZSTD_CONTENTSIZE_UNKNOWN)
+      fail(frame, "not a zstd frame with a content size (corrupted)", 0);
+    if (size > body_.size() || size < kBodyHeader) {
+      fail(frame,
+           fmt::format("the body claims {} bytes, expected {}..{} for at most {} particles", size, kBodyHeader,
+                       body_.size(), meta_.max_count),
+           0);
+    }
+    const std::size_t got = ZSTD_decompressDCtx(zstd_, body_.data(), body_.size(), packet.data(), packet.size());
+    if (ZSTD_isError(got) || got != size)
+      fail(frame, fmt::format("the zstd data does not decode to {} bytes (corrupted)", size), 0);
+    const std::byte* p = body_.data();
+    std::size_t at = 0;
+    const auto u32 = [&] {
+      std::uint32_t v;
+      std::memcpy(&v, p + at, 4);
+      at += 4;
+      return v;
+    };
+    Body b;
+    b.count = u32();
+    b.prev_count = u32();
+    b.op_count = u32();
+    b.new_count = u32();
+    b.keyframe = keyframe;
+    const FrameEntry& entry = meta_.frames[frame];
+    if (b.count != entry.count)
+      fail(frame, fmt::format("{} particles, the frame index says {}", b.count, entry.count), 0);
+    if (keyframe && (b.prev_count != 0 || b.op_count != 0 || b.new_count != b.count))
+      fail(frame, "a keyframe must code every particle as new, with no operations", 4);
+    if (!keyframe && b.prev_count != count_[cur_ ^ 1]) {
+      fail(frame,
+           fmt::format("predicted from {} particles, but the previous frame has {}", b.prev_count, count_[cur_ ^ 1]),
+           4);
+    }
+    if (b.op_count > std::uint64_t(b.prev_count) + b.count)
+      fail(frame, fmt::format("{} operations for {} + {} particles", b.op_count, b.prev_count, b.count), 8);
+    const std::size_t coded = plan_.coded.size();
+    const std::size_t fixed = kBodyHeader + coded * kWordHeader + (plan_.id_word >= 0 ? kIdHeader : 0);
+    if (size < fixed + std::uint64_t(b.op_count) * kOpSize)
+      fail(frame, fmt::format("the body of {} bytes ends inside its header or operations", size), size);
+    for (std::size_t k = 0; k < coded; ++k) {
+      Body::Word& w = words_[k];
+      std::memcpy(&w.predictor, p + at, 1);
+      std::memcpy(&w.keep_bytes, p + at + 1, 1);
+      std::memcpy(&w.new_bytes, p + at + 2, 1);
+      std::memcpy(&w.motion_bytes, p + at + 3, 1);
+      std::memcpy(&w.bias_bytes, p + at + 4, 1);
+      const bool reserved = p[at + 5] != std::byte{0} || p[at + 6] != std::byte{0} || p[at + 7] != std::byte{0};
+      at += 8;
+      if (w.predictor > kLinear || w.keep_bytes > 4 || w.new_bytes > 4 || w.motion_bytes > 4 || w.bias_bytes > 4 ||
+          reserved || (!keyframe && w.motion_bytes != 0) || (keyframe && w.bias_bytes != 0)) {
+        fail(frame,
+             fmt::format("{}: predictor {} with {}/{}/{}/{} keep/new/motion/bias residual bytes (expected a "
+                         "predictor 0..1, 0..4 bytes, motion only in keyframes, bias only in predicted frames, "
+                         "reserved bytes 0)",
+                         word_name(plan_.coded[k]), w.predictor, w.keep_bytes, w.new_bytes, w.motion_bytes,
+                         w.bias_bytes),
+             at - 8);
+      }
+    }
+    b.words = words_;
+    if (plan_.id_word >= 0) {
+      b.id_bytes = std::to_integer<unsigned>(p[at]);
+      if (b.id_bytes > 8) fail(frame, fmt::format("id residuals of {} bytes (at most 8)", b.id_bytes), at);
+      at += kIdHeader;
+    }
+    b.ops = p + at;
+    std::uint64_t keep = 0, drop = 0, insert = 0;
+    for (std::uint32_t o = 0; o < b.op_count; ++o) {
+      const Op op = op_at(b, o);
+      if (std::uint64_t(op.keep) + op.drop + op.insert == 0) fail(frame, fmt::format("operation {} is empty", o), at);
+      keep += op.keep;
+      drop += op.drop;
+      insert += op.insert;
+    }
+    at += std::size_t(b.op_count) * kOpSize;
+    if (!keyframe && (keep + drop != b.prev_count || keep + insert != b.count || insert != b.new_count)) {
+      fail(frame,
+           fmt::format("the operations keep {}, drop {} and insert {} particles; the frame needs {} kept + dropped "
+                       "and {} in all, {} new",
+                       keep, drop, insert, b.prev_count, b.count, b.new_count),
+           at);
+    }
+    b.keep_total = static_cast<std::uint32_t>(keyframe ? 0 : keep);
+    const std::uint64_t blocks = (std::uint64_t(b.keep_total) + kBlock - 1) >> kBlockShift;
+    std::uint64_t planes = 0;
+    for (const Body::Word& w : b.words) {
+      planes += std::uint64_t(w.bias_bytes) * blocks + std::uint64_t(w.keep_bytes) * b.keep_total +
+                std::uint64_t(w.new_bytes + w.motion_bytes) * b.new_count;
+    }
+    planes += std::uint64_t(b.id_bytes) * b.new_count;
+    if (at + planes != size) {
+      fail(frame, fmt::format("the residual planes need {} bytes, the body holds {}", planes, size - at), at);
+    }
+    for (Body::Word& w : words_) {
+      w.bias = p + at;
+      at += std::size_t(w.bias_bytes) * blocks;
+      w.keep = p + at;
+      at += std::size_t(w.keep_bytes) * b.keep_total;
+      w.fresh = p + at;
+      at += std::size_t(w.new_bytes) * b.new_count;
+      w.motion = p + at;
+      at += std::size_t(w.motion_bytes) * b.new_count;
+    }
+    b.ids = p + at;
+    return b;
+  }
+
+  void decode_ids(const Body& b, int prev) {
+    std::uint64_t* out = ids_[cur_].data();
+    const std::uint64_t* before = ids_[prev].data();
+    const auto* planes = reinterpret_cast<const std::uint8_t*>(b.ids);
+    const auto fresh = [&](std::uint32_t j, std::uint32_t nt) {
+      std::uint64_t v = 0;
+      for (unsigned byte = 0; byte < b.id_bytes; ++byte)
+        v |= std::uint64_t(planes[byte * b.new_count + nt]) << (8 * byte);
+      out[j] = (j == 0 ? 0 : out[j - 1]) + unzigzag64(v);
+    };
+    if (b.keyframe) {
+      for (std::uint32_t j = 0; j < b.count; ++j) fresh(j, j);
+      return;
+    }
+    std::uint32_t i = 0, j = 0, nt = 0;
+    for (std::uint32_t o = 0; o < b.op_count; ++o) {
+      const Op op = op_at(b, o);
+      std::copy_n(before + i, op.keep, out + j);
+      i += op.keep + op.drop;
+      j += op.keep;
+      for (std::uint32_t t = 0; t < op.insert; ++t) fresh(j++, nt++);
+    }
+  }
+
+  // Records are written a tile of particles at a time: each word's values computed into a
+  // column of the tile (vector loops), then the tile's rows copied out whole.
+  void write_records(std::uint32_t count, std::span<std::byte> out) {
+    const std::uint32_t rs = meta_.record_size, words = plan_.words;
+    const std::uint64_t n = meta_.max_count;
+    std::uint32_t* tile = tile_.data();
+    for (std::uint32_t j0 = 0; j0 < count; j0 += kTile) {
+      const std::uint32_t len = std::min(kTile, count - j0);
+      std::size_t k = 0;
+      for (std::uint32_t w = 0; w < words; ++w) {
+        const WordCodingEntry& e = meta_.codec.words[w];
+        std::uint32_t* column = tile + std::size_t(w) * kTile;
+        switch (e.coding) {
+          case WordCoding::Quantized: {
+            const std::uint32_t* q = q_[cur_].data() + k++ * n + j0;
+            const float step = e.step, origin = as_float(e.base);
+            for (std::uint32_t t = 0; t < len; ++t)
+              column[t] = std::bit_cast<std::uint32_t>(dequantize(q[t], step, origin));
+            break;
+          }
+          case WordCoding::Relative: {
+            const std::uint32_t* q = q_[cur_].data() + k++ * n + j0;
+            const std::uint32_t shift = e.base;
+            for (std::uint32_t t = 0; t < len; ++t) column[t] = relative_decode(q[t], shift);
+            break;
+          }
+          case WordCoding::Exact: std::copy_n(q_[cur_].data() + k++ * n + j0, len, column); break;
+          case WordCoding::Constant: std::fill_n(column, len, e.base); break;
+          case WordCoding::Id: {
+            const std::uint64_t* ids = ids_[cur_].data() + j0;
+            const unsigned half = std::int64_t(w) == plan_.id_word ? 0 : 32;
+            for (std::uint32_t t = 0; t < len; ++t) column[t] = static_cast<std::uint32_t>(ids[t] >> half);
+            break;
+          }
+        }
+      }
+      std::byte* dst = out.data() + std::size_t(j0) * rs;
+      if (words == 4) {  // the default [x y z scale] record
+        for (std::uint32_t t = 0; t < len; ++t) {
+          const std::uint32_t v[4] = {tile[t], tile[kTile + t], tile[2 * kTile + t], tile[3 * kTile + t]};
+          std::memcpy(dst + std::size_t(t) * 16, v, 16);
+        }
+      } else {
+        for (std::uint32_t t = 0; t < len; ++t)
+          for (std::uint32_t w = 0; w < words; ++w)
+            std::memcpy(dst + std::size_t(t) * rs + 4 * w, &tile[std::size_t(w) * kTile + t], 4);
+      }
+    }
+  }
+
+  const Metadata& meta_;
+  std::string_view name_;
+  WordPlan plan_;
+  ZSTD_DCtx* zstd_;
+  std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_;
+  std::vector<std::uint64_t> ids_[2];
+  std::uint32_t count_[2] = {0, 0};
+  int cur_ = 0;
+  std::vector<Body::Word> words_;
+  std::vector<std::byte> body_;
+};
+
+}  // namespace
+
+std::uint64_t particle_unit_state_bytes(const Metadata& meta) {
+  const WordPlan plan(meta.codec);
+  const std::uint64_t n = meta.max_count, coded = plan.coded.size();
+  const bool ids = plan.id_word >= 0;
+  // Per particle: Q and D of every coded word in two states, ids in two states, a residual.
+  return n * (coded * 16 + (ids ? 16 : 0) + 4) + ((n + kBlock - 1) >> kBlockShift) * 4 +
+         std::uint64_t(plan.words) * kTile * 4 + body_capacity(n, coded, ids);
+}
+
+std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name) {
+  return std::make_unique<ParticleUnit>(meta, name);
+}
+
+}  // namespace pstream::format
