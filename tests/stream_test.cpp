@@ -415,7 +415,7 @@ TEST(StreamFaults, ChecksumMismatchReadErrorReplacedFileTruncation) {
       open_stream(test::data_path("alembic/points_constant.abc"));
       FAIL();
     } catch (const Error& e) {
-      EXPECT_NE(std::string(e.what()).find("not a .pstream file"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("not a cooked clip; cook it first"), std::string::npos) << e.what();
     }
   }
 }

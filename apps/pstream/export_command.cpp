@@ -2,6 +2,8 @@
 // PLY sequence (one file a frame) or an Alembic points cache written by our Alembic writer.
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -12,6 +14,7 @@
 #include "commands.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/codec.hpp"
+#include "particlestream/cook.hpp"
 #include "progress.hpp"
 
 namespace pstream::app {
@@ -33,11 +36,13 @@ void split(const Metadata& m, std::span<const std::byte> records, std::uint64_t 
   const auto get = [&](const Attribute& a, std::uint64_t i, std::size_t k, auto& out) {
     std::memcpy(&out, records.data() + i * m.record_size + a.offset + k * sizeof(out), sizeof(out));
   };
+  // Each column the clip has is sized for the frame, even an empty one (an empty frame is an
+  // empty sample with every property, not a sample with some missing).
   c.position.resize(n * 3);
   c.scale_width.resize(n);
-  c.velocity.clear();
-  c.id.clear();
-  c.color.clear();
+  c.velocity.assign(m.find("velocity") ? n * 3 : 0, 0.0f);
+  c.id.assign(m.find("id") ? n : 0, 0);
+  c.color.assign(m.find("color") ? n * 4 : 0, 0);
   c.floats.assign(c.float_attributes.size(), {});
   for (const Attribute& a : m.layout) {
     for (std::uint64_t i = 0; i < n; ++i) {
@@ -46,10 +51,8 @@ void split(const Metadata& m, std::span<const std::byte> records, std::uint64_t 
       } else if (a.name == "scale") {
         get(a, i, 0, c.scale_width[i]);
       } else if (a.name == "velocity") {
-        c.velocity.resize(n * 3);
         for (std::size_t k = 0; k < 3; ++k) get(a, i, k, c.velocity[i * 3 + k]);
       } else if (a.name == "id") {
-        c.id.resize(n);
         if (a.type == AttributeType::Uint64) {
           get(a, i, 0, c.id[i]);
         } else {
@@ -58,7 +61,6 @@ void split(const Metadata& m, std::span<const std::byte> records, std::uint64_t 
           c.id[i] = v;
         }
       } else if (a.name == "color") {
-        c.color.resize(n * 4);
         std::memcpy(&c.color[i * 4], records.data() + i * m.record_size + a.offset, 4);
       }
     }
@@ -93,10 +95,12 @@ void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::u
       "element vertex {}\nproperty float x\nproperty float y\nproperty float z\n"
       "property float pscale\n",
       format::escaped_name(m.source_file), format::escaped_name(m.source_object), n);
-  if (!c.velocity.empty()) header += "property float vx\nproperty float vy\nproperty float vz\n";
-  if (!c.color.empty())
-    header += "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n";
-  if (!c.id.empty()) header += ids32 ? "property uint id\n" : "property double id\n";
+  // The clip's attributes decide the properties, so that every file of the sequence (an empty
+  // frame's too) has the same ones.
+  const bool velocity = m.find("velocity") != nullptr, color = m.find("color") != nullptr, id = m.find("id") != nullptr;
+  if (velocity) header += "property float vx\nproperty float vy\nproperty float vz\n";
+  if (color) header += "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n";
+  if (id) header += ids32 ? "property uint id\n" : "property double id\n";
   for (const Attribute* a : c.float_attributes) {
     for (std::size_t k = 0; k < a->components; ++k)
       header += a->components == 1 ? fmt::format("property float {}\n", ply_word(a->name, input))
@@ -112,11 +116,11 @@ void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::u
   for (std::uint64_t i = 0; i < n; ++i) {
     for (int k = 0; k < 3; ++k) put(c.position[i * 3 + k]);
     put(c.scale_width[i]);  // pscale is a radius, as the record's scale
-    if (!c.velocity.empty())
+    if (velocity)
       for (int k = 0; k < 3; ++k) put(c.velocity[i * 3 + k]);
-    if (!c.color.empty())
+    if (color)
       for (int k = 0; k < 4; ++k) put(c.color[i * 4 + k]);
-    if (!c.id.empty()) {
+    if (id) {
       if (ids32)
         put(static_cast<std::uint32_t>(c.id[i]));
       else
@@ -132,9 +136,33 @@ void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::u
 
 }  // namespace
 
-int run_export(const ExportCli& cli) {
+int run_export(const ExportCli& given) {
+  ExportCli cli = given;
   if (cli.out.empty() == cli.output.empty())
     throw Error("export: give either --out DIR (a PLY sequence) or -o FILE.abc (an Alembic cache)");
+  // -o's extension chooses the format: .abc an Alembic cache, .ply a PLY sequence numbered from
+  // the name (NAME.0001.ply ...); anything else is refused rather than written in the wrong one.
+  std::string ply_stem = "frame";
+  if (!cli.output.empty()) {
+    std::error_code ec;
+    if (fs::equivalent(cli.output, cli.file, ec)) {  // the data-loss message first, whatever the extension
+      const fs::path inputs[] = {cli.file};
+      check_output(cli.output, inputs);
+    }
+    const fs::path o(cli.output);
+    std::string ext = o.extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
+    if (ext == ".ply") {
+      ply_stem = o.stem().string();
+      cli.out = o.parent_path().empty() ? "." : o.parent_path().string();
+      cli.output.clear();
+    } else if (ext != ".abc") {
+      throw Error(
+          fmt::format("-o {}: the extension chooses the format: .abc (an Alembic cache) or .ply (a PLY "
+                      "sequence, NAME.0001.ply ...); '{}' is neither",
+                      given.output, ext.empty() ? std::string("no extension") : ext));
+    }
+  }
   const Reader reader = Reader::open(cli.file);
   const Metadata& m = reader.metadata();
   Columns c;
@@ -153,10 +181,10 @@ int run_export(const ExportCli& cli) {
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
       reader.read_frame(f, records);
       split(m, records, m.frames[f].count, c);
-      write_ply(fs::path(cli.out) / fmt::format("frame.{:04}.ply", f + 1), m, c, m.frames[f].count, cli.file);
+      write_ply(fs::path(cli.out) / fmt::format("{}.{:04}.ply", ply_stem, f + 1), m, c, m.frames[f].count, cli.file);
       bar.update(f + 1, m.frame_count(), "frames");
     }
-    if (!cli.quiet) fmt::print("{} frames -> {}/frame.0001.ply ...\n", m.frame_count(), cli.out);
+    if (!cli.quiet) fmt::print("{} frames -> {}/{}.0001.ply ...\n", m.frame_count(), cli.out, ply_stem);
     return 0;
   }
   // Alembic: widths are diameters (twice the record's radius); colours become Cd (rgb).
@@ -166,6 +194,12 @@ int run_export(const ExportCli& cli) {
   for (const Attribute* a : c.float_attributes) po.float_params.push_back({a->name, a->components});
   const fs::path inputs[] = {cli.file};
   check_output(cli.output, inputs);
+  if (cook::is_source_of(m, cli.output)) {
+    throw Error(
+        fmt::format("-o {}: is the source {} was cooked from; writing it would destroy the source. Choose "
+                    "another output",
+                    cli.output, cli.file));
+  }
   {
     // The writer writes a temporary beside the output and renames it at close().
     alembic::ArchiveWriter writer(cli.output, "pstream export", fmt::format("{} {}", m.source_file, m.source_object),
@@ -178,16 +212,16 @@ int run_export(const ExportCli& cli) {
       split(m, records, n, c);
       widths.resize(n);
       for (std::uint64_t i = 0; i < n; ++i) widths[i] = 2.0f * c.scale_width[i];
-      if (c.id.empty()) {  // no ids in the clip: Alembic wants some, the index it is
+      if (!m.find("id")) {  // no ids in the clip: Alembic wants some, the index it is
         index_ids.resize(n);
         for (std::uint64_t i = 0; i < n; ++i) index_ids[i] = i;
       }
       alembic::PointsSample s;
       s.positions = c.position;
-      s.ids = c.id.empty() ? std::span<const std::uint64_t>(index_ids) : std::span<const std::uint64_t>(c.id);
+      s.ids = !m.find("id") ? std::span<const std::uint64_t>(index_ids) : std::span<const std::uint64_t>(c.id);
       s.velocities = c.velocity;
       s.widths = widths;
-      if (!c.color.empty()) {
+      if (m.find("color")) {
         cd.resize(n * 3);
         for (std::uint64_t i = 0; i < n; ++i)
           for (int k = 0; k < 3; ++k) cd[i * 3 + k] = float(c.color[i * 4 + k]) / 255.0f;

@@ -66,7 +66,21 @@ void print_points(const Object& o) {
   fmt::print("    particles per sample: min {} / avg {:.1f} / max {}\n", lo, n ? double(total) / n : 0.0, hi);
   fmt::print("    attributes:\n");
   fmt::print("      {:<14} {:<11} {:<8}\n", "P", "float32x3", "varying");
-  if (points.has_ids()) fmt::print("      {:<14} {:<11} {:<8}\n", ".pointIds", "uint64", "varying");
+  if (points.has_ids()) {
+    // Some exporters (Blender's FLIP) write the property with no ids in it: say so, since the
+    // cook cannot match particles by id then.
+    std::uint32_t empty = 0, with_particles = 0;
+    for (std::uint32_t i = 0; i < n; ++i) {
+      if (points.count(i) == 0) continue;
+      ++with_particles;
+      empty += points.ids(i).size() != points.count(i) ? 1 : 0;
+    }
+    const std::string note = empty == 0 ? ""
+                             : empty == with_particles
+                                 ? " empty: written without ids (no matching by id)"
+                                 : fmt::format(" missing or short in {} of {} samples", empty, with_particles);
+    fmt::print("      {:<14} {:<11} {:<8}{}\n", ".pointIds", "uint64", "varying", note);
+  }
   if (points.has_velocities()) fmt::print("      {:<14} {:<11} {:<8}\n", ".velocities", "float32x3", "varying");
   if (points.widths()) print_param(*points.widths());
   for (const GeomParam& p : points.arb_geom_params()) print_param(p);

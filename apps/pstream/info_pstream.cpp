@@ -119,15 +119,8 @@ bool is_pstream_file(const std::string& file) { return first_bytes(file, 8) == s
 
 void require_cooked(const std::string& file) {
   const std::string magic = first_bytes(file, 8);
-  const bool alembic = magic.starts_with("Ogawa");
-  const bool hdf5 = magic.size() >= 4 && magic.compare(1, 3, "HDF") == 0;
-  const bool ply = magic.starts_with("ply");
-  if (alembic || hdf5 || ply) {
-    const std::filesystem::path p(file);
-    throw Error(fmt::format("{}: is {}, not a cooked clip; cook it first: pstream cook {} -o {}", file,
-                            ply ? "a PLY file" : "an Alembic archive", file,
-                            (p.parent_path() / p.stem()).string() + ".pstream"));
-  }
+  if (magic.empty()) return;  // unreadable or empty: the command's own open says so
+  format::check_magic(std::as_bytes(std::span(magic.data(), magic.size())), file);
 }
 
 int info_pstream(const InfoPstreamOptions& options) {

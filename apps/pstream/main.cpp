@@ -258,7 +258,9 @@ int main(int argc, char** argv) {
       "  pstream export splash.pstream -o splash_decoded.abc");
   export_cmd->add_option("file", export_cli.file, "A .pstream file")->required()->check(CLI::ExistingFile);
   export_cmd->add_option("--out", export_cli.out, "Folder for the PLY sequence");
-  export_cmd->add_option("-o,--output", export_cli.output, "Alembic file to write");
+  export_cmd->add_option("-o,--output", export_cli.output,
+                         "The file to write; its extension chooses the format: NAME.abc (an Alembic cache) or "
+                         "NAME.ply (a PLY sequence NAME.0001.ply ...)");
   export_cmd->add_flag("-q,--quiet", export_cli.quiet, "No progress or summary");
 
   // verify -----------------------------------------------------------------------------------

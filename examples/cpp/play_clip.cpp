@@ -3,8 +3,10 @@
 // position of what it would draw. Same output as the C example, line for line.
 //
 //   cmake -S examples/cpp -B build-example -DCMAKE_PREFIX_PATH=/usr/local && cmake --build build-example
-//   c++ -std=c++20 play_clip.cpp $(pkg-config --cflags --libs particlestream) -o play_clip
-//   ./play_clip splash.pstream
+//   ./build-example/play_clip_cpp splash.pstream
+// or, with pkg-config (the installed .pc carries an rpath, so it runs as built):
+//   c++ -std=c++20 play_clip.cpp $(pkg-config --cflags --libs particlestream) -o play_clip_cpp
+//   ./play_clip_cpp splash.pstream
 #include <cstdio>
 #include <exception>
 

@@ -139,4 +139,8 @@ struct VerifyReport {
 // (docs/format.md: each word's coding). Errors are collected in the report, not thrown.
 VerifyReport verify(const std::filesystem::path& file, const std::filesystem::path& against = {});
 
+// Whether `file` is the source `meta` was cooked from, by the name and content hash its "cooked
+// with" string records (an Alembic source): an export must not write over it.
+bool is_source_of(const format::Metadata& meta, const std::filesystem::path& file);
+
 }  // namespace pstream::cook

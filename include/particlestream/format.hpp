@@ -273,6 +273,9 @@ struct Header {
 };
 // Parsing in two steps, for readers that fetch the header and then the tables (streaming IO).
 // Every size, count, offset and checksum is validated; errors name the file, field and value.
+// Throws unless `first_bytes` start with the .pstream magic; a source that must be cooked first
+// (Alembic, PLY) gets a message that says so and gives the command.
+void check_magic(std::span<const std::byte> first_bytes, std::string_view name);
 Header parse_header(std::span<const std::byte> first_bytes, std::uint64_t file_size, std::string_view name);
 Metadata parse_tables(const Header& header, std::span<const std::byte> tables, std::string_view name);
 // Both steps over a whole file in memory.

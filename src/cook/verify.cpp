@@ -7,6 +7,9 @@
 #include <unordered_set>
 
 #include <fmt/format.h>
+#include <xxhash.h>
+
+#include "base/mapped_file.hpp"
 
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
@@ -159,6 +162,27 @@ VerifyReport verify(const std::filesystem::path& file, const std::filesystem::pa
     report.errors.push_back(e.what());
   }
   return report;
+}
+
+bool is_source_of(const format::Metadata& meta, const std::filesystem::path& file) {
+  const auto field = [&](std::string_view key) {
+    const std::string& c = meta.cooked_with;
+    const std::size_t at = c.find(key);
+    if (at == std::string::npos || (at > 0 && c[at - 1] != ' ')) return std::string();
+    const std::size_t end = c.find(' ', at);
+    return c.substr(at + key.size(), end == std::string::npos ? std::string::npos : end - at - key.size());
+  };
+  const std::string name = field("source="), hash = field("source_xxh3=");
+  std::error_code ec;
+  if (name.empty() || hash.empty() || file.filename().string() != name || !std::filesystem::is_regular_file(file, ec))
+    return false;
+  try {
+    const MappedFile mapped = MappedFile::open(file);
+    const auto bytes = mapped.bytes();
+    return fmt::format("{:016x}", XXH3_64bits(bytes.data(), bytes.size())) == hash;
+  } catch (const Error&) {
+    return false;
+  }
 }
 
 }  // namespace pstream::cook

@@ -2,6 +2,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 
 #include <fmt/format.h>
@@ -218,11 +219,24 @@ Metadata parse_metadata(std::span<const std::byte> bytes, std::string_view name)
   return parse_tables(header, bytes.subspan(header.tables_offset, header.tables_size), name);
 }
 
+void check_magic(std::span<const std::byte> bytes, std::string_view name) {
+  if (bytes.size() >= sizeof kMagic && std::memcmp(bytes.data(), kMagic, sizeof kMagic) == 0) return;
+  // A source a user meant to cook: every reader of .pstream files says the same (the CLI, the C
+  // API, Python).
+  const std::string_view head(reinterpret_cast<const char*>(bytes.data()), std::min<std::size_t>(bytes.size(), 8));
+  const bool alembic = head.starts_with("Ogawa") || (head.size() >= 4 && head.substr(1, 3) == "HDF");
+  if (alembic || head.starts_with("ply")) {
+    const std::filesystem::path p(name);
+    throw Error(fmt::format("{}: is {}, not a cooked clip; cook it first: pstream cook {} -o {}", name,
+                            alembic ? "an Alembic archive" : "a PLY file", name,
+                            (p.parent_path() / p.stem()).string() + ".pstream"));
+  }
+  throw Error(fmt::format("{}: at offset 0: not a .pstream file (expected the magic \"PSTREAM\\0\")", name));
+}
+
 Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, std::string_view name) {
   if (bytes.empty()) throw Error(fmt::format("{}: empty file (expected a .pstream)", name));
-  if (bytes.size() < sizeof kMagic || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0) {
-    throw Error(fmt::format("{}: at offset 0: not a .pstream file (expected the magic \"PSTREAM\\0\")", name));
-  }
+  check_magic(bytes, name);
   if (bytes.size() < kHeaderSizeV1) {
     throw Error(fmt::format("{}: truncated: {} bytes, the header alone has {}", name, bytes.size(), kHeaderSizeV1));
   }

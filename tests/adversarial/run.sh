@@ -86,7 +86,7 @@ run output cook "$in/good.abc" -o "$in/fifo.pstream"
 run output cook "$in/good.abc" -o "$in/folder.pstream"
 run output cook "$in/good.abc" -o /dev/null -q
 run output export "$in/good.pstream" -o "$in/good.pstream"
-run output export "$in/good.pstream" -o "$in/good.abc"
+run output export "$in/good.pstream" -o "$in/good.txt"  # an extension that is no format: refused, nothing written
 run output render "$in/good.pstream" --out "$in/good.abc" --frames 0:1
 run output bench all --out "$out/no/such/folder/b.md"
 if [ ! -c /dev/null ]; then echo "FAIL /dev/null is no longer a character device"; failures=$((failures + 1)); fi

@@ -135,8 +135,11 @@ def test_cook_clip_and_player_as_numpy(tmp_path):
 def test_errors_are_exceptions_with_the_librarys_message(tmp_path):
     with pytest.raises(ps.Error, match="no/such.abc"):
         ps.Archive(DATA / "no" / "such.abc")
-    with pytest.raises(ps.Error, match="not a .pstream file"):
+    # The CLI's words: a source gets "cook it first", with the command.
+    with pytest.raises(ps.Error, match="is an Alembic archive, not a cooked clip; cook it first: pstream cook"):
         ps.Clip(DATA / "alembic" / "points_varying.abc")
+    with pytest.raises(ps.Error, match="cook it first"):
+        ps.Player([DATA / "alembic" / "points_varying.abc"])
     with pytest.raises(ps.Error, match="`codec` 'gzip': expected particle"):
         ps.cook(DATA / "alembic" / "points_varying.abc", tmp_path / "x.pstream", codec="gzip")
     archive = ps.Archive(DATA / "alembic" / "points_varying.abc")

@@ -54,6 +54,20 @@ LD_LIBRARY_PATH=$libdir "$work/play_clip_cpp_pc" "$work/clip.pstream" >"$work/pc
 cc -std=c99 -Wall -Wextra -Werror -pedantic "$source/examples/c/view_clip.c" \
   $(pc --cflags --libs particlestream glfw3 gl) -lm -o "$work/view_clip_pc"
 
+# docs/embedding.md's pkg-config route verbatim, in a clean shell (no LD_LIBRARY_PATH): the .pc
+# file's rpath finds the library.
+(
+  cd "$source"
+  env -i HOME="$work" PATH=/usr/bin:/bin PREFIX="$prefix" CLIP="$work/clip.pstream" OUT="$work" bash -euc '
+    export PKG_CONFIG_PATH="$PREFIX/lib/pkgconfig"
+    cc -std=c99 examples/c/play_clip.c $(pkg-config --cflags --libs particlestream) -o "$OUT/play_clip"
+    "$OUT/play_clip" "$CLIP" > "$OUT/docs-c.out"
+    c++ -std=c++20 examples/cpp/play_clip.cpp $(pkg-config --cflags --libs particlestream) -o "$OUT/play_clip_cpp"
+    "$OUT/play_clip_cpp" "$CLIP" > "$OUT/docs-cpp.out"'
+)
+for out in docs-c.out docs-cpp.out; do cmp "$work/cmake.out" "$work/$out"; done
+echo "docs/embedding.md's pkg-config route, verbatim in a clean shell: both examples run, no LD_LIBRARY_PATH"
+
 # The C and C++ API give the same frames, whichever way the examples were built.
 for out in pc.out cmake-cpp.out pc-cpp.out; do cmp "$work/cmake.out" "$work/$out"; done
 lines=$(wc -l <"$work/pc.out")
