@@ -12,6 +12,13 @@ prefix=$work/prefix
 
 cmake --install "$build" --prefix "$prefix" --component Runtime >/dev/null
 cmake --install "$build" --prefix "$prefix" --component Development >/dev/null
+# Everything under the prefix, the Python module too (it used to go to the system's dist-packages).
+cmake --install "$build" --prefix "$prefix" --component Python >/dev/null
+outside=$(cat "$build"/install_manifest*.txt | grep -v "^$prefix/" || true)
+[ -z "$outside" ] || { echo "installed outside the prefix $prefix:"; echo "$outside"; exit 1; }
+module=$(find "$prefix" -name 'particlestream*.so' -path '*site-packages*' | head -1)
+[ -n "$module" ] || { echo "the Python module is not under $prefix"; find "$prefix"; exit 1; }
+PYTHONPATH=$(dirname "$module") /usr/bin/python3 -c 'import particlestream; print("python module from the prefix:", particlestream.__file__)'
 lib=$(find "$prefix" -name libparticlestream.so.0 | head -1)
 [ -n "$lib" ] || { echo "libparticlestream.so.0 not installed under $prefix"; find "$prefix"; exit 1; }
 libdir=$(dirname "$lib")
