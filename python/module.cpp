@@ -91,6 +91,70 @@ py::array view_array(const alembic::SampleView& view, std::size_t columns, const
   return a;
 }
 
+// A geometry parameter (.widths, Cd, age, any arbGeomParam) of points object `p` at its sample
+// `s`: the parameter's sample nearest to that time, indexed values expanded, as a numpy array
+// (N, extent), or (N,) for one value a particle: float32 for floats (float16 widened), float64,
+// int64 or uint64 for integers, bool; a list of str for string parameters. Without `expand`, an
+// indexed parameter's values as stored (what the official reader's getVals() gives).
+py::object read_param(const alembic::Points& p, const alembic::GeomParam& g, std::uint32_t s, bool expand) {
+  const double time = p.sample_time(s);
+  const alembic::SampleView v = g.values().sample_at(time).first;
+  std::vector<std::uint64_t> rows;  // the value row of each element (indexed parameters)
+  if (g.indexed() && expand) {
+    const alembic::SampleView ix = g.indices().sample_at(time).first;
+    rows.resize(ix.scalar_count());
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      rows[i] = ix.value_u64(i);
+      if (rows[i] >= v.size())
+        throw Error(fmt::format("{}: index {} of element {} is past its {} values", g.name(), rows[i], i, v.size()));
+    }
+  } else {
+    rows.resize(v.size());
+    for (std::size_t i = 0; i < rows.size(); ++i) rows[i] = i;
+  }
+  const std::size_t extent = v.extent();
+  if (v.pod() == alembic::Pod::String || v.pod() == alembic::Pod::WString) {
+    const std::vector<std::string> all = v.strings();
+    py::list out;
+    for (const std::uint64_t r : rows)
+      for (std::size_t k = 0; k < extent; ++k) out.append(text(all[r * extent + k]));
+    return out;
+  }
+  std::vector<py::ssize_t> shape{py::ssize_t(rows.size())};
+  if (extent > 1) shape.push_back(py::ssize_t(extent));
+  const auto fill = [&](auto tag) {
+    using T = decltype(tag);
+    py::array_t<T> out(shape);
+    T* dst = out.mutable_data();
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      for (std::size_t k = 0; k < extent; ++k) {
+        const std::uint64_t at = rows[i] * extent + k;
+        if constexpr (std::is_same_v<T, std::int64_t>)
+          dst[i * extent + k] = v.value_i64(at);
+        else if constexpr (std::is_same_v<T, std::uint64_t>)
+          dst[i * extent + k] = v.value_u64(at);
+        else if constexpr (std::is_same_v<T, bool>)
+          dst[i * extent + k] = v.value_u64(at) != 0;
+        else
+          dst[i * extent + k] = T(v.value_f64(at));
+      }
+    }
+    return py::object(out);
+  };
+  using alembic::Pod;
+  switch (v.pod()) {
+    case Pod::Bool: return fill(bool{});
+    case Pod::Float16:
+    case Pod::Float32: return fill(float{});
+    case Pod::Float64: return fill(double{});
+    case Pod::Uint8:
+    case Pod::Uint16:
+    case Pod::Uint32:
+    case Pod::Uint64: return fill(std::uint64_t{});
+    default: return fill(std::int64_t{});
+  }
+}
+
 // The numpy dtype of a clip's records: one field per attribute, at its offset.
 py::dtype record_dtype(const format::Metadata& m) {
   py::list names, formats, offsets;
@@ -191,7 +255,35 @@ PYBIND11_MODULE(particlestream, m) {
             if (!p.has_velocities()) return py::array(py::array_t<float>(std::vector<py::ssize_t>{0, 3}));
             return view_array<float>(p.velocities(s), 3, self);
           },
-          "Velocities (N, 3) float32 (empty when the object has none).");
+          "Velocities (N, 3) float32 (empty when the object has none).")
+      .def(
+          "attributes",
+          [](const PyArchive& a, const std::string& name) {
+            const alembic::Points p = a.find(name);
+            py::list names;
+            if (p.widths()) names.append(text(p.widths()->name()));
+            for (const alembic::GeomParam& g : p.arb_geom_params()) names.append(text(g.name()));
+            return names;
+          },
+          "The object's geometry parameters: .widths, then its arbGeomParams (Cd, age, ...).")
+      .def(
+          "attribute",
+          [](const PyArchive& a, const std::string& name, const std::string& attribute, std::uint32_t s, bool expand) {
+            const alembic::Points p = a.find(name, s);
+            if (p.widths() && (attribute == p.widths()->name() || attribute == "widths"))
+              return read_param(p, *p.widths(), s, expand);
+            std::string names = p.widths() ? p.widths()->name() : std::string();
+            for (const alembic::GeomParam& g : p.arb_geom_params()) {
+              if (g.name() == attribute) return read_param(p, g, s, expand);
+              names += (names.empty() ? "" : ", ") + g.name();
+            }
+            throw Error(fmt::format("{}: {} has no attribute '{}' (it has: {})", a.archive.name(), name, attribute,
+                                    names.empty() ? "none" : names));
+          },
+          py::arg("name"), py::arg("attribute"), py::arg("sample"), py::arg("expand") = true,
+          "A geometry parameter at a sample of the points object, as the official reader gives it (indexed values "
+          "expanded, the parameter's sample nearest to the object's sample time): numpy (N, extent) or (N,), or a "
+          "list of str for strings. 'widths' names .widths. expand=False: an indexed parameter's values as stored.");
 
   m.def(
       "cook",
