@@ -9,27 +9,6 @@
 
 namespace pstream::app {
 
-std::pair<std::int64_t, std::int64_t> parse_frame_range(const std::string& text, const char* flag) {
-  const auto colon = text.find(':');
-  const auto number = [&](std::string_view part, std::int64_t open) {
-    if (part.empty()) return open;
-    std::int64_t v = 0;
-    const auto [ptr, ec] = std::from_chars(part.data(), part.data() + part.size(), v);
-    if (ec != std::errc() || ptr != part.data() + part.size() || v < 0) {
-      throw Error(
-          fmt::format("{} '{}': expected A:B, frame numbers from 0 (A:B is from A up to but not including B; "
-                      "either may be left out)",
-                      flag, text));
-    }
-    return v;
-  };
-  if (colon == std::string::npos) {
-    throw Error(fmt::format("{} '{}': expected A:B (from frame A up to but not including B)", flag, text));
-  }
-  const std::string_view all(text);
-  return {number(all.substr(0, colon), 0), number(all.substr(colon + 1), -1)};
-}
-
 CLI::Validator positive_number_up_to(double max) {
   return CLI::Validator(
       [max](std::string& value) -> std::string {

@@ -9,10 +9,12 @@
 
 #include <CLI/CLI.hpp>
 
+#include "base/names.hpp"
+
 namespace pstream::app {
 
-// "A:B", "A:" or ":B" -> {A, B}; B is -1 when left open. Throws pstream::Error naming `flag`.
-std::pair<std::int64_t, std::int64_t> parse_frame_range(const std::string& text, const char* flag = "--frames");
+// "A:B" frame ranges: the library's rule (base/names.hpp).
+using pstream::parse_frame_range;
 
 // A CLI11 check: a finite number > 0 (CLI11's PositiveNumber accepts nan and prints a range of
 // 300 digits).

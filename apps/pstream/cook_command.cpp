@@ -33,31 +33,6 @@ std::uint64_t parse_size(const std::string& text) {
   return value << shift;
 }
 
-void parse_scale(const std::string& text, cook::Options& o) {
-  if (text == "widths") {
-    o.scale_from = cook::ScaleFrom::Widths;
-  } else if (text.rfind("constant:", 0) == 0) {
-    o.scale_from = cook::ScaleFrom::Constant;
-    const std::string number = text.substr(9);
-    const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), o.scale_constant);
-    if (ec != std::errc() || ptr != number.data() + number.size() || !(o.scale_constant > 0) ||
-        !std::isfinite(o.scale_constant)) {
-      throw Error(fmt::format("--scale-from '{}': expected constant:X with X a positive number (the radius)", text));
-    }
-  } else if (text.rfind("attr:", 0) == 0) {
-    o.scale_from = cook::ScaleFrom::Attribute;
-    o.scale_attribute = text.substr(5);
-  } else {
-    throw Error(fmt::format("--scale-from '{}': expected widths, constant:X or attr:NAME", text));
-  }
-}
-
-void parse_frames(const std::string& text, cook::Options& o) {
-  const auto frames = parse_frame_range(text);
-  o.frame_begin = frames.first;
-  o.frame_end = frames.second;
-}
-
 }  // namespace
 
 int run_cook(const CookCli& cli) {
@@ -69,7 +44,7 @@ int run_cook(const CookCli& cli) {
   o.bake_xforms = !cli.no_xforms;
   o.fps = cli.fps;
   o.interpolate = cli.interpolate;
-  parse_scale(cli.scale_from, o);
+  cook::set_scale_from(o, cli.scale_from, "--scale-from");
   o.color_from = cli.color_from;
   for (std::size_t start = 0; start < cli.attributes.size();) {
     const auto comma = cli.attributes.find(',', start);
@@ -86,7 +61,7 @@ int run_cook(const CookCli& cli) {
   cook::set_scale_error(o, cli.scale_error, "--scale-error");
   cook::set_attribute_error(o, cli.attribute_error, "--attribute-error");
   o.particle.keyframe_interval = cli.keyframe_interval;
-  if (!cli.frames.empty()) parse_frames(cli.frames, o);
+  if (!cli.frames.empty()) cook::set_frames(o, cli.frames, "--frames");
   o.drop_invalid = cli.drop_invalid;
   o.keep_source_order = cli.keep_order;
   o.max_particles = cli.max_particles;

@@ -67,6 +67,11 @@ void set_scale_error(Options& options, std::string_view spec, std::string_view w
 // their own range (above 0, below 1).
 void set_attribute_error(Options& options, std::string_view spec, std::string_view what = "attribute_error");
 
+// set_scale_from: "widths", "constant:X" (X > 0, the radius) or "attr:NAME"; set_frames: "A:B"
+// (output frames from A up to but not including B; either may be left out).
+void set_scale_from(Options& options, std::string_view spec, std::string_view what = "scale_from");
+void set_frames(Options& options, std::string_view spec, std::string_view what = "frames");
+
 // What the file records about how it was made (its "cooked with" string): every setting that
 // changes the bytes, as key=value words, and the input's name and content hash. No paths, so
 // the same input and settings give the same file wherever either is.

@@ -1,10 +1,14 @@
 #include "base/names.hpp"
 
+#include <charconv>
+
 #include <algorithm>
 #include <cstdint>
 #include <vector>
 
 #include <fmt/format.h>
+
+#include "particlestream/error.hpp"
 
 namespace pstream {
 namespace {
@@ -40,6 +44,27 @@ std::string closest_name(std::string_view word, std::span<const std::string_view
 std::string did_you_mean(std::string_view word, std::initializer_list<std::string_view> names) {
   const std::string guess = closest_name(word, std::span(names.begin(), names.size()));
   return guess.empty() ? std::string() : fmt::format(" (did you mean '{}'?)", guess);
+}
+
+std::pair<std::int64_t, std::int64_t> parse_frame_range(std::string_view text, std::string_view flag) {
+  const auto colon = text.find(':');
+  const auto number = [&](std::string_view part, std::int64_t open) {
+    if (part.empty()) return open;
+    std::int64_t v = 0;
+    const auto [ptr, ec] = std::from_chars(part.data(), part.data() + part.size(), v);
+    if (ec != std::errc() || ptr != part.data() + part.size() || v < 0) {
+      throw Error(
+          fmt::format("{} '{}': expected A:B, frame numbers from 0 (A:B is from A up to but not including B; "
+                      "either may be left out)",
+                      flag, text));
+    }
+    return v;
+  };
+  if (colon == std::string::npos) {
+    throw Error(fmt::format("{} '{}': expected A:B (from frame A up to but not including B)", flag, text));
+  }
+  const std::string_view all = text;
+  return {number(all.substr(0, colon), 0), number(all.substr(colon + 1), -1)};
 }
 
 }  // namespace pstream

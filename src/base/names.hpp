@@ -1,10 +1,13 @@
-// "Did you mean": the one rule every front end and parser uses for a mistyped name.
+// How users spell things, one rule for every front end (CLI, C API, Python): "did you mean" for a
+// mistyped name, and frame ranges.
 #pragma once
 
+#include <cstdint>
 #include <initializer_list>
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 
 namespace pstream {
 
@@ -13,5 +16,9 @@ namespace pstream {
 std::string closest_name(std::string_view word, std::span<const std::string_view> names);
 // " (did you mean 'X'?)" for a message, or "" when nothing is close.
 std::string did_you_mean(std::string_view word, std::initializer_list<std::string_view> names);
+
+// "A:B", "A:" or ":B" -> {A, B} (from A up to but not including B); B is -1 when left open.
+// Throws pstream::Error naming `what` (the flag or argument).
+std::pair<std::int64_t, std::int64_t> parse_frame_range(std::string_view text, std::string_view what = "--frames");
 
 }  // namespace pstream

@@ -105,4 +105,31 @@ void set_attribute_error(Options& o, std::string_view spec, std::string_view wha
   o.particle.attribute_error = value;
 }
 
+void set_scale_from(Options& o, std::string_view spec, std::string_view what) {
+  const std::string text(spec);
+  if (text == "widths") {
+    o.scale_from = ScaleFrom::Widths;
+  } else if (text.rfind("constant:", 0) == 0) {
+    const std::string number = text.substr(9);
+    float value = 0.0f;
+    const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
+    if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !std::isfinite(value))
+      throw Error(fmt::format("{} '{}': expected constant:X with X a positive number (the radius)", what, text));
+    o.scale_from = ScaleFrom::Constant;
+    o.scale_constant = value;
+  } else if (text.rfind("attr:", 0) == 0 && text.size() > 5) {
+    o.scale_from = ScaleFrom::Attribute;
+    o.scale_attribute = text.substr(5);
+  } else {
+    throw Error(fmt::format("{} '{}': expected widths, constant:X or attr:NAME{}", what, text,
+                            did_you_mean(text, {"widths", "constant:", "attr:"})));
+  }
+}
+
+void set_frames(Options& o, std::string_view spec, std::string_view what) {
+  const auto [begin, end] = parse_frame_range(spec, what);
+  o.frame_begin = begin;
+  o.frame_end = end;
+}
+
 }  // namespace pstream::cook

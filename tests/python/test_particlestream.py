@@ -251,3 +251,33 @@ def test_archive_reads_every_attribute_as_the_official_reader(tmp_path):
     assert len(archive.attribute(name, "group", 0)) == archive.count(name, 0)
     with pytest.raises(ps.Error, match="no attribute 'nope' \\(it has: "):
         archive.attribute(name, "nope", 0)
+
+
+def test_cook_takes_every_option_of_the_cli_with_its_messages(tmp_path):
+    import subprocess
+    abc = DATA / "alembic" / "points_varying.abc"
+    out = tmp_path / "o.pstream"
+    ps.cook(abc, out, codec="raw", frames="10:20", scale_from="constant:0.5", color_from="none", velocity=False,
+            attributes=["id"])
+    clip = ps.Clip(out)
+    assert clip.frame_count == 10
+    assert [a[0] for a in clip.layout] == ["position", "scale", "id"]
+    assert np.all(clip.read_frame(0)["scale"] == 0.5)
+    ps.cook(abc, out, keyframe_interval=8, error="abs:0.001", attribute_error="1e-2", merge=True, drop_invalid=True)
+    assert "keyframe_interval=8" in json.loads(
+        subprocess.run([os.environ.get("PSTREAM_CLI", "pstream"), "info", "--json", str(out)],
+                       capture_output=True, text=True, check=True).stdout)["cooked_with"]
+    # The same words as the command line's, after the option's name.
+    cli = os.environ.get("PSTREAM_CLI")
+    for kwargs, flag_args, tail in [
+        ({"frames": "7"}, ["--frames", "7"], "'7': expected A:B"),
+        ({"scale_from": "wdths"}, ["--scale-from", "wdths"], "'wdths': expected widths, constant:X or attr:NAME"),
+        ({"scale_error": "0"}, ["--scale-error", "0"], "'0': expected the bound on each particle's scale"),
+    ]:
+        with pytest.raises(ps.Error) as e:
+            ps.cook(abc, tmp_path / "bad.pstream", **kwargs)
+        assert tail in str(e.value)
+        if cli:
+            r = subprocess.run([cli, "cook", str(abc), "-o", str(tmp_path / "bad.pstream"), *flag_args],
+                               capture_output=True, text=True)
+            assert r.returncode != 0 and tail in r.stderr, r.stderr
