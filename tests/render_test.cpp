@@ -291,6 +291,41 @@ TEST(RenderCommand, ADefaultCookHasWhatTheLooksNeed) {
   }
 }
 
+// A re-render into the same folder leaves exactly its own frames (an earlier, longer render's
+// extra ones removed), or with --no-clobber refuses; a video that cannot be written is refused
+// before the first frame.
+TEST(RenderCommand, OutputsAreCheckedBeforeTheFirstFrameAndOldFramesReplaced) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = dir / "clip.pstream";
+  ASSERT_EQ(
+      test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path("alembic/points_varying.abc"), clip.string()))
+          .exit_code,
+      0);
+  const auto render = [&](const std::string& flags) {
+    return test::run_cli(
+        fmt::format("render -q '{}' --out '{}' --size 64x36 {}", clip.string(), (dir / "out").string(), flags));
+  };
+  const auto frames_in = [&](const fs::path& d) {
+    std::size_t n = 0;
+    for (const auto& e : fs::directory_iterator(d)) n += e.path().extension() == ".png";
+    return n;
+  };
+  ASSERT_EQ(render("--frames 0:5").exit_code, 0);
+  EXPECT_EQ(frames_in(dir / "out"), 5u);
+  auto r = render("--frames 0:2");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(frames_in(dir / "out"), 2u);  // frames 2..4 of the earlier render are gone
+  r = render("--frames 0:3 --no-clobber");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("holds 2 frames of an earlier render"), std::string::npos) << r.output;
+  // A video into a folder that does not exist: refused before anything is rendered.
+  fs::remove_all(dir / "out");
+  r = render(fmt::format("--frames 0:3 --video '{}'", (dir / "no" / "such" / "v.mp4").string()));
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("does not exist"), std::string::npos) << r.output;
+  EXPECT_TRUE(!fs::exists(dir / "out") || frames_in(dir / "out") == 0u);
+}
+
 // The 50k-particle fixture in 64 KiB chunks (frames straddle chunks), for the viewer's runs.
 cook::Options large_clip(const fs::path& dir) {
   cook::Options o;

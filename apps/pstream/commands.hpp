@@ -114,7 +114,7 @@ struct RenderCli {
   LookCli sprite_look;
   double fps = 0.0, speed = 1.0;
   float size_multiplier = 1.0f;
-  bool quiet = false;
+  bool quiet = false, no_clobber = false;
   std::uint64_t max_frames = 100'000;  // more images than this are refused (a mistyped --fps)
 };
 struct RenderStats {

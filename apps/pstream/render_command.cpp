@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/output_file.hpp"
 #include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/format.hpp"
@@ -177,9 +178,48 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   }
   const auto outputs = static_cast<std::uint64_t>(images);
 
-  if (std::filesystem::exists(cli.out) && !std::filesystem::is_directory(cli.out))
+  // Every output checked before the first frame: the folder, its old frames, the video.
+  namespace fs = std::filesystem;
+  if (fs::exists(cli.out) && !fs::is_directory(cli.out))
     throw Error(fmt::format("--out {}: exists and is not a folder", cli.out));
-  std::filesystem::create_directories(cli.out);
+  std::vector<fs::path> inputs(files.begin(), files.end());
+  if (!cli.video.empty()) {
+    check_output(cli.video, inputs);
+    if (!have_program("ffmpeg")) {
+      throw Error(
+          fmt::format("--video {}: writing a video needs the ffmpeg program, which is not installed "
+                      "(apt-get install ffmpeg)",
+                      cli.video));
+    }
+  }
+  // Frames of an earlier render in the folder (our names, frame_NNNNN.png): replaced, and those
+  // past this render's last removed, so the folder holds exactly this render; --no-clobber refuses.
+  std::vector<fs::path> old_frames;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(cli.out, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.size() == 15 && name.starts_with("frame_") && name.ends_with(".png") &&
+        std::all_of(name.begin() + 6, name.begin() + 11, [](char c) { return c >= '0' && c <= '9'; }))
+      old_frames.push_back(e.path());
+  }
+  if (!old_frames.empty() && cli.no_clobber) {
+    throw Error(
+        fmt::format("--out {}: holds {} frames of an earlier render (frame_NNNNN.png); without "
+                    "--no-clobber they are replaced",
+                    cli.out, old_frames.size()));
+  }
+  fs::create_directories(cli.out);
+  {
+    // The folder takes files (permissions): a temporary made and removed (never committed).
+    const OutputFile probe = OutputFile::create(fs::path(cli.out) / "frame_probe.png");
+  }
+  std::uint64_t removed = 0;
+  for (const fs::path& f : old_frames) {
+    const std::uint64_t index = std::stoull(f.filename().string().substr(6, 5));
+    if (index >= outputs && fs::remove(f, ec)) ++removed;  // the others are overwritten in turn
+  }
+  if (removed > 0 && !cli.quiet)
+    fmt::print(stderr, "removed {} frames of an earlier, longer render from {}\n", removed, cli.out);
   render::HeadlessContext context(width, height);
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
