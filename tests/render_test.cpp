@@ -3,6 +3,7 @@
 // transform. References live in tests/data/render; PSTREAM_UPDATE_GOLDEN=1 rewrites them.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -12,6 +13,8 @@
 #include <nlohmann/json.hpp>
 
 #include "particlestream/cook.hpp"
+#include "particlestream/format.hpp"
+#include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "test_util.hpp"
@@ -324,6 +327,66 @@ TEST(RenderCommand, OutputsAreCheckedBeforeTheFirstFrameAndOldFramesReplaced) {
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("does not exist"), std::string::npos) << r.output;
   EXPECT_TRUE(!fs::exists(dir / "out") || frames_in(dir / "out") == 0u);
+}
+
+// Colouring by speed spans the clip's own speeds unless told otherwise: from 0 to the 99th
+// percentile (computed here independently from the same frames), so a fast effect is not white.
+TEST(RenderCommand, ASpeedRampSpansTheClipsSpeeds) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = dir / "sparks.pstream";
+  ASSERT_EQ(
+      test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path("sims/blender_sparks.abc"), clip.string()))
+          .exit_code,
+      0);
+  const fs::path files[] = {clip};
+  const std::array<float, 2> range = playback::ramp_range(files);
+  const format::Reader reader = format::Reader::open(clip);
+  const format::Metadata& m = reader.metadata();
+  const format::Attribute* v = m.find("velocity");
+  ASSERT_NE(v, nullptr);
+  std::vector<float> speeds;
+  std::vector<std::byte> records = format::frame_buffer(m, "clip");
+  for (const double at : {0.25, 0.5, 0.75, 1.0}) {
+    const auto f = std::uint64_t(at * double(m.frame_count() - 1));
+    reader.read_frame(f, records);
+    for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
+      float w[3];
+      std::memcpy(w, records.data() + i * m.record_size + v->offset, 12);
+      speeds.push_back(std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]));
+    }
+  }
+  std::sort(speeds.begin(), speeds.end());
+  EXPECT_EQ(range[0], 0.0f);
+  EXPECT_EQ(range[1], speeds[std::size_t(0.99 * double(speeds.size() - 1))]);
+  // A range far below the clip's speeds puts every spark at the ramp's top; the automatic one
+  // spreads them along it.
+  const auto colours = [&](const std::string& flags) {
+    const fs::path out = dir / "out";
+    fs::remove_all(out);
+    const auto r =
+        test::run_cli(fmt::format("render -q '{}' --out '{}' --size 320x180 --frames 20:21 --backdrop none "
+                                  "--color-by speed --ramp fire {}",
+                                  clip.string(), out.string(), flags));
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    int w = 0, h = 0;
+    const auto img = read_png(out / "frame_00000.png", w, h);
+    // The fire ramp runs black, red, orange, yellow, white: green over red grows along it.
+    std::size_t lit = 0;
+    double green_over_red = 0.0;
+    for (std::size_t i = 0; i < img.size(); i += 4) {
+      if (img[i] <= 60) continue;
+      ++lit;
+      green_over_red += double(img[i + 1]) / double(img[i]);
+    }
+    return std::pair{lit, lit ? green_over_red / double(lit) : 0.0};
+  };
+  const auto [lit_low, hue_low] = colours(fmt::format("--ramp-range 0,{}", range[1] / 20));
+  const auto [lit_auto, hue_auto] = colours("");
+  std::printf("green/red of lit pixels: range 0..%g %.3f, automatic 0..%g %.3f\n", range[1] / 20, hue_low, range[1],
+              hue_auto);
+  EXPECT_GT(lit_low, 100u);
+  EXPECT_GT(lit_auto, 100u);
+  EXPECT_GT(hue_low, hue_auto + 0.15) << "the automatic range should leave the sparks red and orange, not yellow";
 }
 
 // The 50k-particle fixture in 64 KiB chunks (frames straddle chunks), for the viewer's runs.

@@ -103,6 +103,8 @@ struct LookCli {
 };
 // The style `cli` asks for over `base` (a preset's, or the defaults); checks every value.
 void apply_look(const LookCli& cli, playback::DrawStyle& style);
+// Without --ramp-range, a speed or attribute ramp spans what the clips hold (playback::ramp_range).
+void auto_ramp_range(const LookCli& cli, playback::DrawStyle& style, std::span<const std::filesystem::path> files);
 
 struct RenderCli {
   std::vector<std::string> files;  // drawn together (merged depth order; one liquid surface)

@@ -40,7 +40,9 @@ void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
       ->check(CLI::IsMember({"stored", "speed", "attribute"}));
   cmd.add_option("--ramp", look.ramp, "The ramp's colours: fire, ice, viridis or grey")
       ->check(CLI::IsMember({"fire", "ice", "viridis", "grey"}));
-  cmd.add_option("--ramp-range", look.ramp_range, "LOW,HIGH: the values the ramp spans (speeds in units/s)");
+  cmd.add_option("--ramp-range", look.ramp_range,
+                 "LOW,HIGH: the values the ramp spans (speeds in units/s); by default what the clip holds: speeds "
+                 "from 0 to their 99th percentile, an attribute from its 1st to 99th percentile");
   cmd.add_option("--ramp-attribute", look.ramp_attribute, "A float attribute the ramp colours by (age, temperature)");
   cmd.add_option("--tint", look.tint, "r,g,b multiplying every colour");
   cmd.add_option("--opacity", look.sprites.opacity, "Multiplies every particle's alpha")

@@ -99,6 +99,15 @@ void apply_look(const LookCli& cli, playback::DrawStyle& style) {
   }
 }
 
+void auto_ramp_range(const LookCli& cli, playback::DrawStyle& style, std::span<const std::filesystem::path> files) {
+  render::SpriteStyle& s = style.sprites;
+  if (!cli.ramp_range.empty() || s.color_by == render::ColorBy::Stored) return;
+  const std::array<float, 2> r =
+      playback::ramp_range(files, s.color_by == render::ColorBy::Attribute ? style.ramp_attribute : std::string());
+  s.ramp.low = r[0];
+  s.ramp.high = r[1];
+}
+
 // The look flags in the library's terms.
 playback::DrawStyle draw_style(const RenderCli& cli, const std::array<float, 6>& bounds) {
   const LookCli& look = cli.sprite_look;
@@ -154,8 +163,9 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
       bounds[std::size_t(i) + 3] = std::max(bounds[std::size_t(i) + 3], b[std::size_t(i) + 3]);
     }
   }
-  const playback::DrawStyle style = draw_style(cli, bounds);  // flags checked before anything is written
+  playback::DrawStyle style = draw_style(cli, bounds);  // flags checked before anything is written
   player->check_style(style);
+  auto_ramp_range(cli.sprite_look, style, files);
   std::int64_t first = 0, last = std::int64_t(m.frame_count());
   if (!cli.frames.empty()) {
     const auto [a, b] = parse_frame_range(cli.frames);

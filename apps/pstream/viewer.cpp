@@ -167,6 +167,7 @@ int run_viewer(const ViewerCli& cli) {
   if (!cli.look.empty()) style.look = render::parse_look(cli.look);
   apply_look(cli.sprite_look, style);
   player->check_style(style);
+  auto_ramp_range(cli.sprite_look, style, files);
 
   Ui ui;
   ui.look = style.look == render::Look::Liquid ? 1 : 0;

@@ -114,6 +114,12 @@ DrawStyle look_preset(std::string_view name);
 std::array<float, 6> framing_box(std::span<const std::filesystem::path> files);
 render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect);
 
+// The automatic colour-ramp range, for the same frames: speeds (the `velocity` attribute's
+// magnitude, `attribute` empty) from 0 to their 99th percentile, or a float attribute from its
+// 1st to its 99th percentile, so that the ramp spans what the clip holds whatever its units
+// (an explosion at 40 m/s, a drip at 0.1). {0, 1} when no clip has the attribute.
+std::array<float, 2> ramp_range(std::span<const std::filesystem::path> files, const std::string& attribute = {});
+
 // Where the time of a host frame went (milliseconds, this frame).
 struct FrameStats {
   double stream_ms = 0.0;  // update() of every clip

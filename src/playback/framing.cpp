@@ -1,4 +1,5 @@
-// The automatic camera: one rule for `pstream render`, the viewer and the demo.
+// The automatic camera and the automatic ramp range: one rule each for `pstream render`, the viewer
+// and the demo.
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -51,6 +52,40 @@ render::Camera framing_camera(std::span<const std::filesystem::path> files, floa
   const std::array<float, 6> b = framing_box(files);
   const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);  // no particle anywhere
   return empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, aspect);
+}
+
+std::array<float, 2> ramp_range(std::span<const std::filesystem::path> files, const std::string& attribute) {
+  std::vector<float> values;
+  for (const auto& file : files) {
+    const format::Reader reader = format::Reader::open(file);
+    const format::Metadata& m = reader.metadata();
+    const format::Attribute* a = m.find(attribute.empty() ? "velocity" : attribute);
+    if (a == nullptr || a->type != format::AttributeType::Float32) continue;
+    if (attribute.empty() && a->components != 3) continue;
+    std::vector<std::byte> records;
+    for (const double at : {0.25, 0.5, 0.75, 1.0}) {
+      if (m.frame_count() == 0) break;
+      const auto f = std::min<std::uint64_t>(m.frame_count() - 1, std::uint64_t(at * double(m.frame_count() - 1)));
+      if (records.empty()) records = format::frame_buffer(m, reader.name());
+      reader.read_frame(f, records);
+      const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
+      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) {
+        float v[3] = {0, 0, 0};
+        std::memcpy(v, records.data() + i * m.record_size + a->offset, 4 * std::min<std::size_t>(a->components, 3));
+        const float x = attribute.empty() ? std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) : v[0];
+        if (std::isfinite(x)) values.push_back(x);
+      }
+    }
+  }
+  if (values.size() < 2) return {0.0f, 1.0f};
+  const auto at = [&](double q) {
+    const auto it = values.begin() + std::ptrdiff_t(q * double(values.size() - 1));
+    std::nth_element(values.begin(), it, values.end());
+    return *it;
+  };
+  // Speeds from rest (0) to the 99th percentile; an attribute from its 1st to 99th percentile.
+  const float low = attribute.empty() ? 0.0f : at(0.01), high = at(0.99);
+  return high > low ? std::array<float, 2>{low, high} : std::array<float, 2>{low, low + 1.0f};
 }
 
 }  // namespace pstream::playback
