@@ -231,23 +231,30 @@ PYBIND11_MODULE(particlestream, m) {
             return names;
           },
           "The full names of the points objects.")
-      .def("num_samples", [](const PyArchive& a, const std::string& name) { return a.find(name).num_samples(); })
-      .def("count",
-           [](const PyArchive& a, const std::string& name, std::uint32_t s) { return a.find(name, s).count(s); })
-      .def("time",
-           [](const PyArchive& a, const std::string& name, std::uint32_t s) { return a.find(name, s).sample_time(s); })
+      .def(
+          "num_samples", [](const PyArchive& a, const std::string& name) { return a.find(name).num_samples(); },
+          py::arg("name"))
+      .def(
+          "count",
+          [](const PyArchive& a, const std::string& name, std::uint32_t s) { return a.find(name, s).count(s); },
+          py::arg("name"), py::arg("sample"))
+      .def(
+          "time",
+          [](const PyArchive& a, const std::string& name, std::uint32_t s) { return a.find(name, s).sample_time(s); },
+          py::arg("name"), py::arg("sample"))
       .def(
           "positions",
           [](py::object self, const std::string& name, std::uint32_t s) {
             return view_array<float>(self.cast<const PyArchive&>().find(name, s).positions(s), 3, self);
           },
+          py::arg("name"), py::arg("sample"),
           "Positions (N, 3) float32, object space: a view of the file (read-only, no copy).")
       .def(
           "ids",
           [](py::object self, const std::string& name, std::uint32_t s) {
             return view_array<std::uint64_t>(self.cast<const PyArchive&>().find(name, s).ids(s), 0, self);
           },
-          "Ids (N,) uint64 (empty when the object has none).")
+          py::arg("name"), py::arg("sample"), "Ids (N,) uint64 (empty when the object has none).")
       .def(
           "velocities",
           [](py::object self, const std::string& name, std::uint32_t s) {
@@ -255,7 +262,7 @@ PYBIND11_MODULE(particlestream, m) {
             if (!p.has_velocities()) return py::array(py::array_t<float>(std::vector<py::ssize_t>{0, 3}));
             return view_array<float>(p.velocities(s), 3, self);
           },
-          "Velocities (N, 3) float32 (empty when the object has none).")
+          py::arg("name"), py::arg("sample"), "Velocities (N, 3) float32 (empty when the object has none).")
       .def(
           "attributes",
           [](const PyArchive& a, const std::string& name) {
@@ -265,7 +272,7 @@ PYBIND11_MODULE(particlestream, m) {
             for (const alembic::GeomParam& g : p.arb_geom_params()) names.append(text(g.name()));
             return names;
           },
-          "The object's geometry parameters: .widths, then its arbGeomParams (Cd, age, ...).")
+          py::arg("name"), "The object's geometry parameters: .widths, then its arbGeomParams (Cd, age, ...).")
       .def(
           "attribute",
           [](const PyArchive& a, const std::string& name, const std::string& attribute, std::uint32_t s, bool expand) {
@@ -355,18 +362,22 @@ PYBIND11_MODULE(particlestream, m) {
           "layout", [](const PyClip& c) { return layout_of(c.reader.metadata()); },
           "[(name, type, components, offset)]")
       .def_property_readonly("dtype", [](const PyClip& c) { return record_dtype(c.reader.metadata()); })
-      .def("count",
-           [](const PyClip& c, std::uint64_t f) {
-             if (f >= c.reader.metadata().frame_count())
-               throw Error(c.reader.name() + ": no frame " + std::to_string(f));
-             return c.reader.metadata().frames[f].count;
-           })
-      .def("time",
-           [](const PyClip& c, std::uint64_t f) {
-             if (f >= c.reader.metadata().frame_count())
-               throw Error(c.reader.name() + ": no frame " + std::to_string(f));
-             return c.reader.metadata().frames[f].time;
-           })
+      .def(
+          "count",
+          [](const PyClip& c, std::uint64_t f) {
+            if (f >= c.reader.metadata().frame_count())
+              throw Error(c.reader.name() + ": no frame " + std::to_string(f));
+            return c.reader.metadata().frames[f].count;
+          },
+          py::arg("frame"))
+      .def(
+          "time",
+          [](const PyClip& c, std::uint64_t f) {
+            if (f >= c.reader.metadata().frame_count())
+              throw Error(c.reader.name() + ": no frame " + std::to_string(f));
+            return c.reader.metadata().frames[f].time;
+          },
+          py::arg("frame"))
       .def(
           "read_frame",
           [](PyClip& c, std::uint64_t f) {
@@ -378,7 +389,7 @@ PYBIND11_MODULE(particlestream, m) {
             if (n) std::memcpy(out.mutable_data(), c.buffer.data(), n * meta.record_size);
             return out;
           },
-          "Frame f's records as a structured array (its own copy).");
+          py::arg("frame"), "Frame `frame`'s records as a structured array (its own copy).");
 
   py::class_<PyPlayer>(m, "Player", "Playback of one or more clips (the C++ playback::Player).")
       .def(py::init([](std::vector<std::filesystem::path> paths, const std::string& interpolation, bool blocking,
@@ -399,13 +410,19 @@ PYBIND11_MODULE(particlestream, m) {
            py::arg("sort") = "none", py::arg("cache_seconds") = 1.0)
       .def("play", [](PyPlayer& p) { p.player->play(); })
       .def("pause", [](PyPlayer& p) { p.player->pause(); })
-      .def("seek", [](PyPlayer& p, double t) { p.player->seek(finite(t, "seek: time")); })
-      .def("set_speed", [](PyPlayer& p, double s) { p.player->set_speed(finite(s, "set_speed: speed")); })
-      .def("set_loop", [](PyPlayer& p, bool l) { p.player->set_loop(l); })
-      .def("set_range",
-           [](PyPlayer& p, double a, double b) {
-             p.player->set_range(finite(a, "set_range: start"), finite(b, "set_range: end"));
-           })
+      .def(
+          "seek", [](PyPlayer& p, double t) { p.player->seek(finite(t, "seek: time")); }, py::arg("time"))
+      .def(
+          "set_speed", [](PyPlayer& p, double s) { p.player->set_speed(finite(s, "set_speed: speed")); },
+          py::arg("speed"))
+      .def(
+          "set_loop", [](PyPlayer& p, bool l) { p.player->set_loop(l); }, py::arg("loop"))
+      .def(
+          "set_range",
+          [](PyPlayer& p, double a, double b) {
+            p.player->set_range(finite(a, "set_range: start"), finite(b, "set_range: end"));
+          },
+          py::arg("start"), py::arg("end"))
       .def_property_readonly("clip_count", [](const PyPlayer& p) { return p.player->clip_count(); })
       .def(
           "time", [](const PyPlayer& p, std::size_t i) { return p.player->clip(i).time(); }, py::arg("clip") = 0)

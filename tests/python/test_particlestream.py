@@ -281,3 +281,36 @@ def test_cook_takes_every_option_of_the_cli_with_its_messages(tmp_path):
             r = subprocess.run([cli, "cook", str(abc), "-o", str(tmp_path / "bad.pstream"), *flag_args],
                                capture_output=True, text=True)
             assert r.returncode != 0 and tail in r.stderr, r.stderr
+
+
+def test_type_stubs_describe_the_module():
+    """particlestream.pyi lies beside the module and names exactly its public classes, methods,
+    properties and functions, with the runtime's argument names."""
+    import ast
+    import inspect
+    stub = pathlib.Path(ps.__file__).with_name("particlestream.pyi")
+    assert stub.exists(), stub
+    tree = ast.parse(stub.read_text())
+    stubbed = {}
+    for node in tree.body:
+        if isinstance(node, ast.ClassDef):
+            stubbed[node.name] = {n.name for n in node.body if isinstance(n, ast.FunctionDef)}
+        elif isinstance(node, ast.FunctionDef):
+            stubbed[node.name] = None
+    public = {n for n in dir(ps) if not n.startswith("_")}
+    assert public == set(stubbed), public ^ set(stubbed)
+    for name, members in stubbed.items():
+        if members is None or name == "Error":
+            continue
+        cls = getattr(ps, name)
+        runtime = {m for m in dir(cls) if not m.startswith("_")} | {"__init__"}
+        assert runtime == members, (name, runtime ^ members)
+        for node in next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name).body:
+            if not isinstance(node, ast.FunctionDef) or node.decorator_list or node.name == "__init__":
+                continue
+            doc = getattr(cls, node.name).__doc__.split("\n")[0]
+            for arg in node.args.args[1:]:
+                assert f"{arg.arg}:" in doc, (name, node.name, arg.arg, doc)
+    cook_doc = ps.cook.__doc__.split("\n")[0]
+    for arg in next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "cook").args.args:
+        assert f"{arg.arg}:" in cook_doc, arg.arg

@@ -18,6 +18,7 @@ outside=$(cat "$build"/install_manifest*.txt | grep -v "^$prefix/" || true)
 [ -z "$outside" ] || { echo "installed outside the prefix $prefix:"; echo "$outside"; exit 1; }
 module=$(find "$prefix" -name 'particlestream*.so' -path '*site-packages*' | head -1)
 [ -n "$module" ] || { echo "the Python module is not under $prefix"; find "$prefix"; exit 1; }
+[ -f "$(dirname "$module")/particlestream.pyi" ] || { echo "the type stubs are not beside the module"; exit 1; }
 PYTHONPATH=$(dirname "$module") /usr/bin/python3 -c 'import particlestream; print("python module from the prefix:", particlestream.__file__)'
 lib=$(find "$prefix" -name libparticlestream.so.0 | head -1)
 [ -n "$lib" ] || { echo "libparticlestream.so.0 not installed under $prefix"; find "$prefix"; exit 1; }

@@ -1,0 +1,118 @@
+"""Type stubs for the `particlestream` module (python/module.cpp), so editors complete it.
+
+Read Alembic point caches with ParticleStream's own reader, cook them to .pstream, and play them
+back. Every failure of the library raises `particlestream.Error` with the library's message (the
+same words as the `pstream` command line's).
+"""
+import os
+from typing import Callable, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+PathLike = Union[str, os.PathLike]
+
+class Error(RuntimeError):
+    """A failure of the library: the file, offset or frame, and what was expected."""
+
+class Archive:
+    """An Alembic archive (our reader), mapped. Arrays are read-only views of the file."""
+    def __init__(self, path: PathLike) -> None: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def start_end_time(self) -> Tuple[float, float]:
+        """The archive's start and end times, by the official reader's rule."""
+    def points(self) -> List[str]:
+        """The full names of the points objects."""
+    def num_samples(self, name: str) -> int: ...
+    def count(self, name: str, sample: int) -> int: ...
+    def time(self, name: str, sample: int) -> float: ...
+    def positions(self, name: str, sample: int) -> npt.NDArray[np.float32]:
+        """Positions (N, 3) float32, object space: a view of the file (no copy)."""
+    def ids(self, name: str, sample: int) -> npt.NDArray[np.uint64]:
+        """Ids (N,) uint64 (empty when the object has none)."""
+    def velocities(self, name: str, sample: int) -> npt.NDArray[np.float32]:
+        """Velocities (N, 3) float32 (empty when the object has none)."""
+    def attributes(self, name: str) -> List[str]:
+        """The object's geometry parameters: .widths, then its arbGeomParams (Cd, age, ...)."""
+    def attribute(
+        self, name: str, attribute: str, sample: int, expand: bool = True
+    ) -> Union[np.ndarray, List[str]]:
+        """A geometry parameter at a sample, as the official reader gives it: numpy (N, extent) or
+        (N,), or a list of str. 'widths' names .widths. expand=False: indexed values as stored."""
+
+class Clip:
+    """A .pstream read directly (every frame decodes on request)."""
+    def __init__(self, path: PathLike) -> None: ...
+    @property
+    def frame_count(self) -> int: ...
+    @property
+    def fps(self) -> float: ...
+    @property
+    def record_size(self) -> int: ...
+    @property
+    def layout(self) -> List[Tuple[str, str, int, int]]:
+        """[(name, type, components, offset)] of the record's attributes."""
+    @property
+    def dtype(self) -> np.dtype:
+        """The numpy structured dtype of a record: one field per attribute."""
+    def count(self, frame: int) -> int: ...
+    def time(self, frame: int) -> float: ...
+    def read_frame(self, frame: int) -> np.ndarray:
+        """Frame `frame`'s records as a structured array of `dtype`."""
+
+class Player:
+    """Playback of one or more clips (the C++ playback::Player): fixed memory, frames decoded on
+    an IO worker, interpolated between cached frames."""
+    def __init__(
+        self,
+        paths: Sequence[PathLike],
+        interpolation: str = "hermite",
+        blocking: bool = True,
+        loop: bool = True,
+        sort: str = "none",
+        cache_seconds: float = 1.0,
+    ) -> None: ...
+    @property
+    def clip_count(self) -> int: ...
+    def play(self) -> None: ...
+    def pause(self) -> None: ...
+    def seek(self, time: float) -> None: ...
+    def set_speed(self, speed: float) -> None:
+        """0 holds, 0.25 is slow motion, negative plays backwards."""
+    def set_loop(self, loop: bool) -> None: ...
+    def set_range(self, start: float, end: float) -> None: ...
+    def update(self, dt: float, view: Optional[npt.NDArray[np.float32]] = None) -> dict:
+        """One host frame: advances every clip by dt seconds (and sorts for the 4x4 `view`)."""
+    def frame(self, clip: int = 0) -> np.ndarray:
+        """The clip's current (interpolated) records, valid until the next update()."""
+    def order(self, clip: int = 0) -> npt.NDArray[np.uint32]:
+        """The draw order of frame()'s records (empty: stored order)."""
+    def time(self, clip: int = 0) -> float: ...
+    def stats(self, clip: int = 0) -> dict: ...
+
+def cook(
+    input: PathLike,
+    output: PathLike,
+    fps: float = 0.0,
+    codec: str = "particle",
+    attributes: List[str] = ...,
+    object: str = "",
+    interpolate: bool = False,
+    progress: Optional[Callable[[int, int], None]] = None,
+    error: str = "1e-4",
+    scale_error: str = "1%",
+    attribute_error: str = "1e-3",
+    frames: str = "",
+    merge: bool = False,
+    scale_from: str = "widths",
+    color_from: str = "auto",
+    velocity: bool = True,
+    keyframe_interval: int = 64,
+    drop_invalid: bool = False,
+) -> dict:
+    """Cooks an Alembic archive (or a PLY sequence) into a .pstream with the options of
+    `pstream cook`; returns the report (frames, particles, file_bytes, seconds)."""
