@@ -444,16 +444,20 @@ TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
   ASSERT_EQ(w, 800);
   ASSERT_EQ(h, 600);
   std::size_t title = 0, particles = 0;
+  int title_right = 0;  // the panel's right edge: it leaves most of the picture (#26: was 460 pixels)
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
       const std::uint8_t* p = &img[(std::size_t(y) * w + x) * 4];
       // ImGui's dark style: the active title bar is (41, 74, 122).
-      if (y < 40 && x < 480 && std::abs(p[0] - 41) < 14 && std::abs(p[1] - 74) < 14 && std::abs(p[2] - 122) < 16)
+      if (y < 40 && x < 480 && std::abs(p[0] - 41) < 14 && std::abs(p[1] - 74) < 14 && std::abs(p[2] - 122) < 16) {
         ++title;
+        title_right = std::max(title_right, x);
+      }
       if (x > 480 && p[0] + p[1] + p[2] > 90) ++particles;  // lit pixels right of the panel
     }
   }
   EXPECT_GT(title, 2000u) << "no ImGui panel in the screenshot";
+  EXPECT_LT(title_right, 340) << "the panel covers too much of the picture";
   EXPECT_GT(particles, 500u) << "no particles in the screenshot";
 }
 

@@ -128,7 +128,7 @@ void cache_view(const stream::ParticleStream& clip) {
   ImGui::SameLine();
   ImGui::TextColored({0.5f, 0.5f, 0.55f, 1}, "Empty");
   ImGui::SameLine();
-  ImGui::TextUnformatted("(white outline: the current frame)");
+  ImGui::TextDisabled("(outline: current)");
 }
 
 }  // namespace
@@ -267,9 +267,16 @@ int run_viewer(const ViewerCli& cli) {
     ImGui_ImplOpenGL3_NewFrame();
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
+    // A narrow, translucent panel: a quarter of a 1280-pixel window at most, labels that fit,
+    // the longer explanations in tooltips.
     ImGui::SetNextWindowPos({10, 10}, ImGuiCond_FirstUseEver);
-    ImGui::SetNextWindowSize({460, 0}, ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowSize({320, 0}, ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowBgAlpha(0.72f);
     ImGui::Begin("ParticleStream");
+    ImGui::PushItemWidth(-110.0f);  // the widgets leave 110 pixels for their labels
+    const auto tip = [](const char* text) {
+      if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", text);
+    };
     if (ImGui::Button("Play")) player->play();
     ImGui::SameLine();
     if (ImGui::Button("Pause")) player->pause();
@@ -295,7 +302,8 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::Checkbox("Bounds box", &style.bounds_box);
     if (ui.look == 0 && ImGui::TreeNodeEx("Sprites", ImGuiTreeNodeFlags_DefaultOpen)) {
       render::SpriteStyle& sp = style.sprites;
-      ImGui::Checkbox("Shadows (half-angle slices)", &sp.shadows);
+      ImGui::Checkbox("Shadows", &sp.shadows);
+      tip("Self-shadowing by half-angle slices, and shadows on the ground");
       if (sp.shadows) {
         ImGui::SliderInt("Slices", &sp.slices, 1, 128);
         ImGui::SliderFloat("Shadow density", &sp.shadow_density, 0.0f, 4.0f, "%.2f");
@@ -305,12 +313,14 @@ int run_viewer(const ViewerCli& cli) {
         sp.color_by = static_cast<render::ColorBy>(color_by);
       if (sp.color_by != render::ColorBy::Stored)
         ImGui::DragFloatRange2("Ramp range", &sp.ramp.low, &sp.ramp.high, 0.05f);
-      ImGui::Checkbox("Lit (key, fill, rim)", &sp.lit);
+      ImGui::Checkbox("Lit", &sp.lit);
+      tip("Key, fill and rim light on each sprite");
       bool tinted = style.clip_tints[1] != playback::DrawStyle::white_tints()[1];
       if (player->clip_count() > 1 && ImGui::Checkbox("Tint each clip", &tinted))
         style.clip_tints = tinted ? playback::DrawStyle::distinct_tints() : playback::DrawStyle::white_tints();
       ImGui::SliderFloat("Opacity", &sp.opacity, 0.0f, 1.0f, "%.2f");
-      ImGui::SliderFloat("Motion blur (shutter s)", &sp.shutter, 0.0f, 0.1f, "%.3f");
+      ImGui::SliderFloat("Motion blur", &sp.shutter, 0.0f, 0.1f, "%.3f s");
+      tip("Shutter: seconds of motion each sprite is stretched along (0: off)");
       ImGui::SliderFloat("Exposure", &sp.exposure, 0.1f, 8.0f, "%.2f", ImGuiSliderFlags_Logarithmic);
       bool filmic = sp.tone_map == render::ToneMap::Filmic;
       if (ImGui::Checkbox("Filmic tone map", &filmic))
@@ -321,22 +331,32 @@ int run_viewer(const ViewerCli& cli) {
       render::LiquidStyle& l = style.liquid;
       ImGui::Combo("Filter", &ui.liquid_filter, "Narrow range\0Bilateral\0Gaussian\0None\0");
       ImGui::Combo("Show", &ui.liquid_output, "Shaded\0Depth\0Normals\0Thickness\0");
-      ImGui::SliderFloat("Smoothing (radii)", &l.smoothing, 0.0f, 12.0f, "%.1f");
+      ImGui::SliderFloat("Smoothing", &l.smoothing, 0.0f, 12.0f, "%.1f r");
+      tip("The filter's width, in particle radii");
       ImGui::SliderInt("Filter passes", &l.iterations, 0, 8);
       ImGui::SliderFloat("Resolution", &l.resolution, 0.25f, 1.0f, "%.2f");
       ImGui::ColorEdit3("Colour", l.color.data());
-      ImGui::SliderFloat("Colour depth (radii)", &l.color_depth, 1.0f, 100.0f, "%.0f", ImGuiSliderFlags_Logarithmic);
+      ImGui::SliderFloat("Colour depth", &l.color_depth, 1.0f, 100.0f, "%.0f r", ImGuiSliderFlags_Logarithmic);
+      tip("How deep the liquid is before it takes its full colour, in particle radii");
       ImGui::SliderFloat("Refraction", &l.refraction, 0.0f, 4.0f, "%.2f");
-      ImGui::SliderFloat("Spray: thinner than (radii)", &l.foam_isolation, 0.0f, 10.0f, "%.1f");
-      ImGui::SliderFloat("Spray: faster than (units/s)", &l.foam_speed, 0.0f, 20.0f, "%.1f");
+      ImGui::SliderFloat("Spray: thin", &l.foam_isolation, 0.0f, 10.0f, "%.1f r");
+      tip("Particles in liquid thinner than this many radii are drawn as spray");
+      ImGui::SliderFloat("Spray: fast", &l.foam_speed, 0.0f, 20.0f, "%.1f u/s");
+      tip("Particles faster than this (units per second) are drawn as spray");
       ImGui::TreePop();
     }
     ImGui::ColorEdit3("Background", ui.background);
     ImGui::Separator();
     ImGui::Text("%.0f fps | %llu particles drawn", ImGui::GetIO().Framerate, static_cast<unsigned long long>(drawn));
-    ImGui::Text("stream %.3f ms | interpolate %.3f ms | sort %.3f ms | upload + draw %.3f ms", stream_ms,
-                interpolate_ms, sort_ms, draw_ms);
-    if (unmatched != 0) ImGui::TextDisabled("%zu clip(s) between unmatched frames: nearest frame shown", unmatched);
+    // Host-thread times; on the GPU path interpolation and sorting run in the draw's compute passes.
+    ImGui::Text("stream %.3f ms | interpolate %.3f ms", stream_ms, interpolate_ms);
+    ImGui::Text("sort %.3f ms | upload + draw %.3f ms", sort_ms, draw_ms);
+    if (player->path() == playback::PlaybackPath::Gpu) ImGui::TextDisabled("GPU path: interpolate + sort in the draw");
+    if (unmatched != 0) {
+      ImGui::PushTextWrapPos(0.0f);
+      ImGui::TextDisabled("%zu clip(s) between unmatched frames: nearest frame shown", unmatched);
+      ImGui::PopTextWrapPos();
+    }
     ImGui::TextDisabled("%s", render::Renderer::gl_renderer().c_str());
     for (std::size_t i = 0; i < player->clip_count(); ++i) {
       const stream::ParticleStream& clip = player->clip(i);
@@ -356,6 +376,7 @@ int run_viewer(const ViewerCli& cli) {
     ImGui::PushTextWrapPos(0.0f);
     ImGui::TextDisabled("space play/pause, arrows step, F frame, drag orbit/pan, wheel zoom");
     ImGui::PopTextWrapPos();
+    ImGui::PopItemWidth();
     ImGui::End();
     {  // The timeline along the bottom, in the source's frame numbers (the first clip's frames).
       const stream::ParticleStream& first = player->clip(0);
