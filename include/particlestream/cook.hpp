@@ -25,14 +25,14 @@ struct Options {
   bool bake_xforms = true;       // apply the object's world transform to positions
   double fps = 0.0;              // output frame rate; 0: the source's
   bool interpolate = false;      // blend between samples (needs stable ids) instead of nearest
+  // The source's velocities, whenever it has them, even when `attributes` does not name them:
+  // speed colours, motion blur, stretched sprites and Hermite interpolation need them.
+  bool keep_velocity = true;
   ScaleFrom scale_from = ScaleFrom::Widths;
   float scale_constant = 0.0f;
   std::string scale_attribute;
   std::string color_from = "auto";      // "Cd", "none", or "auto" (Cd when present)
   std::vector<std::string> attributes;  // "velocity", "id", "id32", or a float attribute name
-  // The source's velocities, whenever it has them, even when `attributes` does not name them:
-  // speed colours, motion blur, stretched sprites and Hermite interpolation need them.
-  bool keep_velocity = true;
   std::uint64_t chunk_size = format::kDefaultChunkSize;
   // How frames are stored: records (cut into chunks compressed by `codec`) or the particle codec
   // (`particle`; its chunks are raw: the packets are already compressed).
