@@ -9,16 +9,17 @@
 
 namespace pstream::playback {
 
-std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
-  std::array<std::vector<float>, 3> axes;
-  std::array<float, 6> whole{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+namespace {
+
+// Four frames of each clip (a quarter, half, three quarters, the end), at most 50,000 records of
+// each: what the automatic camera and ramp look at. `clip(meta)` sees each clip first, then
+// `use(meta, record)` each sampled record.
+template <class Clip, class Use>
+void sample_frames(std::span<const std::filesystem::path> files, Clip&& clip, Use&& use) {
   for (const auto& file : files) {
     const format::Reader reader = format::Reader::open(file);
     const format::Metadata& m = reader.metadata();
-    for (std::size_t a = 0; a < 3; ++a) {
-      whole[a] = std::min(whole[a], m.bounds[a]);
-      whole[a + 3] = std::max(whole[a + 3], m.bounds[a + 3]);
-    }
+    clip(m);
     std::vector<std::byte> records;
     for (const double at : {0.25, 0.5, 0.75, 1.0}) {
       if (m.frame_count() == 0) break;
@@ -26,14 +27,30 @@ std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
       if (records.empty()) records = format::frame_buffer(m, reader.name());
       reader.read_frame(f, records);
       const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
-      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) {
-        float p[3];
-        std::memcpy(p, records.data() + i * m.record_size + render::kPositionOffset, sizeof p);
-        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))
-          for (std::size_t a = 0; a < 3; ++a) axes[a].push_back(p[a]);
-      }
+      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) use(m, records.data() + i * m.record_size);
     }
   }
+}
+
+}  // namespace
+
+std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
+  std::array<std::vector<float>, 3> axes;
+  std::array<float, 6> whole{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+  sample_frames(
+      files,
+      [&](const format::Metadata& m) {  // the clips' whole bounds, for when too few particles are found
+        for (std::size_t a = 0; a < 3; ++a) {
+          whole[a] = std::min(whole[a], m.bounds[a]);
+          whole[a + 3] = std::max(whole[a + 3], m.bounds[a + 3]);
+        }
+      },
+      [&](const format::Metadata&, const std::byte* record) {
+        float p[3];
+        std::memcpy(p, record + render::kPositionOffset, sizeof p);
+        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))
+          for (std::size_t a = 0; a < 3; ++a) axes[a].push_back(p[a]);
+      });
   if (axes[0].size() < 16) return whole;
   std::array<float, 6> box{};
   for (std::size_t a = 0; a < 3; ++a) {
@@ -56,27 +73,17 @@ render::Camera framing_camera(std::span<const std::filesystem::path> files, floa
 
 std::array<float, 2> ramp_range(std::span<const std::filesystem::path> files, const std::string& attribute) {
   std::vector<float> values;
-  for (const auto& file : files) {
-    const format::Reader reader = format::Reader::open(file);
-    const format::Metadata& m = reader.metadata();
-    const format::Attribute* a = m.find(attribute.empty() ? "velocity" : attribute);
-    if (a == nullptr || a->type != format::AttributeType::Float32) continue;
-    if (attribute.empty() && a->components != 3) continue;
-    std::vector<std::byte> records;
-    for (const double at : {0.25, 0.5, 0.75, 1.0}) {
-      if (m.frame_count() == 0) break;
-      const auto f = std::min<std::uint64_t>(m.frame_count() - 1, std::uint64_t(at * double(m.frame_count() - 1)));
-      if (records.empty()) records = format::frame_buffer(m, reader.name());
-      reader.read_frame(f, records);
-      const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
-      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) {
+  sample_frames(
+      files, [](const format::Metadata&) {},
+      [&](const format::Metadata& m, const std::byte* record) {
+        const format::Attribute* a = m.find(attribute.empty() ? "velocity" : attribute);
+        if (a == nullptr || a->type != format::AttributeType::Float32) return;
+        if (attribute.empty() && a->components != 3) return;
         float v[3] = {0, 0, 0};
-        std::memcpy(v, records.data() + i * m.record_size + a->offset, 4 * std::min<std::size_t>(a->components, 3));
+        std::memcpy(v, record + a->offset, 4 * std::min<std::size_t>(a->components, 3));
         const float x = attribute.empty() ? std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) : v[0];
         if (std::isfinite(x)) values.push_back(x);
-      }
-    }
-  }
+      });
   if (values.size() < 2) return {0.0f, 1.0f};
   const auto at = [&](double q) {
     const auto it = values.begin() + std::ptrdiff_t(q * double(values.size() - 1));

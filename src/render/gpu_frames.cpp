@@ -156,17 +156,7 @@ std::uint64_t GpuFrames::stage(std::span<const ParticleBatch> batches, SortMode 
       glCopyNamedBufferSubData(s.frames[std::size_t(ia)], d.out, 0, GLintptr(offset[k]),
                                GLsizeiptr(b.count * b.record_size));
     }
-    st.count[k] = b.count;
-    st.base[k] = GLuint(offset[k] / 4);
-    st.stride[k] = b.record_size / 4;
-    st.color_word[k] = b.color_offset >= 0 ? b.color_offset / 4 : -1;
-    st.velocity_word[k] = b.velocity_offset >= 0 ? b.velocity_offset / 4 : -1;
-    st.scalar_word[k] = b.scalar_offset >= 0 ? b.scalar_offset / 4 : -1;
-    st.size[k] = b.size_multiplier;
-    std::copy(b.color.begin(), b.color.end(), st.color.begin() + 4 * std::ptrdiff_t(k));
-    std::copy(b.tint.begin(), b.tint.end(), st.tint.begin() + 4 * std::ptrdiff_t(k));
-    const Mat4 mv = multiply(view, b.world);
-    std::copy(mv.begin(), mv.end(), st.model_view.begin() + 16 * std::ptrdiff_t(k));
+    stage_batch(st, k, b, offset[k] / 4, view);
     if (sorting) {
       glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
       const sort::DepthAxis a = sort::depth_axis(multiply(sort_view, b.world));

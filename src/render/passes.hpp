@@ -34,6 +34,10 @@ struct StagedBatches {
   std::array<float, 16 * kMaxBatches> model_view{};
 };
 
+// Batch k's entries of `staged`: its records start at word `base_word` of the bound buffer.
+void stage_batch(StagedBatches& staged, std::size_t k, const ParticleBatch& batch, std::uint64_t base_word,
+                 const Mat4& view);
+
 // A triangle that covers the viewport (no vertex buffer: positions from gl_VertexID).
 extern const char* const kFullScreenVertexShader;
 

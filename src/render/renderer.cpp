@@ -22,6 +22,21 @@ std::uint64_t align_up(std::uint64_t v, std::uint64_t a) { return (v + a - 1) / 
 
 }  // namespace
 
+void detail::stage_batch(StagedBatches& s, std::size_t k, const ParticleBatch& b, std::uint64_t base_word,
+                         const Mat4& view) {
+  s.count[k] = b.count;
+  s.base[k] = GLuint(base_word);
+  s.stride[k] = b.record_size / 4;
+  s.color_word[k] = b.color_offset >= 0 ? b.color_offset / 4 : -1;
+  s.velocity_word[k] = b.velocity_offset >= 0 ? b.velocity_offset / 4 : -1;
+  s.scalar_word[k] = b.scalar_offset >= 0 ? b.scalar_offset / 4 : -1;
+  s.size[k] = b.size_multiplier;
+  std::copy(b.color.begin(), b.color.end(), s.color.begin() + 4 * std::ptrdiff_t(k));
+  std::copy(b.tint.begin(), b.tint.end(), s.tint.begin() + 4 * std::ptrdiff_t(k));
+  const Mat4 mv = multiply(view, b.world);
+  std::copy(mv.begin(), mv.end(), s.model_view.begin() + 16 * std::ptrdiff_t(k));
+}
+
 struct Renderer::Impl {
   RendererOptions options;
   detail::FrameContext frame;
@@ -213,17 +228,7 @@ bool Renderer::Impl::stage(std::span<const ParticleBatch> batches, std::span<con
     const ParticleBatch& b = batches[k];
     std::memcpy(dst + offset, b.first.data(), b.first.size());
     if (!b.second.empty()) std::memcpy(dst + offset + b.first.size(), b.second.data(), b.second.size());
-    s.count[k] = b.count;
-    s.base[k] = GLuint(offset / 4);
-    s.stride[k] = b.record_size / 4;
-    s.color_word[k] = b.color_offset >= 0 ? b.color_offset / 4 : -1;
-    s.velocity_word[k] = b.velocity_offset >= 0 ? b.velocity_offset / 4 : -1;
-    s.scalar_word[k] = b.scalar_offset >= 0 ? b.scalar_offset / 4 : -1;
-    s.size[k] = b.size_multiplier;
-    std::copy(b.color.begin(), b.color.end(), s.color.begin() + 4 * std::ptrdiff_t(k));
-    std::copy(b.tint.begin(), b.tint.end(), s.tint.begin() + 4 * std::ptrdiff_t(k));
-    const Mat4 mv = multiply(d.frame.view, b.world);
-    std::copy(mv.begin(), mv.end(), s.model_view.begin() + 16 * std::ptrdiff_t(k));
+    detail::stage_batch(s, k, b, offset / 4, d.frame.view);
     offset += b.first.size() + b.second.size();
   }
   glBindBufferRange(GL_SHADER_STORAGE_BUFFER, 0, d.records, GLintptr(std::uint64_t(d.region) * d.region_bytes + at),
