@@ -13,6 +13,7 @@ packages=(
   ffmpeg xvfb xauth                  # MP4 output; the viewer's test under a virtual display
   libmeshoptimizer-dev libdraco-dev  # the particle codec's peers in `pstream bench codec`
   python3-dev pybind11-dev python3-numpy python3-pytest  # the Python bindings and their tests
+  libcurl4-openssl-dev nginx-light   # streaming over HTTP(S); nginx serves clips to its tests
 )
 
 missing=()

@@ -144,6 +144,44 @@ TEST(HardeningRound3, AClipOfEmptyFramesPlaysEverywhere) {
 
 // ---- Times ------------------------------------------------------------------------------------
 
+// Sample 1's .pointIds made to hold 4 ids for its 2 positions: sample 0's ids block is
+// referenced in its place (the writer refuses to write such a sample). Every cook refuses it,
+// whether it keeps ids or not.
+TEST(HardeningRound3, MoreIdsThanParticlesIsRefusedByEveryCook) {
+  const fs::path dir = test::fresh_dir();
+  alembic::PointsWriterOptions o;
+  o.velocities = false;
+  {
+    alembic::ArchiveWriter w(dir / "ids.abc", "test", "4 ids for 2 particles", 24.0, 0.0, o);
+    const std::vector<float> P4 = {0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 3, 3}, P2 = {5, 5, 5, 6, 6, 6};
+    const std::vector<std::uint64_t> ids4 = {9001, 9002, 9003, 9004}, ids2 = {7001, 7002};
+    const std::vector<float> widths4 = {0.1f, 0.1f, 0.1f, 0.1f}, widths2 = {0.2f, 0.2f};
+    w.write_sample({P4, ids4, {}, widths4, {}});
+    w.write_sample({P2, ids2, {}, widths2, {}});
+    w.close();
+  }
+  std::string bytes = test::read_file(dir / "ids.abc");
+  // An array's data block: its size (8 bytes), a 16-byte digest, then the values.
+  const auto block_ref = [&](std::uint64_t first_id) {
+    const auto at = bytes.find(std::string(reinterpret_cast<const char*>(&first_id), 8));
+    EXPECT_NE(at, std::string::npos);
+    return static_cast<std::uint64_t>(at - 24) | (1ull << 63);
+  };
+  const std::uint64_t four = block_ref(9001), two = block_ref(7001);
+  const auto ref_at = bytes.find(std::string(reinterpret_cast<const char*>(&two), 8));
+  ASSERT_NE(ref_at, std::string::npos);
+  std::memcpy(bytes.data() + ref_at, &four, 8);
+  test::write_file(dir / "ids.abc", bytes);
+
+  for (const char* codec : {"raw", "zstd", "particle"}) {
+    SCOPED_TRACE(codec);
+    expect_error(
+        test::run_cli(fmt::format("cook {} --codec {} -o {}", q(dir / "ids.abc"), codec, q(dir / "o.pstream"))),
+        "sample 1: 4 ids for 2 particles (.pointIds must hold one id per particle, or none)");
+    EXPECT_FALSE(fs::exists(dir / "o.pstream"));
+  }
+}
+
 TEST(HardeningRound3, HeaderTimesMustBeFiniteAndOnTheFramesGrid) {
   const fs::path dir = test::fresh_dir();
   const fs::path clip = cook_clip(dir, "points_constant", "raw");

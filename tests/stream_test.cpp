@@ -3,7 +3,9 @@
 // starvation shows as stalls and recovers; faults end in a clean error state.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -234,6 +236,31 @@ TEST(Stream, TwoHundredRandomSeeks) {
   }
 }
 
+// A seek whose first step goes backwards, before the seek's frame is shown: the target is then
+// before where the restarted decoding publishes from, so decoding must restart again (found by
+// the adversarial tree's C API host: a blocking update() waited forever).
+TEST(Stream, ReverseStepRightAfterASeek) {
+  const fs::path dir = test::fresh_dir();
+  for (const fs::path& file :
+       {cook_fixture(dir, "points_large", format::Codec::Lz4), cook_particle(dir, "sims/blender_sparks.abc")}) {
+    SCOPED_TRACE(file.filename().string());
+    const Reference ref(file);
+    const auto& m = ref.reader.metadata();
+    auto s = open_stream(file, tiny_cache(true));
+    for (const std::uint64_t f : {std::uint64_t{15}, m.frame_count() / 2, m.frame_count() - 1, std::uint64_t{1}}) {
+      s->seek(m.frames[f].time);
+      s->play();  // the last frame's step forwards paused it
+      s->set_speed(-1);
+      s->update(1.0 / m.fps);
+      EXPECT_FALSE(s->seeking());
+      ASSERT_TRUE(frame_matches(*s, ref, f - 1)) << "seek to frame " << f << ", one frame back";
+      s->set_speed(1);
+      s->update(2.0 / m.fps);
+      ASSERT_TRUE(frame_matches(*s, ref, f + 1 < m.frame_count() ? f + 1 : f)) << "and two forwards";
+    }
+  }
+}
+
 TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
   const fs::path dir = test::fresh_dir();
   for (const fs::path& file : {cook_fixture(dir, "points_varying", format::Codec::Zstd, {"velocity"}),
@@ -267,9 +294,9 @@ TEST(Stream, NonBlockingPlaybackAllocatesNothingAfterOpen) {
 }
 
 // IO that delivers at most `bytes_per_second` (0: unlimited), adjustable while streaming.
-class ThrottledIo final : public stream::IoBackend {
+class ThrottledIo final : public io::ByteSource {
  public:
-  ThrottledIo(std::unique_ptr<stream::IoBackend> inner, std::shared_ptr<std::atomic<double>> rate)
+  ThrottledIo(std::unique_ptr<io::ByteSource> inner, std::shared_ptr<std::atomic<double>> rate)
       : inner_(std::move(inner)), rate_(std::move(rate)) {}
   void read(std::uint64_t offset, std::span<std::byte> out) override {
     const auto t0 = std::chrono::steady_clock::now();
@@ -281,7 +308,7 @@ class ThrottledIo final : public stream::IoBackend {
   const std::string& name() const override { return inner_->name(); }
 
  private:
-  std::unique_ptr<stream::IoBackend> inner_;
+  std::unique_ptr<io::ByteSource> inner_;
   std::shared_ptr<std::atomic<double>> rate_;
 };
 
@@ -330,10 +357,10 @@ TEST(Stream, ExactBandwidthNoStallsHalfBandwidthStallsAndRecovers) {
 }
 
 // IO that fails, or serves another file's bytes (the file replaced while streaming), from a chunk on.
-class FaultyIo final : public stream::IoBackend {
+class FaultyIo final : public io::ByteSource {
  public:
   enum class Fault { ReadError, Replaced };
-  FaultyIo(std::unique_ptr<stream::IoBackend> inner, std::uint64_t from_offset, std::uint64_t to_offset, Fault fault)
+  FaultyIo(std::unique_ptr<io::ByteSource> inner, std::uint64_t from_offset, std::uint64_t to_offset, Fault fault)
       : inner_(std::move(inner)), from_(from_offset), to_(to_offset), fault_(fault) {}
   void read(std::uint64_t offset, std::span<std::byte> out) override {
     inner_->read(offset, out);
@@ -345,7 +372,7 @@ class FaultyIo final : public stream::IoBackend {
   const std::string& name() const override { return inner_->name(); }
 
  private:
-  std::unique_ptr<stream::IoBackend> inner_;
+  std::unique_ptr<io::ByteSource> inner_;
   std::uint64_t from_, to_;
   Fault fault_;
 };
@@ -581,3 +608,151 @@ TEST(Stream, DebugInfoRangeAndStop) {
 }
 
 }  // namespace
+
+// ---- Remote streaming (run by StreamOverHttp.faulty: tests/http/with_server.sh faulty) ----------
+
+namespace {
+
+bool fault_server() {
+  const char* server = std::getenv("PSTREAM_TEST_SERVER");
+  return server != nullptr && std::string(server) == "faulty";
+}
+
+// A clip with many chunks, larger than the source's prefix (so chunk loads are range requests).
+fs::path remote_clip(const fs::path& dir) {
+  cook::Options o;
+  o.frame_codec = format::FrameCodec::Records;
+  o.input = test::data_path("alembic/points_large.abc");
+  o.output = dir / "remote.pstream";
+  o.chunk_size = format::kMinChunkSize;
+  o.codec = format::Codec::Lz4;
+  cook::cook(o);
+  return o.output;
+}
+
+io::HttpOptions quick() {  // faults end in seconds
+  io::HttpOptions o;
+  o.retries = 3;
+  o.retry_base_seconds = 0.02;
+  o.stall_timeout_seconds = 1;
+  o.connect_timeout_seconds = 2;
+  return o;
+}
+
+// Plays the whole clip in blocking mode; the stream's state at the end.
+stream::PlayState play_through(stream::ParticleStream& s, const Reference* ref) {
+  const auto& m = s.metadata();
+  s.play();
+  s.update(0);
+  for (std::uint64_t f = 0; f < m.frame_count() && s.state() != stream::PlayState::Error; ++f) {
+    if (f > 0) s.update(1.0 / m.fps);
+    if (ref != nullptr && s.state() != stream::PlayState::Error) {
+      EXPECT_TRUE(frame_matches(s, *ref, f));
+    }
+  }
+  return s.state();
+}
+
+}  // namespace
+
+TEST(Http, TransientFaultsAreRetriedAndTheFramesAreExact) {
+  if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = remote_clip(dir);
+  const Reference ref(file);
+  for (const std::string faults : {"/~fail=503x3", "/~fail=500x2", "/~drop=3", "/~latency=20/~rate=20000000"}) {
+    SCOPED_TRACE(faults);
+    stream::StreamOptions o = tiny_cache(true);
+    o.io = io::open_url(test::test_url(file, faults), quick());
+    const io::ByteSource* source = o.io.get();
+    auto s = stream::ParticleStream::open(file, std::move(o));
+    EXPECT_NE(play_through(*s, &ref), stream::PlayState::Error) << s->error();
+    const io::SourceStats st = source->stats();
+    EXPECT_GT(st.requests, 10u);
+    if (faults.find("fail") != std::string::npos || faults.find("drop") != std::string::npos) {
+      EXPECT_GE(st.retries, 2u);
+    }
+  }
+  // The format's reader over a URL: every frame equal to the file's.
+  const format::Reader remote = format::Reader::open(io::open_url(test::test_url(file, "/~fail=503x1"), quick()));
+  std::vector<std::byte> frame;
+  for (std::uint64_t f = 0; f < ref.frames.size(); ++f) {
+    frame.resize(ref.frames[f].size());
+    remote.read_frame(f, frame);
+    ASSERT_EQ(frame, ref.frames[f]) << "frame " << f;
+  }
+}
+
+TEST(Http, FaultsEndInTheErrorStateNamingTheUrl) {
+  if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = remote_clip(dir);
+  const struct {
+    const char* faults;
+    const char* message;
+  } cases[] = {
+      {"/~full200=1", "200 with the whole file instead of 206"},
+      {"/~change=3", "the file changed since it was opened"},
+      {"/~short=1", "after 3 retries"},
+      {"/~hang=1", "after 3 retries"},
+      {"/~garbage=1", "HTTP/0.9"},  // libcurl's words for a reply that is no HTTP
+      {"/~infinite=1", "longer than the"},
+      {"/~fail=503x100", "HTTP 503 (after 3 retries)"},
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.faults);
+    const std::string url = test::test_url(file, c.faults);
+    const auto started = std::chrono::steady_clock::now();
+    try {
+      stream::StreamOptions o = tiny_cache(true);
+      o.io = io::open_url(url, quick());
+      auto s = stream::ParticleStream::open(file, std::move(o));
+      EXPECT_EQ(play_through(*s, nullptr), stream::PlayState::Error);
+      EXPECT_NE(s->error().find(url), std::string::npos) << s->error();
+      EXPECT_NE(s->error().find(c.message), std::string::npos) << s->error();
+      EXPECT_NE(s->error().find("(chunk "), std::string::npos) << s->error();
+    } catch (const Error& e) {  // a fault on the open's own requests
+      EXPECT_NE(std::string(e.what()).find(url), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(c.message), std::string::npos) << e.what();
+    }
+    EXPECT_LT(std::chrono::steady_clock::now() - started, std::chrono::seconds(30)) << "a fault must not hang";
+  }
+  // A file that is not there, and a server that is not there.
+  EXPECT_THROW(
+      {
+        try {
+          io::open_url(test::test_url(dir / "missing.pstream"), quick());
+        } catch (const Error& e) {
+          EXPECT_NE(std::string(e.what()).find("HTTP 404"), std::string::npos) << e.what();
+          throw;
+        }
+      },
+      Error);
+  EXPECT_THROW(io::open_url("http://127.0.0.1:1/x.pstream", quick()), Error);
+}
+
+TEST(Http, CommandsTakeUrls) {
+  if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = remote_clip(dir);
+  const std::string url = test::test_url(file);
+  const auto verify = test::run_cli("verify '" + url + "'");
+  EXPECT_EQ(verify.exit_code, 0) << verify.output;
+  EXPECT_NE(verify.output.find("OK"), std::string::npos) << verify.output;
+  const auto local = test::run_cli("info '" + file.string() + "' --json --frames");
+  const auto remote = test::run_cli("info '" + url + "' --json --frames");
+  ASSERT_EQ(remote.exit_code, 0) << remote.output;
+  auto strip = [](std::string s, const std::string& name) {  // the file's name differs, nothing else
+    for (std::size_t at; (at = s.find(name)) != std::string::npos;) s.erase(at, name.size());
+    return s;
+  };
+  EXPECT_EQ(strip(remote.output, url), strip(local.output, file.string()));
+  const auto exported = test::run_cli("export '" + url + "' --out '" + (dir / "ply").string() + "' -q");
+  EXPECT_EQ(exported.exit_code, 0) << exported.output;
+  EXPECT_TRUE(fs::exists(dir / "ply"));
+  const auto bench = test::run_cli("bench stream '" + url + "' --laps 1 --json");
+  EXPECT_EQ(bench.exit_code, 0) << bench.output;
+  const auto missing = test::run_cli("verify '" + test::test_url(dir / "nope.pstream") + "'");
+  EXPECT_NE(missing.exit_code, 0);
+  EXPECT_NE(missing.output.find("HTTP 404"), std::string::npos) << missing.output;
+}

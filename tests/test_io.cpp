@@ -116,7 +116,7 @@ int read_async(void* user, std::uint64_t offset, void* out, std::uint64_t size, 
 }
 
 // Owns the host's file and the adapter the C API would build over it.
-class CallbackBackend final : public stream::IoBackend {
+class CallbackBackend final : public io::ByteSource {
  public:
   CallbackBackend(const std::filesystem::path& path, bool async) {
     file_.name = path.string();
@@ -143,21 +143,28 @@ class CallbackBackend final : public stream::IoBackend {
 
  private:
   HostFile file_;
-  std::unique_ptr<stream::IoBackend> inner_;
+  std::unique_ptr<io::ByteSource> inner_;
 };
 
 }  // namespace
+
+std::string test_url(const std::filesystem::path& file, const std::string& faults) {
+  const char* base = std::getenv("PSTREAM_TEST_URL_BASE");
+  if (base == nullptr || *base == '\0') throw Error("no PSTREAM_TEST_URL_BASE: run under tests/http/with_server.sh");
+  return std::string(base) + faults + std::filesystem::absolute(file).string();
+}
 
 const char* io_mode() {
   const char* mode = std::getenv("PSTREAM_TEST_IO");
   return mode != nullptr && *mode != '\0' ? mode : "file";
 }
 
-std::unique_ptr<stream::IoBackend> test_io(const std::filesystem::path& file) {
+std::unique_ptr<io::ByteSource> test_io(const std::filesystem::path& file) {
   const std::string mode = io_mode();
-  if (mode == "file") return stream::open_file(file);
+  if (mode == "file") return io::open_file(file);
   if (mode == "callbacks" || mode == "async") return std::make_unique<CallbackBackend>(file, mode == "async");
-  throw Error("PSTREAM_TEST_IO=" + mode + ": expected file, callbacks or async");
+  if (mode == "http") return io::open_url(test_url(file));
+  throw Error("PSTREAM_TEST_IO=" + mode + ": expected file, callbacks, async or http");
 }
 
 }  // namespace pstream::test

@@ -17,8 +17,16 @@
 #include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/error.hpp"
+#include "particlestream/io.hpp"
 
 namespace {
+
+// A local file that exists, or an http(s):// URL (the command's open says if its server fails).
+CLI::Validator file_or_url() {
+  return CLI::Validator(
+      [](std::string& value) { return pstream::io::is_url(value) ? std::string() : CLI::ExistingFile(value); },
+      "FILE|URL", "file or URL");
+}
 
 // The sprite look's flags, the same on render and play (apps/pstream/commands.hpp: LookCli).
 void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
@@ -158,7 +166,7 @@ int main(int argc, char** argv) {
   std::string info_file;
   bool info_json = false, info_frames = false;
   auto* info_cmd = app.add_subcommand("info", "Describe an Alembic (.abc) or cooked (.pstream) file");
-  info_cmd->add_option("file", info_file, "An Alembic (Ogawa) or .pstream file")->required()->check(CLI::ExistingFile);
+  info_cmd->add_option("file", info_file, "An Alembic (Ogawa) or .pstream file")->required()->check(file_or_url());
   info_cmd->add_flag("--json", info_json,
                      "Print JSON. For Alembic: the alembic-fixture-expected/1 schema (docs/alembic.md), comparable "
                      "value by value with the official library. For .pstream: header, layout and chunk summary");
@@ -258,7 +266,7 @@ int main(int argc, char** argv) {
       "Examples:\n"
       "  pstream export splash.pstream --out splash_ply        # splash_ply/frame.0001.ply ...\n"
       "  pstream export splash.pstream -o splash_decoded.abc");
-  export_cmd->add_option("file", export_cli.file, "A .pstream file")->required()->check(CLI::ExistingFile);
+  export_cmd->add_option("file", export_cli.file, "A .pstream file")->required()->check(file_or_url());
   export_cmd->add_option("--out", export_cli.out, "Folder for the PLY sequence");
   export_cmd->add_option("-o,--output", export_cli.output,
                          "The file to write; its extension chooses the format: NAME.abc (an Alembic cache) or "
@@ -271,7 +279,7 @@ int main(int argc, char** argv) {
   auto* verify_cmd = app.add_subcommand(
       "verify", "Check every checksum and index entry of a .pstream (exit code 0 only if all is right)");
   std::string verify_against;
-  verify_cmd->add_option("file", verify_file, "A .pstream file")->required()->check(CLI::ExistingFile);
+  verify_cmd->add_option("file", verify_file, "A .pstream file")->required()->check(file_or_url());
   verify_cmd
       ->add_option("--against", verify_against,
                    "The Alembic file (or PLY sequence) the clip was cooked from: decode every frame and report the\n"
@@ -399,7 +407,7 @@ int main(int argc, char** argv) {
                    "One or more .pstream files, drawn together (overlapping clips blend in depth order; as a "
                    "liquid they make one surface). --frames counts the first clip's frames")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(file_or_url());
   render_cmd->add_option("--out", render_cli.out, "Folder for frame_NNNNN.png")->capture_default_str();
   render_cmd->add_option("--frames", render_cli.frames, "Clip frames A:B (from A up to but not including B)");
   render_cmd->add_option("--size", render_cli.size, "Image size WIDTHxHEIGHT")->capture_default_str();
@@ -501,7 +509,7 @@ int main(int argc, char** argv) {
       "Open a window and play .pstream files: orbit camera, playback controls, statistics, chunk cache view\n\n"
       "Keys: space play/pause, left/right step a frame, F frame the clip, Esc quit.\n"
       "Mouse: left drag orbits, right drag pans, wheel zooms.");
-  play_cmd->add_option("files", viewer.files, "One or more .pstream files")->required()->check(CLI::ExistingFile);
+  play_cmd->add_option("files", viewer.files, "One or more .pstream files")->required()->check(file_or_url());
   play_cmd->add_option("--width", viewer.width, "Window width")->capture_default_str();
   play_cmd->add_option("--height", viewer.height, "Window height")->capture_default_str();
   play_cmd->add_option("--frames-to-run", viewer.frames_to_run, "Quit after N frames (scripted runs)");

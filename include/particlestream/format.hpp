@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "particlestream/error.hpp"
+#include "particlestream/io.hpp"
 
 namespace pstream::format {
 
@@ -240,7 +241,11 @@ class Reader {
  public:
   // Opens and validates header and tables (every size, count, offset and checksum);
   // throws pstream::Error naming the file, the field and its value.
+  // `path` may also be an http(s):// URL (io::open_url()); a local file is mapped.
   static Reader open(const std::filesystem::path& path);
+  // Any byte source: the header and tables are read at open, each chunk when it is asked for
+  // (stored_chunk()'s span is then valid until the next call).
+  static Reader open(std::unique_ptr<io::ByteSource> source);
   static Reader from_memory(std::span<const std::byte> bytes, std::string name);
   Reader(Reader&&) noexcept;
   Reader& operator=(Reader&&) noexcept;
@@ -280,6 +285,8 @@ Header parse_header(std::span<const std::byte> first_bytes, std::uint64_t file_s
 Metadata parse_tables(const Header& header, std::span<const std::byte> tables, std::string_view name);
 // Both steps over a whole file in memory.
 Metadata parse_metadata(std::span<const std::byte> file, std::string_view name);
+// Both steps through a byte source (two reads: the header, then the tables).
+Metadata read_metadata(io::ByteSource& source);
 
 // ---- Writing ----------------------------------------------------------------------------------
 

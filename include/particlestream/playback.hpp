@@ -64,7 +64,7 @@ struct PlayerOptions {
   stream::StreamOptions stream;
   // Where each clip's bytes come from (an engine's file system, a pak), one per clip; empty (or a
   // null entry): the clip's file.
-  std::vector<std::unique_ptr<stream::IoBackend>> io;
+  std::vector<std::unique_ptr<io::ByteSource>> io;
   sort::SorterOptions sorter;
   bool loop = true;
 };

@@ -22,44 +22,16 @@
 
 #include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
+#include "particlestream/io.hpp"
 
 namespace pstream::stream {
 
-// ---- IO ------------------------------------------------------------------------------------
+// ---- IO ----------------------------------------------------------------------------------
 
-// Where chunk bytes come from. read() runs on an IO worker thread; it must fill `out` from
-// `offset` completely or throw pstream::Error. Implementations for tests inject latency,
-// bandwidth limits and failures; later ones may use io_uring or HTTP.
-//
-// A backend whose reads complete elsewhere (an engine's streaming system, io_uring) also
-// overrides start_read(): it starts the read, returns true at once, and calls
-// `done(context, status)` exactly once, from any thread, when `out` is filled (status 0) or the
-// read failed (non-zero); `out` stays valid until then. The load then goes on (verify, decode)
-// as a new job, so no worker waits for the read. Chunk loads use start_read() when it returns
-// true; the two reads of the header and tables at open always use read().
-class IoBackend {
- public:
-  using ReadDone = void (*)(void* context, int status);
-  virtual ~IoBackend() = default;
-  virtual void read(std::uint64_t offset, std::span<std::byte> out) = 0;
-  virtual bool start_read(std::uint64_t /*offset*/, std::span<std::byte> /*out*/, ReadDone /*done*/,
-                          void* /*context*/) {
-    return false;
-  }
-  virtual std::uint64_t size() const = 0;
-  virtual const std::string& name() const = 0;
-  // A host that breaks start_read()'s contract: a completion called twice, or one that has not
-  // come within the backend's timeout. Empty while all is well; otherwise the message the stream
-  // fails with (its Error state: update() and a blocking update() return, nothing waits on).
-  virtual std::string fault() const { return {}; }
-  // Called by the stream's close() when a read never completed (fault() said so): completions
-  // that come later must be ignored. The stream then leaves the backend and the read's buffers
-  // allocated (a bounded leak) instead of waiting forever or freeing memory the host may write.
-  virtual void abandon() {}
-};
-
-// pread() on a file descriptor.
-std::unique_ptr<IoBackend> open_file(const std::filesystem::path& path);
+// Chunk bytes come from an io::ByteSource (particlestream/io.hpp): a local file, the host's
+// callbacks, or an http(s):// URL. Chunk loads use its start_read() when it offers one (no worker
+// waits for the read; verifying and decoding run as a new job after the completion); the two
+// reads of the header and tables at open use read().
 
 class IoScheduler;
 struct LoadRequest;
@@ -85,7 +57,7 @@ class IoScheduler {
   void release(std::size_t requests);
   void submit(LoadRequest* request);
   unsigned workers() const { return static_cast<unsigned>(threads_.size()); }
-  // The completion an IoBackend's start_read() calls (context: the load): the load goes on as a
+  // The completion a ByteSource's start_read() calls (context: the load): the load goes on as a
   // new job.
   static void read_done(void* request, int status);
 
@@ -127,9 +99,9 @@ enum class PlayState : std::uint8_t { Stopped, Playing, Paused, Error };
 
 struct StreamOptions {
   double cache_seconds = 1.0;
-  std::size_t min_slots = 0;  // tests: force a tiny cache (still at least what a frame needs)
-  std::size_t max_slots = 0;  // tests: 0 = no cap beyond chunk_count
-  unsigned max_loads_in_flight = 1;
+  std::size_t min_slots = 0;         // tests: force a tiny cache (still at least what a frame needs)
+  std::size_t max_slots = 0;         // tests: 0 = no cap beyond chunk_count
+  unsigned max_loads_in_flight = 0;  // 0: what the source prefers (a local file 1, HTTP its connections)
   // Decoded frames held: the current one, the next, and room to decode ahead (at least 2).
   std::size_t decoded_frames = 3;
   bool blocking = false;  // update() waits for data instead of stalling
@@ -138,7 +110,7 @@ struct StreamOptions {
   bool interpolate = false;
   std::shared_ptr<IoScheduler> scheduler;  // default: a process-wide one with one worker
   std::shared_ptr<MemoryBudget> budget;    // optional: the cache must fit in it
-  std::unique_ptr<IoBackend> io;           // default: pread on the file
+  std::unique_ptr<io::ByteSource> io;      // default: io::open(path): the file, or the URL
 };
 
 struct FrameView {

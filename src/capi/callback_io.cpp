@@ -16,7 +16,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-class CallbackIo final : public stream::IoBackend {
+class CallbackIo final : public io::ByteSource {
  public:
   CallbackIo(const pstream_io& io, double timeout_seconds)
       : io_(io),
@@ -167,7 +167,7 @@ class CallbackIo final : public stream::IoBackend {
 
 }  // namespace
 
-std::unique_ptr<stream::IoBackend> callback_io(const pstream_io& io, double timeout_seconds) {
+std::unique_ptr<io::ByteSource> callback_io(const pstream_io& io, double timeout_seconds) {
   return std::make_unique<CallbackIo>(io, timeout_seconds > 0.0 ? timeout_seconds : kDefaultIoTimeoutSeconds);
 }
 

@@ -208,6 +208,7 @@ class AlembicSource final : public Source {
     const SampleView P = c.points->positions(index);
     out.count = P.size();
     out.positions = P.bytes().data();
+    if (!ids_fit(c, index, out.count)) return false;  // the general path names the sample
     const Matrix44 m = request.bake_xforms ? parent_world_matrix(c.object, time) : identity_matrix();
     out.identity = is_identity(m);
     out.matrix = m;
@@ -275,6 +276,14 @@ class AlembicSource final : public Source {
     return s.empty() ? "" : "; its objects:" + s;
   }
 
+  // Ids hold one id per particle, or none (Blender's FLIP liquids write none), whether or not the
+  // cook keeps them: a sample that says otherwise is malformed.
+  static bool ids_fit(const Cooked& c, std::uint32_t index, std::uint64_t n) {
+    if (!c.points || !c.points->has_ids()) return true;
+    const std::uint64_t ids = c.points->ids(index).size();
+    return ids == 0 || ids == n;
+  }
+
   // Appends sample `index` of one object; positions (and velocities) baked with the world
   // transform at `time`.
   void read_sample(const Cooked& c, std::uint32_t index, double time, const Request& request, ParticleFrame& out) {
@@ -287,6 +296,10 @@ class AlembicSource final : public Source {
     const Matrix44 m = request.bake_xforms ? parent_world_matrix(c.object, time) : identity_matrix();
     const bool identity = is_identity(m);
 
+    if (!ids_fit(c, index, n)) {
+      throw Error(fmt::format("{}: {} ids for {} particles (.pointIds must hold one id per particle, or none)", where,
+                              c.points->ids(index).size(), n));
+    }
     ensure_size(out.position, out.count * 3);
     float* pos = out.position.data() + base * 3;
     P.copy_raw(std::as_writable_bytes(std::span(pos, n * 3)));
@@ -336,7 +349,7 @@ class AlembicSource final : public Source {
     }
     if (request.id) {
       const SampleView ids = c.points->ids(index);
-      if (ids.size() != n) throw Error(fmt::format("{}: {} ids for {} particles", where, ids.size(), n));
+      if (ids.size() != n) throw Error(fmt::format("{}: {} ids for {} particles", where, ids.size(), n));  // 0 ids
       ensure_size(out.id, out.count);
       ids.copy_raw(std::as_writable_bytes(std::span(out.id.data() + base, n)));
     }

@@ -3,15 +3,16 @@
 
 #include <fmt/format.h>
 
-#include "base/mapped_file.hpp"
 #include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
 
 struct Reader::Impl {
-  MappedFile mapping;
-  std::span<const std::byte> bytes;
+  std::unique_ptr<io::ByteSource> source;  // null for from_memory()
+  std::span<const std::byte> bytes;        // the whole file, when it is in memory (mapped)
+  std::uint64_t size = 0;
+  std::vector<std::byte> fetched;  // a stored chunk read from a source not in memory
   std::string name;
   Metadata meta;
   // Decoding state, made on first use (a Reader is not for concurrent use).
@@ -26,17 +27,42 @@ Reader& Reader::operator=(Reader&&) noexcept = default;
 Reader::~Reader() = default;
 
 Reader Reader::open(const std::filesystem::path& path) {
+  const std::string location = path.string();
+  return open(io::is_url(location) ? io::open_url(location) : io::open_mapped_file(path));
+}
+
+Reader Reader::open(std::unique_ptr<io::ByteSource> source) {
   auto impl = std::make_unique<Impl>();
-  impl->mapping = MappedFile::open(path);
-  impl->bytes = impl->mapping.bytes();
-  impl->name = path.string();
-  impl->meta = parse_metadata(impl->bytes, impl->name);
+  impl->name = source->name();
+  impl->size = source->size();
+  impl->bytes = source->mapped();
+  if (!impl->bytes.empty() || impl->size == 0) {
+    impl->meta = parse_metadata(impl->bytes, impl->name);
+  } else {
+    impl->meta = read_metadata(*source);
+    std::uint64_t largest = 0;
+    for (const ChunkEntry& c : impl->meta.chunks) largest = std::max(largest, c.stored_size);
+    impl->fetched.resize(largest);
+  }
+  impl->source = std::move(source);
   return Reader(std::move(impl));
+}
+
+Metadata read_metadata(io::ByteSource& source) {
+  // Header, then the tables it points at: two reads, whatever the file's size.
+  const std::uint64_t size = source.size();
+  std::vector<std::byte> head(std::min<std::uint64_t>(size, kHeaderSize));
+  source.read(0, head);
+  const Header header = parse_header(head, size, source.name());
+  std::vector<std::byte> tables(header.tables_size);
+  source.read(header.tables_offset, tables);
+  return parse_tables(header, tables, source.name());
 }
 
 Reader Reader::from_memory(std::span<const std::byte> bytes, std::string name) {
   auto impl = std::make_unique<Impl>();
   impl->bytes = bytes;
+  impl->size = bytes.size();
   impl->name = std::move(name);
   impl->meta = parse_metadata(bytes, impl->name);
   return Reader(std::move(impl));
@@ -44,11 +70,15 @@ Reader Reader::from_memory(std::span<const std::byte> bytes, std::string name) {
 
 const Metadata& Reader::metadata() const { return impl_->meta; }
 const std::string& Reader::name() const { return impl_->name; }
-std::uint64_t Reader::file_size() const { return impl_->bytes.size(); }
+std::uint64_t Reader::file_size() const { return impl_->size; }
 
 std::span<const std::byte> Reader::stored_chunk(std::uint64_t chunk) const {
-  const ChunkEntry& c = impl_->meta.chunks.at(chunk);
-  return impl_->bytes.subspan(c.file_offset, c.stored_size);
+  Impl& d = *impl_;
+  const ChunkEntry& c = d.meta.chunks.at(chunk);
+  if (!d.bytes.empty() || !d.source) return d.bytes.subspan(c.file_offset, c.stored_size);
+  const std::span<std::byte> out = std::span(d.fetched).first(c.stored_size);
+  d.source->read(c.file_offset, out);
+  return out;
 }
 
 void Reader::read_chunk(std::uint64_t chunk, std::span<std::byte> out) const {

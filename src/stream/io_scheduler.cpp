@@ -39,6 +39,8 @@ void LoadRequest::execute() {
     const std::span<std::byte> target = read_target();
     if (was_async) {
       if (read_status != 0) {
+        if (error.empty()) error = io->failure_message(read_status);
+        if (!error.empty()) error += " (chunk " + std::to_string(chunk) + ")";
         if (error.empty())
           error = io->name() + ": the asynchronous read of " + std::to_string(target.size()) + " bytes at offset " +
                   std::to_string(entry.file_offset) + " (chunk " + std::to_string(chunk) + ") failed with status " +
@@ -157,6 +159,18 @@ void IoScheduler::run() {
     }
     run_job(r);
   }
+}
+
+}  // namespace pstream::stream
+
+namespace pstream::stream {
+
+bool MemoryBudget::try_reserve(std::uint64_t bytes) {
+  std::uint64_t used = used_.load();
+  do {
+    if (used + bytes > total_) return false;
+  } while (!used_.compare_exchange_weak(used, used + bytes));
+  return true;
 }
 
 }  // namespace pstream::stream

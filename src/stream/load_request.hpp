@@ -13,7 +13,7 @@ struct LoadRequest {
   enum Status : int { Idle = 0, Pending = 1, Done = 2, Failed = 3 };
 
   // Set by the stream before submit().
-  IoBackend* io = nullptr;
+  io::ByteSource* io = nullptr;
   format::ChunkDecoder* decoder = nullptr;
   format::ChunkEntry entry;
   std::uint64_t chunk = 0;
@@ -29,7 +29,7 @@ struct LoadRequest {
   void (*on_done)(void* owner, LoadRequest* request) = nullptr;
   void* owner = nullptr;
 
-  // Set by the worker (and the scheduler, for a read started with IoBackend::start_read()).
+  // Set by the worker (and the scheduler, for a read started with io::ByteSource::start_read()).
   std::atomic<int> status{Idle};
   std::string error;  // only on failure
   std::int64_t io_ns = 0, decode_ns = 0;

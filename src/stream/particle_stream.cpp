@@ -76,7 +76,7 @@ std::size_t cache_slots(const format::Metadata& m, double seconds) {
 
 struct ParticleStream::Impl {
   const format::Metadata* meta = nullptr;
-  std::unique_ptr<IoBackend> io;
+  std::unique_ptr<io::ByteSource> io;
   std::shared_ptr<IoScheduler> scheduler;
   std::shared_ptr<MemoryBudget> budget;
   std::string name;
@@ -404,16 +404,9 @@ struct ParticleStream::Impl {
 std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path& path, StreamOptions options) {
   std::unique_ptr<ParticleStream> s(new ParticleStream());
   auto impl = std::make_unique<Impl>();
-  impl->io = options.io ? std::move(options.io) : open_file(path);
+  impl->io = options.io ? std::move(options.io) : io::open(path.string());
   impl->name = impl->io->name();
-  // Header first, then the tables it points at: two reads, whatever the file's size.
-  const std::uint64_t file_size = impl->io->size();
-  std::vector<std::byte> head(std::min<std::uint64_t>(file_size, format::kHeaderSize));
-  impl->io->read(0, head);
-  const format::Header header = format::parse_header(head, file_size, impl->name);
-  std::vector<std::byte> tables(header.tables_size);
-  impl->io->read(header.tables_offset, tables);
-  s->meta_ = format::parse_tables(header, tables, impl->name);
+  s->meta_ = format::read_metadata(*impl->io);
   const format::Metadata& m = s->meta_;
   impl->meta = &s->meta_;
 
@@ -470,7 +463,8 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->packet_staging.reset(new std::byte[std::max<std::uint64_t>(max_packet, 1)]);
   impl->slots.assign(slots, SlotInfo{});
   impl->slots_snapshot.assign(slots, SlotInfo{});
-  const unsigned loads = std::max(1u, options.max_loads_in_flight);
+  const unsigned loads =
+      std::max(1u, options.max_loads_in_flight ? options.max_loads_in_flight : impl->io->preferred_reads_in_flight());
   impl->requests = std::vector<LoadRequest>(loads);
   for (unsigned i = 0; i < loads; ++i) impl->decoders.push_back(std::make_unique<format::ChunkDecoder>());
   std::uint64_t max_stored = 0;
@@ -493,7 +487,7 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
 ParticleStream::~ParticleStream() {
   close();
   // A read the host never completed may still write into the cache and call back into the
-  // backend: both stay allocated (IoBackend::abandon()).
+  // backend: both stay allocated (io::ByteSource::abandon()).
   if (impl_ && impl_->abandoned) (void)impl_.release();
 }
 
@@ -623,7 +617,7 @@ void ParticleStream::update(double dt) {
     // reference (before where a restart asked it to publish from).
     const bool passed = d.frame_seq(d.p_lap, d.p_frame) > target_seq ||
                         (d.p_lap == 0 && d.playhead.lap == 0 && target < d.p_publish_from);
-    if (passed && !seeking_ && find(target_seq) == d.frame_slots.size()) {
+    if (passed && find(target_seq) == d.frame_slots.size()) {
       d.playhead.lap = 0;  // sequence numbers restart with the decoding
       target_seq = target;
       d.current_seq %= m.frame_count();

@@ -7,9 +7,13 @@
 # or when afterwards a temporary (.NAME.partial-PID) is left anywhere or an input has changed.
 # Also: outputs that are inputs, special outputs, absurd plans, files truncated while they are
 # read, and SIGINT/SIGTERM/SIGHUP during a cook.
-#   run.sh PSTREAM MAKE_INPUTS DATA_DIR plain|sanitized
+# Each input also goes through the C API (HOST_OPEN: tests/adversarial/host_open.c, the file and
+# host IO callbacks) and, when given, the Python module (PYTHON, with particlestream on
+# PYTHONPATH, running tests/adversarial/python_open.py); MISUSE (tests/sdk/misuse.c) runs once.
+#   run.sh PSTREAM MAKE_INPUTS DATA_DIR plain|sanitized HOST_OPEN MISUSE [PYTHON]
 set -uo pipefail
-pstream=$1 make_inputs=$2 data=$3 flavour=${4:-plain}
+pstream=$1 make_inputs=$2 data=$3 flavour=${4:-plain} host_open=${5:-} misuse=${6:-} python=${7:-}
+here=$(cd "$(dirname "$0")" && pwd)
 root=$(mktemp -d /tmp/pstream-adversarial.XXXXXX)
 trap 'rm -rf "$root"' EXIT
 in=$root/inputs out=$root/out
@@ -23,30 +27,36 @@ limit_kb=$((4 * 1024 * 1024))  # 4 GiB of address space: far below what a runawa
 timeout_s=60
 [ "$flavour" = sanitized ] && timeout_s=180
 
-# run LABEL ARGS...: one command, checked.
+# run LABEL ARGS...: one pstream command, checked. run_program LABEL PROGRAM ARGS...: any program.
 run() {
   local label=$1; shift
+  run_program "$label" "$pstream" "$@"
+}
+run_program() {
+  local label=$1 program=$2; shift 2
   local log=$root/last.log rc
   runs=$((runs + 1))
   if [ "$flavour" = plain ]; then
-    (ulimit -v "$limit_kb"; cd "$out" && timeout -k 5 "$timeout_s" "$pstream" "$@") >"$log" 2>&1 </dev/null
+    (ulimit -v "$limit_kb"; cd "$out" && timeout -k 5 "$timeout_s" "$program" "$@") >"$log" 2>&1 </dev/null
   else
     # Mesa leaks a little when it is unloaded at exit: no leak checking for the GL commands (as in
     # pstream_render_tests); every other check stays on.
     local asan=${ASAN_OPTIONS:-}
     case $1 in render | play) asan="detect_leaks=0:abort_on_error=1" ;; esac
-    (cd "$out" && ASAN_OPTIONS=$asan timeout -k 5 "$timeout_s" "$pstream" "$@") >"$log" 2>&1 </dev/null
+    [ "$program" != "$pstream" ] && asan="detect_leaks=0:abort_on_error=1"  # a host abandons reads by design
+    (cd "$out" && ASAN_OPTIONS=$asan timeout -k 5 "$timeout_s" "$program" "$@") >"$log" 2>&1 </dev/null
   fi
   rc=$?
   local why=""
   if [ $rc -eq 124 ] || [ $rc -eq 137 ]; then why="timed out (a hang)"
   elif [ $rc -ge 128 ]; then why="ended by signal $((rc - 128))"
+  elif [ $rc -eq 2 ] && [ "$program" != "$pstream" ]; then why="an error without a message, or an exception that is not particlestream.Error"
   elif grep -q "internal error" "$log"; then why="internal error"
   elif grep -qE "AddressSanitizer|LeakSanitizer|runtime error:" "$log"; then why="sanitizer report"
   fi
   if [ -n "$why" ]; then
     failures=$((failures + 1))
-    echo "FAIL [$label] pstream $* -> rc $rc: $why"
+    echo "FAIL [$label] $(basename "$program") $* -> rc $rc: $why"
     head -c 3000 "$log" | sed 's/^/    /'
   fi
   return 0
@@ -73,7 +83,15 @@ for f in "$in"/*; do
   run "$name" bench codec "$f" --frames 3 --repetitions 1 --json
   run "$name" bench read "$f" --repetitions 1 --json
   run "$name" play "$f" --frames-to-run 2
+  [ -n "$host_open" ] && run_program "$name" "$host_open" "$f"
+  [ -n "$python" ] && run_program "$name" "$python" "$here/python_open.py" "$f"
 done
+
+# A host that breaks the C API's rules (a completion twice, one that never comes, double close).
+if [ -n "$misuse" ]; then
+  mkdir -p "$root/misuse"
+  run_program misuse "$misuse" "$data" "$root/misuse"
+fi
 
 # Absurd plans and outputs.
 rm -rf "${out:?}"/*
