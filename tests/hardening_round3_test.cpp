@@ -182,6 +182,40 @@ TEST(HardeningRound3, MoreIdsThanParticlesIsRefusedByEveryCook) {
   }
 }
 
+// An Alembic object whose name is not valid UTF-8 (the writer's "particles", its first byte made
+// 0xFF in every place the name is stored): info --json prints valid JSON with U+FFFD in its
+// place, and the cook names it as it can.
+TEST(HardeningRound3, NamesThatAreNotUtf8AreEscapedWherePrinted) {
+  const fs::path dir = test::fresh_dir();
+  alembic::PointsWriterOptions o;
+  o.velocities = false;
+  o.name = "particles";
+  {
+    alembic::ArchiveWriter w(dir / "name.abc", "test", "a name that is not UTF-8", 24.0, 0.0, o);
+    const std::vector<float> P = {0, 0, 0, 1, 1, 1}, widths = {0.1f, 0.1f};
+    const std::vector<std::uint64_t> ids = {1, 2};
+    w.write_sample({P, ids, {}, widths, {}});
+    w.close();
+  }
+  std::string bytes = test::read_file(dir / "name.abc");
+  int patched = 0;
+  for (std::size_t at = 0; (at = bytes.find("particles", at)) != std::string::npos; at += 9, ++patched)
+    bytes[at] = '\xff';
+  ASSERT_GT(patched, 0);
+  test::write_file(dir / "name.abc", bytes);
+  const auto info = test::run_cli("info " + q(dir / "name.abc") + " --json");
+  ASSERT_EQ(info.exit_code, 0) << info.output;
+  EXPECT_EQ(info.output.find("internal error"), std::string::npos) << info.output;
+  EXPECT_NE(info.output.find("\xef\xbf\xbd"
+                             "articles"),
+            std::string::npos)
+      << info.output;  // U+FFFD, UTF-8
+  const auto text = test::run_cli("info " + q(dir / "name.abc"));
+  EXPECT_EQ(text.exit_code, 0) << text.output;
+  const auto cook = test::run_cli("cook " + q(dir / "name.abc") + " -q -o " + q(dir / "o.pstream"));
+  EXPECT_EQ(cook.output.find("internal error"), std::string::npos) << cook.output;
+}
+
 TEST(HardeningRound3, HeaderTimesMustBeFiniteAndOnTheFramesGrid) {
   const fs::path dir = test::fresh_dir();
   const fs::path clip = cook_clip(dir, "points_constant", "raw");
