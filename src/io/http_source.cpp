@@ -108,23 +108,22 @@ class HttpSource final : public ByteSource {
     active_.reserve(pool_.size());
     for (Request& r : pool_) {
       r.easy = curl_easy_init();
-      if (r.easy == nullptr) throw Error(url_ + ": libcurl could not make an easy handle");
+      if (r.easy == nullptr) {
+        release();
+        throw Error(url_ + ": libcurl could not make an easy handle");
+      }
       for (std::string* text : {&r.content_range, &r.etag, &r.last_modified}) text->reserve(256);
       free_.push_back(&r);
     }
     thread_ = std::thread([this] { run(); });
     try {
       probe();
-    } catch (...) {
-      stop();
+    } catch (...) {  // no destructor runs for a constructor that throws: release here
+      release();
       throw;
     }
   }
-  ~HttpSource() override {
-    stop();
-    for (Request& r : pool_) curl_easy_cleanup(r.easy);
-    curl_multi_cleanup(multi_);
-  }
+  ~HttpSource() override { release(); }
   HttpSource(const HttpSource&) = delete;
   HttpSource& operator=(const HttpSource&) = delete;
 
@@ -213,6 +212,16 @@ class HttpSource final : public ByteSource {
     }
     curl_multi_wakeup(multi_);
     return true;
+  }
+
+  void release() {
+    stop();
+    for (Request& r : pool_) {
+      if (r.easy != nullptr) curl_easy_cleanup(r.easy);
+      r.easy = nullptr;
+    }
+    if (multi_ != nullptr) curl_multi_cleanup(multi_);
+    multi_ = nullptr;
   }
 
   void stop() {

@@ -42,7 +42,7 @@ typedef struct memory_file {
 static int read_now(void* user, uint64_t offset, void* out, uint64_t size) {
   const memory_file* f = (const memory_file*)user;
   if (offset > f->size || size > f->size - offset) return 5;
-  memcpy(out, f->bytes + offset, (size_t)size);
+  if (size > 0) memcpy(out, f->bytes + offset, (size_t)size);
   return 0;
 }
 
