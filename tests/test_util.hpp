@@ -23,9 +23,11 @@ inline std::filesystem::path fresh_dir(std::string name = {}) {
   for (char& c : name) {
     if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.' && c != '-' && c != '_') c = '_';
   }
-  // The stream suite runs again through other IO backends (PSTREAM_TEST_IO), maybe at the same
-  // time as the plain run: each gets folders of its own.
+  // The stream suite runs again through other IO backends (PSTREAM_TEST_IO) and, over HTTP,
+  // against each test server (PSTREAM_TEST_SERVER), maybe all at the same time: each run gets
+  // folders of its own.
   if (const char* io = std::getenv("PSTREAM_TEST_IO")) name += std::string(".") + io;
+  if (const char* server = std::getenv("PSTREAM_TEST_SERVER")) name += std::string(".") + server;
   const auto dir = std::filesystem::temp_directory_path() / "pstream-tests" / name;
   std::error_code ec;  // a file that vanishes while this removes the folder: try again
   for (int attempt = 0; attempt < 3 && (std::filesystem::remove_all(dir, ec), ec); ++attempt) {

@@ -104,16 +104,6 @@ namespace {
 // The first bytes of a file (fewer when it is shorter). Refuses FIFOs and other special files
 // (reading one could block forever).
 std::string first_bytes(const std::string& file, std::size_t n) {
-  if (io::is_url(file)) {  // the command's own open reports a server that fails
-    try {
-      const auto source = io::open_url(file);
-      std::string out(std::min<std::uint64_t>(n, source->size()), '\0');
-      source->read(0, std::as_writable_bytes(std::span(out.data(), out.size())));
-      return out;
-    } catch (const Error&) {
-      return {};
-    }
-  }
   std::uint64_t size = 0;
   const int fd = open_regular_file(file, size);
   std::string out(n, '\0');
@@ -125,9 +115,14 @@ std::string first_bytes(const std::string& file, std::size_t n) {
 
 }  // namespace
 
-bool is_pstream_file(const std::string& file) { return first_bytes(file, 8) == std::string("PSTREAM\0", 8); }
+// A URL is read as a clip, without a request of its own to sniff it: the reader's header check
+// (format::parse_header) gives the same "cook it first" message for anything else.
+bool is_pstream_file(const std::string& file) {
+  return io::is_url(file) || first_bytes(file, 8) == std::string("PSTREAM\0", 8);
+}
 
 void require_cooked(const std::string& file) {
+  if (io::is_url(file)) return;
   const std::string magic = first_bytes(file, 8);
   if (magic.empty()) return;  // unreadable or empty: the command's own open says so
   format::check_magic(std::as_bytes(std::span(magic.data(), magic.size())), file);

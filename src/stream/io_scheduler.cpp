@@ -40,11 +40,13 @@ void LoadRequest::execute() {
     if (was_async) {
       if (read_status != 0) {
         if (error.empty()) error = io->failure_message(read_status);
-        if (!error.empty()) error += " (chunk " + std::to_string(chunk) + ")";
-        if (error.empty())
+        if (!error.empty()) {
+          error += " (chunk " + std::to_string(chunk) + ")";
+        } else {
           error = io->name() + ": the asynchronous read of " + std::to_string(target.size()) + " bytes at offset " +
                   std::to_string(entry.file_offset) + " (chunk " + std::to_string(chunk) + ") failed with status " +
                   std::to_string(read_status);
+        }
         status.store(Failed, std::memory_order_release);
         status.notify_all();
         return;
@@ -160,10 +162,6 @@ void IoScheduler::run() {
     run_job(r);
   }
 }
-
-}  // namespace pstream::stream
-
-namespace pstream::stream {
 
 bool MemoryBudget::try_reserve(std::uint64_t bytes) {
   std::uint64_t used = used_.load();
