@@ -299,7 +299,7 @@ PYBIND11_MODULE(particlestream, m) {
          const std::function<void(std::uint64_t, std::uint64_t)>& progress, const std::string& error,
          const std::string& scale_error, const std::string& attribute_error, const std::string& frames, bool merge,
          const std::string& scale_from, const std::string& color_from, bool velocity, std::uint32_t keyframe_interval,
-         bool drop_invalid) {
+         bool drop_invalid, bool store_velocity) {
         cook::Options o;
         // Every option of `pstream cook`, by the same rules and with the same messages.
         if (!frames.empty()) cook::set_frames(o, frames, "frames");
@@ -307,6 +307,7 @@ PYBIND11_MODULE(particlestream, m) {
         cook::set_scale_from(o, scale_from, "scale_from");
         o.color_from = color_from;
         o.keep_velocity = velocity;
+        o.particle.derive_velocity = !store_velocity;
         o.particle.keyframe_interval = keyframe_interval;
         o.drop_invalid = drop_invalid;
         cook::set_error_bound(o, error, "error");  // the command line's rules
@@ -344,13 +345,15 @@ PYBIND11_MODULE(particlestream, m) {
       py::arg("attribute_error") = "1e-3", py::arg("frames") = "", py::arg("merge") = false,
       py::arg("scale_from") = "widths", py::arg("color_from") = "auto", py::arg("velocity") = true,
       py::arg("keyframe_interval") = format::kDefaultKeyframeInterval, py::arg("drop_invalid") = false,
+      py::arg("store_velocity") = false,
       "Cooks an Alembic archive (or a PLY sequence) into a .pstream. progress(frames_done, frame_count) is "
       "called after each frame. The particle codec's bounds are the command line's --error (a fraction of the "
       "bounds diagonal, 'rel:1e-4', or 'abs:0.001' in scene units) and --scale-error (each scale relative to "
       "itself: '1%') and --attribute-error (velocity and other floats, a fraction of their range: '1e-3'). The "
       "other options are the command line's too: frames ('A:B'), object, merge, scale_from ('widths', "
-      "'constant:X', 'attr:NAME'), color_from ('auto', 'Cd', 'none'), attributes, velocity (keep the source's: "
-      "--no-velocity is velocity=False), keyframe_interval, drop_invalid. Returns the "
+      "'constant:X', 'attr:NAME'), color_from ('auto', 'Cd', 'none'), attributes, velocity (give the clip a "
+      "velocity: --no-velocity is velocity=False), keyframe_interval, drop_invalid, store_velocity "
+      "(--store-velocity: store the source's instead of deriving it from particles with ids). Returns the "
       "report (frames, particles, file_bytes, seconds).");
 
   py::class_<PyClip>(m, "Clip", "A .pstream read directly.")

@@ -113,6 +113,7 @@ def cook(
     velocity: bool = True,
     keyframe_interval: int = 64,
     drop_invalid: bool = False,
+    store_velocity: bool = False,
 ) -> dict:
     """Cooks an Alembic archive (or a PLY sequence) into a .pstream with the options of
     `pstream cook`; returns the report (frames, particles, file_bytes, seconds)."""

@@ -48,6 +48,7 @@ struct CookCli {
                                      codec = "particle", frames, error = "1e-4", scale_error = "1%",
                                      attribute_error = "1e-3";
   bool no_velocity = false;
+  bool store_velocity = false;
   bool merge = false, no_xforms = false, interpolate = false, drop_invalid = false, keep_order = false, quiet = false,
        json = false;
   double fps = 0.0;

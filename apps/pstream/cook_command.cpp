@@ -57,6 +57,7 @@ int run_cook(const CookCli& cli) {
   o.chunk_size = parse_size(cli.chunk_size);
   cook::set_codec(o, cli.codec);
   o.keep_velocity = !cli.no_velocity;
+  o.particle.derive_velocity = !cli.store_velocity;
   cook::set_error_bound(o, cli.error, "--error");
   cook::set_scale_error(o, cli.scale_error, "--scale-error");
   cook::set_attribute_error(o, cli.attribute_error, "--attribute-error");

@@ -46,6 +46,7 @@ std::string_view coding_name(WordCoding c) {
     case WordCoding::Constant: return "constant";
     case WordCoding::Id: return "id";
     case WordCoding::Relative: return "relative";
+    case WordCoding::Derived: return "derived";
   }
   return "?";
 }
@@ -213,9 +214,11 @@ int info_pstream(const InfoPstreamOptions& options) {
           fmt::print(" quantized(within {:.3g})", e.error);
         else if (e.coding == WordCoding::Relative)
           fmt::print(" relative(within {:.3g}% of its value)", 100.0 * e.error);
+        else if (e.coding == WordCoding::Derived)
+          fmt::print(" derived from the matched positions (not stored)");
         else
           fmt::print(" {}", coding_name(e.coding));
-        if (e.coding == WordCoding::Id) break;
+        if (e.coding == WordCoding::Id || e.coding == WordCoding::Derived) break;
       }
       fmt::print("\n");
     }
@@ -234,6 +237,12 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
                           {"distinct_source", a.distinct_source},
                           {"distinct_clip", a.distinct_clip},
                           {"ok", a.ok}});
+    if (a.derived) {
+      attributes.back()["derived"] = true;
+      attributes.back()["in_source"] = a.in_source;
+      attributes.back()["rms_error"] = a.rms_error;
+      attributes.back()["rms_source"] = a.rms_source;
+    }
   }
   json comparison;
   if (!r.source.empty()) {
@@ -255,6 +264,18 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
                count_of(r.chunks_verified, "chunk"),
                against.empty() ? "" : ", every value within its bound of the source");
     for (const cook::AttributeCheck& a : r.attributes) {
+      if (a.derived && !a.in_source) {
+        fmt::print("  {:<12} derived from the matched positions; the source has none to compare with\n", a.name);
+        continue;
+      }
+      if (a.derived) {
+        fmt::print(
+            "  {:<12} derived from the matched positions: RMS error {:.4g} ({:.1f}% of the source's RMS {:.4g}), "
+            "max {:.4g}\n",
+            a.name, a.rms_error, a.rms_source > 0 ? 100.0 * a.rms_error / a.rms_source : 0.0, a.rms_source,
+            a.max_error);
+        continue;
+      }
       const std::string bound = a.exact      ? std::string("0, exact")
                                 : a.relative ? fmt::format("{:.3g}% of each value", 100.0 * a.bound)
                                              : fmt::format("{:.6g}", a.bound);

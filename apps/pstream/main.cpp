@@ -237,8 +237,13 @@ int main(int argc, char** argv) {
       ->capture_default_str()
       ->check(CLI::Range(1, 1024));
   cook_cmd->add_flag("--no-velocity", cook.no_velocity,
-                     "Leave out the source's velocities (kept by default when it has them: speed colours, motion "
-                     "blur, stretched sprites and smooth slow motion need them)");
+                     "Give the clip no velocity. By default it has one (speed colours, motion blur, stretched "
+                     "sprites and smooth slow motion need it): derived from the positions of particles with ids "
+                     "(particle codec, no bytes stored), else the source's velocities when it has them");
+  cook_cmd->add_flag("--store-velocity", cook.store_velocity,
+                     "particle codec: store the source's velocities (within --attribute-error, about 2.3 bytes per "
+                     "particle) instead of deriving them from the positions of particles with ids (docs/"
+                     "compression.md: the derived one's error)");
   cook_cmd->add_option("--frames", cook.frames, "Output frames A:B (from A up to but not including B)");
   cook_cmd->add_flag("--keep-order", cook.keep_order,
                      "Keep each frame's particles in the source's order (records codec). By default a clip with "

@@ -126,6 +126,11 @@ struct AttributeCheck {
   // Distinct values (per component, over the compared frames) in the source and in the clip: a
   // bound that erases sizes shows as far fewer in the clip.
   std::uint64_t distinct_source = 0, distinct_clip = 0;
+  // A velocity the particle codec derives (no bound): its root-mean-square error against the
+  // source's velocities and their root-mean-square value, per component; `in_source` is false when
+  // the source has none to compare with.
+  bool derived = false, in_source = true;
+  double rms_error = 0.0, rms_source = 0.0;
 };
 
 struct VerifyReport {

@@ -92,6 +92,12 @@ enum class WordCoding : std::uint8_t {
   // `base` (the shift, 0..23) mantissa bits rounded off; q = bits >> shift after rounding. For
   // sizes, which span orders of magnitude within a clip.
   Relative = 4,
+  // (Version 3.) A velocity component not stored but derived from the steps of position word
+  // `base` (a Quantized word) over the codec's matching: value = float(s) × step, with s the
+  // second-order backward difference 3·d0 − d1 of the particle's last two grid steps, 2·d0 when it
+  // has one, 0 when it has none (docs/format.md, "Derived velocity"). `step` is the position
+  // step × fps / 2, so the value is in position units per second.
+  Derived = 5,
 };
 // The bits a Relative word keeps of a float (its sign, exponent and 23 - shift mantissa bits, the
 // magnitude rounded half up) and the float they decode to: exact integer operations, the same
@@ -116,11 +122,12 @@ enum class FrameOrder : std::uint8_t {
 
 struct WordCodingEntry {
   WordCoding coding = WordCoding::Exact;
-  float step = 0.0f;       // Quantized: the grid step
+  float step = 0.0f;       // Quantized: the grid step; Derived: grid units to velocity
   float error = 0.0f;      // Quantized: the bound the encoder guarantees, |decoded - source| <= error;
                            // Relative: |decoded - source| <= error × |source|
   std::uint32_t base = 0;  // Quantized: the grid origin's float bits; Constant: the word's bits;
-                           // Relative: the mantissa bits rounded off (1..23)
+                           // Relative: the mantissa bits rounded off (1..23); Derived: the position
+                           // word it is derived from
 };
 
 struct CodecInfo {

@@ -169,6 +169,10 @@ typedef struct pstream_cook_options {
   /* Particle codec: the bound on velocity and other float attributes, a fraction of each one's
    * own range (default 1e-3). Added with scale_error. */
   double attribute_error;
+  /* Particle codec, particles with ids: non-zero stores the source's velocities (about 2.3 bytes
+   * per particle) instead of deriving them from the matched positions (default 0). Added after
+   * attribute_error: an older struct_size gets the default. */
+  int store_velocity;
 } pstream_cook_options;
 
 typedef struct pstream_cook_report {

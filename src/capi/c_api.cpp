@@ -288,6 +288,7 @@ pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_re
         if (options->error > 0) cook::set_error_bound(o, fmt::format("rel:{}", options->error), "error");
         cook::set_scale_error(o, fmt::format("{}", options->scale_error), "scale_error");
         cook::set_attribute_error(o, fmt::format("{}", options->attribute_error), "attribute_error");
+        o.particle.derive_velocity = options->store_velocity == 0;
         break;
       default: return fail(PSTREAM_ERROR_ARGUMENT, "unknown codec " + std::to_string(options->codec));
     }

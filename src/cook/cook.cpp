@@ -36,6 +36,7 @@ struct Plan {
   std::uint32_t record_size = 16;
   const Attribute* color = nullptr;
   const Attribute* velocity = nullptr;
+  bool derived_velocity = false;  // the particle codec derives it (the source's only seed births)
   const Attribute* id = nullptr;
   std::vector<const Attribute*> floats;
 };
@@ -85,8 +86,21 @@ Plan make_plan(const Options& options, const Source& source, Report& report, flo
   }
   r.color = options.color_from == "Cd" || (options.color_from == "auto" && source.has_color());
   if (r.color) format::append_attribute(plan.layout, "color", AttributeType::Unorm8, 4);
+  // The particle codec derives velocity from the positions of particles matched by id: the
+  // source's velocities, when it has them, only give new particles their first step. Without ids
+  // the codec's matching pairs nearby particles, not the same ones (on Blender's FLIP fixture a
+  // derived velocity is off by its own RMS), so the source's velocities are stored.
+  const bool derive = options.frame_codec == format::FrameCodec::Particle && !options.particle.lossless &&
+                      options.particle.derive_velocity && source.has_ids();
+  const auto add_velocity = [&] {
+    r.velocity = source.has_velocity();
+    plan.derived_velocity = derive;
+    format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
+  };
   for (const std::string& a : options.attributes) {
-    if (a == "velocity") {
+    if (a == "velocity" && derive) {
+      if (!plan.derived_velocity) add_velocity();
+    } else if (a == "velocity") {
       if (!source.has_velocity())
         throw OptionError("attributes", fmt::format("{}: `attributes` has velocity, but the source has no velocities",
                                                     source.name()));
@@ -107,9 +121,13 @@ Plan make_plan(const Options& options, const Source& source, Report& report, flo
       format::append_attribute(plan.layout, a, AttributeType::Float32, static_cast<std::uint8_t>(components));
     }
   }
-  if (options.keep_velocity && !r.velocity && source.has_velocity()) {
-    r.velocity = true;
-    format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
+  if (options.keep_velocity && !r.velocity && !plan.derived_velocity && (derive || source.has_velocity())) {
+    if (derive) {
+      add_velocity();
+    } else {
+      r.velocity = true;
+      format::append_attribute(plan.layout, "velocity", AttributeType::Float32, 3);
+    }
   }
   plan.record_size = format::record_size_of(plan.layout);
   if (options.frame_codec == format::FrameCodec::Particle && !options.particle.lossless) {
@@ -218,7 +236,10 @@ void pack_record(const ParticleFrame& f, const Plan& plan, std::uint64_t i, std:
   std::memcpy(dst, &f.position[i * 3], 12);
   std::memcpy(dst + 12, &f.scale[i], 4);
   if (plan.color) std::memcpy(dst + plan.color->offset, &f.color[i * 4], 4);
-  if (plan.velocity) std::memcpy(dst + plan.velocity->offset, &f.velocity[i * 3], 12);
+  if (plan.velocity && f.velocity.size() >= (i + 1) * 3)
+    std::memcpy(dst + plan.velocity->offset, &f.velocity[i * 3], 12);
+  else if (plan.velocity)
+    std::memset(dst + plan.velocity->offset, 0, 12);  // derived, and the source has none
   if (plan.id) {
     if (plan.id->type == AttributeType::Uint64) {
       std::memcpy(dst + plan.id->offset, &f.id[i], 8);
@@ -496,9 +517,10 @@ std::string codec_setting(const Options& o) {
                       : o.particle.lossless ? format::kDefaultLosslessParticleZstdLevel
                                             : format::kDefaultParticleZstdLevel;
     if (o.particle.lossless) return fmt::format("particle-lossless:{}", level);
-    return fmt::format("particle:{} error={}:{:g} scale_error={:g} attribute_error={:g} keyframe_interval={}", level,
-                       o.particle.error_relative ? "rel" : "abs", o.particle.error, o.particle.scale_error,
-                       o.particle.attribute_error, o.particle.keyframe_interval);
+    return fmt::format(
+        "particle:{} error={}:{:g} scale_error={:g} attribute_error={:g} keyframe_interval={} velocity={}", level,
+        o.particle.error_relative ? "rel" : "abs", o.particle.error, o.particle.scale_error, o.particle.attribute_error,
+        o.particle.keyframe_interval, o.particle.derive_velocity ? "derived" : "stored");
   }
   return fmt::format("{}:{}", format::codec_name(o.codec), o.codec_level);
 }

@@ -33,10 +33,14 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   o.fps = m.fps;
   o.frame_codec = FrameCodec::Records;  // the source's exact values, raw
   o.codec = Codec::Raw;
-  o.keep_velocity = false;  // the clip's attributes, no more
   o.color_from = m.find("color") ? "Cd" : "none";
+  // A derived velocity is compared with the source's, when it has one.
+  const Attribute* velocity = m.find("velocity");
+  const bool derived = m.codec.codec == FrameCodec::Particle && velocity != nullptr &&
+                       m.codec.words[velocity->offset / 4].coding == WordCoding::Derived;
+  o.keep_velocity = derived;  // otherwise the clip's attributes, no more
   for (const Attribute& a : m.layout) {
-    if (a.name == "position" || a.name == "scale" || a.name == "color") continue;
+    if (a.name == "position" || a.name == "scale" || a.name == "color" || (derived && a.name == "velocity")) continue;
     o.attributes.push_back(a.name == "id" && a.type == AttributeType::Uint32 ? "id32" : a.name);
   }
   const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-verify-{}.pstream", ::getpid());
@@ -52,7 +56,17 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   const Reader src = Reader::open(temp);
   const Metadata& sm = src.metadata();
   report.source = source.string();
-  if (sm.record_size != m.record_size) {
+  // The source's records in the clip's layout when the two differ (a derived velocity: the source
+  // may have none, zero here, or place it elsewhere).
+  const bool source_velocity = sm.find("velocity") != nullptr;
+  bool same = sm.record_size == m.record_size, mappable = true;
+  for (const Attribute& at : m.layout) {
+    const Attribute* from = sm.find(at.name);
+    same = same && from != nullptr && from->offset == at.offset && from->size() == at.size();
+    if (!(derived && at.name == "velocity")) mappable = mappable && from != nullptr && from->size() == at.size();
+  }
+  const bool remap = !same && derived && mappable;
+  if (sm.record_size != m.record_size && !remap) {
     report.errors.push_back(fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source.string(),
                                         sm.record_size, m.record_size));
     return;
@@ -63,14 +77,18 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   const std::uint32_t words = m.record_size / 4;
   constexpr std::size_t kDistinctCap = 1 << 16;
   std::vector<std::unordered_set<std::uint32_t>> seen_source(words), seen_clip(words);
+  // `recs` in `lm`'s layout; each of the clip's float words is found there by attribute name.
   const auto note = [&](std::vector<std::unordered_set<std::uint32_t>>& seen, std::span<const std::byte> recs,
-                        std::uint64_t count) {
+                        std::uint64_t count, const Metadata& lm) {
     for (const Attribute& at : m.layout) {
-      if (at.type != AttributeType::Float32 || at.name == "position") continue;
+      const Attribute* from = lm.find(at.name);
+      if (at.type != AttributeType::Float32 || at.name == "position" || from == nullptr || from->size() != at.size())
+        continue;
       for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
+        const std::uint32_t at_byte = from->offset + 4 * w - at.offset;
         for (std::uint64_t i = 0; i < count && seen[w].size() < kDistinctCap; ++i) {
           std::uint32_t v;
-          std::memcpy(&v, recs.data() + i * m.record_size + 4 * w, 4);
+          std::memcpy(&v, recs.data() + i * lm.record_size + at_byte, 4);
           seen[w].insert(v);
         }
       }
@@ -86,9 +104,12 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
     }
     reader.read_frame(f, a);
     src.read_frame(s, b);
-    c.add(m.layout, a, m.frames[f].count, b, sm.frames[s].count, &m.codec);
-    note(seen_clip, a, m.frames[f].count);
-    note(seen_source, b, sm.frames[s].count);
+    if (remap)
+      c.add(m.layout, a, m.frames[f].count, sm.layout, b, sm.frames[s].count, &m.codec);
+    else
+      c.add(m.layout, a, m.frames[f].count, b, sm.frames[s].count, &m.codec);
+    note(seen_clip, a, m.frames[f].count, m);
+    note(seen_source, b, sm.frames[s].count, sm);
     ++report.frames_compared;
   }
   report.particles_compared = c.particles;
@@ -109,6 +130,18 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
         check.max_error = std::max(check.max_error, relative ? c.max_relative_error[w] : c.max_error[w]);
       check.distinct_source = std::max<std::uint64_t>(check.distinct_source, seen_source[w].size());
       check.distinct_clip = std::max<std::uint64_t>(check.distinct_clip, seen_clip[w].size());
+      if (e && e->coding == WordCoding::Derived && w < c.compared.size() && c.compared[w] != 0) {
+        check.derived = true;
+        check.exact = false;
+        check.in_source = source_velocity;
+        const double n = double(c.compared[w]);
+        check.rms_error = std::max(check.rms_error, std::sqrt(c.sum_squared_error[w] / n));
+        check.rms_source = std::max(check.rms_source, std::sqrt(c.sum_squared_source[w] / n));
+      }
+    }
+    if (check.derived) {  // no bound to hold: reported, never failed
+      report.attributes.push_back(check);
+      continue;
     }
     check.ok = check.exact ? check.max_error == 0.0 : check.max_error <= check.bound;
     if (!check.ok) {

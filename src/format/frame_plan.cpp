@@ -132,6 +132,33 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
     const Attribute& at = layout[a];
     const std::uint32_t first = at.offset / 4, words = static_cast<std::uint32_t>(at.size() / 4);
     const bool is_float = at.type == AttributeType::Float32;
+    const auto is_position = [](const Attribute& x) { return x.name == "position"; };
+    const auto found = std::find_if(layout.begin(), layout.end(), is_position);
+    const Attribute* position = found == layout.end() ? nullptr : &*found;
+    if (options.derive_velocity && info.order == FrameOrder::Id && at.name == "velocity" && is_float &&
+        at.components == 3 && position != nullptr && position->type == AttributeType::Float32 &&
+        position->components == 3) {
+      if (!(fps > 0.0) || !std::isfinite(fps))
+        throw Error(fmt::format("a derived velocity needs the clip's frame rate, not {} fps", fps));
+      // Not stored: each component from its position word's grid steps (the position words come
+      // first in the layout, so their codings are set).
+      for (std::uint32_t c = 0; c < 3; ++c) {
+        WordCodingEntry& entry = info.words[first + c];
+        const std::uint32_t from = position->offset / 4 + c;
+        const WordCodingEntry& p = info.words[from];
+        entry = WordCodingEntry{};
+        if (p.coding == WordCoding::Quantized) {
+          entry.coding = WordCoding::Derived;
+          entry.base = from;
+          entry.step = static_cast<float>(double(p.step) * fps * 0.5);
+        } else {
+          entry.coding = WordCoding::Constant;  // a position that never moves on this axis: 0
+          entry.base = std::bit_cast<std::uint32_t>(0.0f);
+        }
+      }
+      component += at.components;
+      continue;
+    }
     if (stats.particles() > 0 && stats.constant(a)) {
       const std::span<const std::byte> v = stats.constant_value(a);
       for (std::uint32_t w = 0; w < words; ++w) {
@@ -189,11 +216,31 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
 namespace pstream::format {
 
 void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const std::byte> decoded,
+                          std::uint64_t decoded_count, const std::vector<Attribute>& source_layout,
+                          std::span<const std::byte> source, std::uint64_t source_count, const CodecInfo* codec) {
+  const std::uint32_t rs = record_size_of(layout), from_rs = record_size_of(source_layout);
+  std::vector<std::byte> mapped(source_count * rs, std::byte{0});
+  for (const Attribute& at : layout) {
+    const auto same = [&](const Attribute& x) { return x.name == at.name && x.size() == at.size(); };
+    const auto from = std::find_if(source_layout.begin(), source_layout.end(), same);
+    if (from == source_layout.end()) continue;
+    for (std::uint64_t i = 0; i < source_count && (i + 1) * from_rs <= source.size(); ++i)
+      std::memcpy(mapped.data() + i * rs + at.offset, source.data() + i * from_rs + from->offset, at.size());
+  }
+  add(layout, decoded, decoded_count, mapped, source_count, codec);
+}
+
+void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const std::byte> decoded,
                           std::uint64_t decoded_count, std::span<const std::byte> source, std::uint64_t source_count,
                           const CodecInfo* codec) {
   const std::uint32_t rs = record_size_of(layout), words = rs / 4;
   if (max_error.size() < words) max_error.resize(words, 0.0);
   if (max_relative_error.size() < words) max_relative_error.resize(words, 0.0);
+  if (sum_squared_error.size() < words) {
+    sum_squared_error.resize(words, 0.0);
+    sum_squared_source.resize(words, 0.0);
+    compared.resize(words, 0);
+  }
   particles += decoded_count;
   if (decoded_count != source_count) ++count_mismatches;
   std::vector<bool> is_float(words, false);
@@ -218,6 +265,11 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
         if (std::isnan(e)) e = std::numeric_limits<double>::infinity();
         const double relative = e == 0.0 ? 0.0 : e / std::abs(double(fb));
         max_relative_error[w] = std::max(max_relative_error[w], std::isnan(relative) ? INFINITY : relative);
+        if (std::isfinite(e) && std::isfinite(fb)) {
+          sum_squared_error[w] += e * e;
+          sum_squared_source[w] += double(fb) * double(fb);
+          ++compared[w];
+        }
       } else if (a != b) {
         e = std::numeric_limits<double>::infinity();
       }
@@ -295,12 +347,26 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
               if (used[s]) continue;
               double e = 0.0;
               for (std::uint32_t w = 0; w < words; ++w) {
-                const bool quantized = codec && w < codec->words.size() &&
-                                       codec->words[w].coding == WordCoding::Quantized && codec->words[w].error > 0;
-                if (!quantized && w >= 3) continue;
-                const double diff = std::abs(double(std::bit_cast<float>(word(decoded, rs, d, w))) -
-                                             double(std::bit_cast<float>(word(source, rs, s, w))));
-                e = std::max(e, quantized ? diff / double(codec->words[w].error) : diff);
+                // Each word's difference in units of its bound: quantised (absolute), relative (of
+                // the source's value), exact (any difference is far). Derived words have no
+                // bound and say nothing about which particle this is.
+                const WordCodingEntry* c = codec && w < codec->words.size() ? &codec->words[w] : nullptr;
+                const bool quantized = c && c->coding == WordCoding::Quantized && c->error > 0;
+                const bool relative = c && c->coding == WordCoding::Relative && c->error > 0;
+                const bool exact = c && (c->coding == WordCoding::Exact || c->coding == WordCoding::Constant);
+                if (!quantized && !relative && !exact && w >= 3) continue;
+                const float x = std::bit_cast<float>(word(decoded, rs, d, w));
+                const float y = std::bit_cast<float>(word(source, rs, s, w));
+                const double diff = std::abs(double(x) - double(y));
+                if (quantized) {
+                  e = std::max(e, diff / double(c->error));
+                } else if (relative) {
+                  e = std::max(e, diff / (double(c->error) * std::max(std::abs(double(y)), 1e-30)));
+                } else if (exact && w >= 3) {
+                  if (word(decoded, rs, d, w) != word(source, rs, s, w)) e = std::max(e, 1e6);
+                } else {
+                  e = std::max(e, diff);
+                }
               }
               if (e < best) {
                 best = e;

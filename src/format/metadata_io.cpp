@@ -116,6 +116,20 @@ void validate_word_codings(const Metadata& m, Fail fail) {
                         "shift of 1 to 23 and a bound in (0, 1) (shift {}, bound {})",
                         w, a.name, e.base, e.error));
       }
+      if (e.coding == WordCoding::Derived) {
+        const Attribute* position = m.find("position");
+        const bool from_position = position != nullptr && e.base >= position->offset / 4 &&
+                                   e.base < (position->offset + position->size()) / 4 &&
+                                   m.codec.words[e.base].coding == WordCoding::Quantized;
+        if (a.name != "velocity" || !is_float || a.components != 3 || m.version < 3 || !from_position ||
+            !(e.step > 0.0f) || !std::isfinite(e.step)) {
+          fail(
+              fmt::format("record word {} ('{}'): a derived word needs the float32x3 'velocity' attribute, format "
+                          "version 3, a quantised position word to derive from and a finite step > 0 (from word "
+                          "{}, step {})",
+                          w, a.name, e.base, e.step));
+        }
+      }
       if (e.coding == WordCoding::Id && (!is_id || m.codec.order != FrameOrder::Id)) {
         fail(
             fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute "
@@ -421,7 +435,7 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
       e.step = t.get<float>("word step");
       e.error = t.get<float>("word error");
       e.base = t.get<std::uint32_t>("word base");
-      if (coding > static_cast<std::uint8_t>(WordCoding::Relative))
+      if (coding > static_cast<std::uint8_t>(WordCoding::Derived))
         t.fail(fmt::format("record word {} has unknown coding {}", w, coding));
       e.coding = static_cast<WordCoding>(coding);
     }

@@ -71,19 +71,38 @@ inline void predict_run(std::uint32_t* __restrict q0, std::uint32_t* __restrict 
   }
 }
 
-// The coded words of a layout (quantised or exact), and where the id's two words are.
+// The coded words of a layout (quantised or exact), where the id's two words are, and the derived
+// words with the coded word (index into `coded`) each is derived from.
 struct WordPlan {
   std::vector<std::uint32_t> coded;  // record word indices
   std::int64_t id_word = -1;         // first of the id's two words, or -1
   std::uint32_t words = 0;
+  struct Derived {
+    std::uint32_t word = 0, from = 0;  // record word; index into `coded`
+  };
+  std::vector<Derived> derived;
   explicit WordPlan(const CodecInfo& info) : words(static_cast<std::uint32_t>(info.words.size())) {
     for (std::uint32_t w = 0; w < words; ++w) {
       const WordCoding c = info.words[w].coding;
       if (c == WordCoding::Quantized || c == WordCoding::Exact || c == WordCoding::Relative) coded.push_back(w);
       if (c == WordCoding::Id && id_word < 0) id_word = w;
     }
+    for (std::uint32_t w = 0; w < words; ++w) {
+      if (info.words[w].coding != WordCoding::Derived) continue;
+      const auto k = std::find(coded.begin(), coded.end(), info.words[w].base);
+      if (k != coded.end()) derived.push_back({w, static_cast<std::uint32_t>(k - coded.begin())});
+    }
   }
 };
+
+// A derived velocity's grid-step numerator (WordCoding::Derived): the particle's last step d0 and
+// the one before it d1, by how many steps it has (0, 1, or 2 and more).
+inline float derived_value(std::uint32_t d0, std::uint32_t d1, std::uint8_t steps, float step) {
+  const auto s0 = static_cast<std::int64_t>(static_cast<std::int32_t>(d0));
+  const auto s1 = static_cast<std::int64_t>(static_cast<std::int32_t>(d1));
+  const std::int64_t s = steps >= 2 ? 3 * s0 - s1 : steps == 1 ? 2 * s0 : 0;
+  return static_cast<float>(s) * step;
+}
 
 inline std::uint64_t body_capacity(std::uint64_t max_count, std::size_t coded, bool ids) {
   // Header, at most prev + count ops (each moves at least one particle), keep + new + motion

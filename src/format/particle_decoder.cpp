@@ -33,6 +33,10 @@ class ParticleUnit final : public FrameUnit {
       if (plan_.id_word >= 0) ids_[b].assign(n, 0);
     }
     residual_.assign(n, 0);
+    if (!plan_.derived.empty()) {
+      for (int b = 0; b < 2; ++b) steps_[b].assign(n, 0);
+      derived_.assign(plan_.derived.size() * n, 0);
+    }
     bias_.assign((n + kBlock - 1) >> kBlockShift, 0);
     tile_.assign(std::size_t(plan_.words) * kTile, 0);
     words_.resize(coded);
@@ -42,8 +46,8 @@ class ParticleUnit final : public FrameUnit {
 
   void reset() override { count_[cur_ ^ 1] = 0; }
   std::uint64_t state_bytes() const override {
-    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size()) * 4;
-    for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8;
+    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size() + derived_.size()) * 4;
+    for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8 + steps_[b].size();
     return bytes;
   }
 
@@ -74,7 +78,7 @@ class ParticleUnit final : public FrameUnit {
       const std::uint32_t* r = residual_.data();
       const std::uint32_t* bias = bias_.data();
       const std::uint32_t linear = w.predictor == kLinear ? ~0u : 0u;
-      std::uint32_t i = 0, j = 0, kt = 0, nt = 0;
+      std::uint32_t i = 0, j = 0, kt = 0, nt = 0, step = 0;
       for (std::uint32_t o = 0; o < b.op_count; ++o) {
         const Op op = op_at(b, o);
         // The run in pieces that share a bias (split at block borders), each a vector loop.
@@ -89,17 +93,21 @@ class ParticleUnit final : public FrameUnit {
         kt += op.keep;
         if (op.insert != 0) {
           const auto* p = reinterpret_cast<const std::uint8_t*>(w.fresh);
+          const auto* m = reinterpret_cast<const std::uint8_t*>(w.motion);
           for (std::uint32_t t = 0; t < op.insert; ++t, ++nt, ++j) {
-            std::uint32_t v = 0;
+            std::uint32_t v = 0, s = 0;
             for (unsigned byte = 0; byte < w.new_bytes; ++byte)
               v |= std::uint32_t(p[byte * b.new_count + nt]) << (8 * byte);
+            for (unsigned byte = 0; byte < w.motion_bytes; ++byte)
+              s |= std::uint32_t(m[byte * b.new_count + nt]) << (8 * byte);
             q0[j] = (j == 0 ? 0u : q0[j - 1]) + unzigzag(v);
-            d0[j] = 0;
+            d0[j] = step += unzigzag(s);  // a new particle's first step (version 3), else 0
           }
         }
       }
     }
     if (plan_.id_word >= 0) decode_ids(b, prev);
+    if (!plan_.derived.empty()) derive(b, prev);
     write_records(b.count, out);
     count_[cur_] = b.count;
     cur_ ^= 1;
@@ -186,10 +194,11 @@ class ParticleUnit final : public FrameUnit {
       const bool reserved = p[at + 5] != std::byte{0} || p[at + 6] != std::byte{0} || p[at + 7] != std::byte{0};
       at += 8;
       if (w.predictor > kLinear || w.keep_bytes > 4 || w.new_bytes > 4 || w.motion_bytes > 4 || w.bias_bytes > 4 ||
-          reserved || (!keyframe && w.motion_bytes != 0) || (keyframe && w.bias_bytes != 0)) {
+          reserved || (!keyframe && w.motion_bytes != 0 && meta_.version < 3) || (keyframe && w.bias_bytes != 0)) {
         fail(frame,
              fmt::format("{}: predictor {} with {}/{}/{}/{} keep/new/motion/bias residual bytes (expected a "
-                         "predictor 0..1, 0..4 bytes, motion only in keyframes, bias only in predicted frames, "
+                         "predictor 0..1, 0..4 bytes, motion only in keyframes before version 3, bias only in "
+                         "predicted frames, "
                          "reserved bytes 0)",
                          word_name(plan_.coded[k]), w.predictor, w.keep_bytes, w.new_bytes, w.motion_bytes,
                          w.bias_bytes),
@@ -268,6 +277,49 @@ class ParticleUnit final : public FrameUnit {
     }
   }
 
+  // Derived words (velocity) from each particle's last two grid steps over the matching. A
+  // particle with no predecessor (a keyframe's, or a new one) has one step, its stored motion,
+  // when that is not zero, else none; a survivor one more than it had.
+  void derive(const Body& b, int prev) {
+    const std::uint64_t n = meta_.max_count;
+    std::uint8_t* steps = steps_[cur_].data();
+    const std::uint8_t* before = steps_[prev].data();
+    const auto moved = [&](std::uint32_t j) {
+      for (const WordPlan::Derived& dw : plan_.derived)
+        if (d_[cur_][dw.from * n + j] != 0) return true;
+      return false;
+    };
+    const auto value = [&](std::uint32_t j, std::uint32_t i, bool survivor) {
+      for (std::size_t x = 0; x < plan_.derived.size(); ++x) {
+        const WordPlan::Derived& dw = plan_.derived[x];
+        const std::uint32_t d0 = d_[cur_][dw.from * n + j];
+        const std::uint32_t d1 = survivor ? d_[prev][dw.from * n + i] : 0u;
+        derived_[x * n + j] =
+            std::bit_cast<std::uint32_t>(derived_value(d0, d1, steps[j], meta_.codec.words[dw.word].step));
+      }
+    };
+    if (b.keyframe) {
+      for (std::uint32_t j = 0; j < b.count; ++j) {
+        steps[j] = moved(j) ? 1 : 0;
+        value(j, 0, false);
+      }
+      return;
+    }
+    std::uint32_t i = 0, j = 0;
+    for (std::uint32_t o = 0; o < b.op_count; ++o) {
+      const Op op = op_at(b, o);
+      for (std::uint32_t t = 0; t < op.keep; ++t, ++i, ++j) {
+        steps[j] = static_cast<std::uint8_t>(std::min(before[i] + 1, 2));
+        value(j, i, true);
+      }
+      i += op.drop;
+      for (std::uint32_t t = 0; t < op.insert; ++t, ++j) {
+        steps[j] = moved(j) ? 1 : 0;
+        value(j, 0, false);
+      }
+    }
+  }
+
   // Records are written a tile of particles at a time: each word's values computed into a
   // column of the tile (vector loops), then the tile's rows copied out whole.
   void write_records(std::uint32_t count, std::span<std::byte> out) {
@@ -295,6 +347,12 @@ class ParticleUnit final : public FrameUnit {
             break;
           }
           case WordCoding::Exact: std::copy_n(q_[cur_].data() + k++ * n + j0, len, column); break;
+          case WordCoding::Derived: {
+            std::size_t x = 0;
+            while (plan_.derived[x].word != w) ++x;
+            std::copy_n(derived_.data() + x * n + j0, len, column);
+            break;
+          }
           case WordCoding::Constant: std::fill_n(column, len, e.base); break;
           case WordCoding::Id: {
             const std::uint64_t* ids = ids_[cur_].data() + j0;
@@ -324,6 +382,8 @@ class ParticleUnit final : public FrameUnit {
   ZSTD_DCtx* zstd_;
   std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_;
   std::vector<std::uint64_t> ids_[2];
+  std::vector<std::uint8_t> steps_[2];  // per particle: grid steps known (0, 1, 2 = two or more)
+  std::vector<std::uint32_t> derived_;  // per derived word and particle: the value's bits
   std::uint32_t count_[2] = {0, 0};
   int cur_ = 0;
   std::vector<Body::Word> words_;
@@ -337,7 +397,8 @@ std::uint64_t particle_unit_state_bytes(const Metadata& meta) {
   const std::uint64_t n = meta.max_count, coded = plan.coded.size();
   const bool ids = plan.id_word >= 0;
   // Per particle: Q and D of every coded word in two states, ids in two states, a residual.
-  return n * (coded * 16 + (ids ? 16 : 0) + 4) + ((n + kBlock - 1) >> kBlockShift) * 4 +
+  const std::uint64_t derived = plan.derived.empty() ? 0 : 2 + plan.derived.size() * 4;
+  return n * (coded * 16 + (ids ? 16 : 0) + 4 + derived) + ((n + kBlock - 1) >> kBlockShift) * 4 +
          std::uint64_t(plan.words) * kTile * 4 + body_capacity(n, coded, ids);
 }
 

@@ -172,6 +172,25 @@ class GroupEncoder {
       }
     }
     ids_in_ = frame.ids;
+    // A particle with no predecessor starts with one step: its source velocity over a frame, in
+    // grid steps, for each position word a velocity is derived from (0 when the source has none).
+    birth_.assign(plan_.coded.size(), {});
+    for (const WordPlan::Derived& dw : plan_.derived) {
+      std::vector<std::uint32_t>& b = birth_[dw.from];
+      b.assign(n, 0);
+      const double per_step = 2.0 * double(info_.words[dw.word].step);
+      for (std::uint32_t j = 0; j < n; ++j) {
+        float v;
+        std::memcpy(&v, frame.records.data() + std::size_t(j) * record_size_ + 4 * dw.word, 4);
+        const double t = std::nearbyint(double(v) / per_step);
+        if (std::isfinite(t) && std::abs(t) < double(kGridLimit))
+          b[j] = static_cast<std::uint32_t>(static_cast<std::int32_t>(t));
+      }
+    }
+  }
+
+  std::uint32_t birth(std::size_t k, std::uint32_t source_index) const {
+    return birth_[k].empty() ? 0u : birth_[k][source_index];
   }
 
   std::uint64_t morton_of(std::uint32_t j) const {
@@ -317,7 +336,7 @@ class GroupEncoder {
       for (std::uint32_t j = 0; j < n; ++j) {
         const std::uint32_t s = order[j];
         next.q[k][j] = source_[k][s];
-        next.d[k][j] = match[s] >= 0 ? source_[k][s] - state_.q[k][std::size_t(match[s])] : 0u;
+        next.d[k][j] = match[s] >= 0 ? source_[k][s] - state_.q[k][std::size_t(match[s])] : birth(k, s);
       }
       fresh[k] = spatial(next.q[k]);
       motion[k] = spatial(next.d[k]);
@@ -413,7 +432,7 @@ class GroupEncoder {
     next.d.resize(plan_.coded.size());
     struct Choice {
       std::uint8_t predictor;
-      std::vector<std::uint32_t> bias, keep, fresh;  // bias: zigzagged deltas, one per block
+      std::vector<std::uint32_t> bias, keep, fresh, motion;  // bias: zigzagged deltas, one per block
     };
     std::vector<Choice> choices(plan_.coded.size());
     const std::size_t kept = survivor_prev.size();
@@ -465,11 +484,13 @@ class GroupEncoder {
       // The decoder's state: a survivor's step is its residual plus the prediction's step.
       next.d[k].resize(n);
       t = 0;
-      std::uint32_t before = 0;
+      std::uint32_t before = 0, step_before = 0;
       for (std::uint32_t j = 0; j < n; ++j) {
         if (is_new[j]) {
           ch.fresh.push_back(zigzag(q[j] - before));
-          next.d[k][j] = 0;
+          next.d[k][j] = birth(k, order[j]);
+          ch.motion.push_back(zigzag(next.d[k][j] - step_before));
+          step_before = next.d[k][j];
         } else {
           next.d[k][j] = prev_r[t++];
         }
@@ -482,7 +503,7 @@ class GroupEncoder {
       put(body, ch.predictor);
       put(body, static_cast<std::uint8_t>(width(ch.keep)));
       put(body, static_cast<std::uint8_t>(width(ch.fresh)));
-      put(body, std::uint8_t{0});
+      put(body, static_cast<std::uint8_t>(width(ch.motion)));
       put(body, static_cast<std::uint8_t>(width(ch.bias)));
       put(body, std::uint8_t{0});
       put(body, std::uint16_t{0});
@@ -498,6 +519,7 @@ class GroupEncoder {
       write_planes(body, ch.bias, width(ch.bias));
       write_planes(body, ch.keep, width(ch.keep));
       write_planes(body, ch.fresh, width(ch.fresh));
+      write_planes(body, ch.motion, width(ch.motion));
     }
     write_id_planes(body, id_residual);
     state_ = std::move(next);
@@ -532,6 +554,7 @@ class GroupEncoder {
   int position_k_[3] = {-1, -1, -1};
   EncoderState state_;
   std::vector<std::vector<std::uint32_t>> source_;
+  std::vector<std::vector<std::uint32_t>> birth_;  // per coded word and source particle (or empty)
   std::span<const std::uint64_t> ids_in_;
   ZSTD_CCtx* zstd_ = nullptr;
 };
