@@ -356,7 +356,7 @@ TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
   ASSERT_EQ(info.words[3].coding, format::WordCoding::Relative);
   std::vector<format::SourceFrame> frames;
   for (std::uint32_t f = 0; f < kFrames; ++f) frames.push_back({records[f], ids[f], kCount});
-  const auto encoded = format::encode_group(info, frames, nullptr, 0);
+  const auto encoded = format::encode_group(info, frames, {}, 0);
   format::Metadata meta;
   meta.layout = layout;
   meta.record_size = rs;

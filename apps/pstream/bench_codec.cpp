@@ -335,10 +335,10 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                        std::vector<format::SourceFrame> views;
                        for (std::size_t f = g; f < std::min(frames.size(), g + K); ++f)
                          views.push_back({frames[f].records, frames[f].ids, frames[f].count});
-                       const format::SourceFrame before =
-                           g ? format::SourceFrame{frames[g - 1].records, frames[g - 1].ids, frames[g - 1].count}
-                             : format::SourceFrame{};
-                       for (auto& e : format::encode_group(*info, views, g ? &before : nullptr, g)) {
+                       std::vector<format::SourceFrame> before;
+                       for (std::size_t f = g - std::min<std::size_t>(g, 2); f < g; ++f)
+                         before.push_back({frames[f].records, frames[f].ids, frames[f].count});
+                       for (auto& e : format::encode_group(*info, views, before, g)) {
                          format::FrameEntry entry;
                          entry.count = e.count;
                          entry.keyframe = e.keyframe;

@@ -85,10 +85,13 @@ void generate_clip(const std::filesystem::path& path, std::uint64_t count, std::
       generated_frame(count, f, fps, group.emplace_back());
     }
     for (const auto& fr : group) views.push_back({std::as_bytes(std::span(fr)), ids, count});
-    std::vector<float> before;
-    if (g > 0) generated_frame(count, g - 1, fps, before);
-    const format::SourceFrame before_view{std::as_bytes(std::span(before)), ids, count};
-    const auto encoded = format::encode_group(meta.codec, views, g > 0 ? &before_view : nullptr, g);
+    std::vector<float> before[2];
+    std::vector<format::SourceFrame> before_views;
+    for (std::uint64_t b = std::min<std::uint64_t>(g, 2); b > 0; --b) {
+      generated_frame(count, g - b, fps, before[b - 1]);
+      before_views.push_back({std::as_bytes(std::span(before[b - 1])), ids, count});
+    }
+    const auto encoded = format::encode_group(meta.codec, views, before_views, g);
     for (std::size_t k = 0; k < encoded.size(); ++k) {
       writer.append_frame(count, double(g + k) / fps, encoded[k].bounds, encoded[k].packet.size(), encoded[k].keyframe);
       writer.append_stream(encoded[k].packet);

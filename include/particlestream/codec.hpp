@@ -106,12 +106,13 @@ struct EncodedFrame {
 };
 
 // Encodes a keyframe group: frames[0] becomes a keyframe, the rest are predicted. The layout is
-// what `info.words` codes (plan_particle_codec made them from it). `before`, the
-// frame preceding the group (or null), only seeds the keyframe's motion state. Groups are
-// independent, so a cook encodes them in parallel; the bytes depend on nothing else.
+// what `info.words` codes (plan_particle_codec made them from it). `before`, the frames
+// preceding the group (oldest first; empty for the clip's first group), only seed the keyframe's
+// motion state: the last two are used (a derived velocity needs each particle's last two steps).
+// Groups are independent, so a cook encodes them in parallel; the bytes depend on nothing else.
 // `first_index` numbers frames in errors.
 std::vector<EncodedFrame> encode_group(const CodecInfo& info, std::span<const SourceFrame> frames,
-                                       const SourceFrame* before, std::uint64_t first_index);
+                                       std::span<const SourceFrame> before, std::uint64_t first_index);
 
 // ---- Checking ---------------------------------------------------------------------------------
 

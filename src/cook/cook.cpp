@@ -404,8 +404,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   const std::uint64_t K = meta.codec.keyframe_interval;
   std::vector<std::vector<HeldFrame>> groups;
   std::vector<std::uint64_t> starts;  // each group's first frame
-  HeldFrame before;                   // the frame before the first group of a batch
-  bool have_before = false;
+  std::vector<HeldFrame> tail;        // the last two frames before a batch, oldest first
   for (std::uint64_t g0 = 0; g0 < frames;) {
     // A batch: one group per thread, read in order.
     groups.clear();
@@ -428,9 +427,14 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
           try {
             std::vector<format::SourceFrame> views;
             for (const HeldFrame& h : groups[g]) views.push_back(h.view());
-            const HeldFrame* prior = g == 0 ? (have_before ? &before : nullptr) : &groups[g - 1].back();
-            const format::SourceFrame prior_view = prior ? prior->view() : format::SourceFrame{};
-            encoded[g] = format::encode_group(meta.codec, views, prior ? &prior_view : nullptr, starts[g]);
+            // The two frames before this group, oldest first: from the groups before it, then the tail.
+            std::vector<format::SourceFrame> prior;
+            for (std::size_t h = g; h-- > 0 && prior.size() < 2;)
+              for (auto it = groups[h].rbegin(); it != groups[h].rend() && prior.size() < 2; ++it)
+                prior.push_back(it->view());
+            for (auto it = tail.rbegin(); it != tail.rend() && prior.size() < 2; ++it) prior.push_back(it->view());
+            std::reverse(prior.begin(), prior.end());
+            encoded[g] = format::encode_group(meta.codec, views, prior, starts[g]);
           } catch (...) {
             errors[g] = std::current_exception();
           }
@@ -457,8 +461,13 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
         if (progress) progress(state);
       }
     }
-    before = std::move(groups.back().back());
-    have_before = true;
+    std::vector<HeldFrame> next_tail;
+    for (std::size_t h = groups.size(); h-- > 0 && next_tail.size() < 2;)
+      for (auto it = groups[h].rbegin(); it != groups[h].rend() && next_tail.size() < 2; ++it)
+        next_tail.push_back(std::move(*it));
+    for (auto it = tail.rbegin(); it != tail.rend() && next_tail.size() < 2; ++it) next_tail.push_back(std::move(*it));
+    std::reverse(next_tail.begin(), next_tail.end());
+    tail = std::move(next_tail);
   }
   report.frames = frames;
   report.stream_bytes = writer.metadata().decoded_size();

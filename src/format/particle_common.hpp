@@ -95,12 +95,30 @@ struct WordPlan {
   }
 };
 
-// A derived velocity's grid-step numerator (WordCoding::Derived): the particle's last step d0 and
-// the one before it d1, by how many steps it has (0, 1, or 2 and more).
-inline float derived_value(std::uint32_t d0, std::uint32_t d1, std::uint8_t steps, float step) {
+// What a particle's decoder state says about its derived velocity (WordCoding::Derived): which of
+// its last two steps d0, d1 are steps between decoded positions, and which a seed (a new
+// particle's source velocity over one frame, in grid steps).
+enum StepState : std::uint8_t {
+  kNoStep = 0,     // nothing known: 0
+  kOneStep = 1,    // d0: first order, 2·d0
+  kTwoSteps = 2,   // d0 and d1: second order backward, 3·d0 − d1
+  kSeeded = 3,     // d0 is the seed: 2·d0
+  kAfterSeed = 4,  // d0 after the seed d1: the parabola through both, 4·d0 − 2·d1
+};
+// The state of a particle that survives into the next frame.
+inline std::uint8_t after_step(std::uint8_t s) {
+  return s == kNoStep ? kOneStep : s == kSeeded ? kAfterSeed : kTwoSteps;
+}
+inline bool has_step(std::uint8_t s) { return s == kOneStep || s == kTwoSteps || s == kAfterSeed; }
+// The derived value: twice the velocity in grid steps per frame, times the word's step (the
+// position step × fps / 2).
+inline float derived_value(std::uint32_t d0, std::uint32_t d1, std::uint8_t state, float step) {
   const auto s0 = static_cast<std::int64_t>(static_cast<std::int32_t>(d0));
   const auto s1 = static_cast<std::int64_t>(static_cast<std::int32_t>(d1));
-  const std::int64_t s = steps >= 2 ? 3 * s0 - s1 : steps == 1 ? 2 * s0 : 0;
+  const std::int64_t s = state == kTwoSteps                      ? 3 * s0 - s1
+                         : state == kAfterSeed                   ? 4 * s0 - 2 * s1
+                         : state == kOneStep || state == kSeeded ? 2 * s0
+                                                                 : 0;
   return static_cast<float>(s) * step;
 }
 
@@ -147,8 +165,8 @@ struct Body {
   std::uint32_t count = 0, prev_count = 0, op_count = 0, new_count = 0, keep_total = 0;
   bool keyframe = false;
   struct Word {
-    std::uint8_t predictor = 0, keep_bytes = 0, new_bytes = 0, motion_bytes = 0, bias_bytes = 0;
-    const std::byte *bias = nullptr, *keep = nullptr, *fresh = nullptr, *motion = nullptr;
+    std::uint8_t predictor = 0, keep_bytes = 0, new_bytes = 0, motion_bytes = 0, bias_bytes = 0, prior_bytes = 0;
+    const std::byte *bias = nullptr, *keep = nullptr, *fresh = nullptr, *motion = nullptr, *prior = nullptr;
   };
   std::span<Word> words;
   unsigned id_bytes = 0;

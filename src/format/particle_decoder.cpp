@@ -69,6 +69,12 @@ class ParticleUnit final : public FrameUnit {
         read_planes(w.motion, b.count, w.motion_bytes, residual_.data());
         acc = 0;
         for (std::uint32_t j = 0; j < b.count; ++j) d0[j] = acc += unzigzag(residual_[j]);
+        if (!plan_.derived.empty()) {  // each particle's step before its last, where derive() finds it
+          std::uint32_t* d1_out = d_[prev].data() + k * n;
+          read_planes(w.prior, b.count, w.prior_bytes, residual_.data());
+          acc = 0;
+          for (std::uint32_t j = 0; j < b.count; ++j) d1_out[j] = acc += unzigzag(residual_[j]);
+        }
         continue;
       }
       read_planes(w.keep, b.keep_total, w.keep_bytes, residual_.data());
@@ -191,17 +197,18 @@ class ParticleUnit final : public FrameUnit {
       std::memcpy(&w.new_bytes, p + at + 2, 1);
       std::memcpy(&w.motion_bytes, p + at + 3, 1);
       std::memcpy(&w.bias_bytes, p + at + 4, 1);
-      const bool reserved = p[at + 5] != std::byte{0} || p[at + 6] != std::byte{0} || p[at + 7] != std::byte{0};
+      std::memcpy(&w.prior_bytes, p + at + 5, 1);
+      const bool reserved = p[at + 6] != std::byte{0} || p[at + 7] != std::byte{0};
       at += 8;
       if (w.predictor > kLinear || w.keep_bytes > 4 || w.new_bytes > 4 || w.motion_bytes > 4 || w.bias_bytes > 4 ||
-          reserved || (!keyframe && w.motion_bytes != 0 && meta_.version < 3) || (keyframe && w.bias_bytes != 0)) {
+          w.prior_bytes > 4 || reserved || (!keyframe && w.motion_bytes != 0 && meta_.version < 3) ||
+          (keyframe && w.bias_bytes != 0) || (w.prior_bytes != 0 && (!keyframe || meta_.version < 3))) {
         fail(frame,
-             fmt::format("{}: predictor {} with {}/{}/{}/{} keep/new/motion/bias residual bytes (expected a "
-                         "predictor 0..1, 0..4 bytes, motion only in keyframes before version 3, bias only in "
-                         "predicted frames, "
-                         "reserved bytes 0)",
+             fmt::format("{}: predictor {} with {}/{}/{}/{}/{} keep/new/motion/bias/prior residual bytes (expected "
+                         "a predictor 0..1, 0..4 bytes, motion only in keyframes before version 3, bias only in "
+                         "predicted frames, prior steps only in version 3 keyframes, reserved bytes 0)",
                          word_name(plan_.coded[k]), w.predictor, w.keep_bytes, w.new_bytes, w.motion_bytes,
-                         w.bias_bytes),
+                         w.bias_bytes, w.prior_bytes),
              at - 8);
       }
     }
@@ -233,7 +240,7 @@ class ParticleUnit final : public FrameUnit {
     std::uint64_t planes = 0;
     for (const Body::Word& w : b.words) {
       planes += std::uint64_t(w.bias_bytes) * blocks + std::uint64_t(w.keep_bytes) * b.keep_total +
-                std::uint64_t(w.new_bytes + w.motion_bytes) * b.new_count;
+                std::uint64_t(w.new_bytes + w.motion_bytes + w.prior_bytes) * b.new_count;
     }
     planes += std::uint64_t(b.id_bytes) * b.new_count;
     if (at + planes != size) {
@@ -248,6 +255,8 @@ class ParticleUnit final : public FrameUnit {
       at += std::size_t(w.new_bytes) * b.new_count;
       w.motion = p + at;
       at += std::size_t(w.motion_bytes) * b.new_count;
+      w.prior = p + at;
+      at += std::size_t(w.prior_bytes) * b.new_count;
     }
     b.ids = p + at;
     return b;
@@ -277,31 +286,34 @@ class ParticleUnit final : public FrameUnit {
     }
   }
 
-  // Derived words (velocity) from each particle's last two grid steps over the matching. A
-  // particle with no predecessor (a keyframe's, or a new one) has one step, its stored motion,
-  // when that is not zero, else none; a survivor one more than it had.
+  // Derived words (velocity) from each particle's last two grid steps over the matching
+  // (StepState). A keyframe's particle: its motion and its prior step (two steps, or one when the
+  // prior is 0); with motion 0 and a prior step, that is its seed (it becomes its step). A new
+  // particle: seeded when its motion is not 0. A survivor: after_step() of what it had.
   void derive(const Body& b, int prev) {
     const std::uint64_t n = meta_.max_count;
     std::uint8_t* steps = steps_[cur_].data();
     const std::uint8_t* before = steps_[prev].data();
-    const auto moved = [&](std::uint32_t j) {
+    const auto any = [&](int state, std::uint32_t j) {
       for (const WordPlan::Derived& dw : plan_.derived)
-        if (d_[cur_][dw.from * n + j] != 0) return true;
+        if (d_[state][dw.from * n + j] != 0) return true;
       return false;
     };
-    const auto value = [&](std::uint32_t j, std::uint32_t i, bool survivor) {
+    const auto value = [&](std::uint32_t j, std::uint32_t i) {
       for (std::size_t x = 0; x < plan_.derived.size(); ++x) {
         const WordPlan::Derived& dw = plan_.derived[x];
-        const std::uint32_t d0 = d_[cur_][dw.from * n + j];
-        const std::uint32_t d1 = survivor ? d_[prev][dw.from * n + i] : 0u;
-        derived_[x * n + j] =
-            std::bit_cast<std::uint32_t>(derived_value(d0, d1, steps[j], meta_.codec.words[dw.word].step));
+        derived_[x * n + j] = std::bit_cast<std::uint32_t>(derived_value(
+            d_[cur_][dw.from * n + j], d_[prev][dw.from * n + i], steps[j], meta_.codec.words[dw.word].step));
       }
     };
-    if (b.keyframe) {
+    if (b.keyframe) {  // the prior steps were decoded into the other state's d
       for (std::uint32_t j = 0; j < b.count; ++j) {
-        steps[j] = moved(j) ? 1 : 0;
-        value(j, 0, false);
+        const bool moving = any(cur_, j), prior = any(prev, j);
+        if (!moving && prior) {
+          for (const WordPlan::Derived& dw : plan_.derived) d_[cur_][dw.from * n + j] = d_[prev][dw.from * n + j];
+        }
+        steps[j] = moving ? (prior ? kTwoSteps : kOneStep) : prior ? kSeeded : kNoStep;
+        value(j, j);
       }
       return;
     }
@@ -309,13 +321,13 @@ class ParticleUnit final : public FrameUnit {
     for (std::uint32_t o = 0; o < b.op_count; ++o) {
       const Op op = op_at(b, o);
       for (std::uint32_t t = 0; t < op.keep; ++t, ++i, ++j) {
-        steps[j] = static_cast<std::uint8_t>(std::min(before[i] + 1, 2));
-        value(j, i, true);
+        steps[j] = after_step(before[i]);
+        value(j, i);
       }
       i += op.drop;
       for (std::uint32_t t = 0; t < op.insert; ++t, ++j) {
-        steps[j] = moved(j) ? 1 : 0;
-        value(j, 0, false);
+        steps[j] = any(cur_, j) ? kSeeded : kNoStep;
+        value(j, 0);
       }
     }
   }

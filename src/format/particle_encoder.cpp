@@ -39,6 +39,7 @@ struct EncoderState {
   std::uint32_t count = 0;
   std::vector<std::vector<std::uint32_t>> q, d;  // per coded word
   std::vector<std::uint64_t> ids;
+  std::vector<std::uint8_t> steps;  // per particle, with derived words: the decoder's step count
 };
 
 class GroupEncoder {
@@ -341,6 +342,41 @@ class GroupEncoder {
       fresh[k] = spatial(next.q[k]);
       motion[k] = spatial(next.d[k]);
     }
+    // Derived words (particle_decoder.cpp, derive()): a particle that continues one from before has
+    // its step as motion and the step before it as its prior step, when the decoder would have
+    // known one (a step after a step, and not standing still); a new one has motion 0 and its seed
+    // (the source velocity's step) as its prior step.
+    std::vector<std::vector<std::uint32_t>> prior(plan_.coded.size());
+    if (!plan_.derived.empty()) {
+      std::vector<std::uint8_t> moving(n, 0);
+      for (const WordPlan::Derived& dw : plan_.derived)
+        for (std::uint32_t j = 0; j < n; ++j) moving[j] |= (match[order[j]] >= 0 && next.d[dw.from][j] != 0) ? 1 : 0;
+      std::vector<std::uint8_t> two(n, 0), seeded(n, 0);
+      for (const WordPlan::Derived& dw : plan_.derived) {
+        std::vector<std::uint32_t> before(n, 0), step(next.d[dw.from]);
+        for (std::uint32_t j = 0; j < n; ++j) {
+          const std::int64_t i = match[order[j]];
+          if (i < 0) {
+            before[j] = step[j];  // the seed
+            step[j] = 0;
+            seeded[j] |= before[j] != 0 ? 1 : 0;
+          } else if (moving[j] && has_step(state_.steps[std::size_t(i)])) {
+            before[j] = state_.d[dw.from][std::size_t(i)];
+            two[j] |= before[j] != 0 ? 1 : 0;
+          } else if (moving[j] && state_.steps[std::size_t(i)] == kSeeded) {
+            // A step after its seed: the prior that makes the keyframe's second-order difference
+            // (3·d0 − prior) the parabola through both (4·d0 − 2·seed).
+            before[j] = 2u * state_.d[dw.from][std::size_t(i)] - step[j];
+            two[j] |= before[j] != 0 ? 1 : 0;
+          }
+        }
+        motion[dw.from] = spatial(step);
+        prior[dw.from] = spatial(before);
+      }
+      next.steps.resize(n);
+      for (std::uint32_t j = 0; j < n; ++j)
+        next.steps[j] = moving[j] ? (two[j] ? kTwoSteps : kOneStep) : seeded[j] ? kSeeded : kNoStep;
+    }
     std::vector<std::byte> body;
     header(body, n, 0, 0, n);
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
@@ -348,13 +384,16 @@ class GroupEncoder {
       put(body, std::uint8_t{0});
       put(body, static_cast<std::uint8_t>(width(fresh[k])));
       put(body, static_cast<std::uint8_t>(width(motion[k])));
-      put(body, std::uint32_t{0});  // no bias: a keyframe predicts nothing from before
+      put(body, std::uint8_t{0});  // no bias: a keyframe predicts nothing from before
+      put(body, static_cast<std::uint8_t>(width(prior[k])));
+      put(body, std::uint16_t{0});
     }
     if (plan_.id_word >= 0) put(body, std::uint32_t{0});
     std::vector<std::uint64_t> id_residual = ids_for(order, next, std::vector<std::uint8_t>(n, 1));
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
       write_planes(body, fresh[k], width(fresh[k]));
       write_planes(body, motion[k], width(motion[k]));
+      write_planes(body, prior[k], width(prior[k]));
     }
     write_id_planes(body, id_residual);
     state_ = std::move(next);
@@ -497,6 +536,19 @@ class GroupEncoder {
         before = q[j];
       }
     }
+    if (!plan_.derived.empty()) {  // the decoder's step counts (particle_decoder.cpp, derive())
+      next.steps.resize(n);
+      std::size_t t = 0;
+      for (std::uint32_t j = 0; j < n; ++j) {
+        if (is_new[j]) {
+          bool one = false;
+          for (const WordPlan::Derived& dw : plan_.derived) one = one || next.d[dw.from][j] != 0;
+          next.steps[j] = one ? kSeeded : kNoStep;
+        } else {
+          next.steps[j] = after_step(state_.steps[survivor_prev[t++]]);
+        }
+      }
+    }
     std::vector<std::byte> body;
     header(body, n, state_.count, static_cast<std::uint32_t>(ops.size()), new_count);
     for (const Choice& ch : choices) {
@@ -562,9 +614,12 @@ class GroupEncoder {
 }  // namespace
 
 std::vector<EncodedFrame> encode_group(const CodecInfo& info, std::span<const SourceFrame> frames,
-                                       const SourceFrame* before, std::uint64_t first_index) {
+                                       std::span<const SourceFrame> before, std::uint64_t first_index) {
   GroupEncoder encoder(info);
-  if (before != nullptr) (void)encoder.encode(*before, true, first_index - 1);  // seeds the motion state only
+  // The last two frames before the group seed the keyframe's motion state only.
+  const std::size_t seeds = std::min<std::size_t>(before.size(), 2);
+  for (std::size_t b = before.size() - seeds; b < before.size(); ++b)
+    (void)encoder.encode(before[b], b == before.size() - seeds, first_index - (before.size() - b));
   std::vector<EncodedFrame> out;
   out.reserve(frames.size());
   for (std::size_t f = 0; f < frames.size(); ++f) out.push_back(encoder.encode(frames[f], f == 0, first_index + f));

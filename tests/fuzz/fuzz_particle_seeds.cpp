@@ -35,7 +35,7 @@ int main(int argc, char** argv) {
       const bool by_id = meta.codec.order == format::FrameOrder::Id;
       const format::SourceFrame frames[2] = {{records[0], by_id ? std::span(ids[0]) : std::span<std::uint64_t>{}, n0},
                                              {records[1], by_id ? std::span(ids[1]) : std::span<std::uint64_t>{}, n1}};
-      const auto encoded = format::encode_group(meta.codec, frames, nullptr, 0);
+      const auto encoded = format::encode_group(meta.codec, frames, {}, 0);
       std::vector<std::byte> bodies[2];
       for (int f = 0; f < 2; ++f) {
         bodies[f].resize(ZSTD_getFrameContentSize(encoded[f].packet.data(), encoded[f].packet.size()));
