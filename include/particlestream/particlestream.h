@@ -156,7 +156,7 @@ typedef struct pstream_cook_options {
   const char* output;     /* .pstream; written to a temporary and renamed when complete */
   const char* object;     /* the points object's full name; NULL: the only one */
   const char* attributes; /* comma-separated: "velocity,id,age"; NULL: none beyond position, scale, colour
-                           * and the source's velocities (kept whenever it has them) */
+                           * and a velocity (derived with ids, else the source's; store_velocity) */
   double fps;             /* output frame rate; 0: the source's */
   int32_t codec;          /* a pstream_codec (a fixed-size field: enums' sizes differ between compilers) */
   double error;           /* particle codec: the bound, a fraction of the clip's bounds diagonal (default 1e-4) */
