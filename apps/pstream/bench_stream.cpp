@@ -13,9 +13,11 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
+#include "particlestream/io.hpp"
 #include "particlestream/stream.hpp"
 #include "progress.hpp"
 
@@ -103,26 +105,16 @@ void generate_clip(const std::filesystem::path& path, std::uint64_t count, std::
 
 }  // namespace
 
-int bench_stream(const BenchStreamOptions& o) {
-  std::filesystem::path file = o.file;
-  std::filesystem::path temp;
-  if (file.empty()) {
-    temp = std::filesystem::temp_directory_path() / fmt::format("pstream-bench-stream-{}", ::getpid());
-    std::filesystem::create_directories(temp);
-    file = temp / "generated.pstream";
-    generate_clip(file, o.particles, o.frames, o.fps, o.codec == "particle", !o.json);
-  }
-  struct Cleanup {
-    std::filesystem::path dir;
-    ~Cleanup() {
-      std::error_code ec;
-      if (!dir.empty()) std::filesystem::remove_all(dir, ec);
-    }
-  } cleanup{temp};
+namespace {
 
+// One real-time run through `location` (a path or a URL): the per-frame cost against memcpy of
+// the same bytes, stalls, and what the source fetched.
+nlohmann::ordered_json measure(const std::string& location, const std::string& label, const BenchStreamOptions& o) {
   stream::StreamOptions options;
   options.cache_seconds = o.cache_seconds;
-  auto s = stream::ParticleStream::open(file, std::move(options));
+  options.io = io::open(location);
+  const io::ByteSource* source = options.io.get();  // owned by the stream, which outlives its use here
+  auto s = stream::ParticleStream::open(location, std::move(options));
   const format::Metadata& m = s->metadata();
   std::vector<std::byte> gpu(m.max_count * m.record_size), baseline(m.max_count * m.record_size);
   // Prime: fill the cache and the decoded frames before the clock starts, as a game would during
@@ -141,17 +133,20 @@ int bench_stream(const BenchStreamOptions& o) {
   if (s->state() == stream::PlayState::Error) throw Error(s->error());
   if (!primed()) {
     throw Error(
-        fmt::format("{}: the cache did not fill within 30 s ({} of {} loads done); the disk is too slow or "
+        fmt::format("{}: the cache did not fill within 30 s ({} of {} loads done); the source is too slow or "
                     "stalled",
-                    file.string(), s->debug().loads_done, s->debug().slots.size()));
+                    location, s->debug().loads_done, s->debug().slots.size()));
   }
+  const io::SourceStats primed_stats = source->stats();
+  const std::uint64_t primed_bytes = s->debug().bytes_read, primed_loads = s->debug().loads_done;
   s->set_loop(true);
   s->play();
   std::vector<double> frame_ms, memcpy_ms;
   const double dt = 1.0 / m.fps;
   const std::uint64_t total = static_cast<std::uint64_t>(o.laps * double(m.frame_count()));
-  auto next_tick = Clock::now();
-  ProgressBar bar("stream", !o.json);
+  const auto play_start = Clock::now();
+  auto next_tick = play_start;
+  ProgressBar bar(label, !o.json);
   for (std::uint64_t k = 0; k < total; ++k) {
     next_tick += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(dt));
     std::this_thread::sleep_until(next_tick);  // real time: the IO worker runs between frames
@@ -170,43 +165,137 @@ int bench_stream(const BenchStreamOptions& o) {
     memcpy_ms.push_back(std::chrono::duration<double, std::milli>(t3 - t2).count());
     bar.update(k + 1, total, "frames");
   }
+  const double seconds = std::chrono::duration<double>(Clock::now() - play_start).count();
   if (s->state() == stream::PlayState::Error) throw Error(s->error());
   const auto d = s->debug();
+  const io::SourceStats st = source->stats();
   const double frame_med = percentile(frame_ms, 0.5), copy_med = percentile(memcpy_ms, 0.5);
   // A clip of empty frames stores nothing: its per-byte figures are 0, not 0/0.
   const auto per = [](double a, double b) { return b > 0.0 ? a / b : 0.0; };
-  nlohmann::ordered_json j{{"file", o.file.empty() ? "generated" : o.file},
-                           {"particles_per_frame", m.max_count},
-                           {"frame_bytes", m.max_count * m.record_size},
-                           {"frames_played", total},
-                           {"cache_slots", d.slots.size()},
-                           {"codec", std::string(format::frame_codec_name(m.codec.codec))},
-                           {"stored_bytes_per_particle", per(double(m.stream_size()), double(m.total_particles()))},
-                           {"cache_bytes", d.cache_bytes},
-                           {"decode_bytes", d.decode_bytes},
-                           {"cache_seconds", per(double(d.slots.size() * m.chunk_size), double(m.stream_size())) *
-                                                 double(m.frame_count()) / m.fps},
-                           {"decode_ms_total", d.decode_ms},
-                           {"frames_decoded", d.frames_decoded},
-                           {"frame_ms_median", frame_med},
-                           {"frame_ms_p99", percentile(frame_ms, 0.99)},
-                           {"memcpy_ms_median", copy_med},
-                           {"ratio", per(frame_med, copy_med)},
-                           {"stalls", d.stalls},
-                           {"io_ms_total", d.io_ms},
-                           {"bytes_read", d.bytes_read}};
+  // Sources that count their own requests (HTTP) say what went over the wire; a file's are the
+  // stream's loads.
+  const bool counted = st.requests != 0;
+  const std::uint64_t requests = counted ? st.requests - primed_stats.requests : d.loads_done - primed_loads;
+  const std::uint64_t fetched = counted ? st.bytes - primed_stats.bytes : d.bytes_read - primed_bytes;
+  return nlohmann::ordered_json{
+      {"source", location},
+      {"particles_per_frame", m.max_count},
+      {"frame_bytes", m.max_count * m.record_size},
+      {"frames_played", total},
+      {"fps", m.fps},
+      {"cache_slots", d.slots.size()},
+      {"codec", std::string(format::frame_codec_name(m.codec.codec))},
+      {"stored_bytes_per_particle", per(double(m.stream_size()), double(m.total_particles()))},
+      {"cache_bytes", d.cache_bytes},
+      {"decode_bytes", d.decode_bytes},
+      {"cache_seconds",
+       per(double(d.slots.size() * m.chunk_size), double(m.stream_size())) * double(m.frame_count()) / m.fps},
+      {"decode_ms_total", d.decode_ms},
+      {"frames_decoded", d.frames_decoded},
+      {"frame_ms_median", frame_med},
+      {"frame_ms_p99", percentile(frame_ms, 0.99)},
+      {"memcpy_ms_median", copy_med},
+      {"ratio", per(frame_med, copy_med)},
+      {"stalls", d.stalls},
+      {"io_ms_total", d.io_ms},
+      {"bytes_read", d.bytes_read},
+      // While playing (after the cache filled): what the source fetched and at what rate, and
+      // the clip's own byte rate.
+      {"requests", requests},
+      {"bytes_fetched", fetched},
+      {"retries", st.retries},
+      {"fetch_mb_s", per(double(fetched), seconds) / 1e6},
+      {"clip_mb_s", per(double(m.stream_size()) * m.fps, double(m.frame_count())) / 1e6},
+      {"first_byte_ms_mean", st.latency_ms}};
+}
+
+void print_run(const nlohmann::ordered_json& j) {
+  const double fps = j["fps"].get<double>();
+  fmt::print("{}: {} particles a frame ({:.1f} MiB decoded), {} codec, {} frames in real time at {:g} fps\n",
+             j["source"].get<std::string>(), j["particles_per_frame"].get<std::uint64_t>(),
+             j["frame_bytes"].get<double>() / 1048576.0, j["codec"].get<std::string>(),
+             j["frames_played"].get<std::uint64_t>(), fps);
+  fmt::print("  cache {} slots = {:.2f} s of the clip; decoded frames and decoder state {:.1f} MiB\n",
+             j["cache_slots"].get<std::uint64_t>(), j["cache_seconds"].get<double>(),
+             j["decode_bytes"].get<double>() / 1048576.0);
+  const auto decoded = j["frames_decoded"].get<std::uint64_t>();
+  fmt::print("  decode on the IO worker  {:.2f} ms a frame\n",
+             decoded ? j["decode_ms_total"].get<double>() / decoded : 0.0);
+  fmt::print("  update + copy frame   median {:.3f} ms, p99 {:.3f} ms\n", j["frame_ms_median"].get<double>(),
+             j["frame_ms_p99"].get<double>());
+  fmt::print("  memcpy of the frame   median {:.3f} ms\n", j["memcpy_ms_median"].get<double>());
+  fmt::print("  ratio {:.2f} (target <= 1.3), stalls {}\n", j["ratio"].get<double>(), j["stalls"].get<std::uint64_t>());
+  fmt::print("  fetched while playing {:.1f} MB in {} requests ({} retried), {:.1f} MB/s (the clip: {:.1f} MB/s)\n",
+             j["bytes_fetched"].get<double>() / 1e6, j["requests"].get<std::uint64_t>(),
+             j["retries"].get<std::uint64_t>(), j["fetch_mb_s"].get<double>(), j["clip_mb_s"].get<double>());
+}
+
+// The clip behind `url`, copied to `file` through the HTTP source in 4 MiB reads; returns MB/s.
+double download(const std::string& url, const std::filesystem::path& file, bool show) {
+  const auto source = io::open_url(url);
+  OutputFile out = OutputFile::create(file);
+  std::vector<std::byte> piece(4u << 20);
+  const std::uint64_t size = source->size();
+  ProgressBar bar("download", show);
+  const auto t0 = Clock::now();
+  for (std::uint64_t at = 0; at < size;) {
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(piece.size(), size - at));
+    source->read(at, std::span(piece).first(n));
+    out.append(piece.data(), n);
+    at += n;
+    bar.update(at >> 20, size >> 20, "MiB");
+  }
+  out.commit();
+  const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return seconds > 0 ? double(size) / seconds / 1e6 : 0.0;
+}
+
+}  // namespace
+
+int bench_stream(const BenchStreamOptions& o) {
+  std::filesystem::path temp;
+  std::string location = o.file;
+  const bool url = io::is_url(o.file);
+  if (o.file.empty() || url) {
+    temp = std::filesystem::temp_directory_path() / fmt::format("pstream-bench-stream-{}", ::getpid());
+    std::filesystem::create_directories(temp);
+  }
+  struct Cleanup {
+    std::filesystem::path dir;
+    ~Cleanup() {
+      std::error_code ec;
+      if (!dir.empty()) std::filesystem::remove_all(dir, ec);
+    }
+  } cleanup{temp};
+  if (o.file.empty()) {
+    location = (temp / "generated.pstream").string();
+    generate_clip(location, o.particles, o.frames, o.fps, o.codec == "particle", !o.json);
+  }
+  if (!url) {
+    nlohmann::ordered_json j = measure(location, "stream", o);
+    j["source"] = o.file.empty() ? "generated" : o.file;
+    if (o.json)
+      fmt::print("{}\n", j.dump());
+    else
+      print_run(j);
+    return 0;
+  }
+  // A URL: the same clip through the file backend (a local copy) and through HTTP, in one run.
+  const std::filesystem::path local = temp / "clip.pstream";
+  const double download_mb_s = download(o.file, local, !o.json);
+  const nlohmann::ordered_json file_run = measure(local.string(), "stream (file)", o);
+  nlohmann::ordered_json j = measure(o.file, "stream (url)", o);
+  const auto per = [](double a, double b) { return b > 0.0 ? a / b : 0.0; };
+  j["download_mb_s"] = download_mb_s;
+  j["frame_ms_median_vs_file"] = per(j["frame_ms_median"].get<double>(), file_run["frame_ms_median"].get<double>());
+  j["file_backend"] = file_run;
   if (o.json) {
     fmt::print("{}\n", j.dump());
   } else {
-    fmt::print("{} particles a frame ({:.1f} MiB decoded), {} codec, {} frames in real time at {:g} fps\n", m.max_count,
-               m.max_count * m.record_size / 1048576.0, format::frame_codec_name(m.codec.codec), total, m.fps);
-    fmt::print("  cache {} x {} MiB = {:.2f} s of the clip; decoded frames and decoder state {:.1f} MiB\n",
-               d.slots.size(), m.chunk_size >> 20, j["cache_seconds"].get<double>(), d.decode_bytes / 1048576.0);
-    fmt::print("  decode on the IO worker  {:.2f} ms a frame\n",
-               d.frames_decoded ? d.decode_ms / d.frames_decoded : 0.0);
-    fmt::print("  update + copy frame   median {:.3f} ms, p99 {:.3f} ms\n", frame_med, percentile(frame_ms, 0.99));
-    fmt::print("  memcpy of the frame   median {:.3f} ms\n", copy_med);
-    fmt::print("  ratio {:.2f} (target <= 1.3), stalls {}\n", frame_med / copy_med, d.stalls);
+    print_run(file_run);
+    print_run(j);
+    fmt::print("  the URL's frame cost is {:.2f}x the file's; the whole clip downloads at {:.1f} MB/s\n",
+               j["frame_ms_median_vs_file"].get<double>(), download_mb_s);
   }
   return 0;
 }

@@ -354,8 +354,12 @@ int main(int argc, char** argv) {
   BenchStreamOptions bench_stream_opts;
   auto* bench_stream_cmd = bench_cmd->add_subcommand(
       "stream", "Per-frame cost of update() + copying the frame out, against memcpy of the same bytes, in real time");
-  bench_stream_cmd->add_option("file", bench_stream_opts.file,
-                               "A .pstream (default: generate 1M particles x 60 frames in a temporary folder)");
+  bench_stream_cmd
+      ->add_option("clip", bench_stream_opts.file,
+                   "A .pstream, or its http(s):// URL: then the clip is downloaded and played from the local copy "
+                   "(the file backend) and from the URL in the same run, and the requests, bytes fetched and "
+                   "stalls of both reported (default: generate 1M particles x 60 frames in a temporary folder)")
+      ->check(file_or_url());
   bench_stream_cmd->add_option("--particles", bench_stream_opts.particles, "Particles per generated frame")
       ->capture_default_str();
   bench_stream_cmd->add_option("--frames", bench_stream_opts.frames, "Generated frames")->capture_default_str();
@@ -368,8 +372,9 @@ int main(int argc, char** argv) {
                    "The generated clip's frames: records (raw chunks) or particle (decoded on the IO worker)")
       ->capture_default_str()
       ->check(CLI::IsMember({"records", "particle"}));
-  bench_stream_cmd->add_flag("--json", bench_stream_opts.json,
-                             R"(Print {"frame_ms_median":…, "memcpy_ms_median":…, "ratio":…, "stalls":…})");
+  bench_stream_cmd->add_flag(
+      "--json", bench_stream_opts.json,
+      R"(Print {"frame_ms_median":…, "memcpy_ms_median":…, "ratio":…, "stalls":…, "requests":…, "bytes_fetched":…} (a URL: also "file_backend": {…}))");
 
   BenchPlaybackOptions bench_playback_opts;
   auto* bench_playback_cmd = bench_cmd->add_subcommand(

@@ -24,6 +24,7 @@
 #include "particlestream/alembic.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
+#include "particlestream/io.hpp"
 #include "particlestream/playback.hpp"
 
 namespace {
@@ -57,11 +58,23 @@ pstream_result guarded(pstream_result code, F&& body) {
   }
 }
 
-// A file that cannot be read is an IO error, whatever the reader would have said about it.
+// A file that cannot be read is an IO error, whatever the reader would have said about it. A
+// URL is checked by opening it (open_location).
 pstream_result check_readable(const char* path) {
   if (path == nullptr) return fail(PSTREAM_ERROR_ARGUMENT, "a path is NULL");
+  if (io::is_url(path)) return PSTREAM_OK;
   if (::access(path, R_OK) != 0) return fail(PSTREAM_ERROR_IO, std::string(path) + ": " + std::strerror(errno));
   return PSTREAM_OK;
+}
+
+// The byte source of a path or URL; a URL that cannot be fetched (refused, not found, no range
+// support) is an IO error.
+pstream_result open_location(const char* path, std::unique_ptr<io::ByteSource>& out) {
+  if (const pstream_result r = check_readable(path); r != PSTREAM_OK) return r;
+  return guarded(PSTREAM_ERROR_IO, [&] {
+    out = io::open(path);
+    return PSTREAM_OK;
+  });
 }
 
 pstream_result null_argument(const char* what) { return fail(PSTREAM_ERROR_ARGUMENT, std::string(what) + " is NULL"); }
@@ -318,9 +331,12 @@ pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_re
 pstream_result pstream_clip_open(const char* path, pstream_clip** out) {
   if (out == nullptr) return null_argument("out");
   *out = nullptr;
-  if (const pstream_result r = check_readable(path); r != PSTREAM_OK) return r;
+  std::unique_ptr<io::ByteSource> source;  // a URL's; a local file is mapped by the reader
+  if (const pstream_result r = path && io::is_url(path) ? open_location(path, source) : check_readable(path);
+      r != PSTREAM_OK)
+    return r;
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
-    *out = opened(new pstream_clip{format::Reader::open(path)});
+    *out = opened(new pstream_clip{source ? format::Reader::open(std::move(source)) : format::Reader::open(path)});
     return PSTREAM_OK;
   });
 }
@@ -404,10 +420,16 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
     o.struct_size = sizeof o;
   }
   if (count == 0) return fail(PSTREAM_ERROR_ARGUMENT, "a player needs at least one clip");
+  std::vector<std::unique_ptr<io::ByteSource>> sources;  // when a path is a URL: every clip's
   if (o.io == nullptr) {
     if (paths == nullptr) return null_argument("paths");
+    bool urls = false;
     for (size_t i = 0; i < count; ++i) {
       if (const pstream_result r = check_readable(paths[i]); r != PSTREAM_OK) return r;
+      urls = urls || io::is_url(paths[i]);
+    }
+    for (size_t i = 0; urls && i < count; ++i) {
+      if (const pstream_result r = open_location(paths[i], sources.emplace_back()); r != PSTREAM_OK) return r;
     }
   } else {
     for (size_t i = 0; i < count; ++i) {
@@ -449,6 +471,7 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
         files[i] = paths[i];
       }
     }
+    if (!sources.empty()) po.io = std::move(sources);
     auto p = std::make_unique<pstream_player>();
     p->sort = o.sort == PSTREAM_SORT_NONE            ? sort::SortMode::None
               : o.sort == PSTREAM_SORT_FRONT_TO_BACK ? sort::SortMode::FrontToBack

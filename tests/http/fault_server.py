@@ -5,7 +5,8 @@ faults chosen by the URL's first path segments:
 
     /FILE                      served as it is
     /~latency=50/FILE          50 ms before each response
-    /~rate=200000/FILE         bodies at 200,000 bytes/s
+    /~rate=200000/FILE         each body at 200,000 bytes/s
+    /~bandwidth=2e7/FILE       every body of every request with this fault shares 2e7 bytes/s (a link)
     /~fail=503x2/FILE          the first 2 requests for this URL (after the first one, the open's)
                                get 503 (or 500, 429)
     /~drop=2/FILE              the first 2 requests after the open's drop the connection mid-body
@@ -32,6 +33,23 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 counts = {}
 counts_lock = threading.Lock()
+link_lock = threading.Lock()
+link_free = [0.0]  # when the shared link (~bandwidth) is next free, time.monotonic()
+
+
+def link_send(wfile, data, rate):
+    """Writes data through the one link all ~bandwidth requests share, in slices."""
+    step = max(1024, int(rate / 100))
+    for i in range(0, len(data), step):
+        piece = data[i:i + step]
+        with link_lock:
+            start = max(time.monotonic(), link_free[0])
+            link_free[0] = start + len(piece) / rate
+            done = link_free[0]
+        pause = done - time.monotonic()
+        if pause > 0:
+            time.sleep(pause)
+        wfile.write(piece)
 
 
 def count(key):
@@ -147,7 +165,9 @@ class Handler(BaseHTTPRequestHandler):
             self.close_connection = True
             return
         rate = float(faults.get("rate", 0))
-        if rate > 0:
+        if "bandwidth" in faults:
+            link_send(self.wfile, body, float(faults["bandwidth"]))
+        elif rate > 0:
             step = max(1024, int(rate / 50))
             for i in range(0, len(body), step):
                 t = time.monotonic()

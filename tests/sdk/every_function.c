@@ -330,6 +330,55 @@ int main(int argc, char** argv) {
                  "points_varying.abc");
   }
 
+  /* ---- The same clip by URL, when a test server runs (tests/http/with_server.sh) ---- */
+  if (getenv("PSTREAM_TEST_URL_BASE") != NULL) {
+    pstream_clip *local = NULL, *remote = NULL;
+    pstream_clip_info a, b;
+    pstream_player* player = NULL;
+    pstream_player_options options;
+    const char* clips[1];
+    char url[1200], missing[1200];
+    void *x, *y;
+    uint64_t f, seen_file, seen_url;
+    snprintf(url, sizeof url, "%s%s/particle.pstream", getenv("PSTREAM_TEST_URL_BASE"), work);
+    snprintf(missing, sizeof missing, "%s%s/missing.pstream", getenv("PSTREAM_TEST_URL_BASE"), work);
+    CHECK(pstream_clip_open(join(1, work, "particle.pstream"), &local) == PSTREAM_OK);
+    CHECK(pstream_clip_open(url, &remote) == PSTREAM_OK);
+    CHECK(pstream_clip_info_get(local, &a) == PSTREAM_OK && pstream_clip_info_get(remote, &b) == PSTREAM_OK);
+    CHECK(a.frame_count == b.frame_count && a.record_size == b.record_size && a.max_count == b.max_count);
+    x = malloc((size_t)(a.max_count * a.record_size));
+    y = malloc((size_t)(a.max_count * a.record_size));
+    for (f = 0; f < a.frame_count; ++f) { /* every frame, byte for byte */
+      uint64_t count = 0;
+      double time = 0;
+      CHECK(pstream_clip_read_frame(local, f, x, a.max_count * a.record_size) == PSTREAM_OK);
+      CHECK(pstream_clip_read_frame(remote, f, y, a.max_count * a.record_size) == PSTREAM_OK);
+      CHECK(pstream_clip_frame_info(local, f, &count, &time) == PSTREAM_OK);
+      CHECK(memcmp(x, y, (size_t)(count * a.record_size)) == 0);
+    }
+    free(x);
+    free(y);
+    CHECK(pstream_clip_close(local) == PSTREAM_OK && pstream_clip_close(remote) == PSTREAM_OK);
+    EXPECT_ERROR(pstream_clip_open(missing, &remote), PSTREAM_ERROR_IO, "missing.pstream");
+    /* A player streams it too: the same particles, frame after frame, as from the file. */
+    pstream_player_options_init(&options);
+    options.blocking = 1;
+    clips[0] = join(1, work, "particle.pstream");
+    CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+    CHECK(pstream_player_play(player) == PSTREAM_OK);
+    seen_file = play(player, 60);
+    pstream_player_close(player);
+    clips[0] = url;
+    CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+    CHECK(pstream_player_play(player) == PSTREAM_OK);
+    seen_url = play(player, 60);
+    CHECK(seen_url > 0 && seen_url == seen_file);
+    pstream_player_close(player);
+    clips[0] = missing;
+    EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_IO, "404");
+    printf("by URL: %s, every frame equal to the file's\n", url);
+  }
+
   /* ---- Playback ---- */
   {
     pstream_player* player = NULL;
