@@ -69,7 +69,8 @@ struct HttpOptions {
   double retry_base_seconds = 0.1;  // backoff: base x 2^attempt, with full jitter, capped below
   double retry_max_seconds = 2.0;
   double connect_timeout_seconds = 10;      // per request
-  double stall_timeout_seconds = 15;        // a request that receives nothing for this long is retried
+  double stall_timeout_seconds = 10;        // a request that receives nothing for this long is retried,
+  unsigned stall_retries = 1;               // this many times (within `retries`)
   std::uint64_t prefix_bytes = 256 * 1024;  // fetched at open (header and tables usually fit)
 };
 

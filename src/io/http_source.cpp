@@ -80,7 +80,7 @@ struct Request {
   ByteSource::ReadDone done = nullptr;
   void* context = nullptr;
   bool probe = false;  // the first request at open: any length up to out.size(), learns the size
-  unsigned attempt = 0;
+  unsigned attempt = 0, stalls = 0;
   Clock::time_point not_before{};
   // The current response.
   long status = 0;
@@ -407,7 +407,11 @@ class HttpSource final : public ByteSource {
       }
       transfer_seconds_ += total_s;
     }
-    if (!o.ok && o.transient && r->attempt < o_.retries) {
+    // A request that stalled (nothing for stall_timeout) is tried again stall_retries times at
+    // most: a server that accepts and never answers is dead, not busy.
+    const bool stalled = code == CURLE_OPERATION_TIMEDOUT;
+    if (stalled) ++r->stalls;
+    if (!o.ok && o.transient && r->attempt < o_.retries && (!stalled || r->stalls <= o_.stall_retries)) {
       // Exponential backoff with full jitter.
       const double cap =
           std::min(o_.retry_max_seconds, o_.retry_base_seconds * double(1u << std::min(r->attempt, 16u)));
@@ -423,7 +427,7 @@ class HttpSource final : public ByteSource {
     if (!o.ok) {
       const std::uint64_t end = r->offset + r->out.size() - 1;
       status = keep_message(fmt::format("{}: bytes {}-{}: {}{}", url_, r->offset, end, o.why,
-                                        r->attempt ? fmt::format(" (after {} retries)", r->attempt) : ""));
+                                        r->attempt ? fmt::format(" (after {} {})", r->attempt, r->attempt == 1 ? "retry" : "retries") : ""));
     }
     const ReadDone done = r->done;
     void* context = r->context;

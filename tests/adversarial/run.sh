@@ -87,6 +87,69 @@ for f in "$in"/*; do
   [ -n "$python" ] && run_program "$name" "$python" "$here/python_open.py" "$f"
 done
 
+# URL inputs (tests/http/fault_server.py, and a port that accepts and never answers): a server
+# that never answers, one that answers garbage instead of HTTP, one whose body never ends, at the
+# open and after it. Each run may wait out the HTTP source's stall budget (about 20 s a read), so
+# they run side by side, each checked as above.
+url_runs=()
+url_run() {  # LABEL PROGRAM ARGS...: started in the background, checked by url_check
+  local n=${#url_runs[@]} label=$1 program=$2; shift 2
+  url_runs+=("$label|$program|$*")
+  (
+    cd "$out" || exit 99
+    asan=${ASAN_OPTIONS:-}
+    [ "$flavour" = sanitized ] && [ "$program" != "$pstream" ] && asan="detect_leaks=0:abort_on_error=1"
+    ASAN_OPTIONS=$asan timeout -k 5 240 "$program" "$@" >"$root/url.$n.log" 2>&1 </dev/null
+    echo $? >"$root/url.$n.rc"
+  ) &
+}
+if [ -n "$python" ] || command -v python3 >/dev/null; then
+  py=${python:-python3}
+  "$py" "$here/../http/fault_server.py" --root / --port 0 --port-file "$root/port" &
+  fault_server=$!
+  "$py" -c 'import socket, sys, time
+s = socket.socket(); s.bind(("127.0.0.1", 0)); s.listen(64)
+open(sys.argv[1], "w").write(str(s.getsockname()[1])); time.sleep(3600)' "$root/silent_port" &
+  silent_server=$!
+  for _ in $(seq 100); do [ -s "$root/port" ] && [ -s "$root/silent_port" ] && break; sleep 0.1; done
+  base=http://127.0.0.1:$(cat "$root/port")
+  clip=$in/good.pstream
+  urls=("http://127.0.0.1:$(cat "$root/silent_port")$clip")
+  for fault in hang garbage infinite; do urls+=("$base/~$fault=0$clip" "$base/~$fault=1$clip"); done
+  mkdir -p "$out/u"
+  for i in "${!urls[@]}"; do
+    u=${urls[$i]}
+    url_run "$u" "$pstream" info "$u" --json
+    url_run "$u" "$pstream" verify "$u"
+    url_run "$u" "$pstream" export "$u" -o "$out/u/e$i.abc" -q
+    url_run "$u" "$pstream" render "$u" --out "$out/u/r$i" --frames 0:3 --size 32x32 -q
+    [ -n "$host_open" ] && url_run "$u" "$host_open" "$u"
+    [ -n "$python" ] && url_run "$u" "$python" "$here/python_open.py" "$u"
+  done
+  wait_start=$SECONDS
+  for n in "${!url_runs[@]}"; do
+    while [ ! -e "$root/url.$n.rc" ] && [ $((SECONDS - wait_start)) -lt 300 ]; do sleep 0.5; done
+    IFS='|' read -r label program args <<<"${url_runs[$n]}"
+    rc=$(cat "$root/url.$n.rc" 2>/dev/null || echo 124)
+    runs=$((runs + 1))
+    why=""
+    if [ "$rc" -eq 124 ] || [ "$rc" -eq 137 ]; then why="timed out (a hang)"
+    elif [ "$rc" -eq 0 ] && [ "$program" = "$pstream" ] && [[ $label == *"~"*"=0"* || $label == *":$(cat "$root/silent_port")/"* ]]; then why="succeeded against a server that never serves"
+    elif [ "$rc" -ge 128 ]; then why="ended by signal $((rc - 128))"
+    elif grep -q "internal error" "$root/url.$n.log"; then why="internal error"
+    elif grep -qE "AddressSanitizer|LeakSanitizer|runtime error:" "$root/url.$n.log"; then why="sanitizer report"
+    fi
+    if [ -n "$why" ]; then
+      failures=$((failures + 1))
+      echo "FAIL [$label] $(basename "$program") $args -> rc $rc: $why"
+      head -c 3000 "$root/url.$n.log" | sed 's/^/    /'
+    fi
+  done
+  kill "$fault_server" "$silent_server" 2>/dev/null
+  wait "$fault_server" "$silent_server" 2>/dev/null
+  echo "adversarial: ${#url_runs[@]} URL runs in $((SECONDS - wait_start)) s"
+fi
+
 # A host that breaks the C API's rules (a completion twice, one that never comes, double close).
 if [ -n "$misuse" ]; then
   mkdir -p "$root/misuse"

@@ -13,9 +13,10 @@ faults chosen by the URL's first path segments:
     /~short=1/FILE             every request after the open's sends a short body and closes
     /~full200=1/FILE           every request gets 200 and the whole file (no range support)
     /~change=3/FILE            after 3 requests the file is "replaced": a new ETag and Last-Modified
-    /~hang=1/FILE              requests after the open's are read and never answered
-    /~garbage=1/FILE           requests after the open's get bytes that are no HTTP response
-    /~infinite=1/FILE          requests after the open's get a 206 whose body never ends
+    /~hang=1/FILE              requests after the first 1 (the open's) are read and never answered;
+                               /~hang=0/ never answers at all
+    /~garbage=1/FILE           requests after the first 1 get bytes that are no HTTP response
+    /~infinite=1/FILE          requests after the first 1 get a 206 whose body never ends
 
 Segments combine (/~latency=50/~rate=1e6/FILE). --port 0 picks a free port; it is written to
 --port-file once the server listens.
@@ -95,10 +96,13 @@ class Handler(BaseHTTPRequestHandler):
         later = n > 1  # not the open's first request
         if "latency" in faults:
             time.sleep(float(faults["latency"]) / 1000)
-        if "hang" in faults and later:
+        def past(fault):  # this request is past the first N that the fault spares
+            return fault in faults and n > int(faults[fault])
+
+        if past("hang"):
             time.sleep(3600)
             return
-        if "garbage" in faults and later:
+        if past("garbage"):
             self.wfile.write(b"\x00\xffNOT HTTP AT ALL\r\n\r\n\x01\x02")
             self.close_connection = True
             return
@@ -135,7 +139,7 @@ class Handler(BaseHTTPRequestHandler):
         with open(file, "rb") as f:  # only the range: files may be large
             f.seek(start)
             body = f.read(end + 1 - start)
-        if "infinite" in faults and later:
+        if past("infinite"):
             self.send_response(206)
             self.send_header("Content-Range", f"bytes {start}-{end}/{size}")
             self.send_header("ETag", etag)
