@@ -695,7 +695,7 @@ TEST(Http, FaultsEndInTheErrorStateNamingTheUrl) {
       {"/~change=3", "the file changed since it was opened"},
       {"/~short=1", "after 3 retries"},
       {"/~hang=1", "(after 1 retry)"},  // a stall is retried once (stall_retries)
-      {"/~garbage=1", "HTTP/0.9"},  // libcurl's words for a reply that is no HTTP
+      {"/~garbage=1", "HTTP/0.9"},      // libcurl's words for a reply that is no HTTP
       {"/~infinite=1", "longer than the"},
       {"/~fail=503x100", "HTTP 503 (after 3 retries)"},
   };

@@ -426,8 +426,9 @@ class HttpSource final : public ByteSource {
     int status = 0;
     if (!o.ok) {
       const std::uint64_t end = r->offset + r->out.size() - 1;
-      status = keep_message(fmt::format("{}: bytes {}-{}: {}{}", url_, r->offset, end, o.why,
-                                        r->attempt ? fmt::format(" (after {} {})", r->attempt, r->attempt == 1 ? "retry" : "retries") : ""));
+      status = keep_message(fmt::format(
+          "{}: bytes {}-{}: {}{}", url_, r->offset, end, o.why,
+          r->attempt ? fmt::format(" (after {} {})", r->attempt, r->attempt == 1 ? "retry" : "retries") : ""));
     }
     const ReadDone done = r->done;
     void* context = r->context;

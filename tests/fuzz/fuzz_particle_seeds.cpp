@@ -29,6 +29,10 @@ int main(int argc, char** argv) {
             std::memcpy(records[f].data() + i * meta.record_size + 16, &color, 4);
             std::memcpy(records[f].data() + i * meta.record_size + 20, &id, 8);
           }
+          if (meta.record_size > 28) {  // a derived velocity: the source's seeds new particles
+            const float v[3] = {0.5f * float(i % 3), -1.0f, 0.25f};
+            std::memcpy(records[f].data() + i * meta.record_size + 28, v, 12);
+          }
           ids[f].push_back(id);
         }
       }

@@ -1,8 +1,8 @@
 // The small clip the particle-codec fuzz target decodes against, shared with its seed generator.
 // A fuzz input is: [selector][u32 size of the keyframe body][keyframe body][predicted frame body],
 // bodies uncompressed (the target compresses them, so mutations land in the body, not in zstd's
-// framing). The selector picks the layout (bit 0), the frame order (bit 1) and whether the scale
-// is a version 3 relative word (bit 2).
+// framing). The selector picks the layout (bit 0), the frame order (bit 1) and version 3 (bit 2):
+// the scale a relative word, and with bit 0 a derived velocity.
 #pragma once
 
 #include <cstring>
@@ -20,10 +20,12 @@ inline format::Metadata particle_clip(std::uint8_t selector, std::uint64_t count
   Metadata m;
   m.layout = default_layout();
   const bool more = (selector & 1) != 0;
+  const bool derived = more && (selector & 4) != 0;
   if (more) {
     append_attribute(m.layout, "color", AttributeType::Unorm8, 4);
     append_attribute(m.layout, "id", AttributeType::Uint64, 1);
   }
+  if (derived) append_attribute(m.layout, "velocity", AttributeType::Float32, 3);
   m.record_size = record_size_of(m.layout);
   m.codec.codec = FrameCodec::Particle;
   m.codec.order = (selector & 2) ? FrameOrder::Matched : more ? FrameOrder::Id : FrameOrder::Source;
@@ -42,6 +44,8 @@ inline format::Metadata particle_clip(std::uint8_t selector, std::uint64_t count
     const WordCoding id = m.codec.order == FrameOrder::Id ? WordCoding::Id : WordCoding::Exact;
     m.codec.words[5].coding = m.codec.words[6].coding = id;
   }
+  for (std::uint32_t c = 0; derived && c < 3; ++c)
+    m.codec.words[7 + c] = {WordCoding::Derived, 0.01f * 24 / 2, 0.0f, c};
   for (std::uint64_t f = 0; f < 2; ++f) {
     FrameEntry e;
     e.count = f == 0 ? count0 : count1;
