@@ -471,3 +471,87 @@ TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
 }
 
 }  // namespace
+
+namespace {
+
+// The registry: every frame codec has both halves under one name, and a clip planned and encoded
+// through its encoding half decodes through its decoding half (FrameDecoder finds it there):
+// records exactly, the particle codec within its bounds, with births and deaths.
+TEST(FrameCodecRegistry, EveryCodecRoundTripsThroughItsTwoHalves) {
+  EXPECT_EQ(format::frame_codec_encoders().size(), format::frame_codec_decoders().size());
+  EXPECT_EQ(format::find_frame_codec(static_cast<format::FrameCodec>(7)), nullptr);
+  EXPECT_EQ(format::find_frame_codec_encoder(static_cast<format::FrameCodec>(7)), nullptr);
+  for (int c = 0; c <= 5; ++c) {  // every coding a type with its name; nothing past the last
+    const format::WordCodingType* t = format::find_word_coding(static_cast<format::WordCoding>(c));
+    ASSERT_NE(t, nullptr);
+    EXPECT_EQ(static_cast<int>(t->id), c);
+    EXPECT_FALSE(t->name.empty());
+  }
+  EXPECT_EQ(format::find_word_coding(static_cast<format::WordCoding>(6)), nullptr);
+  constexpr std::uint32_t kFrames = 6;
+  std::vector<format::Attribute> layout = format::default_layout();
+  format::append_attribute(layout, "id", format::AttributeType::Uint64, 1);
+  const std::uint32_t rs = format::record_size_of(layout);
+  std::vector<std::vector<std::byte>> records(kFrames);
+  std::vector<std::vector<std::uint64_t>> ids(kFrames);
+  format::ClipStats stats(layout);
+  for (std::uint32_t f = 0; f < kFrames; ++f) {
+    for (std::uint64_t id = f; id < 300 + 10 * f; ++id) {  // particles born and dying every frame
+      const float r[4] = {float(id % 17) * 0.1f + 0.05f * float(f), float(id / 17) * 0.1f - 0.01f * float(f * f),
+                          0.5f, 0.02f + 0.001f * float(id % 5)};
+      records[f].resize(records[f].size() + rs);
+      std::memcpy(records[f].data() + records[f].size() - rs, r, 16);
+      std::memcpy(records[f].data() + records[f].size() - rs + 16, &id, 8);
+      ids[f].push_back(id);
+    }
+    stats.add(records[f], ids[f].size());
+  }
+  for (const format::FrameCodecEncoding& encoding : format::frame_codec_encoders()) {
+    SCOPED_TRACE(std::string(encoding.name));
+    const format::FrameCodecDecoding* decoding = format::find_frame_codec(encoding.id);
+    ASSERT_NE(decoding, nullptr);
+    EXPECT_EQ(decoding->name, encoding.name);
+    EXPECT_EQ(format::frame_codec_name(encoding.id), encoding.name);
+    format::Metadata meta;
+    meta.layout = layout;
+    meta.record_size = rs;
+    meta.fps = 24;
+    meta.codec = encoding.plan(layout, stats, 24.0, true, {});
+    EXPECT_EQ(meta.codec.codec, encoding.id);
+    std::vector<format::SourceFrame> frames;
+    for (std::uint32_t f = 0; f < kFrames; ++f) frames.push_back({records[f], ids[f], ids[f].size()});
+    const auto encoded = encoding.encode_group(meta.codec, frames, {}, 0);
+    ASSERT_EQ(encoded.size(), kFrames);
+    for (const auto& e : encoded) {
+      format::FrameEntry entry;
+      entry.count = e.count;
+      entry.keyframe = e.keyframe;
+      entry.packet_size = e.packet.size();
+      meta.frames.push_back(entry);
+      meta.max_count = std::max(meta.max_count, e.count);
+    }
+    format::FrameDecoder decoder(meta, "registry");
+    EXPECT_EQ(decoder.state_bytes(), decoding->state_bytes(meta));
+    std::vector<std::byte> out(meta.max_count * rs);
+    for (std::uint32_t f = 0; f < kFrames; ++f) {
+      decoder.decode(f, encoded[f].packet, out);
+      ASSERT_EQ(encoded[f].count, ids[f].size());
+      for (std::size_t i = 0; i < ids[f].size(); ++i) {  // both keep the ascending id order given
+        std::uint64_t id;
+        std::memcpy(&id, out.data() + i * rs + 16, 8);
+        ASSERT_EQ(id, ids[f][i]);
+        for (int w = 0; w < 4; ++w) {
+          float a, b;
+          std::memcpy(&a, out.data() + i * rs + 4 * w, 4);
+          std::memcpy(&b, records[f].data() + i * rs + 4 * w, 4);
+          if (encoding.id == format::FrameCodec::Records)
+            ASSERT_EQ(a, b);
+          else
+            ASSERT_LE(std::abs(double(a) - double(b)), w < 3 ? meta.codec.error : 0.01 * double(b));
+        }
+      }
+    }
+  }
+}
+
+}  // namespace

@@ -40,15 +40,8 @@ std::uint64_t stored_bytes(const Metadata& m) {
 }
 
 std::string_view coding_name(WordCoding c) {
-  switch (c) {
-    case WordCoding::Quantized: return "quantized";
-    case WordCoding::Exact: return "exact";
-    case WordCoding::Constant: return "constant";
-    case WordCoding::Id: return "id";
-    case WordCoding::Relative: return "relative";
-    case WordCoding::Derived: return "derived";
-  }
-  return "?";
+  const format::WordCodingType* type = format::find_word_coding(c);
+  return type ? type->name : "?";
 }
 
 std::string_view order_name(FrameOrder o) {

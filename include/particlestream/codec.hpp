@@ -150,6 +150,50 @@ FramePacket frame_packet(const Metadata& meta, std::uint64_t frame);
 // The keyframe at or before `frame`: decoding frame f costs f - keyframe_of(f) extra decodes.
 std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame);
 
+// ---- The registry ------------------------------------------------------------------------------
+
+// A frame codec is a unit: an id, a name, and two halves in their own files and libraries. The
+// decoding half (pstream_format, which players link alone) makes the unit that decodes a clip's
+// frames and says beforehand how much it allocates; the encoding half (pstream_format_encoder)
+// plans a clip's coding and encodes keyframe groups. FrameDecoder, the reader, the cook and the
+// tools find codecs here, never by a switch over FrameCodec. Adding a codec is one entry in each
+// table (src/format/frame_codecs.cpp, frame_encoders.cpp) and its files.
+struct FrameCodecDecoding {
+  FrameCodec id;
+  std::string_view name;  // as `info` prints it
+  // The bytes make_unit() allocates for `meta`, known before anything is allocated.
+  std::uint64_t (*state_bytes)(const Metadata& meta);
+  std::unique_ptr<FrameUnit> (*make_unit)(const Metadata& meta, std::string_view file);
+};
+std::span<const FrameCodecDecoding> frame_codec_decoders();
+const FrameCodecDecoding* find_frame_codec(FrameCodec id);  // null: no codec has that id
+
+struct FrameCodecEncoding {
+  FrameCodec id;
+  std::string_view name;
+  // A clip's coding from its layout and statistics (plan_particle_codec's contract).
+  CodecInfo (*plan)(const std::vector<Attribute>& layout, const ClipStats& stats, double fps, bool has_ids,
+                    const ParticleCodecOptions& options);
+  // A keyframe group's packets (encode_group's contract).
+  std::vector<EncodedFrame> (*encode_group)(const CodecInfo& info, std::span<const SourceFrame> frames,
+                                            std::span<const SourceFrame> before, std::uint64_t first_index);
+};
+std::span<const FrameCodecEncoding> frame_codec_encoders();
+const FrameCodecEncoding* find_frame_codec_encoder(FrameCodec id);
+
+// Word codings are small types too: what each one is, stores and promises, and the rule a clip's
+// table must keep for it (src/format/word_codings.cpp).
+struct WordCodingType {
+  WordCoding id;
+  std::string_view name;
+  bool stored;    // a value per particle in the packets (the decoder keeps Q and D for it)
+  bool bounded;   // `error` is a bound on |decoded − source| (relative: of the source's value)
+  bool relative;
+  // Why `e` cannot code word `w` (of attribute `a`) in `m`; empty when it can.
+  std::string (*check)(const Metadata& m, const Attribute& a, std::uint32_t w, const WordCodingEntry& e);
+};
+const WordCodingType* find_word_coding(WordCoding id);  // null: an unknown coding
+
 // ---- Matching --------------------------------------------------------------------------------
 
 // Which particles of a frame are the same particles as in the frame before it, as runs walked

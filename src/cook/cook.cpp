@@ -395,8 +395,10 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   report.dropped_invalid = dropped_before;
   state.stage = Stage::Write;
   state.frames_done = 0;
-  meta.codec = format::plan_particle_codec(plan.layout, stats, meta.fps, plan.request.id && !options.particle.lossless,
-                                           options.particle);
+  const format::FrameCodecEncoding* encoder = format::find_frame_codec_encoder(options.frame_codec);
+  if (encoder == nullptr) throw Error(fmt::format("unknown frame codec {}", static_cast<int>(options.frame_codec)));
+  meta.codec =
+      encoder->plan(plan.layout, stats, meta.fps, plan.request.id && !options.particle.lossless, options.particle);
   report.error = meta.codec.error;
   report.order = meta.codec.order;
   format::Writer writer(options.output, meta, source.files());
@@ -434,7 +436,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
                 prior.push_back(it->view());
             for (auto it = tail.rbegin(); it != tail.rend() && prior.size() < 2; ++it) prior.push_back(it->view());
             std::reverse(prior.begin(), prior.end());
-            encoded[g] = format::encode_group(meta.codec, views, prior, starts[g]);
+            encoded[g] = encoder->encode_group(meta.codec, views, prior, starts[g]);
           } catch (...) {
             errors[g] = std::current_exception();
           }

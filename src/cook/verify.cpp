@@ -119,8 +119,9 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
     check.name = at.name;
     for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
       const WordCodingEntry* e = particle ? &m.codec.words[w] : nullptr;
-      const bool relative = e && e->coding == WordCoding::Relative;
-      const bool bounded = e && (e->coding == WordCoding::Quantized || relative);
+      const format::WordCodingType* type = e ? format::find_word_coding(e->coding) : nullptr;
+      const bool relative = type && type->relative;
+      const bool bounded = type && type->bounded;
       check.relative = check.relative || relative;
       if (bounded) {
         check.exact = false;

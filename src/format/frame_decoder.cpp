@@ -1,5 +1,5 @@
-// Frame codecs, the decoding side: the records unit, the decoder that picks a clip's unit, and
-// matching by id. The encoding side (statistics, planning, comparison) is frame_plan.cpp.
+// The frame decoder, which decodes a clip's frames through its codec's unit (found in the
+// registry, frame_codecs.cpp), and matching by id.
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -13,31 +13,6 @@
 #include "particlestream/codec.hpp"
 
 namespace pstream::format {
-namespace {
-
-// The records codec: the packet is the frame's records.
-class RecordsUnit final : public FrameUnit {
- public:
-  RecordsUnit(const Metadata& meta, std::string_view name) : meta_(meta), name_(name) {}
-  std::size_t decode(std::uint64_t frame, bool /*keyframe*/, std::span<const std::byte> packet,
-                     std::span<std::byte> out, std::span<MatchRun> /*matching*/) override {
-    const std::uint64_t size = meta_.frames[frame].count * meta_.record_size;
-    if (packet.size() != size || out.size() < size) {
-      throw Error(
-          fmt::format("{}: frame {}: a records packet of {} bytes, expected {}", name_, frame, packet.size(), size));
-    }
-    if (size != 0) std::memcpy(out.data(), packet.data(), size);
-    return kNoMatching;  // every frame stands alone
-  }
-  void reset() override {}
-  std::uint64_t state_bytes() const override { return 0; }
-
- private:
-  const Metadata& meta_;
-  std::string_view name_;
-};
-
-}  // namespace
 
 FramePacket frame_packet(const Metadata& meta, std::uint64_t frame) {
   const FrameEntry& f = meta.frames[frame];
@@ -52,7 +27,9 @@ std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame) {
 FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit)
     : meta_(meta), name_(std::move(name)) {
   const std::uint64_t limit = memory_limit ? memory_limit : unbudgeted_memory_limit(meta);
-  const std::uint64_t needed = meta.codec.codec == FrameCodec::Particle ? particle_unit_state_bytes(meta) : 0;
+  const FrameCodecDecoding* codec = find_frame_codec(meta.codec.codec);
+  if (codec == nullptr) throw Error(fmt::format("{}: unknown frame codec {}", name_, static_cast<int>(meta.codec.codec)));
+  const std::uint64_t needed = codec->state_bytes(meta);
   if (needed > limit) {
     throw OptionError(
         "budget",
@@ -61,11 +38,7 @@ FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t
                     name_, meta.max_count, needed / 1048576.0,
                     memory_limit ? "the memory budget" : "the clip's stored bytes justify", limit / 1048576.0));
   }
-  switch (meta.codec.codec) {
-    case FrameCodec::Records: unit_ = std::make_unique<RecordsUnit>(meta_, name_); break;
-    case FrameCodec::Particle: unit_ = make_particle_unit(meta_, name_); break;
-  }
-  if (!unit_) throw Error(fmt::format("{}: unknown frame codec {}", name_, static_cast<int>(meta.codec.codec)));
+  unit_ = codec->make_unit(meta_, name_);
   state_bytes_ = unit_->state_bytes();
 }
 

@@ -25,8 +25,11 @@ class FrameUnit {
   virtual std::uint64_t state_bytes() const = 0;
 };
 
+// Each codec's decoding half (the registry, frame_codecs.cpp, lists them): its unit, and the
+// bytes that unit allocates for `meta`, known before anything is allocated.
+std::unique_ptr<FrameUnit> make_records_unit(const Metadata& meta, std::string_view name);
+std::uint64_t records_unit_state_bytes(const Metadata& meta);
 std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name);
-// The bytes make_particle_unit() allocates for `meta`, known before anything is allocated.
 std::uint64_t particle_unit_state_bytes(const Metadata& meta);
 
 }  // namespace pstream::format

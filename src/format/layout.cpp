@@ -27,14 +27,6 @@ std::size_t attribute_type_size(AttributeType type) {
   return 0;
 }
 
-std::string_view frame_codec_name(FrameCodec codec) {
-  switch (codec) {
-    case FrameCodec::Records: return "records";
-    case FrameCodec::Particle: return "particle";
-  }
-  return "?";
-}
-
 std::uint64_t Metadata::stream_size() const {
   return frames.empty() ? 0 : frames.back().packet_offset + frames.back().packet_size;
 }

@@ -7,6 +7,7 @@
 
 #include <fmt/format.h>
 
+#include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
@@ -89,53 +90,19 @@ class In {
   std::string_view name_;
 };
 
-// The particle codec's word table must describe the record layout: quantised words are float32
-// components with a finite positive step and origin, ids cover the two words of a uint64 "id".
+// The particle codec's word table must describe the record layout: each word's coding (a small
+// type, word_codings.cpp) says whether it can code that word.
 template <class Fail>
 void validate_word_codings(const Metadata& m, Fail fail) {
   for (const Attribute& a : m.layout) {
     for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) {
       const WordCodingEntry& e = m.codec.words[w];
-      const bool is_float = a.type == AttributeType::Float32;
-      const bool is_id = a.name == "id" && a.type == AttributeType::Uint64;
-      if (e.coding == WordCoding::Quantized) {
-        float origin;
-        std::memcpy(&origin, &e.base, 4);
-        if (!is_float || !(e.step > 0.0f) || !std::isfinite(e.step) || !std::isfinite(origin) || !(e.error >= 0.0f) ||
-            !std::isfinite(e.error)) {
-          fail(
-              fmt::format("record word {} ('{}'): a quantised word needs a float32 attribute, a finite step > 0 and "
-                          "a finite origin (step {}, origin {}, error {})",
-                          w, a.name, e.step, origin, e.error));
-        }
+      const WordCodingType* type = find_word_coding(e.coding);
+      if (type == nullptr) {
+        fail(fmt::format("record word {} ('{}') has unknown coding {}", w, a.name, static_cast<int>(e.coding)));
+        continue;
       }
-      if (e.coding == WordCoding::Relative &&
-          (!is_float || m.version < 3 || e.base < 1 || e.base > 23 || !(e.error > 0.0f) || !(e.error < 1.0f))) {
-        fail(
-            fmt::format("record word {} ('{}'): a relative word needs a float32 attribute, format version 3, a "
-                        "shift of 1 to 23 and a bound in (0, 1) (shift {}, bound {})",
-                        w, a.name, e.base, e.error));
-      }
-      if (e.coding == WordCoding::Derived) {
-        const Attribute* position = m.find("position");
-        const bool from_position = position != nullptr && e.base >= position->offset / 4 &&
-                                   e.base < (position->offset + position->size()) / 4 &&
-                                   m.codec.words[e.base].coding == WordCoding::Quantized;
-        if (a.name != "velocity" || !is_float || a.components != 3 || m.version < 3 || !from_position ||
-            !(e.step > 0.0f) || !std::isfinite(e.step)) {
-          fail(
-              fmt::format("record word {} ('{}'): a derived word needs the float32x3 'velocity' attribute, format "
-                          "version 3, a quantised position word to derive from and a finite step > 0 (from word "
-                          "{}, step {})",
-                          w, a.name, e.base, e.step));
-        }
-      }
-      if (e.coding == WordCoding::Id && (!is_id || m.codec.order != FrameOrder::Id)) {
-        fail(
-            fmt::format("record word {} ('{}'): the id coding is for the two words of the uint64 'id' attribute "
-                        "of a clip ordered by id",
-                        w, a.name));
-      }
+      if (std::string why = type->check(m, a, w, e); !why.empty()) fail(why);
     }
   }
 }
@@ -318,8 +285,12 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   header.tables_checksum = h.get<std::uint64_t>("tables_checksum");
   if (m.version >= 2) {
     const auto codec = h.get<std::uint32_t>("frame_codec");
-    if (codec > static_cast<std::uint32_t>(FrameCodec::Particle))
-      h.fail(fmt::format("unknown frame codec {} (this build knows 0 records, 1 particle)", codec));
+    if (find_frame_codec(static_cast<FrameCodec>(codec)) == nullptr) {
+      std::string known;
+      for (const FrameCodecDecoding& c : frame_codec_decoders())
+        known += fmt::format("{}{} {}", known.empty() ? "" : ", ", static_cast<int>(c.id), c.name);
+      h.fail(fmt::format("unknown frame codec {} (this build knows {})", codec, known));
+    }
     m.codec.codec = static_cast<FrameCodec>(codec);
     const auto order = h.get<std::uint8_t>("frame_order");
     if (order > static_cast<std::uint8_t>(FrameOrder::Matched)) h.fail(fmt::format("unknown frame order {}", order));
@@ -435,7 +406,7 @@ Metadata parse_tables(const Header& header, std::span<const std::byte> tables, s
       e.step = t.get<float>("word step");
       e.error = t.get<float>("word error");
       e.base = t.get<std::uint32_t>("word base");
-      if (coding > static_cast<std::uint8_t>(WordCoding::Derived))
+      if (find_word_coding(static_cast<WordCoding>(coding)) == nullptr)
         t.fail(fmt::format("record word {} has unknown coding {}", w, coding));
       e.coding = static_cast<WordCoding>(coding);
     }

@@ -84,7 +84,8 @@ struct WordPlan {
   explicit WordPlan(const CodecInfo& info) : words(static_cast<std::uint32_t>(info.words.size())) {
     for (std::uint32_t w = 0; w < words; ++w) {
       const WordCoding c = info.words[w].coding;
-      if (c == WordCoding::Quantized || c == WordCoding::Exact || c == WordCoding::Relative) coded.push_back(w);
+      const WordCodingType* type = find_word_coding(c);
+      if (type != nullptr && type->stored) coded.push_back(w);
       if (c == WordCoding::Id && id_word < 0) id_word = w;
     }
     for (std::uint32_t w = 0; w < words; ++w) {
