@@ -497,8 +497,8 @@ TEST(FrameCodecRegistry, EveryCodecRoundTripsThroughItsTwoHalves) {
   format::ClipStats stats(layout);
   for (std::uint32_t f = 0; f < kFrames; ++f) {
     for (std::uint64_t id = f; id < 300 + 10 * f; ++id) {  // particles born and dying every frame
-      const float r[4] = {float(id % 17) * 0.1f + 0.05f * float(f), float(id / 17) * 0.1f - 0.01f * float(f * f),
-                          0.5f, 0.02f + 0.001f * float(id % 5)};
+      const float r[4] = {float(id % 17) * 0.1f + 0.05f * float(f), float(id / 17) * 0.1f - 0.01f * float(f * f), 0.5f,
+                          0.02f + 0.001f * float(id % 5)};
       records[f].resize(records[f].size() + rs);
       std::memcpy(records[f].data() + records[f].size() - rs, r, 16);
       std::memcpy(records[f].data() + records[f].size() - rs + 16, &id, 8);

@@ -186,8 +186,8 @@ const FrameCodecEncoding* find_frame_codec_encoder(FrameCodec id);
 struct WordCodingType {
   WordCoding id;
   std::string_view name;
-  bool stored;    // a value per particle in the packets (the decoder keeps Q and D for it)
-  bool bounded;   // `error` is a bound on |decoded − source| (relative: of the source's value)
+  bool stored;   // a value per particle in the packets (the decoder keeps Q and D for it)
+  bool bounded;  // `error` is a bound on |decoded − source| (relative: of the source's value)
   bool relative;
   // Why `e` cannot code word `w` (of attribute `a`) in `m`; empty when it can.
   std::string (*check)(const Metadata& m, const Attribute& a, std::uint32_t w, const WordCodingEntry& e);

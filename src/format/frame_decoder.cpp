@@ -28,7 +28,8 @@ FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t
     : meta_(meta), name_(std::move(name)) {
   const std::uint64_t limit = memory_limit ? memory_limit : unbudgeted_memory_limit(meta);
   const FrameCodecDecoding* codec = find_frame_codec(meta.codec.codec);
-  if (codec == nullptr) throw Error(fmt::format("{}: unknown frame codec {}", name_, static_cast<int>(meta.codec.codec)));
+  if (codec == nullptr)
+    throw Error(fmt::format("{}: unknown frame codec {}", name_, static_cast<int>(meta.codec.codec)));
   const std::uint64_t needed = codec->state_bytes(meta);
   if (needed > limit) {
     throw OptionError(

@@ -47,8 +47,8 @@ std::string check_derived(const Metadata& m, const Attribute& a, std::uint32_t w
   const bool from_position = position != nullptr && e.base >= position->offset / 4 &&
                              e.base < (position->offset + position->size()) / 4 &&
                              m.codec.words[e.base].coding == WordCoding::Quantized;
-  if (a.name == "velocity" && is_float(a) && a.components == 3 && m.version >= 3 && from_position &&
-      e.step > 0.0f && std::isfinite(e.step))
+  if (a.name == "velocity" && is_float(a) && a.components == 3 && m.version >= 3 && from_position && e.step > 0.0f &&
+      std::isfinite(e.step))
     return {};
   return fmt::format(
       "record word {} ('{}'): a derived word needs the float32x3 'velocity' attribute, format version 3, a "
