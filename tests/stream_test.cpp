@@ -669,6 +669,7 @@ TEST(Http, TransientFaultsAreRetriedAndTheFramesAreExact) {
     EXPECT_NE(play_through(*s, &ref), stream::PlayState::Error) << s->error();
     const io::SourceStats st = source->stats();
     EXPECT_GT(st.requests, 10u);
+    EXPECT_GT(s->debug().source.requests, 10u);  // the stream passes the source's counts on (the viewer shows them)
     if (faults.find("fail") != std::string::npos || faults.find("drop") != std::string::npos) {
       EXPECT_GE(st.retries, 2u);
     }

@@ -122,6 +122,12 @@ void cache_view(const stream::ParticleStream& clip) {
       "%zu slots, %.1f MiB | loads %llu, in flight %u | read %.1f MiB, IO %.0f ms, decode %.0f ms | stalls %llu",
       d.slots.size(), d.cache_bytes / 1048576.0, static_cast<unsigned long long>(d.loads_done), d.loads_in_flight,
       d.bytes_read / 1048576.0, d.io_ms, d.decode_ms, static_cast<unsigned long long>(d.stalls));
+  if (d.source.requests != 0) {  // a remote clip: what went over the wire
+    ImGui::TextWrapped("remote: %llu requests (%llu retried), %.1f MB, first byte %.0f ms, %.1f MB/s, %u in flight",
+                       static_cast<unsigned long long>(d.source.requests),
+                       static_cast<unsigned long long>(d.source.retries), d.source.bytes / 1e6, d.source.latency_ms,
+                       d.source.bandwidth_mb_s, d.source.in_flight);
+  }
   ImGui::TextColored({0.45f, 0.75f, 0.5f, 1}, "Ready");
   ImGui::SameLine();
   ImGui::TextColored({0.9f, 0.7f, 0.15f, 1}, "Loading");

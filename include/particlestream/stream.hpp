@@ -146,6 +146,9 @@ struct DebugInfo {
   std::uint64_t decode_bytes = 0;       // the decoded frames, the frame decoder's state, a packet's staging
   std::uint64_t wrapped_packets = 0;    // packets decoded from across the ring's wrap (copied together)
   bool seeking = false;
+  // What the byte source counts (HTTP: requests, bytes, retries, time to first byte, bandwidth;
+  // zeros for a local file).
+  io::SourceStats source;
 };
 
 class ParticleStream {

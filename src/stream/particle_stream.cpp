@@ -414,7 +414,18 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->interpolate = options.interpolate;
   impl->scheduler = options.scheduler ? options.scheduler : IoScheduler::shared_default();
   impl->chunk_size = m.chunk_size;
-  std::size_t slots = cache_slots(m, options.cache_seconds);
+  const unsigned loads =
+      std::max(1u, options.max_loads_in_flight ? options.max_loads_in_flight : impl->io->preferred_reads_in_flight());
+  // A source with reads in flight (HTTP) sizes the look-ahead from what its open measured: at
+  // least 4 round trips of playback, and a slot for every load in flight plus two (the chunk
+  // being read and one ready). Fixed at open, like every other buffer.
+  double seconds = options.cache_seconds;
+  std::size_t least = 0;
+  if (loads > 1) {
+    seconds = std::max(seconds, 4.0 * impl->io->stats().latency_ms / 1000.0);
+    least = std::min<std::size_t>(loads + 2, m.chunk_count());
+  }
+  std::size_t slots = std::max(cache_slots(m, seconds), least);
   if (options.min_slots) slots = std::max(slots, std::min<std::size_t>(options.min_slots, m.chunk_count()));
   if (options.max_slots) {
     const std::size_t floor = cache_slots(m, 0.0);  // what a largest frame needs
@@ -463,8 +474,6 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->packet_staging.reset(new std::byte[std::max<std::uint64_t>(max_packet, 1)]);
   impl->slots.assign(slots, SlotInfo{});
   impl->slots_snapshot.assign(slots, SlotInfo{});
-  const unsigned loads =
-      std::max(1u, options.max_loads_in_flight ? options.max_loads_in_flight : impl->io->preferred_reads_in_flight());
   impl->requests = std::vector<LoadRequest>(loads);
   for (unsigned i = 0; i < loads; ++i) impl->decoders.push_back(std::make_unique<format::ChunkDecoder>());
   std::uint64_t max_stored = 0;
@@ -726,6 +735,7 @@ std::size_t ParticleStream::copy_frame(std::span<std::byte> out) const {
 DebugInfo ParticleStream::debug() const {
   const Impl& d = *impl_;
   DebugInfo info;
+  info.source = d.io->stats();  // the source's own lock, never under the stream's
   std::lock_guard lock(d.mutex);
   std::copy(d.slots.begin(), d.slots.end(), d.slots_snapshot.begin());
   info.slots = d.slots_snapshot;
