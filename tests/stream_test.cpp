@@ -732,6 +732,35 @@ TEST(Http, FaultsEndInTheErrorStateNamingTheUrl) {
   EXPECT_THROW(io::open_url("http://127.0.0.1:1/x.pstream", quick()), Error);
 }
 
+// A seek ends the remote reads it made useless (they would otherwise hold the connections while
+// the new position waits): over a slow link, the loads in flight at the seek are cancelled, and
+// the frame after it is exact.
+TEST(Http, ASeekCancelsTheReadsItMadeUseless) {
+  if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = remote_clip(dir);
+  const Reference ref(file);
+  stream::StreamOptions o;
+  o.blocking = true;
+  o.cache_seconds = 2.0;  // many chunks ahead, each slow to come
+  o.io = io::open_url(test::test_url(file, "/~rate=400000"), quick());
+  const io::ByteSource* source = o.io.get();
+  auto s = stream::ParticleStream::open(file, std::move(o));
+  const auto& m = s->metadata();
+  s->play();
+  s->update(0);
+  ASSERT_TRUE(frame_matches(*s, ref, 0));
+  ASSERT_GT(s->debug().loads_in_flight, 1u);  // reads under way ahead of the playhead
+  const std::uint64_t target = m.frame_count() - 2;
+  s->seek(m.frames[target].time);
+  s->update(0);
+  ASSERT_NE(s->state(), stream::PlayState::Error) << s->error();
+  EXPECT_TRUE(frame_matches(*s, ref, target));
+  EXPECT_GE(source->stats().cancelled, 1u);
+  std::printf("seek over a slow link: %llu reads cancelled\n",
+              static_cast<unsigned long long>(source->stats().cancelled));
+}
+
 TEST(Http, CommandsTakeUrls) {
   if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
   const fs::path dir = test::fresh_dir();

@@ -24,6 +24,7 @@ struct SourceStats {
   double latency_ms = 0;        // time to the first byte, mean over requests
   double bandwidth_mb_s = 0;    // bytes over the time requests were in flight (MB/s)
   std::uint32_t in_flight = 0;  // reads under way now
+  std::uint64_t cancelled = 0;  // reads ended early by cancel()
 };
 
 // A read-only source of bytes at offsets.
@@ -59,6 +60,11 @@ class ByteSource {
   virtual unsigned preferred_reads_in_flight() const { return 1; }
   // The whole source in memory when it is (a mapped local file); empty otherwise.
   virtual std::span<const std::byte> mapped() const { return {}; }
+  // The asynchronous read started with `context` is no longer wanted (a seek made it useless). A
+  // source may end it early; its completion still comes exactly once, later and from its own
+  // thread, with a failure status. Never calls the completion from inside cancel(). A context
+  // with no read under way is ignored.
+  virtual void cancel(void* /*context*/) {}
   virtual SourceStats stats() const { return {}; }
 };
 

@@ -81,6 +81,7 @@ struct Request {
   void* context = nullptr;
   bool probe = false;  // the first request at open: any length up to out.size(), learns the size
   unsigned attempt = 0, stalls = 0;
+  bool cancelled = false;  // cancel() asked: ended by the run loop, never retried
   Clock::time_point not_before{};
   // The current response.
   long status = 0;
@@ -106,6 +107,7 @@ class HttpSource final : public ByteSource {
     free_.reserve(pool_.size());
     queue_.reserve(pool_.size());
     active_.reserve(pool_.size());
+    ended_.reserve(pool_.size());
     for (Request& r : pool_) {
       r.easy = curl_easy_init();
       if (r.easy == nullptr) {
@@ -161,6 +163,16 @@ class HttpSource final : public ByteSource {
     if (status <= 0 || static_cast<std::size_t>(status) > messages_.size()) return {};
     return messages_[static_cast<std::size_t>(status) - 1];
   }
+  void cancel(void* context) override {
+    bool found = false;
+    {
+      std::lock_guard lock(mutex_);
+      for (Request* r : queue_) found = found || (r->context == context && (r->cancelled = true));
+      for (Request* r : active_) found = found || (r->context == context && (r->cancelled = true));
+    }
+    if (found) curl_multi_wakeup(multi_);  // the run loop ends it
+  }
+
   SourceStats stats() const override {
     std::lock_guard lock(mutex_);
     SourceStats s = stats_;
@@ -207,6 +219,8 @@ class HttpSource final : public ByteSource {
       r->context = context;
       r->probe = probe;
       r->attempt = 0;
+      r->stalls = 0;
+      r->cancelled = false;
       r->not_before = Clock::now();
       queue_.push_back(r);
     }
@@ -441,11 +455,24 @@ class HttpSource final : public ByteSource {
 
   void run() {
     for (;;) {
-      // Start the requests that are due, up to `connections` at once.
+      // Start the requests that are due, up to `connections` at once; end the cancelled ones.
       int wait_ms = 1000;
+      ended_.clear();  // reserved at open: the run thread's own
       {
         std::lock_guard lock(mutex_);
         if (stopping_) break;
+        for (auto* list : {&active_, &queue_}) {
+          for (auto it = list->begin(); it != list->end();) {
+            if (!(*it)->cancelled) {
+              ++it;
+              continue;
+            }
+            if (list == &active_) curl_multi_remove_handle(multi_, (*it)->easy);
+            ended_.push_back(*it);
+            it = list->erase(it);
+          }
+        }
+        stats_.cancelled += ended_.size();
         const auto now = Clock::now();
         for (auto it = queue_.begin(); it != queue_.end() && active_.size() < o_.connections;) {
           Request* r = *it;
@@ -460,6 +487,17 @@ class HttpSource final : public ByteSource {
           curl_multi_add_handle(multi_, r->easy);
           active_.push_back(r);
         }
+      }
+      for (Request* r : ended_) {
+        const int status = keep_message(fmt::format("{}: bytes {}-{}: cancelled (no longer wanted)", url_, r->offset,
+                                                    r->offset + r->out.size() - 1));
+        const ReadDone done = r->done;
+        void* context = r->context;
+        {
+          std::lock_guard lock(mutex_);
+          free_.push_back(r);
+        }
+        done(context, status);
       }
       int running = 0;
       curl_multi_perform(multi_, &running);
@@ -520,6 +558,7 @@ class HttpSource final : public ByteSource {
   std::vector<Request*> free_;
   std::vector<Request*> queue_;  // reserved at open: queueing allocates nothing
   std::vector<Request*> active_;
+  std::vector<Request*> ended_;  // cancelled requests being ended (the run thread's)
   std::vector<std::string> messages_;
   std::size_t next_message_ = 0;
   SourceStats stats_;

@@ -368,6 +368,7 @@ struct ParticleStream::Impl {
     for (LoadRequest& r : requests) {
       if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) {
         r.discard = true;
+        if (!r.produce) io->cancel(&r);     // a remote read may end now (it then completes as failed)
         after = (r.slot + 1) % slot_count;  // restart the ring after it, so it is reused last
       }
     }
