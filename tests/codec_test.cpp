@@ -331,6 +331,26 @@ namespace {
 // Sizes that span 100x in a scene 40 units across: each particle's scale within 1 % of its own
 // (an absolute bound of 1e-4 of the diagonal, 4 mm here, would turn the smallest into a few
 // values), and no two scales that differ by more than twice the bound decode to the same value.
+// The metadata a decoder needs for frames encoded in memory: the layout, the coding, and each
+// frame's count, keyframe flag and packet size.
+format::Metadata metadata_for(const std::vector<format::Attribute>& layout, const format::CodecInfo& info,
+                              const std::vector<format::EncodedFrame>& encoded) {
+  format::Metadata meta;
+  meta.layout = layout;
+  meta.record_size = format::record_size_of(layout);
+  meta.fps = 24;
+  meta.codec = info;
+  for (const auto& e : encoded) {
+    format::FrameEntry entry;
+    entry.count = e.count;
+    entry.keyframe = e.keyframe;
+    entry.packet_size = e.packet.size();
+    meta.frames.push_back(entry);
+    meta.max_count = std::max(meta.max_count, e.count);
+  }
+  return meta;
+}
+
 TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
   constexpr std::uint32_t kCount = 4000, kFrames = 6;
   std::vector<format::Attribute> layout = format::default_layout();
@@ -357,18 +377,7 @@ TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
   std::vector<format::SourceFrame> frames;
   for (std::uint32_t f = 0; f < kFrames; ++f) frames.push_back({records[f], ids[f], kCount});
   const auto encoded = format::encode_group(info, frames, {}, 0);
-  format::Metadata meta;
-  meta.layout = layout;
-  meta.record_size = rs;
-  meta.codec = info;
-  meta.max_count = kCount;
-  for (const auto& e : encoded) {
-    format::FrameEntry entry;
-    entry.count = e.count;
-    entry.keyframe = e.keyframe;
-    entry.packet_size = e.packet.size();
-    meta.frames.push_back(entry);
-  }
+  const format::Metadata meta = metadata_for(layout, info, encoded);
   format::FrameDecoder decoder(meta, "generated");
   std::vector<std::byte> out(kCount * rs);
   double worst = 0.0;
@@ -512,24 +521,13 @@ TEST(FrameCodecRegistry, EveryCodecRoundTripsThroughItsTwoHalves) {
     ASSERT_NE(decoding, nullptr);
     EXPECT_EQ(decoding->name, encoding.name);
     EXPECT_EQ(format::frame_codec_name(encoding.id), encoding.name);
-    format::Metadata meta;
-    meta.layout = layout;
-    meta.record_size = rs;
-    meta.fps = 24;
-    meta.codec = encoding.plan(layout, stats, 24.0, true, {});
-    EXPECT_EQ(meta.codec.codec, encoding.id);
+    const format::CodecInfo info = encoding.plan(layout, stats, 24.0, true, {});
+    EXPECT_EQ(info.codec, encoding.id);
     std::vector<format::SourceFrame> frames;
     for (std::uint32_t f = 0; f < kFrames; ++f) frames.push_back({records[f], ids[f], ids[f].size()});
-    const auto encoded = encoding.encode_group(meta.codec, frames, {}, 0);
+    const auto encoded = encoding.encode_group(info, frames, {}, 0);
     ASSERT_EQ(encoded.size(), kFrames);
-    for (const auto& e : encoded) {
-      format::FrameEntry entry;
-      entry.count = e.count;
-      entry.keyframe = e.keyframe;
-      entry.packet_size = e.packet.size();
-      meta.frames.push_back(entry);
-      meta.max_count = std::max(meta.max_count, e.count);
-    }
+    const format::Metadata meta = metadata_for(layout, info, encoded);
     format::FrameDecoder decoder(meta, "registry");
     EXPECT_EQ(decoder.state_bytes(), decoding->state_bytes(meta));
     std::vector<std::byte> out(meta.max_count * rs);

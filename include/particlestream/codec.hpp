@@ -184,13 +184,13 @@ const FrameCodecEncoding* find_frame_codec_encoder(FrameCodec id);
 // Word codings are small types too: what each one is, stores and promises, and the rule a clip's
 // table must keep for it (src/format/word_codings.cpp).
 struct WordCodingType {
-  WordCoding id;
   std::string_view name;
+  // Why `e` cannot code word `w` (of attribute `a`) in `m`; empty when it can.
+  std::string (*check)(const Metadata& m, const Attribute& a, std::uint32_t w, const WordCodingEntry& e);
+  WordCoding id;
   bool stored;   // a value per particle in the packets (the decoder keeps Q and D for it)
   bool bounded;  // `error` is a bound on |decoded − source| (relative: of the source's value)
   bool relative;
-  // Why `e` cannot code word `w` (of attribute `a`) in `m`; empty when it can.
-  std::string (*check)(const Metadata& m, const Attribute& a, std::uint32_t w, const WordCodingEntry& e);
 };
 const WordCodingType* find_word_coding(WordCoding id);  // null: an unknown coding
 

@@ -58,12 +58,12 @@ std::string check_derived(const Metadata& m, const Attribute& a, std::uint32_t w
 
 // Indexed by the coding's value.
 constexpr WordCodingType kCodings[] = {
-    {WordCoding::Quantized, "quantized", true, true, false, check_quantized},
-    {WordCoding::Exact, "exact", true, false, false, check_any},
-    {WordCoding::Constant, "constant", false, false, false, check_any},
-    {WordCoding::Id, "id", false, false, false, check_id},
-    {WordCoding::Relative, "relative", true, true, true, check_relative},
-    {WordCoding::Derived, "derived", false, false, false, check_derived},
+    {"quantized", check_quantized, WordCoding::Quantized, true, true, false},
+    {"exact", check_any, WordCoding::Exact, true, false, false},
+    {"constant", check_any, WordCoding::Constant, false, false, false},
+    {"id", check_id, WordCoding::Id, false, false, false},
+    {"relative", check_relative, WordCoding::Relative, true, true, true},
+    {"derived", check_derived, WordCoding::Derived, false, false, false},
 };
 
 }  // namespace

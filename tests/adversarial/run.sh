@@ -35,7 +35,6 @@ run() {
 run_program() {
   local label=$1 program=$2; shift 2
   local log=$root/last.log rc
-  runs=$((runs + 1))
   if [ "$flavour" = plain ]; then
     (ulimit -v "$limit_kb"; cd "$out" && timeout -k 5 "$timeout_s" "$program" "$@") >"$log" 2>&1 </dev/null
   else
@@ -46,11 +45,20 @@ run_program() {
     [ "$program" != "$pstream" ] && asan="detect_leaks=0:abort_on_error=1"  # a host abandons reads by design
     (cd "$out" && ASAN_OPTIONS=$asan timeout -k 5 "$timeout_s" "$program" "$@") >"$log" 2>&1 </dev/null
   fi
-  rc=$?
-  local why=""
-  if [ $rc -eq 124 ] || [ $rc -eq 137 ]; then why="timed out (a hang)"
-  elif [ $rc -ge 128 ]; then why="ended by signal $((rc - 128))"
-  elif [ $rc -eq 2 ] && [ "$program" != "$pstream" ]; then why="an error without a message, or an exception that is not particlestream.Error"
+  judge "$label" "$program" $? "$log" "" "$@"
+  return 0
+}
+
+# judge LABEL PROGRAM RC LOG WHY_SO_FAR ARGS...: counts the run, and a failure when it hung, ended
+# on a signal, said "internal error", got a sanitizer report, or WHY_SO_FAR says why already.
+judge() {
+  local label=$1 program=$2 rc=$3 log=$4 why=$5
+  shift 5
+  runs=$((runs + 1))
+  if [ -n "$why" ]; then :
+  elif [ "$rc" -eq 124 ] || [ "$rc" -eq 137 ]; then why="timed out (a hang)"
+  elif [ "$rc" -ge 128 ]; then why="ended by signal $((rc - 128))"
+  elif [ "$rc" -eq 2 ] && [ "$program" != "$pstream" ]; then why="an error without a message, or an exception that is not particlestream.Error"
   elif grep -q "internal error" "$log"; then why="internal error"
   elif grep -qE "AddressSanitizer|LeakSanitizer|runtime error:" "$log"; then why="sanitizer report"
   fi
@@ -59,7 +67,6 @@ run_program() {
     echo "FAIL [$label] $(basename "$program") $* -> rc $rc: $why"
     head -c 3000 "$log" | sed 's/^/    /'
   fi
-  return 0
 }
 
 checksums() { (cd "$in" && find . -type f -print0 | sort -z | xargs -0 sha256sum); }
@@ -131,19 +138,13 @@ open(sys.argv[1], "w").write(str(s.getsockname()[1])); time.sleep(3600)' "$root/
     while [ ! -e "$root/url.$n.rc" ] && [ $((SECONDS - wait_start)) -lt 300 ]; do sleep 0.5; done
     IFS='|' read -r label program args <<<"${url_runs[$n]}"
     rc=$(cat "$root/url.$n.rc" 2>/dev/null || echo 124)
-    runs=$((runs + 1))
     why=""
-    if [ "$rc" -eq 124 ] || [ "$rc" -eq 137 ]; then why="timed out (a hang)"
-    elif [ "$rc" -eq 0 ] && [ "$program" = "$pstream" ] && [[ $label == *"~"*"=0"* || $label == *":$(cat "$root/silent_port")/"* ]]; then why="succeeded against a server that never serves"
-    elif [ "$rc" -ge 128 ]; then why="ended by signal $((rc - 128))"
-    elif grep -q "internal error" "$root/url.$n.log"; then why="internal error"
-    elif grep -qE "AddressSanitizer|LeakSanitizer|runtime error:" "$root/url.$n.log"; then why="sanitizer report"
+    if [ "$rc" -eq 0 ] && [ "$program" = "$pstream" ] &&
+      [[ $label == *"~"*"=0"* || $label == *":$(cat "$root/silent_port")/"* ]]; then
+      why="succeeded against a server that never serves"
     fi
-    if [ -n "$why" ]; then
-      failures=$((failures + 1))
-      echo "FAIL [$label] $(basename "$program") $args -> rc $rc: $why"
-      head -c 3000 "$root/url.$n.log" | sed 's/^/    /'
-    fi
+    # shellcheck disable=SC2086  # the arguments as they were given, for the message
+    judge "$label" "$program" "$rc" "$root/url.$n.log" "$why" $args
   done
   kill "$fault_server" "$silent_server" 2>/dev/null
   wait "$fault_server" "$silent_server" 2>/dev/null
