@@ -356,6 +356,52 @@ PYBIND11_MODULE(particlestream, m) {
       "(--store-velocity: store the source's instead of deriving it from particles with ids). Returns the "
       "report (frames, particles, file_bytes, seconds).");
 
+  m.def(
+      "verify",
+      [](const std::string& clip, const std::string& against) {
+        cook::VerifyReport r;
+        {
+          py::gil_scoped_release release;
+          r = cook::verify(clip, against);
+        }
+        py::list attributes;
+        for (const cook::AttributeCheck& a : r.attributes) {
+          py::dict d;
+          d["name"] = a.name;
+          d["max_error"] = a.max_error;
+          d["bound"] = a.exact ? 0.0 : a.bound;
+          d["relative"] = a.relative;
+          d["exact"] = a.exact;
+          d["ok"] = a.ok;
+          d["distinct_source"] = a.distinct_source;
+          d["distinct_clip"] = a.distinct_clip;
+          d["derived"] = a.derived;
+          if (a.derived) {
+            d["in_source"] = a.in_source;
+            d["rms_error"] = a.rms_error;
+            d["rms_source"] = a.rms_source;
+          }
+          attributes.append(d);
+        }
+        py::dict d;
+        d["ok"] = r.ok();
+        d["frames"] = r.frames;
+        d["chunks_verified"] = r.chunks_verified;
+        d["errors"] = r.errors;
+        d["source"] = r.source;
+        d["frames_compared"] = r.frames_compared;
+        d["particles_compared"] = r.particles_compared;
+        d["attributes"] = attributes;
+        return d;
+      },
+      py::arg("clip"), py::arg("against") = "",
+      "Checks a .pstream as `pstream verify` does: every checksum, index entry and frame, and with `against` "
+      "(its source, .abc or a PLY sequence) every attribute of every frame against the source cooked again, "
+      "each within its own bound. Returns the report: ok, frames, chunks_verified, errors (each names the "
+      "chunk, frame or attribute), and per attribute its max_error, bound, relative, exact, ok and distinct "
+      "values in the source and the clip; a derived velocity (derived=True) has no bound: its rms_error "
+      "against the source's velocities (in_source) and their rms_source.");
+
   py::class_<PyClip>(m, "Clip", "A .pstream read directly.")
       .def(py::init<std::filesystem::path>(), py::arg("path"))
       .def_property_readonly("frame_count", [](const PyClip& c) { return c.reader.metadata().frame_count(); })

@@ -117,3 +117,8 @@ def cook(
 ) -> dict:
     """Cooks an Alembic archive (or a PLY sequence) into a .pstream with the options of
     `pstream cook`; returns the report (frames, particles, file_bytes, seconds)."""
+
+def verify(clip: str, against: str = "") -> dict:
+    """Checks a .pstream as `pstream verify` does (and with `against`, each attribute against the
+    source within its own bound; a derived velocity reports its rms_error); returns the report:
+    ok, frames, chunks_verified, errors, source, frames_compared, particles_compared, attributes."""

@@ -202,6 +202,39 @@ def test_default_cook_is_the_particle_codec_with_its_bounds(tmp_path):
         ps.cook(abc, tmp_path / "bad.pstream", error="rel:2")
 
 
+def test_verify_reports_each_attribute_and_the_derived_velocity(tmp_path):
+    abc = DATA / "sims" / "blender_sparks.abc"
+    clip = tmp_path / "d.pstream"
+    ps.cook(abc, clip)  # the default: particle codec, velocity derived from the particles' ids
+    plain = ps.verify(str(clip))
+    assert plain["ok"] and plain["frames"] == 48 and plain["attributes"] == [] and plain["errors"] == []
+    r = ps.verify(str(clip), str(abc))
+    assert r["ok"] and r["frames_compared"] == 48 and r["particles_compared"] > 100000
+    by_name = {a["name"]: a for a in r["attributes"]}
+    assert set(by_name) == {"position", "scale", "color", "velocity"}
+    assert by_name["scale"]["relative"] and by_name["scale"]["max_error"] <= by_name["scale"]["bound"] == pytest.approx(0.01)
+    assert by_name["color"]["exact"] and by_name["color"]["max_error"] == 0
+    v = by_name["velocity"]
+    assert v["derived"] and v["in_source"] and 0 < v["rms_error"] < 0.15 * v["rms_source"]
+    # The same report as the command line's.
+    cli_path = os.environ.get("PSTREAM_CLI")
+    if cli_path:
+        import subprocess
+        out = subprocess.run([cli_path, "verify", str(clip), "--against", str(abc), "--json"], capture_output=True,
+                             text=True)
+        cli = json.loads(out.stdout)
+        assert cli["ok"] == r["ok"]
+        for a in cli["against"]["attributes"]:
+            assert by_name[a["name"]]["max_error"] == pytest.approx(a["max_error"])
+    # A corrupted clip: not ok, and the error names the chunk.
+    data = bytearray(clip.read_bytes())
+    data[300] ^= 0xFF
+    bad = tmp_path / "bad.pstream"
+    bad.write_bytes(bytes(data))
+    broken = ps.verify(str(bad))
+    assert not broken["ok"] and any("chunk" in e or "checksum" in e for e in broken["errors"])
+
+
 def _same(got, want):
     if isinstance(want, str):
         return got == want
