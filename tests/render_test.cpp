@@ -519,3 +519,48 @@ TEST(Viewer, ACorruptClipFailsTheRun) {
 }
 
 }  // namespace
+
+namespace {
+
+// The default speed ramp on each shared fixture sim (default cook): the particles' colours span
+// the ramp, and no more than 5 % of them sit at either end of it (issue #26's measure), over
+// every frame.
+TEST(RenderCommand, DefaultSpeedRampsSpanTheRampOnTheFixtureSims) {
+  const fs::path dir = test::fresh_dir();
+  for (const char* sim : {"sims/blender_sparks.abc", "sims/blender_flip_pour_small.abc"}) {
+    SCOPED_TRACE(sim);
+    const fs::path clip = dir / (fs::path(sim).stem().string() + ".pstream");
+    ASSERT_EQ(test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path(sim), clip.string())).exit_code, 0);
+    const fs::path files[] = {clip};
+    const std::array<float, 2> range = playback::ramp_range(files);
+    const format::Reader reader = format::Reader::open(clip);
+    const format::Metadata& m = reader.metadata();
+    const format::Attribute* v = m.find("velocity");
+    ASSERT_NE(v, nullptr);
+    std::vector<std::byte> records = format::frame_buffer(m, "clip");
+    std::uint64_t n = 0, low = 0, high = 0, quarters[4] = {0, 0, 0, 0};
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+      reader.read_frame(f, records);
+      for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
+        float w[3];
+        std::memcpy(w, records.data() + i * m.record_size + v->offset, 12);
+        const double t = (std::sqrt(double(w[0]) * w[0] + double(w[1]) * w[1] + double(w[2]) * w[2]) - range[0]) /
+                         double(range[1] - range[0]);  // where on the ramp, as the shader computes it
+        ++n;
+        low += t <= 0.0 ? 1 : 0;
+        high += t >= 1.0 ? 1 : 0;
+        ++quarters[std::clamp(int(t * 4), 0, 3)];
+      }
+    }
+    ASSERT_GT(n, 100000u);
+    std::printf("%s: ramp %.3g..%.3g m/s; %.2f%% at its start, %.2f%% at its end; quarters %.0f/%.0f/%.0f/%.0f%%\n",
+                sim, range[0], range[1], 100.0 * double(low) / double(n), 100.0 * double(high) / double(n),
+                100.0 * double(quarters[0]) / double(n), 100.0 * double(quarters[1]) / double(n),
+                100.0 * double(quarters[2]) / double(n), 100.0 * double(quarters[3]) / double(n));
+    EXPECT_LE(double(low), 0.05 * double(n));
+    EXPECT_LE(double(high), 0.05 * double(n));
+    for (const std::uint64_t q : quarters) EXPECT_GT(q, 0u);  // every part of the ramp is used
+  }
+}
+
+}  // namespace
