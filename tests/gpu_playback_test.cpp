@@ -269,7 +269,7 @@ std::vector<std::uint8_t> render_image(const std::vector<fs::path>& files, const
                                            out.string(), path, flags));
   EXPECT_EQ(r.exit_code, 0) << r.output;
   int w = 0, h = 0;
-  return render::read_png(out / "frame_00002.png", w, h);  // between cached frames
+  return render::read_png(test::nth_frame(out, 2), w, h);  // between cached frames
 }
 
 void expect_same_images(const std::vector<fs::path>& files, const std::string& flags) {

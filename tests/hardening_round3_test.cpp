@@ -136,7 +136,7 @@ TEST(HardeningRound3, AClipOfEmptyFramesPlaysEverywhere) {
         "{}{} {}", command.starts_with("render") ? "ASAN_OPTIONS=detect_leaks=0 " : "", PSTREAM_CLI, command));
     EXPECT_EQ(r.exit_code, 0) << command << "\n" << r.output;
   }
-  EXPECT_TRUE(fs::exists(dir / "frames" / "frame_00000.png"));
+  EXPECT_TRUE(fs::exists(test::nth_frame(dir / "frames", 0)));
   const auto bench = test::run_cli(fmt::format("bench stream {} --laps 1 --json", q(clip)));
   EXPECT_NE(bench.output.find("\"stalls\":0"), std::string::npos) << bench.output;
   EXPECT_EQ(bench.output.find("null"), std::string::npos) << "a 0/0 figure: " << bench.output;
@@ -370,7 +370,7 @@ TEST(HardeningRound3, AnUnknownRampAttributeIsRefusedBeforeRendering) {
       test::run_cli_raw(fmt::format("ASAN_OPTIONS=detect_leaks=0 {} render {} --out {} -q --ramp-attribute nope",
                                     PSTREAM_CLI, q(clip), q(dir / "frames")));
   expect_error(r, "--ramp-attribute 'nope' is not one of its float attributes");
-  EXPECT_FALSE(fs::exists(dir / "frames" / "frame_00000.png"));
+  EXPECT_FALSE(fs::exists(test::nth_frame(dir / "frames", 0)));
 }
 
 TEST(HardeningRound3, NamesAreDataNotSyntaxInExportedPly) {

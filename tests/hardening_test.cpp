@@ -192,7 +192,7 @@ TEST(Hardening, PlansBeyondTheFrameLimitAreRefused) {
       0);
   expect_error(test::run_cli(fmt::format("render {} --fps 1e6 --out {} -q", q(dir / "o.pstream"), q(dir / "f"))),
                "more than --max-frames 100000");
-  EXPECT_FALSE(fs::exists(dir / "f" / "frame_00000.png"));
+  EXPECT_FALSE(fs::exists(test::nth_frame(dir / "f", 0)));
   expect_no_temporaries(dir);
 }
 

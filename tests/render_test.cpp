@@ -221,7 +221,7 @@ TEST(RenderCommand, SlowMotionRendersInterpolatedImages) {
     EXPECT_EQ(r.exit_code, 0) << r.output;
     std::vector<std::vector<std::uint8_t>> frames;
     for (int k = 0;; ++k) {
-      const fs::path png = out / fmt::format("frame_{:05d}.png", k);
+      const fs::path png = test::nth_frame(out, k);
       if (!fs::exists(png)) break;
       int w = 0, h = 0;
       frames.push_back(read_png(png, w, h));
@@ -257,7 +257,7 @@ TEST(RenderCommand, ADefaultCookHasWhatTheLooksNeed) {
         fmt::format("render -q '{}' --out '{}' --size 480x270 --backdrop none {}", clip.string(), out.string(), flags));
     EXPECT_EQ(r.exit_code, 0) << r.output;
     int w = 0, h = 0;
-    return read_png(out / "frame_00000.png", w, h);
+    return read_png(test::nth_frame(out, 0), w, h);
   };
   const auto count = [](const std::vector<std::uint8_t>& img, auto&& pixel) {
     std::size_t n = 0;
@@ -280,7 +280,7 @@ TEST(RenderCommand, ADefaultCookHasWhatTheLooksNeed) {
   std::vector<std::vector<std::uint8_t>> slow{image(flip, "slow", "--frames 30:32 --speed 0.25")};
   for (int k = 1; k < 5; ++k) {
     int w = 0, h = 0;
-    slow.push_back(read_png(dir / "slow" / fmt::format("frame_{:05d}.png", k), w, h));
+    slow.push_back(read_png(test::nth_frame(dir / "slow", k), w, h));
     EXPECT_NE(slow[std::size_t(k)], slow[std::size_t(k - 1)]) << "image " << k << " repeats";
   }
   // A clip without velocities: the look that needs them says so before anything is written.
@@ -369,7 +369,7 @@ TEST(RenderCommand, ASpeedRampSpansTheClipsSpeeds) {
                                   clip.string(), out.string(), flags));
     EXPECT_EQ(r.exit_code, 0) << r.output;
     int w = 0, h = 0;
-    const auto img = read_png(out / "frame_00000.png", w, h);
+    const auto img = read_png(test::nth_frame(out, 0), w, h);
     // The fire ramp runs black, red, orange, yellow, white: green over red grows along it.
     std::size_t lit = 0;
     double green_over_red = 0.0;
@@ -414,7 +414,7 @@ TEST(RenderCommand, LiquidLookAndSeveralClips) {
                                 clip.string(), (dir / "liquid").string()));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   int w = 0, h = 0;
-  const auto img = read_png(dir / "liquid" / "frame_00000.png", w, h);
+  const auto img = read_png(test::nth_frame(dir / "liquid", 0), w, h);
   ASSERT_EQ(w, 320);
   // The liquid's blue-green is in the picture (the backdrop is grey and sky blue: its pixels have
   // red close to green).
@@ -485,7 +485,7 @@ TEST(Demo, SmallSmokeRunProducesEverythingAndMatchingFrames) {
   EXPECT_EQ(report["render"]["frames"].get<int>(), 12);
   for (int frame : {4, 10}) {
     int w = 0, h = 0;
-    const auto img = read_png(dir / "frames" / fmt::format("frame_{:05d}.png", frame), w, h);
+    const auto img = read_png(test::nth_frame(dir / "frames", frame), w, h);
     ASSERT_EQ(w, 320);
     const fs::path golden = test::data_path(fmt::format("demo/smoke_frame_{}.png", frame));
     if (std::getenv("PSTREAM_UPDATE_GOLDEN") != nullptr) write_png(golden, w, h, img);
@@ -561,6 +561,35 @@ TEST(RenderCommand, DefaultSpeedRampsSpanTheRampOnTheFixtureSims) {
     EXPECT_LE(double(high), 0.05 * double(n));
     for (const std::uint64_t q : quarters) EXPECT_GT(q, 0u);  // every part of the ramp is used
   }
+}
+
+}  // namespace
+
+namespace {
+
+// Images are numbered by source frame: Blender's sparks start at frame 1 (1/24 s), so a render
+// of their first three frames writes frame_00001..3.png, and --frames 10:12 writes frame_00011
+// and 12, removing the earlier render's frames from the folder.
+TEST(RenderCommand, ImagesAreNumberedBySourceFrame) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = dir / "sparks.pstream";
+  ASSERT_EQ(
+      test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path("sims/blender_sparks.abc"), clip.string()))
+          .exit_code,
+      0);
+  const fs::path out = dir / "frames";
+  auto r =
+      test::run_cli(fmt::format("render '{}' --out '{}' --frames 0:3 --size 32x32 -q", clip.string(), out.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_FALSE(fs::exists(out / "frame_00000.png"));
+  for (const char* name : {"frame_00001.png", "frame_00002.png", "frame_00003.png"})
+    EXPECT_TRUE(fs::exists(out / name)) << name;
+  r = test::run_cli(fmt::format("render '{}' --out '{}' --frames 10:12 --size 32x32 -q", clip.string(), out.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_TRUE(fs::exists(out / "frame_00011.png"));
+  EXPECT_TRUE(fs::exists(out / "frame_00012.png"));
+  EXPECT_FALSE(fs::exists(out / "frame_00001.png"));  // the folder holds exactly this render
+  EXPECT_EQ(test::nth_frame(out, 2), fs::path());
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cctype>
 #include <cstdio>
 #include <cstdlib>
@@ -37,6 +38,20 @@ inline std::filesystem::path fresh_dir(std::string name = {}) {
 }
 
 inline std::string data_path(const std::string& relative) { return std::string(PSTREAM_TEST_DATA) + "/" + relative; }
+
+// The k-th image (in number order) of a `pstream render` folder: images are numbered by source
+// frame (frame_NNNNN.png), so a clip that starts at frame 1 has no frame_00000.png. An empty path
+// when there are not that many.
+inline std::filesystem::path nth_frame(const std::filesystem::path& dir, std::size_t k) {
+  std::vector<std::filesystem::path> frames;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.size() == 15 && name.starts_with("frame_") && name.ends_with(".png")) frames.push_back(e.path());
+  }
+  std::sort(frames.begin(), frames.end());
+  return k < frames.size() ? frames[k] : std::filesystem::path();
+}
 
 inline std::string read_text(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);

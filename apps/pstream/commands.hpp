@@ -123,6 +123,7 @@ struct RenderCli {
 struct RenderStats {
   std::vector<double> frame_ms;  // each frame's draw + read-back (PNG writing excluded)
   std::string gl_renderer;
+  std::uint64_t first_number = 0;  // the first image's number (frame_NNNNN.png): its source frame
 };
 int run_render(const RenderCli& cli, RenderStats* stats = nullptr);
 

@@ -41,16 +41,17 @@ json percentiles(std::vector<double> v) {
 }
 
 // A grid of evenly spaced frames, each shrunk by averaging 4x4 pixel blocks.
-void contact_sheet(const std::filesystem::path& frames, std::size_t count, const std::filesystem::path& out) {
+void contact_sheet(const std::filesystem::path& frames, std::uint64_t first, std::size_t count,
+                   const std::filesystem::path& out) {
   constexpr int kColumns = 3, kRows = 3, kShrink = 2;  // thumbnails half the frame: big enough to see
   int w = 0, h = 0;
-  render::read_png(frames / "frame_00000.png", w, h);
+  render::read_png(frames / fmt::format("frame_{:05d}.png", first), w, h);
   const int tw = w / kShrink, th = h / kShrink;
   std::vector<std::uint8_t> sheet(std::size_t(tw) * kColumns * th * kRows * 4, 255);
   for (int k = 0; k < kColumns * kRows; ++k) {
     const std::size_t frame = std::min(count - 1, std::size_t(k) * (count - 1) / (kColumns * kRows - 1));
     int fw = 0, fh = 0;
-    const auto img = render::read_png(frames / fmt::format("frame_{:05d}.png", frame), fw, fh);
+    const auto img = render::read_png(frames / fmt::format("frame_{:05d}.png", first + frame), fw, fh);
     const int ox = (k % kColumns) * tw, oy = (k / kColumns) * th;
     for (int y = 0; y < th; ++y) {
       for (int x = 0; x < tw; ++x) {
@@ -221,7 +222,7 @@ int run_demo(const DemoCli& cli) {
                       {"frames", render_ms.size()},
                       {"size", cli.size},
                       {"gl_renderer", rs.gl_renderer}};
-  contact_sheet(rc.out, render_ms.size(), dir / "contact_sheet.png");
+  contact_sheet(rc.out, rs.first_number, render_ms.size(), dir / "contact_sheet.png");
   if (!have_ffmpeg) say("note: no demo.mp4 — the ffmpeg program is not installed (apt-get install ffmpeg)");
 
   rusage usage{};

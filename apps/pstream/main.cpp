@@ -418,7 +418,11 @@ int main(int argc, char** argv) {
                    "liquid they make one surface). --frames counts the first clip's frames")
       ->required()
       ->check(file_or_url());
-  render_cmd->add_option("--out", render_cli.out, "Folder for frame_NNNNN.png")->capture_default_str();
+  render_cmd
+      ->add_option(
+          "--out", render_cli.out,
+          "Folder for frame_NNNNN.png, numbered by source frame (a cache from frame 1 starts at frame_00001.png)")
+      ->capture_default_str();
   render_cmd->add_option("--frames", render_cli.frames, "Clip frames A:B (from A up to but not including B)");
   render_cmd->add_option("--size", render_cli.size, "Image size WIDTHxHEIGHT")->capture_default_str();
   render_cmd->add_option("--camera", render_cli.camera, "auto (frame the clip's bounds) or x,y,z:tx,ty,tz")

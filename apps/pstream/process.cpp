@@ -80,7 +80,8 @@ ProgramResult run_program(const std::vector<std::string>& argv, bool capture, bo
 
 std::string self_executable() { return std::filesystem::read_symlink("/proc/self/exe").string(); }
 
-void encode_video(const std::string& frames_dir, std::uint64_t frames, double fps, const std::string& video) {
+void encode_video(const std::string& frames_dir, std::uint64_t first, std::uint64_t frames, double fps,
+                  const std::string& video) {
   if (!have_program("ffmpeg")) {
     throw Error(
         fmt::format("{}: writing a video needs the ffmpeg program, which is not installed (apt-get install "
@@ -99,6 +100,8 @@ void encode_video(const std::string& frames_dir, std::uint64_t frames, double fp
                                        "error",
                                        "-framerate",
                                        fmt::format("{}", fps),
+                                       "-start_number",
+                                       fmt::format("{}", first),
                                        "-i",
                                        (std::filesystem::path(frames_dir) / "frame_%05d.png").string(),
                                        "-frames:v",

@@ -23,9 +23,10 @@ ProgramResult run_program(const std::vector<std::string>& argv, bool capture = f
 // This executable's path (to run pstream's own subcommands).
 std::string self_executable();
 
-// Encodes DIR/frame_00000.png .. frame_{frames-1}.png into an H.264 MP4 with ffmpeg (exactly
-// those: older frames further on in the folder are not taken), then checks the file was written:
-// throws pstream::Error saying what went wrong otherwise.
-void encode_video(const std::string& frames_dir, std::uint64_t frames, double fps, const std::string& video);
+// Encodes DIR/frame_{first}.png .. frame_{first + frames - 1}.png (five digits) into an H.264 MP4
+// with ffmpeg (exactly those: other frames in the folder are not taken), then checks the file was
+// written: throws pstream::Error saying what went wrong otherwise.
+void encode_video(const std::string& frames_dir, std::uint64_t first, std::uint64_t frames, double fps,
+                  const std::string& video);
 
 }  // namespace pstream::app

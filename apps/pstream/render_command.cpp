@@ -187,6 +187,14 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
                     cli.files[0], (t1 - t0) / cli.speed, fps, images, cli.max_frames));
   }
   const auto outputs = static_cast<std::uint64_t>(images);
+  // Images are numbered by source frame: the first is the frame at its time on the output's own
+  // timeline (fps / speed frames a clip second), so a Blender cache from frame 1 renders from
+  // frame_00001.png and --frames 10:20 from frame_00010.png (at the clip's rate). Numbers that
+  // would not fit five digits, or fall before 0, start at 0.
+  const double first_at = std::round(t0 * fps / cli.speed);
+  const std::uint64_t first_number =
+      first_at >= 0.0 && first_at + double(outputs) <= 99999.0 ? static_cast<std::uint64_t>(first_at) : 0;
+  if (stats) stats->first_number = first_number;
 
   // Every output checked before the first frame: the folder, its old frames, the video.
   namespace fs = std::filesystem;
@@ -225,11 +233,12 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   }
   std::uint64_t removed = 0;
   for (const fs::path& f : old_frames) {
-    const std::uint64_t index = std::stoull(f.filename().string().substr(6, 5));
-    if (index >= outputs && fs::remove(f, ec)) ++removed;  // the others are overwritten in turn
+    const std::uint64_t number = std::stoull(f.filename().string().substr(6, 5));
+    const bool ours = number >= first_number && number < first_number + outputs;  // overwritten in turn
+    if (!ours && fs::remove(f, ec)) ++removed;
   }
   if (removed > 0 && !cli.quiet)
-    fmt::print(stderr, "removed {} frames of an earlier, longer render from {}\n", removed, cli.out);
+    fmt::print(stderr, "removed {} frames of an earlier render from {}\n", removed, cli.out);
   render::HeadlessContext context(width, height);
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
@@ -256,13 +265,14 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     if (stats)
       stats->frame_ms.push_back(
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
-    render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", k), width, height, pixels);
+    render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", first_number + k), width, height,
+                      pixels);
     bar.update(k + 1, outputs, fmt::format("frames ({}x{})", width, height));
   }
   if (!cli.quiet)
     fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
   if (!cli.video.empty()) {
-    encode_video(cli.out, outputs, fps, cli.video);  // no shell; exactly this render's frames
+    encode_video(cli.out, first_number, outputs, fps, cli.video);  // no shell; exactly this render's frames
     if (!cli.quiet) fmt::print("video -> {}\n", cli.video);
   }
   return 0;
