@@ -25,6 +25,11 @@ using namespace pstream;
 using namespace pstream::render;
 namespace fs = std::filesystem;
 
+// `pstream cook` of a test data file with no flags (the default a user gets) into `clip`.
+int cook_default(const std::string& data, const fs::path& clip) {
+  return test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path(data), clip.string())).exit_code;
+}
+
 constexpr int kW = 160, kH = 120;
 
 struct Particle {
@@ -300,10 +305,7 @@ TEST(RenderCommand, ADefaultCookHasWhatTheLooksNeed) {
 TEST(RenderCommand, OutputsAreCheckedBeforeTheFirstFrameAndOldFramesReplaced) {
   const fs::path dir = test::fresh_dir();
   const fs::path clip = dir / "clip.pstream";
-  ASSERT_EQ(
-      test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path("alembic/points_varying.abc"), clip.string()))
-          .exit_code,
-      0);
+  ASSERT_EQ(cook_default("alembic/points_varying.abc", clip), 0);
   const auto render = [&](const std::string& flags) {
     return test::run_cli(
         fmt::format("render -q '{}' --out '{}' --size 64x36 {}", clip.string(), (dir / "out").string(), flags));
@@ -334,10 +336,7 @@ TEST(RenderCommand, OutputsAreCheckedBeforeTheFirstFrameAndOldFramesReplaced) {
 TEST(RenderCommand, ASpeedRampSpansTheClipsSpeeds) {
   const fs::path dir = test::fresh_dir();
   const fs::path clip = dir / "sparks.pstream";
-  ASSERT_EQ(
-      test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path("sims/blender_sparks.abc"), clip.string()))
-          .exit_code,
-      0);
+  ASSERT_EQ(cook_default("sims/blender_sparks.abc", clip), 0);
   const fs::path files[] = {clip};
   const std::array<float, 2> range = playback::ramp_range(files);
   const format::Reader reader = format::Reader::open(clip);
@@ -530,7 +529,7 @@ TEST(RenderCommand, DefaultSpeedRampsSpanTheRampOnTheFixtureSims) {
   for (const char* sim : {"sims/blender_sparks.abc", "sims/blender_flip_pour_small.abc"}) {
     SCOPED_TRACE(sim);
     const fs::path clip = dir / (fs::path(sim).stem().string() + ".pstream");
-    ASSERT_EQ(test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path(sim), clip.string())).exit_code, 0);
+    ASSERT_EQ(cook_default(sim, clip), 0);
     const fs::path files[] = {clip};
     const std::array<float, 2> range = playback::ramp_range(files);
     const format::Reader reader = format::Reader::open(clip);
@@ -573,10 +572,7 @@ namespace {
 TEST(RenderCommand, ImagesAreNumberedBySourceFrame) {
   const fs::path dir = test::fresh_dir();
   const fs::path clip = dir / "sparks.pstream";
-  ASSERT_EQ(
-      test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path("sims/blender_sparks.abc"), clip.string()))
-          .exit_code,
-      0);
+  ASSERT_EQ(cook_default("sims/blender_sparks.abc", clip), 0);
   const fs::path out = dir / "frames";
   auto r =
       test::run_cli(fmt::format("render '{}' --out '{}' --frames 0:3 --size 32x32 -q", clip.string(), out.string()));

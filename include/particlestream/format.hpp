@@ -190,6 +190,8 @@ std::vector<Attribute> default_layout();
 std::uint32_t append_attribute(std::vector<Attribute>& layout, std::string name, AttributeType type,
                                std::uint8_t components);
 std::uint32_t record_size_of(const std::vector<Attribute>& layout);
+// The attribute named `name` in `layout`, or null (Metadata::find on a clip's layout).
+const Attribute* find_attribute(const std::vector<Attribute>& layout, std::string_view name);
 
 // ---- Memory a clip may claim ----------------------------------------------------------------
 

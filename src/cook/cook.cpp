@@ -306,6 +306,18 @@ struct HeldFrame {
   format::SourceFrame view() const { return {records, ids, count}; }
 };
 
+// The (at most two) frames just before group `g` of a batch, oldest first: the last of the
+// groups before it, then `tail`, the frames before the batch. They seed a group's keyframe.
+std::vector<HeldFrame*> two_before(std::vector<std::vector<HeldFrame>>& groups, std::size_t g,
+                                   std::vector<HeldFrame>& tail) {
+  std::vector<HeldFrame*> out;
+  for (std::size_t h = g; h-- > 0 && out.size() < 2;)
+    for (auto it = groups[h].rbegin(); it != groups[h].rend() && out.size() < 2; ++it) out.push_back(&*it);
+  for (auto it = tail.rbegin(); it != tail.rend() && out.size() < 2; ++it) out.push_back(&*it);
+  std::reverse(out.begin(), out.end());
+  return out;
+}
+
 void hold(const ParticleFrame& f, const Plan& plan, HeldFrame& out) {
   out.count = f.count;
   out.records.resize(f.count * plan.record_size);
@@ -429,13 +441,8 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
           try {
             std::vector<format::SourceFrame> views;
             for (const HeldFrame& h : groups[g]) views.push_back(h.view());
-            // The two frames before this group, oldest first: from the groups before it, then the tail.
             std::vector<format::SourceFrame> prior;
-            for (std::size_t h = g; h-- > 0 && prior.size() < 2;)
-              for (auto it = groups[h].rbegin(); it != groups[h].rend() && prior.size() < 2; ++it)
-                prior.push_back(it->view());
-            for (auto it = tail.rbegin(); it != tail.rend() && prior.size() < 2; ++it) prior.push_back(it->view());
-            std::reverse(prior.begin(), prior.end());
+            for (const HeldFrame* h : two_before(groups, g, tail)) prior.push_back(h->view());
             encoded[g] = encoder->encode_group(meta.codec, views, prior, starts[g]);
           } catch (...) {
             errors[g] = std::current_exception();
@@ -464,11 +471,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
       }
     }
     std::vector<HeldFrame> next_tail;
-    for (std::size_t h = groups.size(); h-- > 0 && next_tail.size() < 2;)
-      for (auto it = groups[h].rbegin(); it != groups[h].rend() && next_tail.size() < 2; ++it)
-        next_tail.push_back(std::move(*it));
-    for (auto it = tail.rbegin(); it != tail.rend() && next_tail.size() < 2; ++it) next_tail.push_back(std::move(*it));
-    std::reverse(next_tail.begin(), next_tail.end());
+    for (HeldFrame* h : two_before(groups, groups.size(), tail)) next_tail.push_back(std::move(*h));
     tail = std::move(next_tail);
   }
   report.frames = frames;

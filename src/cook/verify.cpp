@@ -56,20 +56,16 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   const Reader src = Reader::open(temp);
   const Metadata& sm = src.metadata();
   report.source = source.string();
-  // The source's records in the clip's layout when the two differ (a derived velocity: the source
-  // may have none, zero here, or place it elsewhere).
+  // Attributes are compared by name (a derived velocity: the source may have none, compared as
+  // 0, or place it elsewhere); every other attribute of the clip must be in the source.
   const bool source_velocity = sm.find("velocity") != nullptr;
-  bool same = sm.record_size == m.record_size, mappable = true;
   for (const Attribute& at : m.layout) {
     const Attribute* from = sm.find(at.name);
-    same = same && from != nullptr && from->offset == at.offset && from->size() == at.size();
-    if (!(derived && at.name == "velocity")) mappable = mappable && from != nullptr && from->size() == at.size();
-  }
-  const bool remap = !same && derived && mappable;
-  if (sm.record_size != m.record_size && !remap) {
-    report.errors.push_back(fmt::format("{}: the source cooks to {}-byte records, the clip has {}", source.string(),
-                                        sm.record_size, m.record_size));
-    return;
+    if ((from == nullptr || from->size() != at.size()) && !(derived && at.name == "velocity")) {
+      report.errors.push_back(fmt::format("{}: the source cooks to {}-byte records without the clip's '{}' ({} bytes)",
+                                          source.string(), sm.record_size, at.name, at.size()));
+      return;
+    }
   }
   std::vector<std::byte> a = frame_buffer(m, reader.name()), b = frame_buffer(sm, source.string());
   FrameComparison c;
@@ -104,10 +100,7 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
     }
     reader.read_frame(f, a);
     src.read_frame(s, b);
-    if (remap)
-      c.add(m.layout, a, m.frames[f].count, sm.layout, b, sm.frames[s].count, &m.codec);
-    else
-      c.add(m.layout, a, m.frames[f].count, b, sm.frames[s].count, &m.codec);
+    c.add(m.layout, a, m.frames[f].count, sm.layout, b, sm.frames[s].count, &m.codec);
     note(seen_clip, a, m.frames[f].count, m);
     note(seen_source, b, sm.frames[s].count, sm);
     ++report.frames_compared;

@@ -128,13 +128,11 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
         fmt::format("the attribute error bound is {}, expected a fraction of a range, above 0 and below 1", fraction));
   info.error = position_error;
   std::size_t component = 0;
+  const Attribute* position = find_attribute(layout, "position");
   for (std::size_t a = 0; a < layout.size(); ++a) {
     const Attribute& at = layout[a];
     const std::uint32_t first = at.offset / 4, words = static_cast<std::uint32_t>(at.size() / 4);
     const bool is_float = at.type == AttributeType::Float32;
-    const auto is_position = [](const Attribute& x) { return x.name == "position"; };
-    const auto found = std::find_if(layout.begin(), layout.end(), is_position);
-    const Attribute* position = found == layout.end() ? nullptr : &*found;
     if (options.derive_velocity && info.order == FrameOrder::Id && at.name == "velocity" && is_float &&
         at.components == 3 && position != nullptr && position->type == AttributeType::Float32 &&
         position->components == 3) {
@@ -221,9 +219,8 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
   const std::uint32_t rs = record_size_of(layout), from_rs = record_size_of(source_layout);
   std::vector<std::byte> mapped(source_count * rs, std::byte{0});
   for (const Attribute& at : layout) {
-    const auto same = [&](const Attribute& x) { return x.name == at.name && x.size() == at.size(); };
-    const auto from = std::find_if(source_layout.begin(), source_layout.end(), same);
-    if (from == source_layout.end()) continue;
+    const Attribute* from = find_attribute(source_layout, at.name);
+    if (from == nullptr || from->size() != at.size()) continue;
     for (std::uint64_t i = 0; i < source_count && (i + 1) * from_rs <= source.size(); ++i)
       std::memcpy(mapped.data() + i * rs + at.offset, source.data() + i * from_rs + from->offset, at.size());
   }

@@ -99,12 +99,14 @@ std::uint64_t Metadata::chunk_raw_size(std::uint64_t chunk) const {
   return begin >= total ? 0 : std::min(chunk_size, total - begin);
 }
 
-const Attribute* Metadata::find(std::string_view name) const {
+const Attribute* find_attribute(const std::vector<Attribute>& layout, std::string_view name) {
   for (const Attribute& a : layout) {
     if (a.name == name) return &a;
   }
   return nullptr;
 }
+
+const Attribute* Metadata::find(std::string_view name) const { return find_attribute(layout, name); }
 
 std::uint32_t record_size_of(const std::vector<Attribute>& layout) {
   std::uint32_t end = 0;
