@@ -227,6 +227,8 @@ std::uint64_t checksum(std::span<const std::byte> bytes);
 // mutated files reach the parsers and decoders behind the checksums.
 bool checksum_matches(std::span<const std::byte> bytes, std::uint64_t stored);
 
+class EntropyDecoder;  // zstd and lz4, behind one door (src/format/entropy.hpp)
+
 // A reusable decoder that owns its codec state, so decoding allocates nothing (for the streaming
 // runtime, whose playback must not allocate). decode() checks the checksum, then decodes into
 // `out`, which must be exactly the chunk's raw size; it throws pstream::Error naming `file` and
@@ -241,7 +243,7 @@ class ChunkDecoder {
               std::string_view file, std::uint64_t chunk);
 
  private:
-  void* zstd_ = nullptr;  // ZSTD_DCtx
+  std::unique_ptr<EntropyDecoder> entropy_;  // zstd and lz4 (src/format/entropy.hpp)
 };
 
 // ---- Reading ----------------------------------------------------------------------------------

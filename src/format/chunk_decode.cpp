@@ -1,9 +1,7 @@
 // Chunk codecs, the decoding side: each codec a unit with its name, the most bytes a stored byte
 // can decode to, and its decoder (chunk_encode.cpp holds the encoders). Every chunk is compressed
 // on its own so that it decodes alone; ChunkDecoder is the only way chunks are decoded.
-#include <lz4.h>
 #include <xxhash.h>
-#include <zstd.h>
 
 #include <algorithm>
 #include <array>
@@ -12,7 +10,7 @@
 
 #include <fmt/format.h>
 
-#include "format/zstd_memory.hpp"
+#include "format/entropy.hpp"
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
@@ -20,7 +18,7 @@ namespace {
 
 // What a chunk decoder hands a codec: reusable state and how to name the chunk in errors.
 struct DecodeContext {
-  ZSTD_DCtx* zstd;
+  EntropyDecoder& entropy;
   std::string_view file;
   std::uint64_t chunk;
   const ChunkEntry& entry;
@@ -42,16 +40,18 @@ void raw_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std
 }
 
 void lz4_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
-  const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(stored.data()), reinterpret_cast<char*>(out.data()),
-                                    static_cast<int>(stored.size()), static_cast<int>(out.size()));
-  if (n < 0) throw Error(fmt::format("{}: lz4 data is corrupt (expected {} bytes)", ctx.where(), out.size()));
-  if (static_cast<std::size_t>(n) != out.size())
+  std::string why;
+  const std::size_t n = ctx.entropy.lz4(out, stored, why);
+  if (n == EntropyDecoder::kFailed)
+    throw Error(fmt::format("{}: lz4 data does not decode: {} (expected {} bytes)", ctx.where(), why, out.size()));
+  if (n != out.size())
     throw Error(fmt::format("{}: lz4 data decodes to {} bytes, expected {}", ctx.where(), n, out.size()));
 }
 
 void zstd_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std::span<std::byte> out) {
-  const std::size_t n = ZSTD_decompressDCtx(ctx.zstd, out.data(), out.size(), stored.data(), stored.size());
-  if (ZSTD_isError(n)) throw Error(fmt::format("{}: zstd data does not decode: {}", ctx.where(), ZSTD_getErrorName(n)));
+  std::string why;
+  const std::size_t n = ctx.entropy.zstd(out, stored, why);
+  if (n == EntropyDecoder::kFailed) throw Error(fmt::format("{}: zstd data does not decode: {}", ctx.where(), why));
   if (n != out.size())
     throw Error(fmt::format("{}: zstd data decodes to {} bytes, expected {}", ctx.where(), n, out.size()));
 }
@@ -94,15 +94,13 @@ bool checksum_matches(std::span<const std::byte> bytes, std::uint64_t stored) {
 #endif
 }
 
-ChunkDecoder::ChunkDecoder() : zstd_(make_zstd_dctx()) {
-  if (zstd_ == nullptr) throw Error("cannot create a zstd decoder");
-}
+ChunkDecoder::ChunkDecoder() : entropy_(std::make_unique<EntropyDecoder>()) {}
 
-ChunkDecoder::~ChunkDecoder() { ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(zstd_)); }
+ChunkDecoder::~ChunkDecoder() = default;
 
 void ChunkDecoder::decode(const ChunkEntry& entry, std::span<const std::byte> stored, std::span<std::byte> out,
                           std::string_view file, std::uint64_t chunk) {
-  const DecodeContext ctx{static_cast<ZSTD_DCtx*>(zstd_), file, chunk, entry};
+  const DecodeContext ctx{*entropy_, file, chunk, entry};
   if (!checksum_matches(stored, entry.checksum)) {
     throw Error(
         fmt::format("{}: checksum mismatch: the stored bytes do not hash to the chunk table's {:016x} "

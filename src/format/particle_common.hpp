@@ -3,9 +3,6 @@
 // builds without the encoder (docs/format.md, "The particle codec").
 #pragma once
 
-#define ZSTD_STATIC_LINKING_ONLY  // ZSTD_c_useBlockSplitter: a parameter value, no static-only symbol
-#include <zstd.h>
-
 #include <algorithm>
 #include <bit>
 #include <cfloat>

@@ -11,7 +11,7 @@
 // reconstruction is the decoder's output, bit for bit.
 #include "format/frame_unit.hpp"
 #include "format/particle_common.hpp"
-#include "format/zstd_memory.hpp"
+#include "format/entropy.hpp"
 
 namespace pstream::format {
 namespace {
@@ -23,8 +23,7 @@ using namespace particle;
 class ParticleUnit final : public FrameUnit {
  public:
   ParticleUnit(const Metadata& meta, std::string_view name)
-      : meta_(meta), name_(name), plan_(meta.codec), zstd_(make_zstd_dctx()) {
-    if (zstd_ == nullptr) throw Error("cannot create a zstd decoder");
+      : meta_(meta), name_(name), plan_(meta.codec) {
     const std::uint64_t n = meta.max_count;
     const std::size_t coded = plan_.coded.size();
     for (int b = 0; b < 2; ++b) {
@@ -42,7 +41,6 @@ class ParticleUnit final : public FrameUnit {
     words_.resize(coded);
     body_.resize(body_capacity(n, coded, plan_.id_word >= 0));
   }
-  ~ParticleUnit() override { ZSTD_freeDCtx(zstd_); }
 
   void reset() override { count_[cur_ ^ 1] = 0; }
   std::uint64_t state_bytes() const override {
@@ -148,18 +146,15 @@ class ParticleUnit final : public FrameUnit {
   }
 
   Body parse(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet) {
-    const unsigned long long size = ZSTD_getFrameContentSize(packet.data(), packet.size());
-    if (size == ZSTD_CONTENTSIZE_ERROR || size == ZSTD_CONTENTSIZE_UNKNOWN)
-      fail(frame, "not a zstd frame with a content size (corrupted)", 0);
-    if (size > body_.size() || size < kBodyHeader) {
+    std::string why;
+    const std::size_t size = entropy_.zstd(body_, packet, why);
+    if (size == EntropyDecoder::kFailed) {
       fail(frame,
-           fmt::format("the body claims {} bytes, expected {}..{} for at most {} particles", size, kBodyHeader,
-                       body_.size(), meta_.max_count),
+           fmt::format("the zstd data does not decode within {} bytes, the most {} particles need: {} (corrupted)",
+                       body_.size(), meta_.max_count, why),
            0);
     }
-    const std::size_t got = ZSTD_decompressDCtx(zstd_, body_.data(), body_.size(), packet.data(), packet.size());
-    if (ZSTD_isError(got) || got != size)
-      fail(frame, fmt::format("the zstd data does not decode to {} bytes (corrupted)", size), 0);
+    if (size < kBodyHeader) fail(frame, fmt::format("the body holds {} bytes, expected at least {}", size, kBodyHeader), 0);
     const std::byte* p = body_.data();
     std::size_t at = 0;
     const auto u32 = [&] {
@@ -391,7 +386,7 @@ class ParticleUnit final : public FrameUnit {
   const Metadata& meta_;
   std::string_view name_;
   WordPlan plan_;
-  ZSTD_DCtx* zstd_;
+  EntropyDecoder entropy_;
   std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_;
   std::vector<std::uint64_t> ids_[2];
   std::vector<std::uint8_t> steps_[2];  // per particle: grid steps known (0, 1, 2 = two or more)

@@ -1,6 +1,9 @@
 // The particle codec's encoder (docs/format.md, "The particle codec"): quantisation, frames
 // ordered so that persisting particles are predicted from the frame before, residuals in byte
 // planes compressed by zstd. Its reconstruction is the decoder's output, bit for bit.
+#define ZSTD_STATIC_LINKING_ONLY  // ZSTD_c_useBlockSplitter: a parameter value, no static-only symbol
+#include <zstd.h>
+
 #include "format/particle_common.hpp"
 #include "format/zstd_memory.hpp"
 

@@ -53,6 +53,15 @@ def link_send(wfile, data, rate):
         wfile.write(piece)
 
 
+TYPES = {".html": "text/html", ".js": "text/javascript", ".mjs": "text/javascript", ".wasm": "application/wasm",
+         ".css": "text/css", ".png": "image/png"}
+
+
+def content_type(path):
+    """What browsers need for the web player's page (module scripts are refused without it)."""
+    return TYPES.get(os.path.splitext(path)[1], "application/octet-stream")
+
+
 def count(key):
     with counts_lock:
         counts[key] = counts.get(key, 0) + 1
@@ -158,7 +167,7 @@ class Handler(BaseHTTPRequestHandler):
         self.send_header("Content-Length", str(len(body)))
         self.send_header("ETag", etag)
         self.send_header("Last-Modified", modified)
-        self.send_header("Content-Type", "application/octet-stream")
+        self.send_header("Content-Type", content_type(path))
         self.end_headers()
         if head:
             return

@@ -32,6 +32,7 @@ http {
   client_body_temp_path $dir/tmp; proxy_temp_path $dir/tmp; fastcgi_temp_path $dir/tmp;
   uwsgi_temp_path $dir/tmp; scgi_temp_path $dir/tmp;
   default_type application/octet-stream;
+  types { text/html html; text/javascript js mjs; application/wasm wasm; text/css css; image/png png; }
   keepalive_requests 100000;
   server { listen 127.0.0.1:$port; root /; }
 }

@@ -1,0 +1,341 @@
+// The browser player's page: the clock, the controls, the camera and WebGL2 drawing. Fetching and
+// decoding run in the worker (worker.js); this thread only draws what the worker sends.
+//
+// index.html?url=CLIP             plays CLIP (relative to the page, or absolute) from frame 0
+//           &frame=N              starts paused at frame N
+//           &camera=x,y,z:tx,ty,tz  the camera (`pstream render --camera`'s syntax); default: the
+//                                 clip's framing, as `pstream render` and the viewer frame it
+//           &speed=S              clip seconds per second (default 1)
+//           &size=WxH             the canvas size in pixels (default: the window's)
+const params = new URLSearchParams(location.search);
+const canvas = document.getElementById('view');
+const status = document.getElementById('status');
+const errorBox = document.getElementById('error');
+
+const state = {
+  ready: false, error: null, playing: !params.has('frame'), speed: Number(params.get('speed') || 1),
+  time: 0, frame: -1, shown: 0, distinctShown: 0, stalls: 0, meta: null,
+  timing: { decodeMs: 0, sortMs: 0, drawMs: 0, fetchMs: 0 }, cache: null, count: 0
+};
+window.player = { state };
+
+// ---- the worker -------------------------------------------------------------------------------
+
+const worker = new Worker('worker.js', { type: 'module' });
+let nextId = 1;
+const replies = new Map();
+worker.onmessage = (event) => {
+  const reply = replies.get(event.data.id);
+  replies.delete(event.data.id);
+  if (event.data.ok) reply.resolve(event.data);
+  else reply.reject(new Error(event.data.error));
+};
+worker.onerror = (event) => fail(`the worker failed: ${event.message}`);
+function ask(type, message = {}) {
+  return new Promise((resolve, reject) => {
+    const id = nextId++;
+    replies.set(id, { resolve, reject });
+    worker.postMessage({ id, type, ...message });
+  });
+}
+
+function fail(message) {
+  if (state.error) return;
+  state.error = message;
+  state.playing = false;
+  errorBox.textContent = message;
+  errorBox.hidden = false;
+  console.error(message);
+}
+
+// ---- camera -----------------------------------------------------------------------------------
+
+const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const normalize = (a) => { const l = Math.hypot(...a) || 1; return [a[0] / l, a[1] / l, a[2] / l]; };
+
+// Column-major, as frame.hpp's look_at and perspective.
+function lookAt(eye, target, up) {
+  const f = normalize(sub(target, eye)), s = normalize(cross(f, up)), u = cross(s, f);
+  return new Float32Array([s[0], u[0], -f[0], 0, s[1], u[1], -f[1], 0, s[2], u[2], -f[2], 0,
+    -dot(s, eye), -dot(u, eye), dot(f, eye), 1]);
+}
+function perspective(fovY, aspect, near, far) {
+  const f = 1 / Math.tan((fovY * Math.PI) / 360);
+  return new Float32Array([f / aspect, 0, 0, 0, 0, f, 0, 0, 0, 0, (far + near) / (near - far), -1,
+    0, 0, (2 * far * near) / (near - far), 0]);
+}
+
+const camera = { eye: [0, 0, 5], target: [0, 0, 0], up: [0, 1, 0], fov: 45, near: 0.01, far: 1000 };
+function setCameraFromParam(text) {
+  const m = /^(-?[\d.e+-]+),(-?[\d.e+-]+),(-?[\d.e+-]+):(-?[\d.e+-]+),(-?[\d.e+-]+),(-?[\d.e+-]+)$/.exec(text);
+  if (!m) { fail(`camera=${text}: expected x,y,z:tx,ty,tz`); return; }
+  const v = m.slice(1).map(Number);
+  camera.eye = v.slice(0, 3);
+  camera.target = v.slice(3, 6);
+  camera.up = [0, 1, 0];
+}
+
+// Drag to orbit about the target, wheel to move nearer or farther.
+let drag = null;
+canvas.addEventListener('pointerdown', (e) => { drag = [e.clientX, e.clientY]; canvas.setPointerCapture(e.pointerId); });
+canvas.addEventListener('pointerup', () => { drag = null; });
+canvas.addEventListener('pointermove', (e) => {
+  if (!drag) return;
+  const dx = (e.clientX - drag[0]) * 0.01, dy = (e.clientY - drag[1]) * 0.01;
+  drag = [e.clientX, e.clientY];
+  const offset = sub(camera.eye, camera.target), r = Math.hypot(...offset);
+  let yaw = Math.atan2(offset[0], offset[2]) - dx;
+  let pitch = Math.asin(Math.max(-1, Math.min(1, offset[1] / r))) + dy;
+  pitch = Math.max(-1.5, Math.min(1.5, pitch));
+  camera.eye = [camera.target[0] + r * Math.cos(pitch) * Math.sin(yaw), camera.target[1] + r * Math.sin(pitch),
+    camera.target[2] + r * Math.cos(pitch) * Math.cos(yaw)];
+  camera.up = [0, 1, 0];
+  requestFrame(true);
+});
+canvas.addEventListener('wheel', (e) => {
+  e.preventDefault();
+  const k = Math.exp(e.deltaY * 0.001);
+  camera.eye = camera.target.map((t, i) => t + (camera.eye[i] - t) * k);
+  requestFrame(true);
+}, { passive: false });
+
+// ---- WebGL2 sprites ---------------------------------------------------------------------------
+
+const gl = canvas.getContext('webgl2', { antialias: false, premultipliedAlpha: true, preserveDrawingBuffer: true });
+const kVertex = `#version 300 es
+layout(location = 0) in vec4 a_center;   // xyz, radius (world units)
+layout(location = 1) in vec4 a_color;    // RGBA8, normalised
+uniform mat4 u_view, u_projection;
+uniform vec4 u_default_color;
+uniform bool u_has_color;
+out vec2 v_local;
+out vec4 v_color;
+void main() {
+  vec2 corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
+  vec4 view = u_view * vec4(a_center.xyz, 1.0);
+  view.xy += corner * a_center.w;        // a camera-facing square of the particle's radius
+  v_local = corner;
+  v_color = u_has_color ? a_color : u_default_color;
+  gl_Position = u_projection * view;
+}`;
+const kFragment = `#version 300 es
+precision mediump float;
+in vec2 v_local;
+in vec4 v_color;
+out vec4 o_color;
+void main() {
+  float r2 = dot(v_local, v_local);
+  if (r2 >= 1.0) discard;
+  float a = v_color.a * (1.0 - r2) * (1.0 - r2);   // a soft round sprite
+  o_color = vec4(v_color.rgb * a, a);              // premultiplied
+}`;
+
+function compile(type, source) {
+  const s = gl.createShader(type);
+  gl.shaderSource(s, source);
+  gl.compileShader(s);
+  if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
+  return s;
+}
+let program, instanceBuffer, vao, uniforms;
+function setupGl() {
+  if (!gl) throw new Error('this browser has no WebGL2');
+  program = gl.createProgram();
+  gl.attachShader(program, compile(gl.VERTEX_SHADER, kVertex));
+  gl.attachShader(program, compile(gl.FRAGMENT_SHADER, kFragment));
+  gl.linkProgram(program);
+  if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(program));
+  uniforms = Object.fromEntries(['u_view', 'u_projection', 'u_default_color', 'u_has_color']
+    .map((n) => [n, gl.getUniformLocation(program, n)]));
+  vao = gl.createVertexArray();
+  gl.bindVertexArray(vao);
+  instanceBuffer = gl.createBuffer();
+  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+  gl.enableVertexAttribArray(0);
+  gl.vertexAttribPointer(0, 4, gl.FLOAT, false, 20, 0);
+  gl.vertexAttribDivisor(0, 1);
+  gl.enableVertexAttribArray(1);
+  gl.vertexAttribPointer(1, 4, gl.UNSIGNED_BYTE, true, 20, 16);
+  gl.vertexAttribDivisor(1, 1);
+}
+
+// The background: the native renderer's sprite backdrop (a dark grey).
+const kBackground = [0.08, 0.08, 0.09, 1];
+
+function draw(reply) {
+  const start = performance.now();
+  const w = canvas.width, h = canvas.height;
+  gl.viewport(0, 0, w, h);
+  gl.clearColor(...kBackground);
+  gl.clear(gl.COLOR_BUFFER_BIT);
+  gl.useProgram(program);
+  gl.bindVertexArray(vao);
+  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+  gl.bufferData(gl.ARRAY_BUFFER, reply.instances, gl.STREAM_DRAW);
+  gl.uniformMatrix4fv(uniforms.u_view, false, reply.view);
+  gl.uniformMatrix4fv(uniforms.u_projection, false, perspective(camera.fov, w / h, camera.near, camera.far));
+  gl.uniform4fv(uniforms.u_default_color, [0.45, 0.65, 0.95, 0.9]);
+  gl.uniform1i(uniforms.u_has_color, state.meta.attributes.some((a) => a.name === 'color') ? 1 : 0);
+  gl.enable(gl.BLEND);
+  gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
+  gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, reply.count);
+  gl.finish();
+  state.timing.drawMs = performance.now() - start;
+}
+
+// ---- the clock --------------------------------------------------------------------------------
+
+let inFlight = false, wanted = false, lastTick = 0, waitingSince = 0;
+const seen = new Set();
+
+function frameAt(time) {
+  const m = state.meta, t0 = m.times[0], span = m.times[m.frames - 1] - t0;
+  if (span <= 0) return 0;
+  const t = t0 + (((time % span) + span) % span);
+  // The frame at or before t, or the next when t is nearer to it (the nearest cached frame).
+  let lo = 0, hi = m.frames - 1;
+  while (lo < hi) { const mid = (lo + hi + 1) >> 1; if (m.times[mid] <= t) lo = mid; else hi = mid - 1; }
+  if (lo + 1 < m.frames && t - m.times[lo] > m.times[lo + 1] - t) lo++;
+  return lo;
+}
+
+async function requestFrame(force = false) {
+  if (!state.ready || state.error) return;
+  if (inFlight) { wanted = wanted || force; return; }
+  const frame = frameAt(state.time);
+  if (!force && frame === state.frame) return;
+  inFlight = true;
+  const view = lookAt(camera.eye, camera.target, camera.up);
+  try {
+    const reply = await ask('frame', { frame, view, sorted: true });
+    reply.view = view;
+    draw(reply);
+    state.frame = frame;
+    state.count = reply.count;
+    state.shown++;
+    if (!seen.has(frame)) { seen.add(frame); state.distinctShown = seen.size; }
+    state.timing.decodeMs = reply.decodeMs;
+    state.timing.sortMs = reply.sortMs;
+    state.timing.fetchMs = reply.fetchMs;
+    state.cache = reply.cache;
+    updateControls();
+  } catch (e) {
+    fail(e.message);
+  } finally {
+    inFlight = false;
+  }
+  if (wanted) { wanted = false; requestFrame(true); }
+}
+
+function tick(now) {
+  const dt = lastTick ? (now - lastTick) / 1000 : 0;
+  lastTick = now;
+  if (state.ready && state.playing && !state.error) {
+    if (inFlight) {
+      // The frame due is not decoded yet: the clock holds (a stall) instead of skipping ahead.
+      if (!waitingSince) waitingSince = now;
+    } else {
+      if (waitingSince && now - waitingSince > 1000 / state.meta.fps) state.stalls++;
+      waitingSince = 0;
+      state.time += dt * state.speed;
+    }
+    requestFrame();
+  }
+  drawCacheView();
+  requestAnimationFrame(tick);
+}
+
+// ---- controls ---------------------------------------------------------------------------------
+
+const playButton = document.getElementById('play');
+const scrub = document.getElementById('scrub');
+const speed = document.getElementById('speed');
+const cacheView = document.getElementById('cache');
+
+playButton.onclick = () => { state.playing = !state.playing && !state.error; updateControls(); };
+scrub.oninput = () => {
+  state.time = state.meta.times[Number(scrub.value)] - state.meta.times[0];
+  requestFrame(true);
+};
+speed.value = String(state.speed);
+speed.onchange = () => { state.speed = Number(speed.value); };
+
+function updateControls() {
+  playButton.textContent = state.playing ? 'Pause' : 'Play';
+  if (!state.meta) return;
+  scrub.value = String(state.frame);
+  const c = state.cache || {};
+  status.textContent = `frame ${state.frame + 1}/${state.meta.frames} · ${state.count.toLocaleString()} particles · ` +
+    `decode ${state.timing.decodeMs.toFixed(1)} ms · sort ${state.timing.sortMs.toFixed(1)} ms · ` +
+    `draw ${state.timing.drawMs.toFixed(1)} ms · ${(c.bytes / 1e6 || 0).toFixed(1)} MB in ${c.requests || 0} ` +
+    `requests at ${(c.bandwidth || 0).toFixed(1)} MB/s · ${c.retries || 0} retries · ${state.stalls} stalls`;
+}
+
+// Chunk states: fetched (blue), on their way (amber), not fetched (grey); the playhead in white.
+function drawCacheView() {
+  const ctx = cacheView.getContext('2d');
+  const w = cacheView.width, h = cacheView.height;
+  ctx.fillStyle = '#333';
+  ctx.fillRect(0, 0, w, h);
+  const states = state.cache && state.cache.states;
+  if (!states || !states.length) return;
+  for (let i = 0; i < states.length; ++i) {
+    ctx.fillStyle = ['#444', '#d9a030', '#4a90d9'][states[i]];
+    ctx.fillRect(Math.floor((i * w) / states.length), 0, Math.max(1, Math.ceil(w / states.length) - 1), h);
+  }
+  if (state.meta.frames > 1) {
+    ctx.fillStyle = '#fff';
+    ctx.fillRect(Math.round((state.frame / (state.meta.frames - 1)) * (w - 2)), 0, 2, h);
+  }
+}
+
+// ---- start ------------------------------------------------------------------------------------
+
+async function start() {
+  const url = params.get('url');
+  if (!url) {
+    fail('no clip: open index.html?url=CLIP.pstream (a URL relative to this page, or absolute)');
+    return;
+  }
+  const size = /^(\d+)x(\d+)$/.exec(params.get('size') || '');
+  canvas.width = size ? Number(size[1]) : Math.floor(canvas.clientWidth * devicePixelRatio);
+  canvas.height = size ? Number(size[2]) : Math.floor(canvas.clientHeight * devicePixelRatio);
+  if (size) { canvas.style.width = `${size[1]}px`; canvas.style.height = `${size[2]}px`; }
+  try {
+    setupGl();
+    const opened = await ask('open', { url, aspect: canvas.width / canvas.height });
+    state.meta = opened.meta;
+    Object.assign(camera, opened.meta.camera);
+    if (params.has('camera')) setCameraFromParam(params.get('camera'));
+    scrub.max = String(Math.max(0, state.meta.frames - 1));
+    document.title = `${url.split('/').pop()} · ParticleStream`;
+    if (params.has('frame')) {
+      const f = Math.min(Math.max(0, Number(params.get('frame'))), state.meta.frames - 1);
+      state.time = state.meta.times[f] - state.meta.times[0];
+    }
+    state.ready = state.meta.frames > 0;
+    if (!state.ready) fail(`${url}: the clip has no frames`);
+    updateControls();
+    requestFrame(true);
+  } catch (e) {
+    fail(e.message);
+  }
+}
+
+// For tests and tools: frame `frame`'s decoded records, as the native Reader gives them.
+window.player.records = async (frame) => {
+  const reply = await ask('records', { frame });
+  return { count: reply.count, bytes: new Uint8Array(reply.bytes) };
+};
+// Resolves when frame `frame` is drawn (paused), for screenshots.
+window.player.show = async (frame) => {
+  state.playing = false;
+  while (inFlight) await new Promise((r) => setTimeout(r, 5));
+  state.time = state.meta.times[frame] - state.meta.times[0];
+  await requestFrame(true);
+};
+
+start();
+requestAnimationFrame(tick);

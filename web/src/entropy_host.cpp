@@ -1,0 +1,35 @@
+// The entropy stage in the browser (src/format/entropy.hpp): the worker supplies zstd through
+// Module.zstdDecompress (zstddec, from npm: zstd's own decoder built to WebAssembly), and this
+// build refuses lz4 chunks, which the default cook never writes. docs/web.md says why.
+#include <emscripten.h>
+
+#include "format/entropy.hpp"
+
+// Decompresses `src_size` bytes at `src` into at most `capacity` bytes at `out`; returns the size,
+// or -1 when the data does not decode within `capacity` bytes.
+EM_JS(int, pstream_host_zstd, (std::byte * out, int capacity, const std::byte* src, int src_size), {
+  return Module.zstdDecompress(out, capacity, src, src_size);
+});
+
+namespace pstream::format {
+
+EntropyDecoder::EntropyDecoder() = default;
+EntropyDecoder::~EntropyDecoder() = default;
+
+std::size_t EntropyDecoder::zstd(std::span<std::byte> out, std::span<const std::byte> in, std::string& error) {
+  if (in.size() > 0x7fffffff || out.size() > 0x7fffffff) {
+    error = "more than 2 GiB in one zstd frame";
+    return kFailed;
+  }
+  const int n = pstream_host_zstd(out.data(), static_cast<int>(out.size()), in.data(), static_cast<int>(in.size()));
+  if (n >= 0) return static_cast<std::size_t>(n);
+  error = "corrupt zstd data, or more than the expected bytes";
+  return kFailed;
+}
+
+std::size_t EntropyDecoder::lz4(std::span<std::byte>, std::span<const std::byte>, std::string& error) {
+  error = "the browser player has no lz4 decoder: cook the clip with the default particle codec, or --codec zstd";
+  return kFailed;
+}
+
+}  // namespace pstream::format

@@ -1,0 +1,234 @@
+// The browser player's decoder: the format's Reader and the particle codec's decoder, the same
+// sources as the native library, over a byte source whose bytes the worker fetched (web/worker.js
+// does the range requests; docs/web.md). Exported as plain C functions, called from the worker
+// only: the page's main thread never decodes.
+//
+// A call that needs bytes the worker has not fetched yet returns kNeedBytes and says which
+// (pw_need_offset, pw_need_size): the worker fetches them and calls again. Decoding resumes where
+// it stopped, since the Reader keeps its place in the keyframe group.
+#include <emscripten.h>
+
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include <fmt/format.h>
+
+#include "particlestream/codec.hpp"
+#include "particlestream/format.hpp"
+#include "particlestream/frame.hpp"
+#include "particlestream/sort.hpp"
+
+// Copies `size` bytes at file offset `offset` into `out` from the worker's fetched ranges; returns
+// 0, or 1 when they are not all fetched yet.
+EM_JS(int, pstream_host_read, (double offset, std::byte* out, double size), {
+  return Module.readFetched(offset, out, size);
+});
+
+namespace {
+
+using namespace pstream;
+
+constexpr int kOk = 0, kError = 1, kNeedBytes = 2;
+
+// A drawn particle: position x, y, z and radius (float32), colour (RGBA8; the page's default
+// where the clip has none).
+constexpr std::size_t kInstanceBytes = 20;
+
+struct NeedBytes {
+  std::uint64_t offset, size;
+};
+
+class FetchedSource final : public io::ByteSource {
+ public:
+  FetchedSource(std::uint64_t size, std::string name) : size_(size), name_(std::move(name)) {}
+  void read(std::uint64_t offset, std::span<std::byte> out) override {
+    if (offset > size_ || out.size() > size_ - offset)
+      throw Error(fmt::format("{}: read of {} bytes at offset {} past the end ({} bytes)", name_, out.size(), offset,
+                              size_));
+    if (pstream_host_read(static_cast<double>(offset), out.data(), static_cast<double>(out.size())) != 0)
+      throw NeedBytes{offset, out.size()};
+  }
+  std::uint64_t size() const override { return size_; }
+  const std::string& name() const override { return name_; }
+
+ private:
+  std::uint64_t size_;
+  std::string name_;
+};
+
+struct Player {
+  std::optional<format::Reader> reader;
+  std::vector<std::byte> records;  // the largest frame, allocated at open
+  std::uint64_t count = 0;
+  std::string metadata_json;
+  std::vector<float> depths;  // the draw order's buffers, allocated at open
+  std::vector<std::uint64_t> pairs, scratch;
+  std::vector<std::uint32_t> order;
+  std::vector<std::byte> instances;  // what the page draws: 20 bytes a particle, back to front
+  std::int32_t scale = -1, color = -1;  // record offsets, or -1
+};
+
+Player g;
+std::string g_error;
+NeedBytes g_need{0, 0};
+
+template <class F>
+int guarded(F&& f) {
+  try {
+    f();
+    return kOk;
+  } catch (const NeedBytes& need) {
+    g_need = need;
+    return kNeedBytes;
+  } catch (const std::exception& e) {
+    g_error = e.what();
+    return kError;
+  }
+}
+
+std::string json_string(std::string_view s) {
+  std::string out = "\"";
+  for (const char c : s) {
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      out += fmt::format("\\u{:04x}", static_cast<unsigned>(c));
+    } else {
+      out += c;
+    }
+  }
+  return out + '"';
+}
+
+std::string describe(const format::Metadata& m) {
+  std::string attrs;
+  for (const format::Attribute& a : m.layout) {
+    if (!attrs.empty()) attrs += ',';
+    attrs += fmt::format("{{\"name\":{},\"type\":{},\"components\":{},\"offset\":{}}}", json_string(a.name),
+                         static_cast<int>(a.type), a.components, a.offset);
+  }
+  std::string chunks;  // file offset and stored size of each chunk, for the page's cache view
+  for (const format::ChunkEntry& c : m.chunks) {
+    if (!chunks.empty()) chunks += ',';
+    chunks += fmt::format("{},{}", c.file_offset, c.stored_size);
+  }
+  std::string times;
+  for (const format::FrameEntry& f : m.frames) {
+    if (!times.empty()) times += ',';
+    times += fmt::format("{}", f.time);
+  }
+  const auto& b = m.bounds;
+  return fmt::format(
+      "{{\"frames\":{},\"fps\":{},\"time_of_frame0\":{},\"record_size\":{},\"max_count\":{},"
+      "\"bounds\":[{},{},{},{},{},{}],\"attributes\":[{}],\"chunks\":[{}],\"times\":[{}]}}",
+      m.frame_count(), m.fps, m.time_of_frame0, m.record_size, m.max_count, b[0], b[1], b[2], b[3], b[4], b[5], attrs,
+      chunks, times);
+}
+
+}  // namespace
+
+extern "C" {
+
+EMSCRIPTEN_KEEPALIVE const char* pw_error() { return g_error.c_str(); }
+EMSCRIPTEN_KEEPALIVE double pw_need_offset() { return static_cast<double>(g_need.offset); }
+EMSCRIPTEN_KEEPALIVE double pw_need_size() { return static_cast<double>(g_need.size); }
+
+// Opens the clip at `name` (a URL, for messages) of `size` bytes: header and tables.
+EMSCRIPTEN_KEEPALIVE int pw_open(double size, const char* name) {
+  return guarded([&] {
+    g = Player{};
+    g.reader.emplace(format::Reader::open(std::make_unique<FetchedSource>(static_cast<std::uint64_t>(size), name)));
+    const format::Metadata& m = g.reader->metadata();
+    g.records = format::frame_buffer(m, name);
+    g.depths.resize(m.max_count);
+    g.pairs.resize(m.max_count);
+    g.scratch.resize(m.max_count);
+    g.order.resize(m.max_count);
+    g.instances.resize(m.max_count * kInstanceBytes);
+    if (const format::Attribute* a = m.find("scale"); a && a->type == format::AttributeType::Float32)
+      g.scale = static_cast<std::int32_t>(a->offset);
+    if (const format::Attribute* a = m.find("color"); a && a->type == format::AttributeType::Unorm8 && a->components == 4)
+      g.color = static_cast<std::int32_t>(a->offset);
+    g.metadata_json = describe(m);
+  });
+}
+
+EMSCRIPTEN_KEEPALIVE const char* pw_metadata() { return g.metadata_json.c_str(); }
+
+// The chunks holding frame `frame`'s packet: first and last index.
+EMSCRIPTEN_KEEPALIVE double pw_first_chunk(double frame) {
+  return static_cast<double>(g.reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).first);
+}
+EMSCRIPTEN_KEEPALIVE double pw_last_chunk(double frame) {
+  return static_cast<double>(g.reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).second);
+}
+EMSCRIPTEN_KEEPALIVE double pw_keyframe_of(double frame) {
+  return static_cast<double>(format::keyframe_of(g.reader->metadata(), static_cast<std::uint64_t>(frame)));
+}
+
+// Decodes frame `frame` (forward from its keyframe, or on from the frame decoded last).
+EMSCRIPTEN_KEEPALIVE int pw_decode(double frame) {
+  return guarded([&] {
+    const auto f = static_cast<std::uint64_t>(frame);
+    g.reader->read_frame(f, g.records);
+    g.count = g.reader->metadata().frames.at(f).count;
+  });
+}
+EMSCRIPTEN_KEEPALIVE double pw_count() { return static_cast<double>(g.count); }
+EMSCRIPTEN_KEEPALIVE std::byte* pw_records() { return g.records.data(); }
+
+// The frame at or before `time` (seconds) and the fraction towards the next (Metadata's rule).
+EMSCRIPTEN_KEEPALIVE double pw_frame_at(double time) {
+  const auto [frame, fraction] = g.reader->metadata().frame_between(time);
+  return static_cast<double>(frame) + fraction;
+}
+
+// The decoded frame's particles as the page draws them, ordered back to front along the view
+// `view_world` (16 floats, column-major, object to view). Returns the count; pw_instances() holds them.
+EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
+  const format::Metadata& m = g.reader->metadata();
+  const std::size_t n = g.count, stride = m.record_size;
+  const std::byte* records = g.records.data();
+  if (sorted != 0) {
+    std::array<float, 16> vw;
+    std::memcpy(vw.data(), view_world, sizeof vw);
+    sort::compute_depths(records, n, stride, sort::depth_axis(vw), g.depths.data());
+    // Back to front: the farthest (largest depth) first, so keys are the depths' order reversed.
+    for (std::size_t i = 0; i < n; ++i)
+      g.pairs[i] = std::uint64_t(~sort::order_preserving_key(g.depths[i])) << 32 | i;
+    sort::radix_sort_pairs(g.pairs.data(), g.scratch.data(), n, g.order.data());
+  } else {
+    for (std::size_t i = 0; i < n; ++i) g.order[i] = static_cast<std::uint32_t>(i);
+  }
+  std::byte* out = g.instances.data();
+  for (std::size_t k = 0; k < n; ++k, out += kInstanceBytes) {
+    const std::byte* r = records + std::size_t(g.order[k]) * stride;
+    std::memcpy(out, r, 12);  // position at offset 0 (format.md: every layout starts with it)
+    float radius = 0.05f;
+    if (g.scale >= 0) std::memcpy(&radius, r + g.scale, 4);
+    std::memcpy(out + 12, &radius, 4);
+    const std::uint32_t none = 0;
+    std::memcpy(out + 16, g.color >= 0 ? static_cast<const void*>(r + g.color) : &none, 4);
+  }
+  return static_cast<double>(n);
+}
+// The camera `pstream render` and the viewer start from (frame.hpp: Camera::framing) for the
+// clip's bounds at this aspect: eye xyz, target xyz, up xyz, fov_y, near, far into `out`.
+EMSCRIPTEN_KEEPALIVE void pw_framing(double aspect, float* out) {
+  const auto& b = g.reader->metadata().bounds;
+  const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);
+  const render::Camera c =
+      empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, float(aspect));
+  const float values[12] = {c.eye[0], c.eye[1], c.eye[2], c.target[0], c.target[1], c.target[2],
+                            c.up[0],  c.up[1],  c.up[2],  c.fov_y_degrees, c.near,   c.far};
+  std::memcpy(out, values, sizeof values);
+}
+
+EMSCRIPTEN_KEEPALIVE std::byte* pw_instances() { return g.instances.data(); }
+
+}  // extern "C"
