@@ -7,10 +7,11 @@ cd "$(dirname "$0")/.."
 out=build-web
 mkdir -p "$out/include" "$out/obj" "$out/site"
 
-# Emscripten's own sysroot, plus fmt's and xxhash's headers from Debian (header-only here: fmt's
+# Emscripten's own sysroot, plus fmt's, xxhash's and Highway's headers from Debian (header-only here: fmt's
 # compiled part is src/base/fmt_impl.cpp; xxhash inlined). Links, so no system header leaks in.
 ln -sfn /usr/include/fmt "$out/include/fmt"
 ln -sfn /usr/include/xxhash.h "$out/include/xxhash.h"
+ln -sfn /usr/include/hwy "$out/include/hwy"  # Highway: its WebAssembly SIMD target, chosen statically
 
 # The decoder's sources are the ones CMake builds the native decoder library from (one list).
 decoder=$(sed -n '/set(PSTREAM_FORMAT_DECODER_SOURCES/,/)/p' src/format/CMakeLists.txt |
@@ -18,17 +19,18 @@ decoder=$(sed -n '/set(PSTREAM_FORMAT_DECODER_SOURCES/,/)/p' src/format/CMakeLis
   grep -v -e '^entropy.cpp$' -e '^zstd_memory.cpp$' | sed 's|^|src/format/|')
 sources=($decoder src/base/fmt_impl.cpp src/base/memory.cpp src/base/names.cpp src/base/mapped_file.cpp
   src/io/file_source.cpp src/io/http_unsupported.cpp src/sort/depth.cpp src/sort/radix_sort.cpp src/frame/camera.cpp
+  src/playback/interpolate.cpp src/playback/blend_simd.cpp
   web/src/entropy_host.cpp web/src/pstream_wasm.cpp)
 
 export NODE_PATH=/usr/share/nodejs  # emcc's JavaScript optimiser needs Debian's node modules
 flags=(-std=c++20 -O3 -msimd128 -fwasm-exceptions -ffp-contract=off -Wall -Wextra -Werror
-  -include web/src/compat.hpp -DXXH_INLINE_ALL -Iinclude -Isrc -I"$out/include")
+  -include web/src/compat.hpp -DXXH_INLINE_ALL -DHWY_COMPILE_ONLY_STATIC=1 -Iinclude -Isrc -I"$out/include")
 objects=()
 pids=()
 for s in "${sources[@]}"; do
   o="$out/obj/$(echo "$s" | tr '/' '_').o"
   objects+=("$o")
-  if [ ! -f "$o" ] || [ "$s" -nt "$o" ] || [ -n "$(find include src/format web/src -newer "$o" -name '*.hpp' -print -quit)" ]; then
+  if [ ! -f "$o" ] || [ "$s" -nt "$o" ] || [ -n "$(find include src/format src/playback web/src -newer "$o" -name '*.hpp' -print -quit)" ]; then
     em++ "${flags[@]}" -c "$s" -o "$o" &
     pids+=($!)
     if [ ${#pids[@]} -ge "$(nproc)" ]; then wait "${pids[0]}"; pids=("${pids[@]:1}"); fi

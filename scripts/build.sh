@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Configures and builds one flavour of the project into build/ (or build-<flavour>/).
-#   scripts/build.sh            release build with tests and benchmarks
+#   scripts/build.sh            release build with tests and benchmarks, and the web player
+#                               (scripts/build-web.sh, into build-web/site)
 #   scripts/build.sh check      clang, AddressSanitizer + UndefinedBehaviorSanitizer + libFuzzer's
 #                               coverage: the sanitized test suite and the fuzz targets, one build
 #                               (into build-check/; `asan` and `fuzz` are other names for it)
@@ -21,3 +22,5 @@ case "$flavour" in
 esac
 cmake -S . -B "$dir" -G Ninja "${args[@]}" >/dev/null
 cmake --build "$dir" -j"$jobs"
+# The web player (web/, docs/web.md) with the release build: its test runs in that suite.
+if [ "$flavour" = release ]; then bash scripts/build-web.sh; fi

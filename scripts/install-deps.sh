@@ -14,7 +14,11 @@ packages=(
   libmeshoptimizer-dev libdraco-dev  # the particle codec's peers in `pstream bench codec`
   python3-dev pybind11-dev python3-numpy python3-pytest  # the Python bindings and their tests
   libcurl4-openssl-dev nginx-light   # streaming over HTTP(S); nginx serves clips to its tests
+  emscripten chromium                # the web player (web/): its WebAssembly build and its headless test
 )
+# npm installs the web player's pinned packages (web/package-lock.json); Node.js's own npm is
+# used where it has one, Debian's otherwise.
+command -v npm >/dev/null || packages+=(npm)
 
 missing=()
 for p in "${packages[@]}"; do

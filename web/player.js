@@ -188,34 +188,34 @@ function draw(reply) {
 // ---- the clock --------------------------------------------------------------------------------
 
 let inFlight = false, wanted = false, lastTick = 0, waitingSince = 0;
+
 const seen = new Set();
 
-function frameAt(time) {
-  const m = state.meta, t0 = m.times[0], span = m.times[m.frames - 1] - t0;
-  if (span <= 0) return 0;
-  const t = t0 + (((time % span) + span) % span);
-  // The frame at or before t, or the next when t is nearer to it (the nearest cached frame).
-  let lo = 0, hi = m.frames - 1;
-  while (lo < hi) { const mid = (lo + hi + 1) >> 1; if (m.times[mid] <= t) lo = mid; else hi = mid - 1; }
-  if (lo + 1 < m.frames && t - m.times[lo] > m.times[lo + 1] - t) lo++;
-  return lo;
+// The clip time (seconds, the clip's own clock) `time` seconds into playback, looping: the last
+// frame is held for one frame interval, then the first comes again.
+function clipTime(time) {
+  const m = state.meta, t0 = m.times[0], span = m.times[m.frames - 1] - t0 + 1 / m.fps;
+  return t0 + (((time % span) + span) % span);
 }
 
+let shownTime = NaN;
 async function requestFrame(force = false) {
   if (!state.ready || state.error) return;
   if (inFlight) { wanted = wanted || force; return; }
-  const frame = frameAt(state.time);
-  if (!force && frame === state.frame) return;
+  const time = clipTime(state.time);
+  if (!force && time === shownTime) return;
   inFlight = true;
   const view = lookAt(camera.eye, camera.target, camera.up);
   try {
-    const reply = await ask('frame', { frame, view, sorted: true });
+    const reply = await ask('show', { time, view, sorted: true });
     reply.view = view;
     draw(reply);
-    state.frame = frame;
+    shownTime = time;
+    state.frame = reply.frame;
+    state.fraction = reply.fraction;
     state.count = reply.count;
     state.shown++;
-    if (!seen.has(frame)) { seen.add(frame); state.distinctShown = seen.size; }
+    if (!seen.has(reply.frame)) { seen.add(reply.frame); state.distinctShown = seen.size; }
     state.timing.decodeMs = reply.decodeMs;
     state.timing.sortMs = reply.sortMs;
     state.timing.fetchMs = reply.fetchMs;

@@ -217,7 +217,6 @@ let M = null;            // the decoder module
 let cache = null;
 let meta = null;
 let chunkSpans = [];     // [offset, end) of each chunk
-let lastFrame = -1;
 const zstd = new ZSTDDecoder();
 
 function readFetched(offset, ptr, size) {
@@ -276,18 +275,16 @@ function chunkStates() {
   return Uint8Array.from(chunkSpans, ([a, b], i) => (cache.covered(a, b) ? 2 : cache.pending.has(i) ? 1 : 0));
 }
 
-async function decodeFrame(frame) {
-  const t0 = performance.now();
-  const key = M._pw_keyframe_of(frame);
-  const from = lastFrame >= key && lastFrame < frame ? lastFrame + 1 : key;
+// Decodes what `decoder` (a call into the module) needs: the chunks of frames [from, to], fetched
+// first (merged requests), then anything else it asks for; then starts the look-ahead.
+async function decodeFrames(from, to, decoder) {
   const fetchStart = performance.now();
-  await cache.ensureChunks(chunksOf(from, frame), chunkSpans);
+  await cache.ensureChunks(chunksOf(from, to), chunkSpans);
   const fetchMs = performance.now() - fetchStart;
   const decodeStart = performance.now();
-  await withBytes(() => M._pw_decode(frame));
-  lastFrame = frame;
-  lookAhead(frame);
-  return { fetchMs, decodeMs: performance.now() - decodeStart, totalMs: performance.now() - t0 };
+  await withBytes(decoder);
+  lookAhead(to);
+  return { fetchMs, decodeMs: performance.now() - decodeStart };
 }
 
 const handlers = {
@@ -315,9 +312,11 @@ const handlers = {
     return { meta: { ...meta, url: cache.url, size: cache.size, camera } };
   },
 
-  // The particles of the frame at `frame` (a frame index), sorted back to front along `view`.
-  async frame({ frame, view, sorted }) {
-    const timing = await decodeFrame(frame);
+  // The particles at clip time `time` (seconds; interpolated between the cached frames around it,
+  // as the native player does), sorted back to front along `view`.
+  async show({ time, view, sorted }) {
+    const from = M._pw_first_needed(time), to = M._pw_last_needed(time);
+    const timing = await decodeFrames(from, to, () => M._pw_show(time));
     const viewPtr = M._malloc(64);
     M.HEAPF32.set(view, viewPtr >> 2);
     const sortStart = performance.now();
@@ -327,8 +326,9 @@ const handlers = {
     const ptr = M._pw_instances();
     const instances = M.HEAPU8.slice(ptr, ptr + count * 20).buffer;
     const s = cache.stats;
+    const at = M._pw_frame_at(time);
     return {
-      frame, count, instances, ...timing, sortMs,
+      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, ...timing, sortMs,
       cache: { states: chunkStates(), requests: s.requests, bytes: s.bytes, retries: s.retries, inFlight: s.inFlight,
         bandwidth: s.ms > 0 ? s.bytes / 1e3 / s.ms : 0 },
       transfer: [instances]
@@ -337,7 +337,7 @@ const handlers = {
 
   // Frame `frame`'s decoded records, as the native Reader gives them (for tests and tools).
   async records({ frame }) {
-    await decodeFrame(frame);
+    await decodeFrames(M._pw_keyframe_of(frame), frame, () => M._pw_decode(frame));
     const ptr = M._pw_records(), n = M._pw_count() * meta.record_size;
     const bytes = M.HEAPU8.slice(ptr, ptr + n).buffer;
     return { frame, count: M._pw_count(), bytes, transfer: [bytes] };

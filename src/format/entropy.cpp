@@ -18,7 +18,8 @@ EntropyDecoder::EntropyDecoder() : state_(make_zstd_dctx()) {
 EntropyDecoder::~EntropyDecoder() { ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(state_)); }
 
 std::size_t EntropyDecoder::zstd(std::span<std::byte> out, std::span<const std::byte> in, std::string& error) {
-  const std::size_t n = ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(state_), out.data(), out.size(), in.data(), in.size());
+  const std::size_t n =
+      ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(state_), out.data(), out.size(), in.data(), in.size());
   if (!ZSTD_isError(n)) return n;
   error = ZSTD_getErrorName(n);
   return kFailed;

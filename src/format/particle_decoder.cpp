@@ -9,9 +9,9 @@
 // drag of a cohort, a swirl); a new particle as the particle before it in the frame plus a
 // residual (spatial delta). Encoder and decoder keep identical state, so the encoder's
 // reconstruction is the decoder's output, bit for bit.
+#include "format/entropy.hpp"
 #include "format/frame_unit.hpp"
 #include "format/particle_common.hpp"
-#include "format/entropy.hpp"
 
 namespace pstream::format {
 namespace {
@@ -22,8 +22,7 @@ using namespace particle;
 
 class ParticleUnit final : public FrameUnit {
  public:
-  ParticleUnit(const Metadata& meta, std::string_view name)
-      : meta_(meta), name_(name), plan_(meta.codec) {
+  ParticleUnit(const Metadata& meta, std::string_view name) : meta_(meta), name_(name), plan_(meta.codec) {
     const std::uint64_t n = meta.max_count;
     const std::size_t coded = plan_.coded.size();
     for (int b = 0; b < 2; ++b) {
@@ -154,7 +153,8 @@ class ParticleUnit final : public FrameUnit {
                        body_.size(), meta_.max_count, why),
            0);
     }
-    if (size < kBodyHeader) fail(frame, fmt::format("the body holds {} bytes, expected at least {}", size, kBodyHeader), 0);
+    if (size < kBodyHeader)
+      fail(frame, fmt::format("the body holds {} bytes, expected at least {}", size, kBodyHeader), 0);
     const std::byte* p = body_.data();
     std::size_t at = 0;
     const auto u32 = [&] {

@@ -9,9 +9,8 @@
 #ifndef __cpp_lib_bit_cast
 namespace std {
 template <class To, class From>
-  requires(sizeof(To) == sizeof(From) && is_trivially_copyable_v<To> && is_trivially_copyable_v<From>)
-To bit_cast(const From& from) noexcept {
-  return __builtin_bit_cast(To, from);
-}
+requires(sizeof(To) == sizeof(From) && is_trivially_copyable_v<To> && is_trivially_copyable_v<From>) To
+    bit_cast(const From& from)
+noexcept { return __builtin_bit_cast(To, from); }
 }  // namespace std
 #endif

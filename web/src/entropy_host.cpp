@@ -7,9 +7,8 @@
 
 // Decompresses `src_size` bytes at `src` into at most `capacity` bytes at `out`; returns the size,
 // or -1 when the data does not decode within `capacity` bytes.
-EM_JS(int, pstream_host_zstd, (std::byte * out, int capacity, const std::byte* src, int src_size), {
-  return Module.zstdDecompress(out, capacity, src, src_size);
-});
+EM_JS(int, pstream_host_zstd, (std::byte * out, int capacity, const std::byte* src, int src_size),
+      { return Module.zstdDecompress(out, capacity, src, src_size); });
 
 namespace pstream::format {
 

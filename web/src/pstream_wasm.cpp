@@ -21,12 +21,12 @@
 #include "particlestream/format.hpp"
 #include "particlestream/frame.hpp"
 #include "particlestream/sort.hpp"
+#include "playback/interpolate.hpp"
 
 // Copies `size` bytes at file offset `offset` into `out` from the worker's fetched ranges; returns
 // 0, or 1 when they are not all fetched yet.
-EM_JS(int, pstream_host_read, (double offset, std::byte* out, double size), {
-  return Module.readFetched(offset, out, size);
-});
+EM_JS(int, pstream_host_read, (double offset, std::byte* out, double size),
+      { return Module.readFetched(offset, out, size); });
 
 namespace {
 
@@ -47,8 +47,8 @@ class FetchedSource final : public io::ByteSource {
   FetchedSource(std::uint64_t size, std::string name) : size_(size), name_(std::move(name)) {}
   void read(std::uint64_t offset, std::span<std::byte> out) override {
     if (offset > size_ || out.size() > size_ - offset)
-      throw Error(fmt::format("{}: read of {} bytes at offset {} past the end ({} bytes)", name_, out.size(), offset,
-                              size_));
+      throw Error(
+          fmt::format("{}: read of {} bytes at offset {} past the end ({} bytes)", name_, out.size(), offset, size_));
     if (pstream_host_read(static_cast<double>(offset), out.data(), static_cast<double>(out.size())) != 0)
       throw NeedBytes{offset, out.size()};
   }
@@ -60,19 +60,33 @@ class FetchedSource final : public io::ByteSource {
   std::string name_;
 };
 
+// A decoded cached frame, and the runs matching its particles to the frame before it.
+struct Slot {
+  std::uint64_t frame = UINT64_MAX;
+  std::vector<std::byte> records;
+  std::vector<format::MatchRun> matching;
+  std::size_t runs = format::kNoMatching;
+};
+
 struct Player {
   std::optional<format::Reader> reader;
-  std::vector<std::byte> records;  // the largest frame, allocated at open
+  std::optional<format::FrameDecoder> decoder;
+  std::optional<playback::FrameBlender> blender;
+  std::vector<std::byte> packet, chunk;  // a frame's packet, a chunk
+  Slot slots[2];                         // the last two frames decoded, in order
+  int last = 0;                          // the slot decoded last
+  std::vector<std::byte> blended;        // between two cached frames (room for both)
+  const std::byte* records = nullptr;    // what pw_pack draws
   std::uint64_t count = 0;
   std::string metadata_json;
   std::vector<float> depths;  // the draw order's buffers, allocated at open
   std::vector<std::uint64_t> pairs, scratch;
   std::vector<std::uint32_t> order;
-  std::vector<std::byte> instances;  // what the page draws: 20 bytes a particle, back to front
+  std::vector<std::byte> instances;     // what the page draws: 20 bytes a particle, back to front
   std::int32_t scale = -1, color = -1;  // record offsets, or -1
 };
 
-Player g;
+std::unique_ptr<Player> g = std::make_unique<Player>();
 std::string g_error;
 NeedBytes g_need{0, 0};
 
@@ -130,6 +144,43 @@ std::string describe(const format::Metadata& m) {
       chunks, times);
 }
 
+Slot* slot_of(std::uint64_t frame) {
+  for (Slot& slot : g->slots)
+    if (slot.frame == frame) return &slot;
+  return nullptr;
+}
+
+// Where decoding `frame` starts: on from the frame decoded last, or at its keyframe.
+std::uint64_t first_to_decode(std::uint64_t frame) {
+  if (slot_of(frame) != nullptr) return frame;
+  const std::uint64_t last = g->decoder->last_decoded();
+  const std::uint64_t key = format::keyframe_of(g->reader->metadata(), frame);
+  return last != UINT64_MAX && last < frame && last >= key ? last + 1 : key;
+}
+
+// Decodes up to `frame`, each frame into the slot not holding the one before it. A read that needs
+// bytes not fetched yet throws NeedBytes before the decoder's state changes, so a call again
+// resumes.
+void decode(std::uint64_t frame) {
+  if (slot_of(frame) != nullptr) return;
+  const format::Metadata& m = g->reader->metadata();
+  for (std::uint64_t f = first_to_decode(frame); f <= frame; ++f) {
+    const std::uint64_t size = format::frame_packet(m, f).size;
+    g->reader->read_packet(f, g->packet, g->chunk);
+    const int into = g->slots[g->last].frame + 1 == f ? g->last ^ 1 : g->last;
+    Slot& slot = g->slots[into];
+    Slot& prev = g->slots[into ^ 1];
+    slot.frame = UINT64_MAX;  // a failed decode leaves nothing behind
+    slot.runs = g->decoder->decode(f, std::span(g->packet).first(size), slot.records, slot.matching);
+    if (slot.runs == format::kNoMatching && prev.frame + 1 == f) {
+      slot.runs =
+          format::match_by_id(m, prev.records, m.frames[f - 1].count, slot.records, m.frames[f].count, slot.matching);
+    }
+    slot.frame = f;
+    g->last = into;
+  }
+}
+
 }  // namespace
 
 extern "C" {
@@ -141,94 +192,148 @@ EMSCRIPTEN_KEEPALIVE double pw_need_size() { return static_cast<double>(g_need.s
 // Opens the clip at `name` (a URL, for messages) of `size` bytes: header and tables.
 EMSCRIPTEN_KEEPALIVE int pw_open(double size, const char* name) {
   return guarded([&] {
-    g = Player{};
-    g.reader.emplace(format::Reader::open(std::make_unique<FetchedSource>(static_cast<std::uint64_t>(size), name)));
-    const format::Metadata& m = g.reader->metadata();
-    g.records = format::frame_buffer(m, name);
-    g.depths.resize(m.max_count);
-    g.pairs.resize(m.max_count);
-    g.scratch.resize(m.max_count);
-    g.order.resize(m.max_count);
-    g.instances.resize(m.max_count * kInstanceBytes);
+    g = std::make_unique<Player>();
+    g->reader.emplace(format::Reader::open(std::make_unique<FetchedSource>(static_cast<std::uint64_t>(size), name)));
+    const format::Metadata& m = g->reader->metadata();
+    g->decoder.emplace(m, name);
+    g->blender.emplace(m);
+    std::uint64_t largest = 0;
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) largest = std::max(largest, format::frame_packet(m, f).size);
+    g->packet.resize(largest);
+    g->chunk.resize(std::min(m.chunk_size, m.stream_size()));
+    for (Slot& slot : g->slots) {
+      slot.records = format::frame_buffer(m, name);
+      slot.matching.resize(2 * m.max_count + 2);
+    }
+    g->blended.resize(2 * g->slots[0].records.size());
+    // Between two frames, a frame's dying and newborn particles are both drawn: up to twice max_count.
+    const std::uint64_t most = 2 * m.max_count;
+    g->depths.resize(most);
+    g->pairs.resize(most);
+    g->scratch.resize(most);
+    g->order.resize(most);
+    g->instances.resize(most * kInstanceBytes);
     if (const format::Attribute* a = m.find("scale"); a && a->type == format::AttributeType::Float32)
-      g.scale = static_cast<std::int32_t>(a->offset);
-    if (const format::Attribute* a = m.find("color"); a && a->type == format::AttributeType::Unorm8 && a->components == 4)
-      g.color = static_cast<std::int32_t>(a->offset);
-    g.metadata_json = describe(m);
+      g->scale = static_cast<std::int32_t>(a->offset);
+    if (const format::Attribute* a = m.find("color");
+        a && a->type == format::AttributeType::Unorm8 && a->components == 4)
+      g->color = static_cast<std::int32_t>(a->offset);
+    g->metadata_json = describe(m);
   });
 }
 
-EMSCRIPTEN_KEEPALIVE const char* pw_metadata() { return g.metadata_json.c_str(); }
+EMSCRIPTEN_KEEPALIVE const char* pw_metadata() { return g->metadata_json.c_str(); }
 
 // The chunks holding frame `frame`'s packet: first and last index.
 EMSCRIPTEN_KEEPALIVE double pw_first_chunk(double frame) {
-  return static_cast<double>(g.reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).first);
+  return static_cast<double>(g->reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).first);
 }
 EMSCRIPTEN_KEEPALIVE double pw_last_chunk(double frame) {
-  return static_cast<double>(g.reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).second);
+  return static_cast<double>(g->reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).second);
 }
 EMSCRIPTEN_KEEPALIVE double pw_keyframe_of(double frame) {
-  return static_cast<double>(format::keyframe_of(g.reader->metadata(), static_cast<std::uint64_t>(frame)));
+  return static_cast<double>(format::keyframe_of(g->reader->metadata(), static_cast<std::uint64_t>(frame)));
 }
 
-// Decodes frame `frame` (forward from its keyframe, or on from the frame decoded last).
+// Decodes frame `frame` (forward from its keyframe, or on from the frame decoded last), keeping
+// the frame before it and the matching between the two, as the native stream does.
 EMSCRIPTEN_KEEPALIVE int pw_decode(double frame) {
   return guarded([&] {
-    const auto f = static_cast<std::uint64_t>(frame);
-    g.reader->read_frame(f, g.records);
-    g.count = g.reader->metadata().frames.at(f).count;
+    const auto target = static_cast<std::uint64_t>(frame);
+    decode(target);
+    const Slot& slot = *slot_of(target);
+    g->records = slot.records.data();
+    g->count = g->reader->metadata().frames.at(target).count;
   });
 }
-EMSCRIPTEN_KEEPALIVE double pw_count() { return static_cast<double>(g.count); }
-EMSCRIPTEN_KEEPALIVE std::byte* pw_records() { return g.records.data(); }
+EMSCRIPTEN_KEEPALIVE double pw_count() { return static_cast<double>(g->count); }
+EMSCRIPTEN_KEEPALIVE const std::byte* pw_records() { return g->records; }
+
+// The frames pw_show(time) decodes: from pw_first_needed() to the frame after `time`'s (or its own).
+EMSCRIPTEN_KEEPALIVE double pw_first_needed(double time) {
+  const format::Metadata& m = g->reader->metadata();
+  const std::uint64_t a = m.frame_between(time).first;
+  return static_cast<double>(first_to_decode(a));
+}
+EMSCRIPTEN_KEEPALIVE double pw_last_needed(double time) {
+  const format::Metadata& m = g->reader->metadata();
+  const auto [a, fraction] = m.frame_between(time);
+  return static_cast<double>(fraction > 0 && a + 1 < m.frame_count() ? a + 1 : a);
+}
+
+// The particles at `time` (seconds from the clip's first frame's time): the cached frame there, or
+// between the two around it, interpolated as the native player interpolates (playback.hpp:
+// FrameBlender, Hermite along the velocities where the clip has them).
+EMSCRIPTEN_KEEPALIVE int pw_show(double time) {
+  return guarded([&] {
+    const format::Metadata& m = g->reader->metadata();
+    const auto [a, fraction] = m.frame_between(time);
+    if (fraction > 0 && a + 1 < m.frame_count()) {
+      decode(a);
+      decode(a + 1);
+      const Slot& sa = *slot_of(a);
+      const Slot& sb = *slot_of(a + 1);
+      const std::span<const format::MatchRun> runs(sb.matching.data(), sb.runs == format::kNoMatching ? 0 : sb.runs);
+      g->count = g->blender->blend(sa.records, m.frames[a].count, sb.records, m.frames[a + 1].count,
+                                   sb.runs == format::kNoMatching ? nullptr : &runs, fraction,
+                                   m.frames[a + 1].time - m.frames[a].time, playback::Interpolation::Hermite,
+                                   g->blended.data());
+      g->records = g->blended.data();
+    } else {
+      decode(a);
+      g->records = slot_of(a)->records.data();
+      g->count = m.frames[a].count;
+    }
+  });
+}
 
 // The frame at or before `time` (seconds) and the fraction towards the next (Metadata's rule).
 EMSCRIPTEN_KEEPALIVE double pw_frame_at(double time) {
-  const auto [frame, fraction] = g.reader->metadata().frame_between(time);
+  const auto [frame, fraction] = g->reader->metadata().frame_between(time);
   return static_cast<double>(frame) + fraction;
 }
 
 // The decoded frame's particles as the page draws them, ordered back to front along the view
 // `view_world` (16 floats, column-major, object to view). Returns the count; pw_instances() holds them.
 EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
-  const format::Metadata& m = g.reader->metadata();
-  const std::size_t n = g.count, stride = m.record_size;
-  const std::byte* records = g.records.data();
+  const format::Metadata& m = g->reader->metadata();
+  const std::size_t n = g->count, stride = m.record_size;
+  const std::byte* records = g->records;
   if (sorted != 0) {
     std::array<float, 16> vw;
     std::memcpy(vw.data(), view_world, sizeof vw);
-    sort::compute_depths(records, n, stride, sort::depth_axis(vw), g.depths.data());
+    sort::compute_depths(records, n, stride, sort::depth_axis(vw), g->depths.data());
     // Back to front: the farthest (largest depth) first, so keys are the depths' order reversed.
     for (std::size_t i = 0; i < n; ++i)
-      g.pairs[i] = std::uint64_t(~sort::order_preserving_key(g.depths[i])) << 32 | i;
-    sort::radix_sort_pairs(g.pairs.data(), g.scratch.data(), n, g.order.data());
+      g->pairs[i] = std::uint64_t(~sort::order_preserving_key(g->depths[i])) << 32 | i;
+    sort::radix_sort_pairs(g->pairs.data(), g->scratch.data(), n, g->order.data());
   } else {
-    for (std::size_t i = 0; i < n; ++i) g.order[i] = static_cast<std::uint32_t>(i);
+    for (std::size_t i = 0; i < n; ++i) g->order[i] = static_cast<std::uint32_t>(i);
   }
-  std::byte* out = g.instances.data();
+  std::byte* out = g->instances.data();
   for (std::size_t k = 0; k < n; ++k, out += kInstanceBytes) {
-    const std::byte* r = records + std::size_t(g.order[k]) * stride;
+    const std::byte* r = records + std::size_t(g->order[k]) * stride;
     std::memcpy(out, r, 12);  // position at offset 0 (format.md: every layout starts with it)
     float radius = 0.05f;
-    if (g.scale >= 0) std::memcpy(&radius, r + g.scale, 4);
+    if (g->scale >= 0) std::memcpy(&radius, r + g->scale, 4);
     std::memcpy(out + 12, &radius, 4);
     const std::uint32_t none = 0;
-    std::memcpy(out + 16, g.color >= 0 ? static_cast<const void*>(r + g.color) : &none, 4);
+    std::memcpy(out + 16, g->color >= 0 ? static_cast<const void*>(r + g->color) : &none, 4);
   }
   return static_cast<double>(n);
 }
 // The camera `pstream render` and the viewer start from (frame.hpp: Camera::framing) for the
 // clip's bounds at this aspect: eye xyz, target xyz, up xyz, fov_y, near, far into `out`.
 EMSCRIPTEN_KEEPALIVE void pw_framing(double aspect, float* out) {
-  const auto& b = g.reader->metadata().bounds;
+  const auto& b = g->reader->metadata().bounds;
   const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);
   const render::Camera c =
       empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, float(aspect));
-  const float values[12] = {c.eye[0], c.eye[1], c.eye[2], c.target[0], c.target[1], c.target[2],
-                            c.up[0],  c.up[1],  c.up[2],  c.fov_y_degrees, c.near,   c.far};
+  const float values[12] = {c.eye[0], c.eye[1], c.eye[2], c.target[0],     c.target[1], c.target[2],
+                            c.up[0],  c.up[1],  c.up[2],  c.fov_y_degrees, c.near,      c.far};
   std::memcpy(out, values, sizeof values);
 }
 
-EMSCRIPTEN_KEEPALIVE std::byte* pw_instances() { return g.instances.data(); }
+EMSCRIPTEN_KEEPALIVE std::byte* pw_instances() { return g->instances.data(); }
 
 }  // extern "C"

@@ -1,0 +1,207 @@
+// The web player in headless Chromium (run by tests/web/run.sh under tests/http/with_server.sh).
+//   node player_test.mjs playback   (nginx)  plays 60 frames; the canvas is not blank; a frame's
+//                                             decoded records equal the native decoder's; its image
+//                                             matches the native renderer's within the tolerances below
+//   node player_test.mjs faults     (fault server)  latency and 503s are retried and the frames are
+//                                             exact; a changed file, 500s forever and a 404 end in an
+//                                             error on the page naming the URL, and the tab still answers
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import path from 'node:path';
+import { createRequire } from 'node:module';
+
+const env = process.env;
+const require = createRequire(path.join(env.WEB_SITE, '../../web/package.json'));
+const puppeteer = require('puppeteer-core');
+const base = env.PSTREAM_TEST_URL_BASE;
+const site = `${base}${env.WEB_SITE}/index.html`;
+const frame = Number(env.WEB_FRAME);
+const mode = process.argv[2];
+
+// The image tolerances (docs/web.md): the two renderers share the camera, the particles and their
+// sizes, but not the sprite's profile or lighting, so the test compares where particles are drawn
+// (a coverage mask), where the picture's weight lies, and how bright it is.
+const kMinCoverageIoU = 0.6;      // intersection over union of the covered pixels
+const kMaxCentroidShift = 0.02;   // of the image width
+const kMaxCoverageRatio = 1.6;    // covered pixels, web / native, either way
+
+const browser = await puppeteer.launch({
+  executablePath: '/usr/bin/chromium',
+  headless: true,
+  args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
+    '--disable-gpu-sandbox', '--disable-dev-shm-usage']
+});
+const failures = [];
+function check(name, fn) {
+  return fn().then(() => console.log(`ok   ${name}`), (e) => {
+    failures.push(name);
+    console.log(`FAIL ${name}: ${e.stack || e}`);
+  });
+}
+
+async function open(clipUrl, extra = '') {
+  const page = await browser.newPage();
+  page.on('pageerror', (e) => console.log(`  page error: ${e.message}`));
+  page.on('console', (m) => { if (m.type() === 'error' && !/favicon|404/.test(m.text())) console.log(`  console: ${m.text()}`); });
+  await page.goto(`${site}?url=${encodeURIComponent(clipUrl)}${extra}`);
+  return page;
+}
+
+// Every cached frame shown, and at least 60 images (the clip's 48 frames, interpolated, looping).
+const playedALoop = () => {
+  const s = window.player.state;
+  return s.error || (s.meta && s.distinctShown === s.meta.frames && s.shown >= 60);
+};
+const waitFor = (page, fn, timeout, arg) => page.waitForFunction(fn, { timeout, polling: 50 }, arg);
+const playerState = (page) => page.evaluate(() => {
+  const s = window.player.state;
+  return { error: s.error, shown: s.shown, distinct: s.distinctShown, frames: s.meta && s.meta.frames,
+    retries: s.cache && s.cache.retries, requests: s.cache && s.cache.requests, stalls: s.stalls,
+    timing: s.timing, count: s.count };
+});
+
+// The canvas's pixels as RGBA rows (the drawing buffer is preserved).
+function canvasPixels(page) {
+  return page.evaluate(() => {
+    const c = document.getElementById('view');
+    const copy = document.createElement('canvas');
+    copy.width = c.width; copy.height = c.height;
+    const ctx = copy.getContext('2d');
+    ctx.drawImage(c, 0, 0);
+    return { width: c.width, height: c.height, data: Array.from(ctx.getImageData(0, 0, c.width, c.height).data) };
+  });
+}
+
+// Pixels that differ from the image's background (its most common colour) by more than 24/255.
+function coverage({ width, height, data }) {
+  const counts = new Map();
+  for (let i = 0; i < data.length; i += 4) {
+    const key = (data[i] >> 3) << 10 | (data[i + 1] >> 3) << 5 | (data[i + 2] >> 3);
+    counts.set(key, (counts.get(key) || 0) + 1);
+  }
+  const bg = [...counts.entries()].sort((a, b) => b[1] - a[1])[0][0];
+  const b = [(bg >> 10) * 8 + 4, ((bg >> 5) & 31) * 8 + 4, (bg & 31) * 8 + 4];
+  const mask = new Uint8Array(width * height);
+  let n = 0, cx = 0, cy = 0;
+  for (let p = 0; p < width * height; ++p) {
+    const d = Math.max(Math.abs(data[4 * p] - b[0]), Math.abs(data[4 * p + 1] - b[1]), Math.abs(data[4 * p + 2] - b[2]));
+    if (d > 24) { mask[p] = 1; n++; cx += p % width; cy += Math.floor(p / width); }
+  }
+  return { mask, n, cx: cx / Math.max(n, 1), cy: cy / Math.max(n, 1), width, height };
+}
+
+async function nativeImage(page, file) {
+  return page.evaluate(async (url) => {
+    const img = new Image();
+    img.src = url;
+    await img.decode();
+    const c = document.createElement('canvas');
+    c.width = img.width; c.height = img.height;
+    const ctx = c.getContext('2d');
+    ctx.drawImage(img, 0, 0);
+    return { width: img.width, height: img.height, data: Array.from(ctx.getImageData(0, 0, img.width, img.height).data) };
+  }, `${base}${file}`);
+}
+
+async function recordsEqualNative(page) {
+  const got = await page.evaluate(async (f) => {
+    const r = await window.player.records(f);
+    return { count: r.count, bytes: Array.from(r.bytes) };
+  }, frame);
+  const want = fs.readFileSync(env.WEB_REFERENCE);
+  assert.equal(got.bytes.length, want.length, `frame ${frame}: ${got.bytes.length} bytes decoded, native ${want.length}`);
+  let differ = 0;
+  for (let i = 0; i < want.length; ++i) if (got.bytes[i] !== want[i]) differ++;
+  assert.equal(differ, 0, `frame ${frame}: ${differ} of ${want.length} bytes differ from the native decode`);
+  return got.count;
+}
+
+// A path relative to the page (index.html?url=CLIP takes either).
+const relativeClip = path.relative(env.WEB_SITE, env.WEB_CLIP);
+
+if (mode === 'playback') {
+  const page = await open(relativeClip, '&size=480x270');
+  await check('plays every frame (60 images or more) from a relative URL, looping', async () => {
+    await waitFor(page, playedALoop, 60000);
+    const s = await playerState(page);
+    assert.equal(s.error, null);
+    assert.ok(s.distinct === s.frames, `showed ${s.distinct} distinct frames of ${s.frames}`);
+    console.log(`  ${s.shown} frames shown (${s.distinct} distinct), ${s.requests} requests, ${s.stalls} stalls; ` +
+      `last frame ${s.count} particles: decode ${s.timing.decodeMs.toFixed(2)} ms, sort ${s.timing.sortMs.toFixed(2)} ms, ` +
+      `draw ${s.timing.drawMs.toFixed(2)} ms`);
+  });
+  await check('the canvas is not blank', async () => {
+    const c = coverage(await canvasPixels(page));
+    assert.ok(c.n >= 100, `${c.n} of ${c.width * c.height} pixels differ from the background (a blank canvas: 0)`);
+    console.log(`  ${c.n} of ${c.width * c.height} pixels drawn`);
+  });
+  await check(`frame ${frame}'s decoded records equal the native decoder's`, async () => {
+    const count = await recordsEqualNative(page);
+    console.log(`  ${count} particles, every byte equal`);
+  });
+  await page.close();
+
+  const still = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}`);
+  await check(`frame ${frame}'s image matches the native renderer's (same camera)`, async () => {
+    await waitFor(still, () => window.player.state.error || window.player.state.shown >= 1, 30000);
+    await still.evaluate((f) => window.player.show(f), frame);
+    const webPixels = await canvasPixels(still);
+    const web = coverage(webPixels), native = coverage(await nativeImage(still, env.WEB_NATIVE_PNG));
+    assert.equal(web.width, native.width);
+    let inter = 0, union = 0;
+    for (let p = 0; p < web.mask.length; ++p) { inter += web.mask[p] & native.mask[p]; union += web.mask[p] | native.mask[p]; }
+    const iou = inter / Math.max(union, 1);
+    const shift = Math.hypot(web.cx - native.cx, web.cy - native.cy) / web.width;
+    const ratio = Math.max(web.n / native.n, native.n / web.n);
+    console.log(`  coverage IoU ${iou.toFixed(3)} (>= ${kMinCoverageIoU}), centroid shift ${(shift * 100).toFixed(2)}% ` +
+      `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}`);
+    await still.screenshot({ path: path.join(env.WEB_OUT, 'web_frame.png') });
+    assert.ok(iou >= kMinCoverageIoU, `coverage IoU ${iou}`);
+    assert.ok(shift <= kMaxCentroidShift, `centroid shift ${shift}`);
+    assert.ok(ratio <= kMaxCoverageRatio, `coverage ratio ${ratio}`);
+  });
+  await still.close();
+} else if (mode === 'faults') {
+  const clip = env.WEB_CLIP;
+  await check('50 ms latency and 503s: retried, played, and the frames are exact', async () => {
+    const page = await open(`${base}/~latency=50/~fail=503x3${clip}`, '&size=320x180');
+    await waitFor(page, playedALoop, 90000);
+    const s = await playerState(page);
+    assert.equal(s.error, null);
+    assert.ok(s.retries >= 1, `${s.retries} retries`);
+    await recordsEqualNative(page);
+    console.log(`  ${s.shown} frames shown, ${s.requests} requests, ${s.retries} retries, ${s.stalls} stalls`);
+    await page.close();
+  });
+  for (const [name, prefix, expect] of [
+    ['a file replaced on the server', '/~change=2', /changed on the server/],
+    ['500 on every request', '/~fail=500x1000', /HTTP 500, after 5 attempts/],
+    ['a missing file', '/~fail=503x0', /HTTP 404/]
+  ]) {
+    await check(`${name} ends in an error on the page, and the tab answers`, async () => {
+      const url = name === 'a missing file' ? `${base}${prefix}${clip}.missing` : `${base}${prefix}${clip}`;
+      const page = await open(url, '&size=320x180');
+      const started = Date.now();
+      await waitFor(page, () => window.player.state.error, 30000);
+      const s = await playerState(page);
+      assert.match(s.error, expect);
+      assert.ok(s.error.includes(clip), `the message names the URL: ${s.error}`);
+      const banner = await page.$eval('#error', (e) => (e.hidden ? '' : e.textContent));
+      assert.equal(banner, s.error);
+      // The main thread still runs: a click is handled at once.
+      const label = await page.evaluate(() => { document.getElementById('play').click(); return document.getElementById('play').textContent; });
+      assert.ok(label === 'Play' || label === 'Pause');
+      console.log(`  after ${((Date.now() - started) / 1000).toFixed(1)} s: ${s.error}`);
+      await page.close();
+    });
+  }
+} else {
+  console.error(`player_test.mjs: expected playback or faults, got ${mode}`);
+  process.exitCode = 2;
+}
+
+await browser.close();
+if (failures.length) {
+  console.log(`${failures.length} failed: ${failures.join('; ')}`);
+  process.exitCode = 1;
+}

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# The web player's end-to-end test (docs/web.md): cooks a fixture, asks the native library for its
+# answers (a decoded frame, a rendered image), then drives the page in Debian's headless Chromium
+# (puppeteer-core) against nginx and against the fault-injecting server.
+#   run.sh PSTREAM_CLI REFERENCE_FRAME SITE_DIR
+set -euo pipefail
+cli=$1 reference=$2 site=$(cd "$3" 2>/dev/null && pwd) || {
+  echo "run.sh: no web player at $3: build it with scripts/build-web.sh" >&2
+  exit 1
+}
+here=$(cd "$(dirname "$0")" && pwd)
+data=$(cd "$here/../data" && pwd)
+work=$(mktemp -d /tmp/pstream-web.XXXXXX)
+trap 'rm -rf "$work"' EXIT
+
+frame=30
+camera=2.6,2.4,4.2:0,0.9,0
+"$cli" cook "$data/sims/blender_sparks.abc" -o "$work/sparks.pstream" --chunk-size 64KiB -q
+"$reference" "$work/sparks.pstream" $frame "$work/frame.bin"
+"$cli" render "$work/sparks.pstream" --frames $frame:$((frame + 1)) --size 480x270 --camera $camera \
+  --preset debug --out "$work/native" -q
+native=$(ls "$work"/native/*.png)
+
+export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
+  WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_OUT=${PSTREAM_WEB_OUT:-$work}
+export NODE_PATH=$site/../../web/node_modules
+bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
+bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults
