@@ -7,6 +7,10 @@
 //                                 clip's framing, as `pstream render` and the viewer frame it
 //           &speed=S              clip seconds per second (default 1)
 //           &size=WxH             the canvas size in pixels (default: the window's)
+//           &flat=1               flat colours, no lighting (as `pstream render --preset debug`)
+//           &bench=1              steps through every cached frame once and reports, per frame, the
+//                                 worker's decode and sort times and this thread's draw time
+//                                 (window.player.bench; bench/web/run.sh compares them with native)
 const params = new URLSearchParams(location.search);
 const canvas = document.getElementById('view');
 const status = document.getElementById('status');
@@ -120,16 +124,27 @@ void main() {
   v_color = u_has_color ? a_color : u_default_color;
   gl_Position = u_projection * view;
 }`;
+// The native sprite's profile and lights (src/render/sprites.cpp): a soft round coverage, and a
+// sphere under the sprite lit by a key (wrapped diffuse), a fill and a rim light over an ambient,
+// in view space. No shadows, no tone map. u_lit off: flat colours (`pstream render --preset debug`).
 const kFragment = `#version 300 es
 precision mediump float;
 in vec2 v_local;
 in vec4 v_color;
+uniform bool u_lit;
 out vec4 o_color;
+const vec3 kKey = vec3(0.45, 0.65, 0.61), kFill = vec3(-0.62, -0.2, 0.76);
 void main() {
   float r2 = dot(v_local, v_local);
-  if (r2 >= 1.0) discard;
-  float a = v_color.a * (1.0 - r2) * (1.0 - r2);   // a soft round sprite
-  o_color = vec4(v_color.rgb * a, a);              // premultiplied
+  if (r2 > 1.0) discard;
+  float a = v_color.a * (1.0 - smoothstep(0.55, 1.0, sqrt(r2)));
+  float light = 1.0;
+  if (u_lit) {
+    vec3 n = vec3(v_local, sqrt(1.0 - r2));
+    float key = clamp(dot(n, kKey) * 0.6 + 0.4, 0.0, 1.0);
+    light = 0.16 + 0.84 * key + 0.12 * max(dot(n, kFill), 0.0) + 0.2 * pow(1.0 - n.z, 3.0);
+  }
+  o_color = vec4(v_color.rgb * light * a, a);   // premultiplied
 }`;
 
 function compile(type, source) {
@@ -147,7 +162,7 @@ function setupGl() {
   gl.attachShader(program, compile(gl.FRAGMENT_SHADER, kFragment));
   gl.linkProgram(program);
   if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(program));
-  uniforms = Object.fromEntries(['u_view', 'u_projection', 'u_default_color', 'u_has_color']
+  uniforms = Object.fromEntries(['u_view', 'u_projection', 'u_default_color', 'u_has_color', 'u_lit']
     .map((n) => [n, gl.getUniformLocation(program, n)]));
   vao = gl.createVertexArray();
   gl.bindVertexArray(vao);
@@ -161,8 +176,8 @@ function setupGl() {
   gl.vertexAttribDivisor(1, 1);
 }
 
-// The background: the native renderer's sprite backdrop (a dark grey).
-const kBackground = [0.08, 0.08, 0.09, 1];
+// The background: the native renderer's (`pstream render`'s clear colour).
+const kBackground = [0.02, 0.025, 0.035, 1];
 
 function draw(reply) {
   const start = performance.now();
@@ -177,6 +192,7 @@ function draw(reply) {
   gl.uniformMatrix4fv(uniforms.u_view, false, reply.view);
   gl.uniformMatrix4fv(uniforms.u_projection, false, perspective(camera.fov, w / h, camera.near, camera.far));
   gl.uniform4fv(uniforms.u_default_color, [0.45, 0.65, 0.95, 0.9]);
+  gl.uniform1i(uniforms.u_lit, params.has('flat') ? 0 : 1);
   gl.uniform1i(uniforms.u_has_color, state.meta.attributes.some((a) => a.name === 'color') ? 1 : 0);
   gl.enable(gl.BLEND);
   gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
@@ -318,6 +334,11 @@ async function start() {
     state.ready = state.meta.frames > 0;
     if (!state.ready) fail(`${url}: the clip has no frames`);
     updateControls();
+    if (params.has('bench') && state.ready) {
+      state.ready = false;  // the clock stays out of the way
+      await bench();
+      return;
+    }
     requestFrame(true);
   } catch (e) {
     fail(e.message);
@@ -329,6 +350,34 @@ window.player.records = async (frame) => {
   const reply = await ask('records', { frame });
   return { count: reply.count, bytes: new Uint8Array(reply.bytes) };
 };
+// Every cached frame in order, paused: per-frame decode (worker), sort and pack (worker) and draw
+// (this thread, to glFinish) times, with their medians and 95th percentiles.
+async function bench() {
+  state.playing = false;
+  const rows = { decodeMs: [], sortMs: [], drawMs: [], fetchMs: [], count: [] };
+  for (let f = 0; f < state.meta.frames; ++f) {
+    const view = lookAt(camera.eye, camera.target, camera.up);
+    const reply = await ask('show', { time: state.meta.times[f], view, sorted: true });
+    reply.view = view;
+    draw(reply);
+    rows.decodeMs.push(reply.decodeMs);
+    rows.sortMs.push(reply.sortMs);
+    rows.fetchMs.push(reply.fetchMs);
+    rows.drawMs.push(state.timing.drawMs);
+    rows.count.push(reply.count);
+  }
+  const stat = (v) => {
+    const s = [...v].sort((a, b) => a - b);
+    return { median: s[Math.floor(s.length / 2)], p95: s[Math.min(s.length - 1, Math.floor(s.length * 0.95))] };
+  };
+  const result = { frames: state.meta.frames, particles: stat(rows.count).median, decodeMs: stat(rows.decodeMs),
+    sortMs: stat(rows.sortMs), drawMs: stat(rows.drawMs), fetchMs: stat(rows.fetchMs), size: [canvas.width, canvas.height] };
+  window.player.bench = result;
+  status.textContent = `bench: ${result.frames} frames of ${result.particles.toLocaleString()} particles: decode ` +
+    `${result.decodeMs.median.toFixed(2)} ms, sort ${result.sortMs.median.toFixed(2)} ms, ` +
+    `draw ${result.drawMs.median.toFixed(2)} ms (medians)`;
+}
+
 // Resolves when frame `frame` is drawn (paused), for screenshots.
 window.player.show = async (frame) => {
   state.playing = false;

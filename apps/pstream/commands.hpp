@@ -118,6 +118,7 @@ struct RenderCli {
   double fps = 0.0, speed = 1.0;
   float size_multiplier = 1.0f;
   bool quiet = false, no_clobber = false;
+  bool json = false;  // print {"frames", "frame_ms": {median, p95}, "gl_renderer", ...} instead of the summary
   std::uint64_t max_frames = 100'000;  // more images than this are refused (a mistyped --fps)
 };
 struct RenderStats {

@@ -513,6 +513,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   add_look_flags(*render_cmd, render_cli.sprite_look);
   render_cmd->add_flag("-q,--quiet", render_cli.quiet, "No progress or summary");
+  render_cmd->add_flag(
+      "--json", render_cli.json,
+      "Print {\"frames\", \"size\", \"gl_renderer\", \"frame_ms\": {\"median\", \"p95\"}} (each image's "
+      "draw and read-back, PNG writing excluded) instead of the summary");
   render_cmd->add_flag("--no-clobber", render_cli.no_clobber,
                        "Refuse a folder that holds frames of an earlier render (by default they are replaced, and "
                        "any past this render's last removed, so the folder holds exactly this render)");

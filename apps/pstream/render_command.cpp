@@ -252,7 +252,8 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   player->seek(t0);
   player->set_speed(cli.speed);
   player->play();
-  ProgressBar bar("render", !cli.quiet);
+  ProgressBar bar("render", !cli.quiet && !cli.json);
+  std::vector<double> frame_ms;
   for (std::uint64_t k = 0; k < outputs; ++k) {
     player->advance(k == 0 ? 0.0 : 1.0 / fps, plan.view, plan.mode);
     player->check();
@@ -262,18 +263,30 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     renderer.draw(player->draw_data(style));
     renderer.end_frame();
     const std::vector<std::uint8_t> pixels = context.read_rgba();
-    if (stats)
-      stats->frame_ms.push_back(
-          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+    frame_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+    if (stats) stats->frame_ms.push_back(frame_ms.back());
     render::write_png(std::filesystem::path(cli.out) / fmt::format("frame_{:05d}.png", first_number + k), width, height,
                       pixels);
     bar.update(k + 1, outputs, fmt::format("frames ({}x{})", width, height));
   }
-  if (!cli.quiet)
+  if (cli.json) {
+    std::vector<double> sorted = frame_ms;
+    std::sort(sorted.begin(), sorted.end());
+    const auto at = [&](double p) {
+      return sorted.empty() ? 0.0 : sorted[std::min(sorted.size() - 1, std::size_t(p * double(sorted.size())))];
+    };
+    const nlohmann::ordered_json j = {{"frames", outputs},
+                                      {"out", cli.out},
+                                      {"size", {width, height}},
+                                      {"gl_renderer", render::Renderer::gl_renderer()},
+                                      {"frame_ms", {{"median", at(0.5)}, {"p95", at(0.95)}}}};
+    fmt::print("{}\n", j.dump());
+  } else if (!cli.quiet) {
     fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
+  }
   if (!cli.video.empty()) {
     encode_video(cli.out, first_number, outputs, fps, cli.video);  // no shell; exactly this render's frames
-    if (!cli.quiet) fmt::print("video -> {}\n", cli.video);
+    if (!cli.quiet && !cli.json) fmt::print("video -> {}\n", cli.video);
   }
   return 0;
 }

@@ -43,7 +43,7 @@ void lz4_decode(const DecodeContext& ctx, std::span<const std::byte> stored, std
   std::string why;
   const std::size_t n = ctx.entropy.lz4(out, stored, why);
   if (n == EntropyDecoder::kFailed)
-    throw Error(fmt::format("{}: lz4 data does not decode: {} (expected {} bytes)", ctx.where(), why, out.size()));
+    throw Error(fmt::format("{}: lz4 data is corrupt: {} (expected {} bytes)", ctx.where(), why, out.size()));
   if (n != out.size())
     throw Error(fmt::format("{}: lz4 data decodes to {} bytes, expected {}", ctx.where(), n, out.size()));
 }

@@ -33,7 +33,7 @@ std::size_t EntropyDecoder::lz4(std::span<std::byte> out, std::span<const std::b
   const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(in.data()), reinterpret_cast<char*>(out.data()),
                                     static_cast<int>(in.size()), static_cast<int>(out.size()));
   if (n >= 0) return static_cast<std::size_t>(n);
-  error = "corrupt lz4 data";
+  error = "it does not decode within the expected bytes";
   return kFailed;
 }
 

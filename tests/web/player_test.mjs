@@ -21,9 +21,10 @@ const mode = process.argv[2];
 // The image tolerances (docs/web.md): the two renderers share the camera, the particles and their
 // sizes, but not the sprite's profile or lighting, so the test compares where particles are drawn
 // (a coverage mask), where the picture's weight lies, and how bright it is.
-const kMinCoverageIoU = 0.6;      // intersection over union of the covered pixels
-const kMaxCentroidShift = 0.02;   // of the image width
-const kMaxCoverageRatio = 1.6;    // covered pixels, web / native, either way
+const kMinCoverageIoU = 0.8;      // intersection over union of the covered pixels
+const kMaxCentroidShift = 0.01;   // of the image width
+const kMaxCoverageRatio = 1.25;   // covered pixels, web / native, either way
+const kMaxMeanColorError = 16;    // mean |web - native| of R, G and B (of 255) where both cover
 
 const browser = await puppeteer.launch({
   executablePath: '/usr/bin/chromium',
@@ -141,24 +142,33 @@ if (mode === 'playback') {
   });
   await page.close();
 
-  const still = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}`);
+  const still = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}&flat=1`);
   await check(`frame ${frame}'s image matches the native renderer's (same camera)`, async () => {
     await waitFor(still, () => window.player.state.error || window.player.state.shown >= 1, 30000);
     await still.evaluate((f) => window.player.show(f), frame);
     const webPixels = await canvasPixels(still);
-    const web = coverage(webPixels), native = coverage(await nativeImage(still, env.WEB_NATIVE_PNG));
+    const nativePixels = await nativeImage(still, env.WEB_NATIVE_PNG);
+    const web = coverage(webPixels), native = coverage(nativePixels);
     assert.equal(web.width, native.width);
     let inter = 0, union = 0;
     for (let p = 0; p < web.mask.length; ++p) { inter += web.mask[p] & native.mask[p]; union += web.mask[p] | native.mask[p]; }
     const iou = inter / Math.max(union, 1);
     const shift = Math.hypot(web.cx - native.cx, web.cy - native.cy) / web.width;
     const ratio = Math.max(web.n / native.n, native.n / web.n);
+    let colorError = 0;
+    for (let p = 0; p < web.mask.length; ++p) {
+      if (!(web.mask[p] & native.mask[p])) continue;
+      for (let c = 0; c < 3; ++c) colorError += Math.abs(webPixels.data[4 * p + c] - nativePixels.data[4 * p + c]);
+    }
+    colorError /= 3 * Math.max(inter, 1);
     console.log(`  coverage IoU ${iou.toFixed(3)} (>= ${kMinCoverageIoU}), centroid shift ${(shift * 100).toFixed(2)}% ` +
-      `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}`);
+      `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}, ` +
+      `mean colour error ${colorError.toFixed(1)}/255 where both cover (<= ${kMaxMeanColorError})`);
     await still.screenshot({ path: path.join(env.WEB_OUT, 'web_frame.png') });
     assert.ok(iou >= kMinCoverageIoU, `coverage IoU ${iou}`);
     assert.ok(shift <= kMaxCentroidShift, `centroid shift ${shift}`);
     assert.ok(ratio <= kMaxCoverageRatio, `coverage ratio ${ratio}`);
+    assert.ok(colorError <= kMaxMeanColorError, `mean colour error ${colorError}`);
   });
   await still.close();
 } else if (mode === 'faults') {
