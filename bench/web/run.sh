@@ -49,7 +49,7 @@ for row in sys.argv[1:]:
         print(f"| {int(w['particles']):,} | {stage} | {web['median']:.2f} ms (p95 {web['p95']:.2f}) | {natv} | {ratio} |")
     line("decode", w["decodeMs"], n["decode_ms"])
     line("sort back to front + pack", w["sortMs"], n["sort_ms"])
-    line("draw (the page: upload, one instanced call, finish; native: draw and read-back)", w["drawMs"],
+    line("draw (the page: upload, one instanced call, a pixel read back; native: draw and read-back)", w["drawMs"],
          render["frame_ms"])
 print()
 print(f"Browser: {w.get('renderer', '?')}, canvas {w['size'][0]}x{w['size'][1]}. "
