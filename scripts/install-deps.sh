@@ -12,7 +12,7 @@ packages=(
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libglvnd-dev libimgui-dev libstb-dev  # rendering
   ffmpeg xvfb xauth                  # MP4 output; the viewer's test under a virtual display
   libmeshoptimizer-dev libdraco-dev  # the particle codec's peers in `pstream bench codec`
-  python3-dev pybind11-dev python3-numpy python3-pytest  # the Python bindings and their tests
+  python3-dev pybind11-dev python3-numpy python3-pytest python3-venv  # the Python bindings, `pip install .`, their tests
   libcurl4-openssl-dev nginx-light   # streaming over HTTP(S); nginx serves clips to its tests
   emscripten chromium                # the web player (web/): its WebAssembly build and its headless test
 )
