@@ -18,6 +18,7 @@
 #include <cstring>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -292,52 +293,69 @@ PYBIND11_MODULE(particlestream, m) {
           "expanded, the parameter's sample nearest to the object's sample time): numpy (N, extent) or (N,), or a "
           "list of str for strings. 'widths' names .widths. expand=False: an indexed parameter's values as stored.");
 
+  // Every option of `pstream cook` but the input's, by the same rules and with the same messages.
+  const auto cook_options = [](const std::filesystem::path& output, double fps, const std::string& codec,
+                               std::vector<std::string> attributes, const std::string& error,
+                               const std::string& scale_error, const std::string& attribute_error,
+                               const std::string& frames, const std::string& scale_from, const std::string& color_from,
+                               bool velocity, std::uint32_t keyframe_interval, bool drop_invalid, bool store_velocity) {
+    cook::Options o;
+    if (!frames.empty()) cook::set_frames(o, frames, "frames");
+    cook::set_scale_from(o, scale_from, "scale_from");
+    o.color_from = color_from;
+    o.keep_velocity = velocity;
+    o.particle.derive_velocity = !store_velocity;
+    o.particle.keyframe_interval = keyframe_interval;
+    o.drop_invalid = drop_invalid;
+    cook::set_error_bound(o, error, "error");  // the command line's rules
+    cook::set_scale_error(o, scale_error, "scale_error");
+    cook::set_attribute_error(o, attribute_error, "attribute_error");
+    o.output = output;
+    o.fps = fps;
+    o.attributes = std::move(attributes);
+    cook::set_codec(o, codec);
+    return o;
+  };
+  // Runs a cook with the GIL released, reporting progress(frames_done, frame_count) from it.
+  const auto run_cook = [](const std::function<cook::Report(const std::function<void(const cook::Progress&)>&)>& cook,
+                           const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
+    std::function<void(const cook::Progress&)> report;
+    if (progress) {
+      report = [&](const cook::Progress& p) {
+        py::gil_scoped_acquire gil;
+        progress(p.frames_done, p.frame_count);
+      };
+    }
+    cook::Report r;
+    {
+      py::gil_scoped_release release;
+      r = cook(report);
+    }
+    py::dict d;
+    d["frames"] = r.frames;
+    d["particles"] = r.particles;
+    d["file_bytes"] = r.file_bytes;
+    d["seconds"] = r.seconds;
+    return d;
+  };
+
   m.def(
       "cook",
-      [](const std::filesystem::path& input, const std::filesystem::path& output, double fps, const std::string& codec,
-         std::vector<std::string> attributes, const std::string& object, bool interpolate,
-         const std::function<void(std::uint64_t, std::uint64_t)>& progress, const std::string& error,
-         const std::string& scale_error, const std::string& attribute_error, const std::string& frames, bool merge,
-         const std::string& scale_from, const std::string& color_from, bool velocity, std::uint32_t keyframe_interval,
-         bool drop_invalid, bool store_velocity) {
-        cook::Options o;
-        // Every option of `pstream cook`, by the same rules and with the same messages.
-        if (!frames.empty()) cook::set_frames(o, frames, "frames");
-        o.merge = merge;
-        cook::set_scale_from(o, scale_from, "scale_from");
-        o.color_from = color_from;
-        o.keep_velocity = velocity;
-        o.particle.derive_velocity = !store_velocity;
-        o.particle.keyframe_interval = keyframe_interval;
-        o.drop_invalid = drop_invalid;
-        cook::set_error_bound(o, error, "error");  // the command line's rules
-        cook::set_scale_error(o, scale_error, "scale_error");
-        cook::set_attribute_error(o, attribute_error, "attribute_error");
+      [cook_options, run_cook](const std::filesystem::path& input, const std::filesystem::path& output, double fps,
+                               const std::string& codec, std::vector<std::string> attributes, const std::string& object,
+                               bool interpolate, const std::function<void(std::uint64_t, std::uint64_t)>& progress,
+                               const std::string& error, const std::string& scale_error,
+                               const std::string& attribute_error, const std::string& frames, bool merge,
+                               const std::string& scale_from, const std::string& color_from, bool velocity,
+                               std::uint32_t keyframe_interval, bool drop_invalid, bool store_velocity) {
+        cook::Options o = cook_options(output, fps, codec, std::move(attributes), error, scale_error, attribute_error,
+                                       frames, scale_from, color_from, velocity, keyframe_interval, drop_invalid,
+                                       store_velocity);
         o.input = input;
-        o.output = output;
-        o.fps = fps;
         o.object = object;
-        o.attributes = std::move(attributes);
+        o.merge = merge;
         o.interpolate = interpolate;
-        cook::set_codec(o, codec);
-        std::function<void(const cook::Progress&)> report;
-        if (progress) {
-          report = [&](const cook::Progress& p) {
-            py::gil_scoped_acquire gil;
-            progress(p.frames_done, p.frame_count);
-          };
-        }
-        cook::Report r;
-        {
-          py::gil_scoped_release release;
-          r = cook::cook(o, report);
-        }
-        py::dict d;
-        d["frames"] = r.frames;
-        d["particles"] = r.particles;
-        d["file_bytes"] = r.file_bytes;
-        d["seconds"] = r.seconds;
-        return d;
+        return run_cook([&](const auto& report) { return cook::cook(o, report); }, progress);
       },
       py::arg("input"), py::arg("output"), py::arg("fps") = 0.0, py::arg("codec") = "particle",
       py::arg("attributes") = std::vector<std::string>{}, py::arg("object") = "", py::arg("interpolate") = false,
@@ -355,6 +373,72 @@ PYBIND11_MODULE(particlestream, m) {
       "velocity: --no-velocity is velocity=False), keyframe_interval, drop_invalid, store_velocity "
       "(--store-velocity: store the source's instead of deriving it from particles with ids). Returns the "
       "report (frames, particles, file_bytes, seconds).");
+
+  m.def(
+      "cook_particles",
+      [cook_options, run_cook](const py::sequence& frames, const std::filesystem::path& output, double fps,
+                               const std::string& name, const std::string& object, const std::string& codec,
+                               std::vector<std::string> attributes,
+                               const std::function<void(std::uint64_t, std::uint64_t)>& progress,
+                               const std::string& error, const std::string& scale_error,
+                               const std::string& attribute_error, const std::string& frame_range,
+                               const std::string& scale_from, const std::string& color_from, bool velocity,
+                               std::uint32_t keyframe_interval, bool drop_invalid, bool store_velocity) {
+        cook::Options o = cook_options(output, 0.0, codec, std::move(attributes), error, scale_error, attribute_error,
+                                       frame_range, scale_from, color_from, velocity, keyframe_interval, drop_invalid,
+                                       store_velocity);
+        cook::MemoryClip clip;
+        clip.name = name;
+        clip.object = object;
+        clip.fps = fps;
+        // The arrays as C-contiguous float32 / uint64 (converted where they are not), kept alive here.
+        std::vector<py::array> keep;
+        const auto floats = [&](const py::dict& f, const char* key, std::size_t index) -> std::span<const float> {
+          if (!f.contains(key) || f[key].is_none()) return {};
+          auto a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(f[key]);
+          if (!a) throw Error(fmt::format("{}: frame {}: '{}' is not an array of numbers", name, index, key));
+          keep.push_back(a);
+          return {a.data(), static_cast<std::size_t>(a.size())};
+        };
+        for (std::size_t i = 0; i < frames.size(); ++i) {
+          const py::object item = frames[i];
+          if (!py::isinstance<py::dict>(item))
+            throw Error(fmt::format("{}: frame {} is not a dict (time, position, and optionally width, velocity, id, "
+                                    "color)", name, i));
+          const py::dict f = item.cast<py::dict>();
+          if (!f.contains("time") || !f.contains("position"))
+            throw Error(fmt::format("{}: frame {} needs 'time' (seconds) and 'position' (N x 3)", name, i));
+          cook::MemoryFrame mf;
+          mf.time = f["time"].cast<double>();
+          mf.position = floats(f, "position", i);
+          mf.count = mf.position.size() / 3;
+          mf.width = floats(f, "width", i);
+          mf.velocity = floats(f, "velocity", i);
+          mf.color = floats(f, "color", i);
+          if (f.contains("id") && !f["id"].is_none()) {
+            auto a = py::array_t<std::uint64_t, py::array::c_style | py::array::forcecast>::ensure(f["id"]);
+            if (!a) throw Error(fmt::format("{}: frame {}: 'id' is not an array of whole numbers", name, i));
+            keep.push_back(a);
+            mf.id = {a.data(), static_cast<std::size_t>(a.size())};
+          }
+          clip.frames.push_back(mf);
+        }
+        return run_cook([&](const auto& report) { return cook::cook(o, clip, report); }, progress);
+      },
+      py::arg("frames"), py::arg("output"), py::arg("fps") = 24.0, py::arg("name") = "particles",
+      py::arg("object") = "", py::arg("codec") = "particle", py::arg("attributes") = std::vector<std::string>{},
+      py::arg("progress") = nullptr, py::arg("error") = "1e-4", py::arg("scale_error") = "1%",
+      py::arg("attribute_error") = "1e-3", py::arg("frame_range") = "", py::arg("scale_from") = "widths",
+      py::arg("color_from") = "auto", py::arg("velocity") = true,
+      py::arg("keyframe_interval") = format::kDefaultKeyframeInterval, py::arg("drop_invalid") = false,
+      py::arg("store_velocity") = false,
+      "Cooks particles held in memory (a DCC's evaluated particles, a script's simulation) into a .pstream, as "
+      "cook() cooks a file. frames: a sequence of dicts, one per frame in increasing time, each with 'time' "
+      "(seconds) and 'position' (N x 3), and optionally 'width' (N, diameters: the record's scale is half), "
+      "'velocity' (N x 3, units per second), 'id' (N, stable across frames: matching and derived velocity need "
+      "them) and 'color' (N x 4, linear RGBA in 0..1); an attribute is in every frame with particles or in none. "
+      "fps is the frames' rate; name and object are recorded as the clip's source. The other options are cook()'s "
+      "(frame_range is its `frames`). Returns the report (frames, particles, file_bytes, seconds).");
 
   m.def(
       "verify",

@@ -5,7 +5,7 @@ back. Every failure of the library raises `particlestream.Error` with the librar
 same words as the `pstream` command line's).
 """
 import os
-from typing import Callable, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -117,6 +117,31 @@ def cook(
 ) -> dict:
     """Cooks an Alembic archive (or a PLY sequence) into a .pstream with the options of
     `pstream cook`; returns the report (frames, particles, file_bytes, seconds)."""
+
+def cook_particles(
+    frames: Sequence[Dict[str, Any]],
+    output: PathLike,
+    fps: float = 24.0,
+    name: str = "particles",
+    object: str = "",
+    codec: str = "particle",
+    attributes: List[str] = ...,
+    progress: Optional[Callable[[int, int], None]] = None,
+    error: str = "1e-4",
+    scale_error: str = "1%",
+    attribute_error: str = "1e-3",
+    frame_range: str = "",
+    scale_from: str = "widths",
+    color_from: str = "auto",
+    velocity: bool = True,
+    keyframe_interval: int = 64,
+    drop_invalid: bool = False,
+    store_velocity: bool = False,
+) -> dict:
+    """Cooks particles held in memory into a .pstream, as cook() cooks a file. Each frame is a dict
+    with 'time' (seconds) and 'position' (N x 3), and optionally 'width' (N diameters), 'velocity'
+    (N x 3, per second), 'id' (N, stable) and 'color' (N x 4, linear RGBA in 0..1). Returns the
+    report (frames, particles, file_bytes, seconds)."""
 
 def verify(clip: str, against: str = "") -> dict:
     """Checks a .pstream as `pstream verify` does (and with `against`, each attribute against the

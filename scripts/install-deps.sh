@@ -15,6 +15,7 @@ packages=(
   python3-dev pybind11-dev python3-numpy python3-pytest python3-venv  # the Python bindings, `pip install .`, their tests
   libcurl4-openssl-dev nginx-light   # streaming over HTTP(S); nginx serves clips to its tests
   emscripten chromium                # the web player (web/): its WebAssembly build and its headless test
+  blender                            # the Blender add-on's test (blender/)
 )
 # npm installs the web player's pinned packages (web/package-lock.json); Node.js's own npm is
 # used where it has one, Debian's otherwise.

@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -105,6 +106,31 @@ struct Report {
 // Cooks `options.input` into `options.output`. Throws pstream::Error naming the input, the
 // frame and what was wrong; the output is only created when everything succeeded.
 Report cook(const Options& options, const std::function<void(const Progress&)>& progress = {});
+
+// Particles handed over in memory instead of read from a file: a script's simulation, or a DCC's
+// evaluated particles (the Blender add-on, blender/). Each array holds `count` entries per
+// particle's components (3 for position and velocity, 4 for colour), or is empty where the clip
+// has none of that attribute; an attribute is in every frame or in none. The caller keeps the
+// arrays alive during cook(); nothing is copied.
+struct MemoryFrame {
+  double time = 0.0;  // seconds; frames in increasing time, on the clip's frame grid
+  std::uint64_t count = 0;
+  std::span<const float> position;     // required
+  std::span<const float> width;        // diameters, as Alembic's widths (the record's scale is half)
+  std::span<const float> velocity;     // scene units per second
+  std::span<const std::uint64_t> id;   // stable across frames: what the codec and interpolation match
+  std::span<const float> color;        // linear RGBA in [0, 1]
+};
+struct MemoryClip {
+  std::string name;    // for messages and the header's source (say where the particles came from)
+  std::string object;  // the header's source object
+  double fps = 24.0;   // the frames' rate (Options::fps 0 keeps it)
+  std::vector<MemoryFrame> frames;
+};
+// Cooks `clip` into `options.output` as cook() cooks a file (every option but input, object,
+// merge and interpolate applies). Throws pstream::Error naming the clip, the frame and the array
+// that is wrong (a size that is not count × components, a NaN, an attribute in some frames only).
+Report cook(const Options& options, const MemoryClip& clip, const std::function<void(const Progress&)>& progress = {});
 
 // Scale stored in a record for an Alembic width (a diameter): the radius.
 inline float scale_from_width(float width) { return width * 0.5f; }

@@ -73,12 +73,6 @@ void expand_param(const GeomParam& p, double time, std::uint64_t count, const st
   }
 }
 
-std::uint8_t to_unorm8(float v) {
-  if (!(v > 0.0f)) return 0;
-  if (v >= 1.0f) return 255;
-  return static_cast<std::uint8_t>(std::lround(v * 255.0f));
-}
-
 struct Cooked {
   Object object;
   std::optional<Points> points;

@@ -561,8 +561,10 @@ std::string describe_settings(const Options& o, std::uint64_t content_hash) {
       int(o.keep_source_order));
 }
 
-Report cook(const Options& options, const std::function<void(const Progress&)>& progress) {
-  const auto t0 = std::chrono::steady_clock::now();
+namespace {
+
+// The options every source is cooked under, checked before any source is opened.
+void check_cook_options(const Options& options) {
   if (!std::has_single_bit(options.chunk_size) || options.chunk_size < format::kMinChunkSize ||
       options.chunk_size > format::kMaxChunkSize) {
     throw OptionError("chunk_size",
@@ -571,7 +573,12 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   if (options.fps != 0 && !(options.fps > 0 && std::isfinite(options.fps))) {
     throw OptionError("fps", fmt::format("`fps` {} must be a positive number (or 0: the source's)", options.fps));
   }
-  const std::unique_ptr<Source> source = is_ply(options.input) ? open_ply_sequence(options) : open_alembic(options);
+}
+
+// Cooks from an open source: the one path for files and for particles handed over in memory.
+Report cook_source(const Options& options, Source& opened, const std::function<void(const Progress&)>& progress,
+                   std::chrono::steady_clock::time_point t0) {
+  Source* const source = &opened;
   Report report;
   report.object = source->object();
   const float no_widths_scale = options.scale_from == ScaleFrom::Widths && !source->has_widths()
@@ -688,6 +695,22 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
   report.file_bytes = writer.commit();
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return report;
+}
+
+}  // namespace
+
+Report cook(const Options& options, const std::function<void(const Progress&)>& progress) {
+  const auto t0 = std::chrono::steady_clock::now();
+  check_cook_options(options);
+  const std::unique_ptr<Source> source = is_ply(options.input) ? open_ply_sequence(options) : open_alembic(options);
+  return cook_source(options, *source, progress, t0);
+}
+
+Report cook(const Options& options, const MemoryClip& clip, const std::function<void(const Progress&)>& progress) {
+  const auto t0 = std::chrono::steady_clock::now();
+  check_cook_options(options);
+  const std::unique_ptr<Source> source = open_memory(options, clip);
+  return cook_source(options, *source, progress, t0);
 }
 
 }  // namespace pstream::cook

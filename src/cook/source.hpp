@@ -2,6 +2,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -31,6 +32,13 @@ struct ParticleFrame {
 template <class T>
 void ensure_size(std::vector<T>& v, std::size_t n) {
   if (v.size() < n) v.resize(n);
+}
+
+// A colour component in [0, 1] as the record's RGBA8 (NaN and below 0: 0; 1 and above: 255).
+inline std::uint8_t to_unorm8(float v) {
+  if (!(v > 0.0f)) return 0;
+  if (v >= 1.0f) return 255;
+  return static_cast<std::uint8_t>(std::lround(v * 255.0f));
 }
 
 struct Request {
@@ -93,5 +101,6 @@ class Source {
 
 std::unique_ptr<Source> open_alembic(const Options& options);
 std::unique_ptr<Source> open_ply_sequence(const Options& options);
+std::unique_ptr<Source> open_memory(const Options& options, const MemoryClip& clip);
 
 }  // namespace pstream::cook

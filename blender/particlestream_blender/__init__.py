@@ -1,0 +1,312 @@
+"""ParticleStream for Blender: export particles to a .pstream and preview .pstream clips.
+
+Export takes the active object's particle systems (emitters, and a fluid domain's liquid
+particles, which Blender keeps as particle systems), or a mesh or point cloud's vertices, frame by
+frame from Blender's evaluated data, and cooks them with the `particlestream` module (no Alembic
+involved). Import brings a clip in as a mesh whose vertices follow the clip on every frame change,
+with the clip's sizes and colours as point attributes. docs/blender.md has the details.
+
+Needs the `particlestream` Python module where Blender's Python finds it (`pip install .` from
+the ParticleStream repository into that Python, or PYTHONPATH with --python-use-system-env).
+"""
+
+bl_info = {
+    "name": "ParticleStream",
+    "author": "ParticleStream",
+    "version": (0, 1, 0),
+    "blender": (3, 4, 0),
+    "location": "File > Import/Export > ParticleStream (.pstream); View3D > Sidebar > ParticleStream",
+    "description": "Export particles to .pstream clips and preview clips as animated point clouds",
+    "category": "Import-Export",
+}
+
+import os
+
+import bpy
+import numpy as np
+from bpy.app.handlers import persistent
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy_extras.io_utils import ExportHelper, ImportHelper
+
+_ALIVE = 3  # Particle.alive_state's value for 'ALIVE' (DEAD 1, UNBORN 2, ALIVE 3, DYING 4)
+_clips = {}  # path -> particlestream.Clip, opened once per session
+
+
+def _module():
+    try:
+        import particlestream
+    except ImportError as e:
+        raise RuntimeError(
+            "the particlestream Python module is not installed for Blender's Python: run `pip install .` from the "
+            f"ParticleStream repository with the Python Blender uses ({e})") from e
+    return particlestream
+
+
+# ---- export -------------------------------------------------------------------------------------
+
+def particle_frame(obj, depsgraph):
+    """The object's particles in the evaluated scene as arrays (world space), or None when it has
+    neither particle systems nor vertices. Particle systems: the alive particles of each, ids from
+    their index (stable in Blender) offset per system, sizes as widths (2 x size: Blender's size is
+    a radius), velocities. Vertices: positions through the object's matrix, ids from the vertex index
+    when the count never changes (the caller checks), the 'velocity' attribute when there is one."""
+    evaluated = obj.evaluated_get(depsgraph)
+    if len(evaluated.particle_systems):
+        parts, offset = [], 0
+        for system in evaluated.particle_systems:
+            particles = system.particles
+            n = len(particles)
+            if n == 0:
+                continue
+            state = np.empty(n, np.int32)
+            particles.foreach_get("alive_state", state)
+            location = np.empty(n * 3, np.float32)
+            particles.foreach_get("location", location)
+            velocity = np.empty(n * 3, np.float32)
+            particles.foreach_get("velocity", velocity)
+            size = np.empty(n, np.float32)
+            particles.foreach_get("size", size)
+            alive = state == _ALIVE
+            ids = np.nonzero(alive)[0].astype(np.uint64) + np.uint64(offset)
+            parts.append((location.reshape(-1, 3)[alive], velocity.reshape(-1, 3)[alive], 2.0 * size[alive], ids))
+            offset += n
+        if not parts:
+            return {"position": np.zeros((0, 3), np.float32)}
+        return {
+            "position": np.concatenate([p[0] for p in parts]),
+            "velocity": np.concatenate([p[1] for p in parts]),
+            "width": np.concatenate([p[2] for p in parts]).astype(np.float32),
+            "id": np.concatenate([p[3] for p in parts]),
+        }
+    data = getattr(evaluated, "data", None)
+    points = getattr(data, "vertices", None) if isinstance(data, bpy.types.Mesh) else getattr(data, "points", None)
+    if points is None:
+        return None
+    n = len(points)
+    local = np.empty(n * 3, np.float32)
+    points.foreach_get("co", local)
+    matrix = np.array(evaluated.matrix_world, dtype=np.float64)
+    position = (local.reshape(-1, 3) @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+    frame = {"position": position}
+    attribute = data.attributes.get("velocity") if hasattr(data, "attributes") else None
+    if attribute is not None and attribute.data_type == "FLOAT_VECTOR" and attribute.domain == "POINT":
+        velocity = np.empty(n * 3, np.float32)
+        attribute.data.foreach_get("vector", velocity)
+        frame["velocity"] = (velocity.reshape(-1, 3) @ matrix[:3, :3].T).astype(np.float32)
+    radius = data.attributes.get("radius") if hasattr(data, "attributes") else None
+    if radius is not None and radius.data_type == "FLOAT" and radius.domain == "POINT":
+        r = np.empty(n, np.float32)
+        radius.data.foreach_get("value", r)
+        frame["width"] = 2.0 * r
+    frame["id"] = np.arange(n, dtype=np.uint64)
+    return frame
+
+
+def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle", error="1e-4", ids=False, report=None):
+    """Cooks `obj`'s particles over [frame_start, frame_end] into `filepath`; returns the cook's
+    report. `report(done, total, what)` follows the progress."""
+    ps = _module()
+    scene = context.scene
+    fps = scene.render.fps / scene.render.fps_base
+    wm = context.window_manager
+    total = frame_end - frame_start + 1
+    frames, counts = [], set()
+    current = scene.frame_current
+    wm.progress_begin(0, 2 * total)
+    try:
+        for k, f in enumerate(range(frame_start, frame_end + 1)):
+            scene.frame_set(f)
+            frame = particle_frame(obj, context.evaluated_depsgraph_get())
+            if frame is None:
+                raise RuntimeError(f"{obj.name} has no particle systems, mesh vertices or points to export")
+            frame["time"] = f / fps
+            counts.add(len(frame["position"]))
+            frames.append(frame)
+            wm.progress_update(k + 1)
+            if report:
+                report(k + 1, total, "frames read")
+        if not len(obj.evaluated_get(context.evaluated_depsgraph_get()).particle_systems) and len(counts) > 1:
+            for frame in frames:  # vertex indices are not particle identities when the count changes
+                frame.pop("id", None)
+
+        def progress(done, count):
+            wm.progress_update(total + done)
+            if report:
+                report(done, count, "frames cooked")
+
+        name = f"Blender {os.path.basename(bpy.data.filepath) or 'untitled'}: {obj.name}"
+        return ps.cook_particles(frames, filepath, fps=fps, name=name, object=obj.name, codec=codec, error=error,
+                                 attributes=["id"] if ids else [], progress=progress)
+    finally:
+        wm.progress_end()
+        scene.frame_set(current)
+
+
+class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
+    """Cook the active object's particles (particle systems, a fluid's liquid particles, or its
+    vertices) over the frame range into a .pstream"""
+    bl_idname = "pstream.export"
+    bl_label = "Export ParticleStream"
+    filename_ext = ".pstream"
+    filter_glob: StringProperty(default="*.pstream", options={"HIDDEN"})
+    frame_start: IntProperty(name="Start", description="First frame (0: the scene's)", default=0)
+    frame_end: IntProperty(name="End", description="Last frame (0: the scene's)", default=0)
+    codec: EnumProperty(name="Codec", default="particle", items=[
+        ("particle", "Particle", "Error-bounded, predicted over time: about 1-3 bytes a particle a frame"),
+        ("particle-lossless", "Lossless", "Bit-exact positions, the source order kept"),
+        ("zstd", "zstd", "The records as they are, chunk-compressed")])
+    error: StringProperty(name="Error", default="1e-4",
+                          description="Position bound: a fraction of the clip's bounds diagonal (1e-4), or abs:0.001 "
+                                      "in scene units")
+    ids: BoolProperty(name="Store ids", default=False,
+                      description="Keep each particle's id in the clip (frames are ordered by id either way)")
+
+    def execute(self, context):
+        obj = context.active_object
+        if obj is None:
+            self.report({"ERROR"}, "select the object whose particles to export")
+            return {"CANCELLED"}
+        scene = context.scene
+        start = self.frame_start or scene.frame_start
+        end = self.frame_end or scene.frame_end
+        try:
+            r = export_clip(context, obj, self.filepath, start, end, self.codec, self.error, self.ids)
+        except Exception as e:  # the module's messages name the frame and what is wrong
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{self.filepath}: {r['frames']} frames, {r['particles']} particles, "
+                              f"{r['file_bytes']} bytes")
+        return {"FINISHED"}
+
+
+# ---- import (preview) -----------------------------------------------------------------------------
+
+def _clip(path):
+    clip = _clips.get(path)
+    if clip is None:
+        clip = _clips[path] = _module().Clip(path)
+    return clip
+
+
+def clip_frame_at(clip, scene_time):
+    """The clip's frame nearest the scene's time (clamped to the clip)."""
+    n = clip.frame_count
+    if n == 0:
+        return -1
+    first, step = clip.time(0), 1.0 / clip.fps
+    return int(min(max(round((scene_time - first) / step), 0), n - 1))
+
+
+def update_preview(obj, scene):
+    """Sets the preview mesh's vertices to the clip's frame at the scene's time, with 'radius' (the
+    record's scale) and 'color' point attributes."""
+    clip = _clip(bpy.path.abspath(obj["pstream_path"]))
+    fps = scene.render.fps / scene.render.fps_base
+    frame = clip_frame_at(clip, scene.frame_current / fps)
+    records = clip.read_frame(frame) if frame >= 0 else None
+    mesh = obj.data
+    mesh.clear_geometry()
+    n = 0 if records is None else len(records)
+    if n == 0:
+        return
+    mesh.vertices.add(n)
+    mesh.vertices.foreach_set("co", np.ascontiguousarray(records["position"], np.float32).ravel())
+    names = records.dtype.names
+    if "scale" in names:
+        radius = mesh.attributes.get("radius") or mesh.attributes.new("radius", "FLOAT", "POINT")
+        radius.data.foreach_set("value", np.ascontiguousarray(records["scale"], np.float32))
+    if "color" in names:
+        color = mesh.attributes.get("color") or mesh.attributes.new("color", "FLOAT_COLOR", "POINT")
+        color.data.foreach_set("color", (records["color"].astype(np.float32) / 255.0).ravel())
+    mesh.update()
+
+
+@persistent
+def _on_frame_change(scene, depsgraph=None):
+    for obj in scene.objects:
+        if "pstream_path" in obj and obj.type == "MESH":
+            try:
+                update_preview(obj, scene)
+            except Exception as e:
+                print(f"ParticleStream: {obj.name}: {e}")
+
+
+def import_clip(context, filepath):
+    """A mesh object previewing the clip at `filepath`; returns it."""
+    clip = _clip(filepath)
+    name = os.path.splitext(os.path.basename(filepath))[0]
+    mesh = bpy.data.meshes.new(name)
+    obj = bpy.data.objects.new(name, mesh)
+    obj["pstream_path"] = filepath
+    context.collection.objects.link(obj)
+    update_preview(obj, context.scene)
+    return obj, clip
+
+
+class PSTREAM_OT_import(bpy.types.Operator, ImportHelper):
+    """Preview a .pstream as a point cloud that follows the clip on every frame"""
+    bl_idname = "pstream.import_clip"
+    bl_label = "Import ParticleStream"
+    filename_ext = ".pstream"
+    filter_glob: StringProperty(default="*.pstream", options={"HIDDEN"})
+
+    def execute(self, context):
+        try:
+            obj, clip = import_clip(context, self.filepath)
+        except Exception as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{obj.name}: {clip.frame_count} frames at {clip.fps:g} fps")
+        return {"FINISHED"}
+
+
+# ---- UI -------------------------------------------------------------------------------------------
+
+class PSTREAM_PT_panel(bpy.types.Panel):
+    bl_label = "ParticleStream"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "ParticleStream"
+
+    def draw(self, context):
+        layout = self.layout
+        obj = context.active_object
+        layout.label(text=f"Active: {obj.name}" if obj else "Select an emitter, fluid domain or mesh")
+        scene = context.scene
+        row = layout.row(align=True)
+        row.prop(scene, "frame_start", text="Start")
+        row.prop(scene, "frame_end", text="End")
+        layout.operator(PSTREAM_OT_export.bl_idname, icon="EXPORT")
+        layout.operator(PSTREAM_OT_import.bl_idname, icon="IMPORT")
+        if obj is not None and "pstream_path" in obj:
+            layout.label(text=f"Previewing {os.path.basename(obj['pstream_path'])}")
+
+
+def _menu_export(self, context):
+    self.layout.operator(PSTREAM_OT_export.bl_idname, text="ParticleStream (.pstream)")
+
+
+def _menu_import(self, context):
+    self.layout.operator(PSTREAM_OT_import.bl_idname, text="ParticleStream (.pstream)")
+
+
+_classes = (PSTREAM_OT_export, PSTREAM_OT_import, PSTREAM_PT_panel)
+
+
+def register():
+    for c in _classes:
+        bpy.utils.register_class(c)
+    bpy.types.TOPBAR_MT_file_export.append(_menu_export)
+    bpy.types.TOPBAR_MT_file_import.append(_menu_import)
+    if _on_frame_change not in bpy.app.handlers.frame_change_post:
+        bpy.app.handlers.frame_change_post.append(_on_frame_change)
+
+
+def unregister():
+    if _on_frame_change in bpy.app.handlers.frame_change_post:
+        bpy.app.handlers.frame_change_post.remove(_on_frame_change)
+    bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
+    bpy.types.TOPBAR_MT_file_export.remove(_menu_export)
+    for c in reversed(_classes):
+        bpy.utils.unregister_class(c)
+    _clips.clear()

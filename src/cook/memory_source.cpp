@@ -1,0 +1,148 @@
+// Particles handed over in memory (cook.hpp: MemoryClip) as a cook source: the Blender add-on's
+// and scripts' way in, cooked by the same path as a file.
+#define XXH_STATIC_LINKING_ONLY  // XXH3_state_t on the stack
+#include <xxhash.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include <fmt/format.h>
+
+#include "cook/source.hpp"
+
+namespace pstream::cook {
+namespace {
+
+class MemorySource final : public Source {
+ public:
+  MemorySource(const Options& options, const MemoryClip& clip) : clip_(clip) {
+    const std::string& name = clip.name;
+    if (clip.frames.empty()) throw Error(fmt::format("{}: no frames to cook", name));
+    if (!(clip.fps > 0 && std::isfinite(clip.fps)))
+      throw Error(fmt::format("{}: fps {} must be a positive number", name, clip.fps));
+    // An attribute is in the clip when a frame with particles has it; then every such frame must.
+    for (const MemoryFrame& f : clip.frames) {
+      if (f.count == 0) continue;
+      has_width_ = has_width_ || !f.width.empty();
+      has_velocity_ = has_velocity_ || !f.velocity.empty();
+      has_id_ = has_id_ || !f.id.empty();
+      has_color_ = has_color_ || !f.color.empty();
+    }
+    for (std::size_t i = 0; i < clip.frames.size(); ++i) {
+      const MemoryFrame& f = clip.frames[i];
+      if (!std::isfinite(f.time) || (i > 0 && !(f.time > clip.frames[i - 1].time))) {
+        throw Error(fmt::format("{}: frame {} is at time {} s, after frame {} at {} s: times must increase", name, i,
+                                f.time, i - 1, i > 0 ? clip.frames[i - 1].time : 0.0));
+      }
+      if (f.count > options.max_particles) {
+        throw OptionError("max_particles", fmt::format("{}: frame {} has {} particles, more than `max_particles`, {}",
+                                                       name, i, f.count, options.max_particles));
+      }
+      check(i, "position", f.position.size(), 3, true);
+      check(i, "width", f.width.size(), 1, has_width_);
+      check(i, "velocity", f.velocity.size(), 3, has_velocity_);
+      check(i, "id", f.id.size(), 1, has_id_);
+      check(i, "color", f.color.size(), 4, has_color_);
+      bytes_ += (f.position.size() + f.width.size() + f.velocity.size() + f.color.size()) * 4 + f.id.size() * 8;
+    }
+  }
+
+  std::string name() const override { return clip_.name; }
+  std::string object() const override { return clip_.object.empty() ? "particles" : clip_.object; }
+  double default_fps() const override { return clip_.fps; }
+  double start_time() const override { return clip_.frames.front().time; }
+  double end_time() const override { return clip_.frames.back().time; }
+  std::uint64_t input_bytes() const override { return bytes_; }
+  bool has_widths() const override { return has_width_; }
+  bool has_color() const override { return has_color_; }
+  bool has_velocity() const override { return has_velocity_; }
+  bool has_ids() const override { return has_id_; }
+  std::string why_no_ids() const override { return clip_.name + " has no particle ids"; }
+  bool can_interpolate() const override { return false; }
+  std::string why_no_interpolation() const override {
+    return clip_.name + ": particles handed over in memory are cooked frame by frame, each from the nearest one; cook "
+                        "without `interpolate`";
+  }
+  std::vector<std::filesystem::path> files() const override { return {}; }
+  void check_intact() const override {}
+  std::uint32_t float_components(const std::string&) const override { return 0; }
+  std::uint64_t content_hash() const override {
+    XXH3_state_t state;
+    XXH3_64bits_reset(&state);
+    const auto add = [&](const auto& span) { XXH3_64bits_update(&state, span.data(), span.size_bytes()); };
+    for (const MemoryFrame& f : clip_.frames) {
+      XXH3_64bits_update(&state, &f.time, sizeof f.time);
+      XXH3_64bits_update(&state, &f.count, sizeof f.count);
+      add(f.position), add(f.width), add(f.velocity), add(f.id), add(f.color);
+    }
+    return XXH3_64bits_digest(&state);
+  }
+
+  void read(double time, const Request& request, ParticleFrame& out) override {
+    const MemoryFrame& f = clip_.frames[nearest(time)];
+    const std::uint64_t base = out.count, n = f.count;
+    out.count += n;
+    ensure_size(out.position, out.count * 3);
+    std::copy(f.position.begin(), f.position.end(), out.position.begin() + static_cast<std::ptrdiff_t>(base * 3));
+    ensure_size(out.scale, out.count);
+    for (std::uint64_t i = 0; i < n; ++i) {
+      out.scale[base + i] = request.scale_from == ScaleFrom::Widths && has_width_ ? scale_from_width(f.width[i])
+                                                                                  : request.scale_constant;
+    }
+    if (request.scale_from == ScaleFrom::Attribute) {
+      throw Error(fmt::format("{}: no attribute '{}' to take the scale from (particles in memory have position, "
+                              "width, velocity, id and color)",
+                              clip_.name, request.scale_attribute));
+    }
+    if (request.color) {
+      ensure_size(out.color, out.count * 4);
+      for (std::uint64_t i = 0; i < n * 4; ++i) out.color[base * 4 + i] = to_unorm8(f.color[i]);
+    }
+    if (request.velocity) {
+      ensure_size(out.velocity, out.count * 3);
+      std::copy(f.velocity.begin(), f.velocity.end(), out.velocity.begin() + static_cast<std::ptrdiff_t>(base * 3));
+    }
+    if (request.id) {
+      ensure_size(out.id, out.count);
+      std::copy(f.id.begin(), f.id.end(), out.id.begin() + static_cast<std::ptrdiff_t>(base));
+    }
+  }
+
+ private:
+  void check(std::size_t frame, const char* what, std::size_t size, std::size_t components, bool present) const {
+    const MemoryFrame& f = clip_.frames[frame];
+    const std::size_t want = present ? f.count * components : 0;
+    if (size == want) return;
+    if (present && size == 0) {
+      throw Error(fmt::format("{}: frame {} has no {} array, but other frames have one: an attribute must be in "
+                              "every frame with particles or in none",
+                              clip_.name, frame, what));
+    }
+    throw Error(fmt::format("{}: frame {}: the {} array holds {} values, expected {} ({} particles x {})", clip_.name,
+                            frame, what, size, want, f.count, components));
+  }
+
+  // The frame nearest `time` (the earlier one on a tie).
+  std::size_t nearest(double time) const {
+    const auto& frames = clip_.frames;
+    const auto it = std::lower_bound(frames.begin(), frames.end(), time,
+                                     [](const MemoryFrame& f, double t) { return f.time < t; });
+    if (it == frames.begin()) return 0;
+    if (it == frames.end()) return frames.size() - 1;
+    const auto i = static_cast<std::size_t>(it - frames.begin());
+    return time - frames[i - 1].time <= frames[i].time - time ? i - 1 : i;
+  }
+
+  const MemoryClip& clip_;
+  bool has_width_ = false, has_velocity_ = false, has_id_ = false, has_color_ = false;
+  std::uint64_t bytes_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<Source> open_memory(const Options& options, const MemoryClip& clip) {
+  return std::make_unique<MemorySource>(options, clip);
+}
+
+}  // namespace pstream::cook

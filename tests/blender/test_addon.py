@@ -1,0 +1,152 @@
+"""The Blender add-on (blender/particlestream_blender), under Debian's Blender headless:
+
+    blender -b --factory-startup --python-use-system-env --python-exit-code 1 \
+        --python tests/blender/test_addon.py -- WORK_DIR
+
+1. A particle scene (an emitter with births over frames 1-10, gravity, lifetimes that end inside
+   the range, so particles are born and die) is exported with the add-on's operator; every
+   exported particle is compared, by id, with Blender's evaluated positions at every frame: the
+   same particles alive, each position within the codec's bound.
+2. The clip is imported back: at every frame the preview mesh's vertices equal the clip's
+   decoded positions exactly, with its sizes as the 'radius' attribute.
+3. A mesh whose vertices move (a wave through a displace modifier) exports its vertices.
+Exits non-zero on the first failure (--python-exit-code).
+"""
+import os
+import pathlib
+import sys
+
+import bpy
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "blender"))
+import particlestream as ps  # noqa: E402
+import particlestream_blender as addon  # noqa: E402
+
+work = pathlib.Path(sys.argv[sys.argv.index("--") + 1] if "--" in sys.argv else "/tmp")
+addon.register()
+scene = bpy.context.scene
+scene.render.fps = 24
+scene.frame_start, scene.frame_end = 1, 30
+
+
+def check(condition, message):
+    if not condition:
+        raise AssertionError(message)
+
+
+def reference(obj, frame):
+    """Blender's own answer: alive particles' index -> location, world space."""
+    scene.frame_set(frame)
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    out = {}
+    for p_index, p in enumerate(evaluated.particle_systems[0].particles):
+        if p.alive_state == "ALIVE":
+            out[p_index] = np.array(p.location, np.float64)
+    return out
+
+
+# ---- 1. particles out ----------------------------------------------------------------------------
+bpy.ops.mesh.primitive_ico_sphere_add(radius=0.5, location=(0.2, 0.1, 1.0))
+emitter = bpy.context.active_object
+emitter.modifiers.new("sparks", "PARTICLE_SYSTEM")
+settings = emitter.particle_systems[0].settings
+settings.count = 800
+settings.frame_start, settings.frame_end = 1, 10
+settings.lifetime, settings.lifetime_random = 14, 0.5
+settings.normal_factor = 2.0
+settings.particle_size, settings.size_random = 0.03, 0.5
+settings.use_rotations = False
+
+clip_path = str(work / "sparks.pstream")
+result = bpy.ops.pstream.export(filepath=clip_path, frame_start=1, frame_end=30, ids=True)
+check(result == {"FINISHED"}, f"export: {result}")
+clip = ps.Clip(clip_path)
+check(clip.frame_count == 30, f"{clip.frame_count} frames, expected 30")
+check(abs(clip.fps - 24) < 1e-9, f"fps {clip.fps}")
+names = [a[0] for a in clip.layout]
+check({"position", "scale", "velocity", "id"} <= set(names), f"layout {names}")
+
+all_points = np.concatenate([clip.read_frame(k)["position"] for k in range(30) if clip.count(k)])
+diagonal = float(np.linalg.norm(all_points.max(axis=0) - all_points.min(axis=0)))
+bound = 1e-4 * diagonal * 1.01  # the default bound: 1e-4 of the source's diagonal (the decoded one, 1 % slack)
+worst, compared, births, deaths = 0.0, 0, 0, 0
+previous = set()
+for k in range(30):
+    want = reference(emitter, k + 1)
+    records = clip.read_frame(k)
+    got = {int(i): p for i, p in zip(records["id"], records["position"])}
+    check(set(got) == set(want), f"frame {k + 1}: ids differ: {len(set(got) ^ set(want))} of {len(want)}")
+    for i, p in got.items():
+        worst = max(worst, float(np.abs(p.astype(np.float64) - want[i]).max()))
+    compared += len(got)
+    births += len(set(got) - previous)
+    deaths += len(previous - set(got))
+    previous = set(got)
+check(worst <= bound, f"worst position error {worst} > bound {bound}")
+check(deaths > 0 and births > 100, f"the scene should have births and deaths: {births} born, {deaths} died")
+print(f"export: {compared} particles over 30 frames ({births} born, {deaths} died), worst error {worst:.3g} "
+      f"(bound {bound:.3g})")
+
+# Velocities: derived from the positions (the particles have ids), against Blender's own.
+scene.frame_set(12)
+evaluated = emitter.evaluated_get(bpy.context.evaluated_depsgraph_get())
+blender_velocity = {i: np.array(p.velocity) for i, p in enumerate(evaluated.particle_systems[0].particles)
+                    if p.alive_state == "ALIVE"}
+records = clip.read_frame(11)
+diff = np.array([records["velocity"][k] - blender_velocity[int(i)] for k, i in enumerate(records["id"])])
+speed = np.array([blender_velocity[int(i)] for i in records["id"]])
+rms = float(np.sqrt((diff ** 2).sum(axis=1).mean() / (speed ** 2).sum(axis=1).mean()))
+check(rms < 0.08, f"derived velocity RMS error {rms:.3%} of Blender's speed")
+print(f"velocity: derived within {rms:.2%} RMS of Blender's (units per second)")
+
+# Sizes: the record's scale is Blender's particle size (a radius).
+scene.frame_set(20)
+evaluated = emitter.evaluated_get(bpy.context.evaluated_depsgraph_get())
+sizes = {i: p.size for i, p in enumerate(evaluated.particle_systems[0].particles) if p.alive_state == "ALIVE"}
+records = clip.read_frame(19)
+size_error = max(abs(float(s) - sizes[int(i)]) / sizes[int(i)] for i, s in zip(records["id"], records["scale"]))
+check(size_error <= 0.0101, f"scale relative error {size_error} > 1 %")
+print(f"sizes within {size_error:.3%} of Blender's")
+
+# ---- 2. the clip back in ---------------------------------------------------------------------------
+result = bpy.ops.pstream.import_clip(filepath=clip_path)
+check(result == {"FINISHED"}, f"import: {result}")
+preview = bpy.context.scene.objects["sparks"]
+for k in range(30):
+    scene.frame_set(k + 1)
+    records = clip.read_frame(k)
+    mesh = preview.data
+    check(len(mesh.vertices) == len(records), f"frame {k + 1}: {len(mesh.vertices)} vertices, clip {len(records)}")
+    if len(records) == 0:
+        continue
+    co = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", co)
+    check(np.array_equal(co.reshape(-1, 3), records["position"]), f"frame {k + 1}: vertices differ from the clip")
+    radius = np.empty(len(mesh.vertices), np.float32)
+    mesh.attributes["radius"].data.foreach_get("value", radius)
+    check(np.array_equal(radius, records["scale"]), f"frame {k + 1}: radius differs from the clip's scale")
+print("import: the preview mesh equals the clip at all 30 frames")
+
+# ---- 3. a mesh's vertices --------------------------------------------------------------------------
+bpy.ops.mesh.primitive_grid_add(x_subdivisions=20, y_subdivisions=20, size=2)
+grid = bpy.context.active_object
+texture = bpy.data.textures.new("wave", "WOOD")
+wave = grid.modifiers.new("wave", "WAVE")
+wave.height = 0.3
+mesh_path = str(work / "grid.pstream")
+check(bpy.ops.pstream.export(filepath=mesh_path, frame_start=1, frame_end=12, ids=True) == {"FINISHED"}, "mesh export")
+grid_clip = ps.Clip(mesh_path)
+scene.frame_set(7)
+evaluated = grid.evaluated_get(bpy.context.evaluated_depsgraph_get())
+want = np.array([evaluated.matrix_world @ v.co for v in evaluated.data.vertices], np.float64)
+got = grid_clip.read_frame(6)
+order = np.argsort(got["id"])
+error = float(np.abs(got["position"][order].astype(np.float64) - want).max())
+check(grid_clip.count(6) == len(want), f"{grid_clip.count(6)} vertices, expected {len(want)}")
+check(error <= 1e-4 * 3.0, f"vertex error {error}")
+print(f"mesh vertices: {len(want)} per frame, worst error {error:.3g}")
+
+addon.unregister()
+print("blender add-on: all checks passed")
