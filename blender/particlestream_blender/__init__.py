@@ -3,7 +3,7 @@
 Export takes the active object's particle systems (emitters, and a fluid domain's liquid
 particles, which Blender keeps as particle systems), or a mesh or point cloud's vertices, frame by
 frame from Blender's evaluated data, and cooks them with the `particlestream` module (no Alembic
-involved). Import brings a clip in as a mesh whose vertices follow the clip on every frame change,
+involved), turned Y-up as Blender's Alembic exporter turns them. Import brings a clip in as a mesh whose vertices follow the clip on every frame change,
 with the clip's sizes and colours as point attributes. docs/blender.md has the details.
 
 Needs the `particlestream` Python module where Blender's Python finds it (`pip install .` from
@@ -15,7 +15,7 @@ bl_info = {
     "author": "ParticleStream",
     "version": (0, 1, 0),
     "blender": (3, 4, 0),
-    "location": "File > Import/Export > ParticleStream (.pstream); View3D > Sidebar > ParticleStream",
+    "location": "File > Import/Export > ParticleStream (.pstream); Properties > Object > ParticleStream",
     "description": "Export particles to .pstream clips and preview clips as animated point clouds",
     "category": "Import-Export",
 }
@@ -25,10 +25,22 @@ import os
 import bpy
 import numpy as np
 from bpy.app.handlers import persistent
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, PointerProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 _ALIVE = 3  # Particle.alive_state's value for 'ALIVE' (DEAD 1, UNBORN 2, ALIVE 3, DYING 4)
+
+
+# Blender is Z-up; .pstream clips, Alembic and the engines they go to are Y-up. Export turns
+# Blender's (x, y, z) into (x, z, -y), as Blender's own Alembic exporter does; import turns it back.
+def to_y_up(v):
+    v = np.asarray(v, np.float32).reshape(-1, 3)
+    return np.ascontiguousarray(np.stack([v[:, 0], v[:, 2], -v[:, 1]], axis=1))
+
+
+def to_z_up(v):
+    v = np.asarray(v, np.float32).reshape(-1, 3)
+    return np.ascontiguousarray(np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1))
 _clips = {}  # path -> particlestream.Clip, opened once per session
 
 
@@ -120,6 +132,9 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             if frame is None:
                 raise RuntimeError(f"{obj.name} has no particle systems, mesh vertices or points to export")
             frame["time"] = f / fps
+            frame["position"] = to_y_up(frame["position"])
+            if "velocity" in frame:
+                frame["velocity"] = to_y_up(frame["velocity"])
             counts.add(len(frame["position"]))
             frames.append(frame)
             wm.progress_update(k + 1)
@@ -142,6 +157,14 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
         scene.frame_set(current)
 
 
+_CODECS = [
+    ("particle", "Particle", "Error-bounded, predicted over time: about 1-3 bytes a particle a frame"),
+    ("particle-lossless", "Lossless", "Bit-exact positions, the source order kept"),
+    ("zstd", "zstd", "The records as they are, chunk-compressed")]
+_ERROR_HELP = "Position bound: a fraction of the clip's bounds diagonal (1e-4), or abs:0.001 in scene units"
+_IDS_HELP = "Keep each particle's id in the clip (frames are ordered by id either way)"
+
+
 class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
     """Cook the active object's particles (particle systems, a fluid's liquid particles, or its
     vertices) over the frame range into a .pstream"""
@@ -151,15 +174,9 @@ class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
     filter_glob: StringProperty(default="*.pstream", options={"HIDDEN"})
     frame_start: IntProperty(name="Start", description="First frame (0: the scene's)", default=0)
     frame_end: IntProperty(name="End", description="Last frame (0: the scene's)", default=0)
-    codec: EnumProperty(name="Codec", default="particle", items=[
-        ("particle", "Particle", "Error-bounded, predicted over time: about 1-3 bytes a particle a frame"),
-        ("particle-lossless", "Lossless", "Bit-exact positions, the source order kept"),
-        ("zstd", "zstd", "The records as they are, chunk-compressed")])
-    error: StringProperty(name="Error", default="1e-4",
-                          description="Position bound: a fraction of the clip's bounds diagonal (1e-4), or abs:0.001 "
-                                      "in scene units")
-    ids: BoolProperty(name="Store ids", default=False,
-                      description="Keep each particle's id in the clip (frames are ordered by id either way)")
+    codec: EnumProperty(name="Codec", default="particle", items=_CODECS)
+    error: StringProperty(name="Error", default="1e-4", description=_ERROR_HELP)
+    ids: BoolProperty(name="Store ids", default=False, description=_IDS_HELP)
 
     def execute(self, context):
         obj = context.active_object
@@ -198,8 +215,8 @@ def clip_frame_at(clip, scene_time):
 
 
 def update_preview(obj, scene):
-    """Sets the preview mesh's vertices to the clip's frame at the scene's time, with 'radius' (the
-    record's scale) and 'color' point attributes."""
+    """Sets the preview mesh's vertices to the clip's frame at the scene's time (turned Z-up), with
+    'radius' (the record's scale) and 'color' point attributes."""
     clip = _clip(bpy.path.abspath(obj["pstream_path"]))
     fps = scene.render.fps / scene.render.fps_base
     frame = clip_frame_at(clip, scene.frame_current / fps)
@@ -210,7 +227,7 @@ def update_preview(obj, scene):
     if n == 0:
         return
     mesh.vertices.add(n)
-    mesh.vertices.foreach_set("co", np.ascontiguousarray(records["position"], np.float32).ravel())
+    mesh.vertices.foreach_set("co", to_z_up(records["position"]).ravel())
     names = records.dtype.names
     if "scale" in names:
         radius = mesh.attributes.get("radius") or mesh.attributes.new("radius", "FLOAT", "POINT")
@@ -262,24 +279,43 @@ class PSTREAM_OT_import(bpy.types.Operator, ImportHelper):
 
 # ---- UI -------------------------------------------------------------------------------------------
 
+class PSTREAM_settings(bpy.types.PropertyGroup):
+    """The panel's export settings, kept with the scene."""
+    filepath: StringProperty(name="File", subtype="FILE_PATH", default="//particles.pstream",
+                             description="The .pstream to write (// is the .blend file's folder)")
+    codec: EnumProperty(name="Codec", default="particle", items=_CODECS)
+    error: StringProperty(name="Error", default="1e-4", description=_ERROR_HELP)
+    ids: BoolProperty(name="Store ids", default=False, description=_IDS_HELP)
+
+
 class PSTREAM_PT_panel(bpy.types.Panel):
+    """Object properties: export the active object's particles with the codec's options, or
+    preview a clip."""
     bl_label = "ParticleStream"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "ParticleStream"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "object"
+    bl_order = 0  # first among the object's panels
 
     def draw(self, context):
         layout = self.layout
+        settings = context.scene.pstream
         obj = context.active_object
-        layout.label(text=f"Active: {obj.name}" if obj else "Select an emitter, fluid domain or mesh")
-        scene = context.scene
-        row = layout.row(align=True)
-        row.prop(scene, "frame_start", text="Start")
-        row.prop(scene, "frame_end", text="End")
-        layout.operator(PSTREAM_OT_export.bl_idname, icon="EXPORT")
-        layout.operator(PSTREAM_OT_import.bl_idname, icon="IMPORT")
         if obj is not None and "pstream_path" in obj:
-            layout.label(text=f"Previewing {os.path.basename(obj['pstream_path'])}")
+            layout.label(text=f"Previewing {os.path.basename(obj['pstream_path'])}", icon="PARTICLES")
+        col = layout.column(align=True)
+        col.prop(settings, "filepath")
+        col.prop(settings, "codec")
+        if settings.codec == "particle":
+            col.prop(settings, "error")
+        col.prop(settings, "ids")
+        row = layout.row(align=True)
+        row.prop(context.scene, "frame_start", text="Start")
+        row.prop(context.scene, "frame_end", text="End")
+        op = layout.operator(PSTREAM_OT_export.bl_idname, text="Export", icon="EXPORT")
+        op.filepath = bpy.path.abspath(settings.filepath)
+        op.codec, op.error, op.ids = settings.codec, settings.error, settings.ids
+        layout.operator(PSTREAM_OT_import.bl_idname, text="Import a clip", icon="IMPORT")
 
 
 def _menu_export(self, context):
@@ -290,12 +326,13 @@ def _menu_import(self, context):
     self.layout.operator(PSTREAM_OT_import.bl_idname, text="ParticleStream (.pstream)")
 
 
-_classes = (PSTREAM_OT_export, PSTREAM_OT_import, PSTREAM_PT_panel)
+_classes = (PSTREAM_settings, PSTREAM_OT_export, PSTREAM_OT_import, PSTREAM_PT_panel)
 
 
 def register():
     for c in _classes:
         bpy.utils.register_class(c)
+    bpy.types.Scene.pstream = PointerProperty(type=PSTREAM_settings)
     bpy.types.TOPBAR_MT_file_export.append(_menu_export)
     bpy.types.TOPBAR_MT_file_import.append(_menu_import)
     if _on_frame_change not in bpy.app.handlers.frame_change_post:
@@ -307,6 +344,7 @@ def unregister():
         bpy.app.handlers.frame_change_post.remove(_on_frame_change)
     bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
     bpy.types.TOPBAR_MT_file_export.remove(_menu_export)
+    del bpy.types.Scene.pstream
     for c in reversed(_classes):
         bpy.utils.unregister_class(c)
     _clips.clear()

@@ -7,8 +7,9 @@
    the range, so particles are born and die) is exported with the add-on's operator; every
    exported particle is compared, by id, with Blender's evaluated positions at every frame: the
    same particles alive, each position within the codec's bound.
+   Clips are Y-up: Blender's (x, y, z) is the clip's (x, z, -y).
 2. The clip is imported back: at every frame the preview mesh's vertices equal the clip's
-   decoded positions exactly, with its sizes as the 'radius' attribute.
+   decoded positions exactly (turned Z-up), with its sizes as the 'radius' attribute.
 3. A mesh whose vertices move (a wave through a displace modifier) exports its vertices.
 Exits non-zero on the first failure (--python-exit-code).
 """
@@ -43,7 +44,8 @@ def reference(obj, frame):
     out = {}
     for p_index, p in enumerate(evaluated.particle_systems[0].particles):
         if p.alive_state == "ALIVE":
-            out[p_index] = np.array(p.location, np.float64)
+            x, y, z = p.location
+            out[p_index] = np.array([x, z, -y], np.float64)  # the clip is Y-up
     return out
 
 
@@ -92,8 +94,8 @@ print(f"export: {compared} particles over 30 frames ({births} born, {deaths} die
 # Velocities: derived from the positions (the particles have ids), against Blender's own.
 scene.frame_set(12)
 evaluated = emitter.evaluated_get(bpy.context.evaluated_depsgraph_get())
-blender_velocity = {i: np.array(p.velocity) for i, p in enumerate(evaluated.particle_systems[0].particles)
-                    if p.alive_state == "ALIVE"}
+blender_velocity = {i: np.array([p.velocity[0], p.velocity[2], -p.velocity[1]])
+                    for i, p in enumerate(evaluated.particle_systems[0].particles) if p.alive_state == "ALIVE"}
 records = clip.read_frame(11)
 diff = np.array([records["velocity"][k] - blender_velocity[int(i)] for k, i in enumerate(records["id"])])
 speed = np.array([blender_velocity[int(i)] for i in records["id"]])
@@ -123,11 +125,17 @@ for k in range(30):
         continue
     co = np.empty(len(mesh.vertices) * 3, np.float32)
     mesh.vertices.foreach_get("co", co)
-    check(np.array_equal(co.reshape(-1, 3), records["position"]), f"frame {k + 1}: vertices differ from the clip")
+    p = records["position"]
+    z_up = np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
+    check(np.array_equal(co.reshape(-1, 3), z_up), f"frame {k + 1}: vertices differ from the clip (turned Z-up)")
     radius = np.empty(len(mesh.vertices), np.float32)
     mesh.attributes["radius"].data.foreach_get("value", radius)
     check(np.array_equal(radius, records["scale"]), f"frame {k + 1}: radius differs from the clip's scale")
 print("import: the preview mesh equals the clip at all 30 frames")
+# Upright: the emitter sits at z = 1 in Blender and gravity pulls along -z; in the clip that is
+# +y up, so the particles' mean height falls over the clip.
+heights = [float(clip.read_frame(k)["position"][:, 1].mean()) for k in (2, 12)]
+check(heights[1] < heights[0], f"the clip's particles should fall along -y: mean y {heights}")
 
 # ---- 3. a mesh's vertices --------------------------------------------------------------------------
 bpy.ops.mesh.primitive_grid_add(x_subdivisions=20, y_subdivisions=20, size=2)
@@ -140,7 +148,8 @@ check(bpy.ops.pstream.export(filepath=mesh_path, frame_start=1, frame_end=12, id
 grid_clip = ps.Clip(mesh_path)
 scene.frame_set(7)
 evaluated = grid.evaluated_get(bpy.context.evaluated_depsgraph_get())
-want = np.array([evaluated.matrix_world @ v.co for v in evaluated.data.vertices], np.float64)
+want = np.array([(lambda w: (w.x, w.z, -w.y))(evaluated.matrix_world @ v.co) for v in evaluated.data.vertices],
+                np.float64)
 got = grid_clip.read_frame(6)
 order = np.argsort(got["id"])
 error = float(np.abs(got["position"][order].astype(np.float64) - want).max())
