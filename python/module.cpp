@@ -348,9 +348,9 @@ PYBIND11_MODULE(particlestream, m) {
                                const std::string& attribute_error, const std::string& frames, bool merge,
                                const std::string& scale_from, const std::string& color_from, bool velocity,
                                std::uint32_t keyframe_interval, bool drop_invalid, bool store_velocity) {
-        cook::Options o = cook_options(output, fps, codec, std::move(attributes), error, scale_error, attribute_error,
-                                       frames, scale_from, color_from, velocity, keyframe_interval, drop_invalid,
-                                       store_velocity);
+        cook::Options o =
+            cook_options(output, fps, codec, std::move(attributes), error, scale_error, attribute_error, frames,
+                         scale_from, color_from, velocity, keyframe_interval, drop_invalid, store_velocity);
         o.input = input;
         o.object = object;
         o.merge = merge;
@@ -376,17 +376,16 @@ PYBIND11_MODULE(particlestream, m) {
 
   m.def(
       "cook_particles",
-      [cook_options, run_cook](const py::sequence& frames, const std::filesystem::path& output, double fps,
-                               const std::string& name, const std::string& object, const std::string& codec,
-                               std::vector<std::string> attributes,
-                               const std::function<void(std::uint64_t, std::uint64_t)>& progress,
-                               const std::string& error, const std::string& scale_error,
-                               const std::string& attribute_error, const std::string& frame_range,
-                               const std::string& scale_from, const std::string& color_from, bool velocity,
-                               std::uint32_t keyframe_interval, bool drop_invalid, bool store_velocity) {
-        cook::Options o = cook_options(output, 0.0, codec, std::move(attributes), error, scale_error, attribute_error,
-                                       frame_range, scale_from, color_from, velocity, keyframe_interval, drop_invalid,
-                                       store_velocity);
+      [cook_options, run_cook](
+          const py::sequence& frames, const std::filesystem::path& output, double fps, const std::string& name,
+          const std::string& object, const std::string& codec, std::vector<std::string> attributes,
+          const std::function<void(std::uint64_t, std::uint64_t)>& progress, const std::string& error,
+          const std::string& scale_error, const std::string& attribute_error, const std::string& frame_range,
+          const std::string& scale_from, const std::string& color_from, bool velocity, std::uint32_t keyframe_interval,
+          bool drop_invalid, bool store_velocity) {
+        cook::Options o =
+            cook_options(output, 0.0, codec, std::move(attributes), error, scale_error, attribute_error, frame_range,
+                         scale_from, color_from, velocity, keyframe_interval, drop_invalid, store_velocity);
         cook::MemoryClip clip;
         clip.name = name;
         clip.object = object;
@@ -403,8 +402,10 @@ PYBIND11_MODULE(particlestream, m) {
         for (std::size_t i = 0; i < frames.size(); ++i) {
           const py::object item = frames[i];
           if (!py::isinstance<py::dict>(item))
-            throw Error(fmt::format("{}: frame {} is not a dict (time, position, and optionally width, velocity, id, "
-                                    "color)", name, i));
+            throw Error(
+                fmt::format("{}: frame {} is not a dict (time, position, and optionally width, velocity, id, "
+                            "color)",
+                            name, i));
           const py::dict f = item.cast<py::dict>();
           if (!f.contains("time") || !f.contains("position"))
             throw Error(fmt::format("{}: frame {} needs 'time' (seconds) and 'position' (N x 3)", name, i));

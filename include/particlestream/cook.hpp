@@ -115,11 +115,11 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
 struct MemoryFrame {
   double time = 0.0;  // seconds; frames in increasing time, on the clip's frame grid
   std::uint64_t count = 0;
-  std::span<const float> position;     // required
-  std::span<const float> width;        // diameters, as Alembic's widths (the record's scale is half)
-  std::span<const float> velocity;     // scene units per second
-  std::span<const std::uint64_t> id;   // stable across frames: what the codec and interpolation match
-  std::span<const float> color;        // linear RGBA in [0, 1]
+  std::span<const float> position;    // required
+  std::span<const float> width;       // diameters, as Alembic's widths (the record's scale is half)
+  std::span<const float> velocity;    // scene units per second
+  std::span<const std::uint64_t> id;  // stable across frames: what the codec and interpolation match
+  std::span<const float> color;       // linear RGBA in [0, 1]
 };
 struct MemoryClip {
   std::string name;    // for messages and the header's source (say where the particles came from)

@@ -61,8 +61,9 @@ class MemorySource final : public Source {
   std::string why_no_ids() const override { return clip_.name + " has no particle ids"; }
   bool can_interpolate() const override { return false; }
   std::string why_no_interpolation() const override {
-    return clip_.name + ": particles handed over in memory are cooked frame by frame, each from the nearest one; cook "
-                        "without `interpolate`";
+    return clip_.name +
+           ": particles handed over in memory are cooked frame by frame, each from the nearest one; cook "
+           "without `interpolate`";
   }
   std::vector<std::filesystem::path> files() const override { return {}; }
   void check_intact() const override {}
@@ -87,13 +88,14 @@ class MemorySource final : public Source {
     std::copy(f.position.begin(), f.position.end(), out.position.begin() + static_cast<std::ptrdiff_t>(base * 3));
     ensure_size(out.scale, out.count);
     for (std::uint64_t i = 0; i < n; ++i) {
-      out.scale[base + i] = request.scale_from == ScaleFrom::Widths && has_width_ ? scale_from_width(f.width[i])
-                                                                                  : request.scale_constant;
+      out.scale[base + i] =
+          request.scale_from == ScaleFrom::Widths && has_width_ ? scale_from_width(f.width[i]) : request.scale_constant;
     }
     if (request.scale_from == ScaleFrom::Attribute) {
-      throw Error(fmt::format("{}: no attribute '{}' to take the scale from (particles in memory have position, "
-                              "width, velocity, id and color)",
-                              clip_.name, request.scale_attribute));
+      throw Error(
+          fmt::format("{}: no attribute '{}' to take the scale from (particles in memory have position, "
+                      "width, velocity, id and color)",
+                      clip_.name, request.scale_attribute));
     }
     if (request.color) {
       ensure_size(out.color, out.count * 4);
@@ -115,9 +117,10 @@ class MemorySource final : public Source {
     const std::size_t want = present ? f.count * components : 0;
     if (size == want) return;
     if (present && size == 0) {
-      throw Error(fmt::format("{}: frame {} has no {} array, but other frames have one: an attribute must be in "
-                              "every frame with particles or in none",
-                              clip_.name, frame, what));
+      throw Error(
+          fmt::format("{}: frame {} has no {} array, but other frames have one: an attribute must be in "
+                      "every frame with particles or in none",
+                      clip_.name, frame, what));
     }
     throw Error(fmt::format("{}: frame {}: the {} array holds {} values, expected {} ({} particles x {})", clip_.name,
                             frame, what, size, want, f.count, components));
@@ -126,8 +129,8 @@ class MemorySource final : public Source {
   // The frame nearest `time` (the earlier one on a tie).
   std::size_t nearest(double time) const {
     const auto& frames = clip_.frames;
-    const auto it = std::lower_bound(frames.begin(), frames.end(), time,
-                                     [](const MemoryFrame& f, double t) { return f.time < t; });
+    const auto it =
+        std::lower_bound(frames.begin(), frames.end(), time, [](const MemoryFrame& f, double t) { return f.time < t; });
     if (it == frames.begin()) return 0;
     if (it == frames.end()) return frames.size() - 1;
     const auto i = static_cast<std::size_t>(it - frames.begin());
