@@ -1,12 +1,15 @@
 // The command line a user types: typos get "did you mean" (issue #27's first CLI item).
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "particlestream/format.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -46,48 +49,70 @@ TEST(Cli, TyposGetDidYouMean) {
 
 namespace {
 
-// export: a clip with empty frames round-trips through Alembic and through PLY exactly; -o's
-// extension chooses the format (.ply a sequence), and another extension is refused with nothing
-// written.
+// export: a clip with empty frames round-trips through Alembic and through PLY exactly, and so
+// does the Blender sparks fixture (births and deaths, ids, colours, velocities); -o's extension
+// chooses the format (.ply a sequence), and another extension is refused with nothing written.
 TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
   namespace fs = std::filesystem;
   const fs::path dir = pstream::test::fresh_dir();
   const std::string abc = pstream::test::data_path("alembic/points_empty_frames.abc");
   const auto q = [](const fs::path& p) { return fmt::format("'{}'", p.string()); };
-  ASSERT_EQ(run_cli("cook -q --codec raw " + q(abc) + " -o " + q(dir / "clip.pstream")).exit_code, 0);
-  auto r = run_cli("export -q " + q(dir / "clip.pstream") + " -o " + q(dir / "back.abc"));
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  r = run_cli("export -q " + q(dir / "clip.pstream") + " -o " + q(dir / "seq" / "fx.ply"));
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_TRUE(fs::exists(dir / "seq" / "fx.0001.ply"));
-  ASSERT_EQ(run_cli("cook -q --codec raw " + q(dir / "back.abc") + " -o " + q(dir / "from_abc.pstream")).exit_code, 0);
-  r = run_cli("cook -q --codec raw " + q(dir / "seq" / "fx.0001.ply") + " --fps 24 -o " + q(dir / "from_ply.pstream"));
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  // Every frame's count and sums equal the clip's (info --json --frames: float64 sums of x y z scale).
+  // Every frame's count and sums (info --json --frames: float64 sums of x y z scale).
   const auto frames = [&](const fs::path& clip) {
     const auto j = nlohmann::json::parse(run_cli("info --json --frames " + q(clip)).output);
     return j["frames"];
   };
-  const auto original = frames(dir / "clip.pstream");
   std::size_t empty = 0;
-  for (const fs::path& copy : {dir / "from_abc.pstream", dir / "from_ply.pstream"}) {
-    const auto back = frames(copy);
-    ASSERT_EQ(back.size(), original.size()) << copy;
-    for (std::size_t f = 0; f < original.size(); ++f) {
-      EXPECT_EQ(back[f]["count"], original[f]["count"]) << copy << " frame " << f;
-      EXPECT_EQ(back[f]["sum"], original[f]["sum"]) << copy << " frame " << f;
-      empty += original[f]["count"] == 0;
+  for (const auto& [source, extra] : {std::pair<std::string, std::string>{abc, ""},
+                                      {pstream::test::data_path("sims/blender_sparks.abc"), " --attributes id"}}) {
+    const fs::path sub = dir / fs::path(source).stem();
+    fs::create_directories(sub);
+    ASSERT_EQ(run_cli("cook -q --codec raw" + extra + " " + q(source) + " -o " + q(sub / "clip.pstream")).exit_code, 0);
+    auto r = run_cli("export -q " + q(sub / "clip.pstream") + " -o " + q(sub / "back.abc"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    r = run_cli("export -q " + q(sub / "clip.pstream") + " -o " + q(sub / "seq" / "fx.ply"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_TRUE(fs::exists(sub / "seq" / "fx.0001.ply"));
+    r = run_cli("cook -q --codec raw" + extra + " " + q(sub / "back.abc") + " -o " + q(sub / "from_abc.pstream"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    r = run_cli("cook -q --codec raw" + extra + " " + q(sub / "seq" / "fx.0001.ply") + " --fps 24 -o " +
+                q(sub / "from_ply.pstream"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    const auto original = frames(sub / "clip.pstream");
+    for (const fs::path& copy : {sub / "from_abc.pstream", sub / "from_ply.pstream"}) {
+      const auto back = frames(copy);
+      ASSERT_EQ(back.size(), original.size()) << copy;
+      for (std::size_t f = 0; f < original.size(); ++f) {
+        EXPECT_EQ(back[f]["count"], original[f]["count"]) << copy << " frame " << f;
+        EXPECT_EQ(back[f]["sum"], original[f]["sum"]) << copy << " frame " << f;
+        empty += original[f]["count"] == 0;
+      }
+    }
+    // The records themselves, ids and colours included, equal the clip's at every frame.
+    for (const fs::path& copy : {sub / "from_abc.pstream", sub / "from_ply.pstream"}) {
+      const auto a = pstream::format::Reader::open(sub / "clip.pstream");
+      const auto b = pstream::format::Reader::open(copy);
+      ASSERT_EQ(a.metadata().record_size, b.metadata().record_size) << copy;
+      std::vector<std::byte> ra = pstream::format::frame_buffer(a.metadata(), a.name());
+      std::vector<std::byte> rb = pstream::format::frame_buffer(b.metadata(), b.name());
+      for (std::uint64_t f = 0; f < a.metadata().frame_count(); ++f) {
+        a.read_frame(f, ra);
+        b.read_frame(f, rb);
+        const std::size_t n = a.metadata().frames[f].count * a.metadata().record_size;
+        EXPECT_EQ(std::memcmp(ra.data(), rb.data(), n), 0) << copy << " frame " << f;
+      }
     }
   }
   EXPECT_GT(empty, 0u) << "the fixture's empty frames";
   // Writing over the clip's own source (its name and content hash, as the cook recorded them) is
   // refused, and the source is left as it was.
   fs::copy_file(abc, dir / "points_empty_frames.abc");
-  r = run_cli("export -q " + q(dir / "clip.pstream") + " -o " + q(dir / "points_empty_frames.abc"));
+  auto r = run_cli("export -q " + q(dir / "points_empty_frames" / "clip.pstream") + " -o " +
+                   q(dir / "points_empty_frames.abc"));
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("is the source"), std::string::npos) << r.output;
   EXPECT_EQ(fs::file_size(dir / "points_empty_frames.abc"), fs::file_size(abc));
-  r = run_cli("export -q " + q(dir / "clip.pstream") + " -o " + q(dir / "x.txt"));
+  r = run_cli("export -q " + q(dir / "points_empty_frames" / "clip.pstream") + " -o " + q(dir / "x.txt"));
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("the extension chooses the format"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir / "x.txt"));

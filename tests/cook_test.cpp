@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 #include <hwy/targets.h>
 
+#include "cook/source.hpp"  // to_unorm8: the colour rule every source keeps
 #include "particlestream/alembic.hpp"
 #include "particlestream/alembic_writer.hpp"
 #include "particlestream/cook.hpp"
@@ -538,6 +539,105 @@ TEST(CookPly, GapsMismatchesAndNaN) {
   const cook::Report r = cook::cook(o);
   EXPECT_EQ(r.dropped_invalid, 2u);
   EXPECT_EQ(format::Reader::open(o.output).metadata().frames[0].count, 2u);
+}
+
+}  // namespace
+
+namespace {
+
+// Particles handed over in memory (cook.hpp: MemoryClip) cook as a file does: every record equals
+// what was handed over (raw records: positions exact, scale half the width, colours as RGBA8, ids),
+// births and deaths included; inconsistent arrays are refused naming the frame and the array.
+TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
+  constexpr std::size_t kFrames = 12;
+  std::vector<std::vector<float>> position(kFrames), width(kFrames), velocity(kFrames), color(kFrames);
+  std::vector<std::vector<std::uint64_t>> id(kFrames);
+  pstream::cook::MemoryClip clip;
+  clip.name = "memory test";
+  clip.fps = 24;
+  for (std::size_t f = 0; f < kFrames; ++f) {
+    const std::uint64_t first = f * 10, n = 50 + f * 5;  // ids [first, first + n): births and deaths
+    for (std::uint64_t i = first; i < first + n; ++i) {
+      const float t = float(f) / 24.0f, a = float(i) * 0.37f;
+      position[f].insert(position[f].end(), {std::cos(a) + t, std::sin(a) - t * t, float(i % 7) * 0.1f});
+      width[f].push_back(0.01f + float(i % 5) * 0.002f);
+      velocity[f].insert(velocity[f].end(), {1.0f, -2.0f * t, 0.0f});
+      color[f].insert(color[f].end(), {float(i % 3) / 2.0f, 0.5f, 1.0f, 1.0f});
+      id[f].push_back(i);
+    }
+    pstream::cook::MemoryFrame mf;
+    mf.time = double(f + 1) / 24.0;
+    mf.count = n;
+    mf.position = position[f];
+    mf.width = width[f];
+    mf.velocity = velocity[f];
+    mf.id = id[f];
+    mf.color = color[f];
+    clip.frames.push_back(mf);
+  }
+  const auto dir = pstream::test::fresh_dir();
+  pstream::cook::Options o;
+  o.output = dir / "memory.pstream";
+  o.attributes = {"id"};
+  pstream::cook::set_codec(o, "raw");
+  const pstream::cook::Report r = pstream::cook::cook(o, clip);
+  EXPECT_EQ(r.frames, kFrames);
+  const auto reader = pstream::format::Reader::open(o.output);
+  const auto& m = reader.metadata();
+  ASSERT_EQ(m.frame_count(), kFrames);
+  EXPECT_DOUBLE_EQ(m.fps, 24.0);
+  const auto* pos = m.find("position");
+  const auto* scale = m.find("scale");
+  const auto* col = m.find("color");
+  const auto* vel = m.find("velocity");
+  const auto* ids = m.find("id");
+  ASSERT_TRUE(pos && scale && col && vel && ids);
+  std::vector<std::byte> records = pstream::format::frame_buffer(m, reader.name());
+  for (std::size_t f = 0; f < kFrames; ++f) {
+    reader.read_frame(f, records);
+    ASSERT_EQ(m.frames[f].count, clip.frames[f].count) << "frame " << f;
+    for (std::uint64_t k = 0; k < clip.frames[f].count; ++k) {
+      const std::byte* rec = records.data() + k * m.record_size;
+      std::uint64_t i;
+      std::memcpy(&i, rec + ids->offset, 8);
+      const std::uint64_t j = i - id[f].front();  // records are in id order, as handed over
+      ASSERT_EQ(j, k) << "frame " << f;
+      float p[3], s, v[3];
+      std::uint8_t c[4];
+      std::memcpy(p, rec + pos->offset, 12);
+      std::memcpy(&s, rec + scale->offset, 4);
+      std::memcpy(v, rec + vel->offset, 12);
+      std::memcpy(c, rec + col->offset, 4);
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_EQ(p[a], position[f][j * 3 + a]) << "frame " << f << " particle " << j;
+        EXPECT_EQ(v[a], velocity[f][j * 3 + a]) << "frame " << f << " particle " << j;
+      }
+      EXPECT_EQ(s, width[f][j] * 0.5f);
+      for (int a = 0; a < 4; ++a) EXPECT_EQ(c[a], pstream::cook::to_unorm8(color[f][j * 4 + a]));
+    }
+  }
+  // What is refused, by name.
+  const auto refused = [&](pstream::cook::MemoryClip bad, const std::string& expected) {
+    pstream::cook::Options ob = o;
+    ob.output = dir / "bad.pstream";
+    try {
+      pstream::cook::cook(ob, bad);
+      ADD_FAILURE() << "accepted; expected: " << expected;
+    } catch (const pstream::Error& e) {
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(std::filesystem::exists(ob.output));
+  };
+  auto short_ids = clip;
+  short_ids.frames[3].id = short_ids.frames[3].id.first(10);
+  refused(short_ids, "memory test: frame 3: the id array holds 10 values, expected 65 (65 particles x 1)");
+  auto missing = clip;
+  missing.frames[5].color = {};
+  refused(missing, "memory test: frame 5 has no color array, but other frames have one");
+  auto backwards = clip;
+  backwards.frames[7].time = backwards.frames[6].time;
+  refused(backwards, "memory test: frame 7 is at time");
+  refused(pstream::cook::MemoryClip{"nothing", "", 24.0, {}}, "nothing: no frames to cook");
 }
 
 }  // namespace
