@@ -39,7 +39,8 @@ function ask(type, message = {}) {
   return new Promise((resolve, reject) => {
     const id = nextId++;
     replies.set(id, { resolve, reject });
-    worker.postMessage({ id, type, ...message });
+    const { transfer = [], ...rest } = message;
+    worker.postMessage({ id, type, ...rest }, transfer);
   });
 }
 
@@ -155,6 +156,12 @@ function compile(type, source) {
   return s;
 }
 let program, instanceBuffer, vao, uniforms;
+// The instance buffer at the clip's largest (twice max_count: between two frames the dying and
+// the newborn are both drawn), made once; each image updates it in place.
+function sizeInstanceBuffer(maxCount) {
+  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+  gl.bufferData(gl.ARRAY_BUFFER, Math.max(20, 2 * maxCount * 20), gl.DYNAMIC_DRAW);
+}
 function setupGl() {
   if (!gl) throw new Error('this browser has no WebGL2');
   program = gl.createProgram();
@@ -191,7 +198,7 @@ function draw(reply) {
   gl.useProgram(program);
   gl.bindVertexArray(vao);
   gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
-  gl.bufferData(gl.ARRAY_BUFFER, reply.instances, gl.STREAM_DRAW);
+  gl.bufferSubData(gl.ARRAY_BUFFER, 0, new Uint8Array(reply.instances, 0, reply.count * 20));
   gl.uniformMatrix4fv(uniforms.u_view, false, reply.view);
   gl.uniformMatrix4fv(uniforms.u_projection, false, perspective(camera.fov, w / h, camera.near, camera.far));
   gl.uniform4fv(uniforms.u_default_color, [0.45, 0.65, 0.95, 0.9]);
@@ -221,6 +228,11 @@ function clipTime(time) {
 }
 
 let shownTime = NaN;
+let spare = null;  // the last image's particle buffer, drawn: handed back to the worker with the next request
+function recycled(message) {
+  if (spare) { message.recycle = spare; message.transfer = [spare]; spare = null; }
+  return message;
+}
 async function requestFrame(force = false) {
   if (!state.ready || state.error) return;
   if (inFlight) { wanted = wanted || force; return; }
@@ -229,9 +241,10 @@ async function requestFrame(force = false) {
   inFlight = true;
   const view = lookAt(camera.eye, camera.target, camera.up);
   try {
-    const reply = await ask('show', { time, view, sorted: true });
+    const reply = await ask('show', recycled({ time, view, sorted: true }));
     reply.view = view;
     draw(reply);
+    spare = reply.instances;
     shownTime = time;
     state.frame = reply.frame;
     state.fraction = reply.fraction;
@@ -242,6 +255,7 @@ async function requestFrame(force = false) {
     state.timing.sortMs = reply.sortMs;
     state.timing.fetchMs = reply.fetchMs;
     state.cache = reply.cache;
+    state.buffersMade = reply.buffersMade;
     updateControls();
   } catch (e) {
     fail(e.message);
@@ -329,6 +343,7 @@ async function start() {
     setupGl();
     const opened = await ask('open', { url, aspect: canvas.width / canvas.height });
     state.meta = opened.meta;
+    sizeInstanceBuffer(state.meta.max_count);
     Object.assign(camera, opened.meta.camera);
     if (params.has('camera')) setCameraFromParam(params.get('camera'));
     scrub.max = String(Math.max(0, state.meta.frames - 1));
@@ -364,9 +379,10 @@ async function bench() {
   const rows = { decodeMs: [], sortMs: [], drawMs: [], fetchMs: [], count: [] };
   for (let f = 0; f < state.meta.frames; ++f) {
     const view = lookAt(camera.eye, camera.target, camera.up);
-    const reply = await ask('show', { time: state.meta.times[f], view, sorted: true });
+    const reply = await ask('show', recycled({ time: state.meta.times[f], view, sorted: true }));
     reply.view = view;
     draw(reply);
+    spare = reply.instances;
     rows.decodeMs.push(reply.decodeMs);
     rows.sortMs.push(reply.sortMs);
     rows.fetchMs.push(reply.fetchMs);

@@ -217,6 +217,10 @@ let M = null;            // the decoder module
 let cache = null;
 let meta = null;
 let chunkSpans = [];     // [offset, end) of each chunk
+let viewPtr = 0;         // the view matrix's 16 floats in the module's heap, allocated at open
+const spares = [];       // particle buffers the page has handed back
+let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
+const kInstanceBytes = 20;  // a drawn particle: x, y, z, radius, RGBA8 (pstream_wasm.cpp)
 const zstd = new ZSTDDecoder();
 
 function readFetched(offset, ptr, size) {
@@ -301,6 +305,7 @@ const handlers = {
       M._free(ptr);
     }
     meta = JSON.parse(M.UTF8ToString(M._pw_metadata()));
+    viewPtr = M._malloc(64);
     chunkSpans = [];
     for (let i = 0; i < meta.chunks.length; i += 2) chunkSpans.push([meta.chunks[i], meta.chunks[i] + meta.chunks[i + 1]]);
     if (meta.frames > 0) lookAhead(-1);
@@ -314,21 +319,27 @@ const handlers = {
 
   // The particles at clip time `time` (seconds; interpolated between the cached frames around it,
   // as the native player does), sorted back to front along `view`.
-  async show({ time, view, sorted }) {
+  // The particles travel in one of two buffers of the clip's largest size, made once: the page
+  // hands each back (`recycle`) with its next request, so playing allocates no particle buffers.
+  async show({ time, view, sorted, recycle }) {
+    if (recycle) spares.push(recycle);
     const from = M._pw_first_needed(time), to = M._pw_last_needed(time);
     const timing = await decodeFrames(from, to, () => M._pw_show(time));
-    const viewPtr = M._malloc(64);
     M.HEAPF32.set(view, viewPtr >> 2);
     const sortStart = performance.now();
     const count = M._pw_pack(viewPtr, sorted ? 1 : 0);
     const sortMs = performance.now() - sortStart;
-    M._free(viewPtr);
     const ptr = M._pw_instances();
-    const instances = M.HEAPU8.slice(ptr, ptr + count * 20).buffer;
+    let instances = spares.pop();
+    if (!instances) {
+      instances = new ArrayBuffer(kInstanceBytes * 2 * meta.max_count);
+      buffersMade++;
+    }
+    new Uint8Array(instances, 0, count * kInstanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * kInstanceBytes));
     const s = cache.stats;
     const at = M._pw_frame_at(time);
     return {
-      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, ...timing, sortMs,
+      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs,
       cache: { states: chunkStates(), requests: s.requests, bytes: s.bytes, retries: s.retries, inFlight: s.inFlight,
         bandwidth: s.ms > 0 ? s.bytes / 1e3 / s.ms : 0 },
       transfer: [instances]

@@ -58,6 +58,7 @@ const playerState = (page) => page.evaluate(() => {
   const s = window.player.state;
   return { error: s.error, shown: s.shown, distinct: s.distinctShown, frames: s.meta && s.meta.frames,
     retries: s.cache && s.cache.retries, requests: s.cache && s.cache.requests, stalls: s.stalls,
+    buffersMade: s.buffersMade,
     timing: s.timing, count: s.count };
 });
 
@@ -127,7 +128,10 @@ if (mode === 'playback') {
     const s = await playerState(page);
     assert.equal(s.error, null);
     assert.ok(s.distinct === s.frames, `showed ${s.distinct} distinct frames of ${s.frames}`);
-    console.log(`  ${s.shown} frames shown (${s.distinct} distinct), ${s.requests} requests, ${s.stalls} stalls; ` +
+    // The particles travel in two buffers handed back and forth, made once: none per image.
+    assert.ok(s.buffersMade <= 2, `${s.buffersMade} particle buffers made for ${s.shown} images`);
+    console.log(`  ${s.shown} frames shown (${s.distinct} distinct), ${s.requests} requests, ${s.stalls} stalls, ` +
+      `${s.buffersMade} particle buffers made; ` +
       `last frame ${s.count} particles: decode ${s.timing.decodeMs.toFixed(2)} ms, sort ${s.timing.sortMs.toFixed(2)} ms, ` +
       `draw ${s.timing.drawMs.toFixed(2)} ms`);
   });
