@@ -895,3 +895,59 @@ TEST(DerivedVelocity, TheDefaultCookDerivesWithIdsAndStoresWithout) {
   EXPECT_EQ(m.codec.order, format::FrameOrder::Matched);
   EXPECT_EQ(m.codec.words[m.find("velocity")->offset / 4].coding, format::WordCoding::Quantized);
 }
+
+namespace {
+
+// Camera::framing in a region of the image (the viewer's, beside its panel): every corner of the
+// box lands inside the region, the box fills it as closely as the plain framing fills the whole
+// image, and the target is the region's centre.
+TEST(Camera, FramingInARegionKeepsTheBoxInsideIt) {
+  using namespace pstream::render;
+  const Vec3 lo{-1.0f, 0.0f, -2.0f}, hi{1.5f, 3.0f, 2.0f};
+  const float aspect = 16.0f / 9.0f;
+  struct Extent {
+    float min_x = 2, max_x = -2, min_y = 2, max_y = -2;
+    std::array<float, 2> centre{};
+  };
+  const auto project = [&](const Camera& c) {
+    const Mat4 vp = multiply(c.projection(aspect), c.view());
+    const auto ndc = [&](const Vec3& p) {
+      const float x = vp[0] * p[0] + vp[4] * p[1] + vp[8] * p[2] + vp[12];
+      const float y = vp[1] * p[0] + vp[5] * p[1] + vp[9] * p[2] + vp[13];
+      const float w = vp[3] * p[0] + vp[7] * p[1] + vp[11] * p[2] + vp[15];
+      return std::array<float, 2>{x / w, y / w};
+    };
+    Extent e;
+    for (int k = 0; k < 8; ++k) {
+      const auto p = ndc({k & 1 ? hi[0] : lo[0], k & 2 ? hi[1] : lo[1], k & 4 ? hi[2] : lo[2]});
+      e.min_x = std::min(e.min_x, p[0]), e.max_x = std::max(e.max_x, p[0]);
+      e.min_y = std::min(e.min_y, p[1]), e.max_y = std::max(e.max_y, p[1]);
+    }
+    e.centre = ndc(c.target);
+    return e;
+  };
+  const auto fill = [](const Extent& e, float left, float right, float bottom, float top) {
+    return std::max((e.max_x - e.min_x) / (right - left), (e.max_y - e.min_y) / (top - bottom));
+  };
+  const std::array<float, 4> region{0.27f, 0.0f, 1.0f, 0.94f};  // x0 y0 x1 y1, from the top left
+  const Extent in = project(Camera::framing(lo, hi, aspect, region));
+  const float left = 2 * region[0] - 1, right = 2 * region[2] - 1;  // NDC: y up
+  const float top = 1 - 2 * region[1], bottom = 1 - 2 * region[3];
+  EXPECT_GE(in.min_x, left);
+  EXPECT_LE(in.max_x, right);
+  EXPECT_GE(in.min_y, bottom);
+  EXPECT_LE(in.max_y, top);
+  EXPECT_NEAR(in.centre[0], (left + right) / 2, 1e-4f);
+  EXPECT_NEAR(in.centre[1], (top + bottom) / 2, 1e-4f);
+  const Extent whole = project(Camera::framing(lo, hi, aspect));
+  const float whole_fill = fill(whole, -1, 1, -1, 1);
+  EXPECT_GT(fill(in, left, right, bottom, top), 0.95f * whole_fill)
+      << "the region is filled as the plain framing fills the image (" << whole_fill << ")";
+  // The whole image as the region is the plain framing, with no shift.
+  const Camera all = Camera::framing(lo, hi, aspect, {0, 0, 1, 1});
+  const Camera plain = Camera::framing(lo, hi, aspect);
+  EXPECT_EQ(all.shift, (std::array<float, 2>{0.0f, 0.0f}));
+  for (int a = 0; a < 3; ++a) EXPECT_NEAR(all.eye[a], plain.eye[a], 1e-5f);
+}
+
+}  // namespace

@@ -133,6 +133,7 @@ struct ViewerCli {
   int width = 1280, height = 720;
   int frames_to_run = 0;   // > 0: quit after that many frames (scripted runs, tests)
   std::string screenshot;  // with frames_to_run: save the last frame (PNG)
+  bool hide_ui = false;    // no panel and no timeline (clean screenshots; H toggles them)
   std::string look;        // sprites or liquid; empty: sprites
   std::string playback = "gpu";
   LookCli sprite_look;

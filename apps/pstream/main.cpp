@@ -525,13 +525,16 @@ int main(int argc, char** argv) {
   auto* play_cmd = app.add_subcommand(
       "play",
       "Open a window and play .pstream files: orbit camera, playback controls, statistics, chunk cache view\n\n"
-      "Keys: space play/pause, left/right step a frame, F frame the clip, Esc quit.\n"
+      "Keys: space play/pause, left/right step a frame, F frame the clip, H hide or show the panel, Esc quit.\n"
       "Mouse: left drag orbits, right drag pans, wheel zooms.");
   play_cmd->add_option("files", viewer.files, "One or more .pstream files")->required()->check(file_or_url());
   play_cmd->add_option("--width", viewer.width, "Window width")->capture_default_str();
   play_cmd->add_option("--height", viewer.height, "Window height")->capture_default_str();
   play_cmd->add_option("--frames-to-run", viewer.frames_to_run, "Quit after N frames (scripted runs)");
   play_cmd->add_option("--screenshot", viewer.screenshot, "With --frames-to-run: save the last frame as PNG");
+  play_cmd->add_flag("--hide-ui", viewer.hide_ui,
+                     "Start with the panel and the timeline hidden (H shows them); scripted runs print where they "
+                     "would be");
   play_cmd->add_option("--look", viewer.look, "sprites or liquid (a screen-space surface; its settings in the panel)")
       ->check(CLI::IsMember({"sprites", "liquid"}));
   play_cmd

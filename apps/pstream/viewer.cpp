@@ -29,9 +29,11 @@ using Clock = std::chrono::steady_clock;
 struct Orbit {
   render::Vec3 target{0, 0, 0};
   float yaw = 0.5f, pitch = 0.35f, distance = 5.0f;
+  std::array<float, 2> shift{0, 0};  // the framing's lens shift: the clip beside the panel
   render::Camera camera() const {
     render::Camera c;
     c.target = target;
+    c.shift = shift;
     c.eye = {target[0] + distance * std::cos(pitch) * std::sin(yaw), target[1] + distance * std::sin(pitch),
              target[2] + distance * std::cos(pitch) * std::cos(yaw)};
     c.near = distance * 0.01f;
@@ -46,8 +48,19 @@ struct Orbit {
     distance = std::max(std::sqrt(dx * dx + dy * dy + dz * dz), 1e-3f);
     pitch = std::asin(std::clamp(dy / distance, -1.0f, 1.0f));
     yaw = std::atan2(dx, dz);
+    shift = c.shift;
   }
 };
+
+// Where the panel and the timeline leave the picture free (Camera::framing's region), so that the
+// clip is framed where nothing covers it (Viewer.NoParticleUnderThePanel checks it).
+constexpr float kPanelX = 10, kPanelWidth = 320, kTimelineHeight = 44;
+std::array<float, 4> free_region(int width, int height) {
+  if (width <= 0 || height <= 0) return {0, 0, 1, 1};
+  const float x0 = std::min((kPanelX + kPanelWidth + 10) / float(width), 0.5f);
+  const float y1 = std::max(1.0f - kTimelineHeight / float(height), 0.5f);
+  return {x0, 0.0f, 1.0f, y1};
+}
 
 struct Ui {
   Orbit orbit;
@@ -56,6 +69,7 @@ struct Ui {
   double last_x = 0, last_y = 0;
   float speed = 1.0f, size = 1.0f;
   bool loop = true;
+  bool show_ui = true;                       // the panel and the timeline (H)
   int sort_mode = 1;                         // none, back to front, front to back
   int blend = 0;                             // alpha, additive, alpha test
   int look = 0;                              // sprites, liquid
@@ -89,6 +103,8 @@ void on_key(GLFWwindow* window, int key, int, int action, int) {
     step_frames(player, -1);
   } else if (key == GLFW_KEY_F) {
     ui.orbit.frame(ui.home);
+  } else if (key == GLFW_KEY_H) {
+    ui.show_ui = !ui.show_ui;
   } else if (key == GLFW_KEY_ESCAPE) {
     glfwSetWindowShouldClose(window, GLFW_TRUE);
   }
@@ -180,9 +196,11 @@ int run_viewer(const ViewerCli& cli) {
   ui.blend = style.blend == render::BlendMode::Alpha ? 0 : style.blend == render::BlendMode::Additive ? 1 : 2;
   ui.backdrop = ui.look == 1 || style.sprites.shadows;
   ui.player = player.get();
+  ui.show_ui = !cli.hide_ui;
   int window_width = 0, window_height = 0;
   glfwGetWindowSize(window, &window_width, &window_height);
-  ui.home = playback::framing_camera(files, window_height > 0 ? float(window_width) / float(window_height) : 1.0f);
+  ui.home = playback::framing_camera(files, window_height > 0 ? float(window_width) / float(window_height) : 1.0f,
+                                     free_region(window_width, window_height));
   ui.orbit.frame(ui.home);
   glfwSetWindowUserPointer(window, &ui);
   IMGUI_CHECKVERSION();
@@ -197,6 +215,7 @@ int run_viewer(const ViewerCli& cli) {
   double stream_ms = 0, sort_ms = 0, draw_ms = 0, interpolate_ms = 0;
   std::size_t unmatched = 0;
   int frame_number = 0;
+  std::array<float, 4> panel_rect{}, timeline_rect{};
   while (!glfwWindowShouldClose(window)) {
     glfwPollEvents();
     const double now = glfwGetTime();
@@ -272,13 +291,17 @@ int run_viewer(const ViewerCli& cli) {
 
     ImGui_ImplOpenGL3_NewFrame();
     ImGui_ImplGlfw_NewFrame();
+    // Hidden (--hide-ui, H): laid out as ever but drawn fully transparent, so the picture is the
+    // clip's alone and the panel's rectangle is still known.
+    ImGui::GetStyle().Alpha = ui.show_ui ? 1.0f : 0.0f;
     ImGui::NewFrame();
     // A narrow, translucent panel: a quarter of a 1280-pixel window at most, labels that fit,
     // the longer explanations in tooltips.
-    ImGui::SetNextWindowPos({10, 10}, ImGuiCond_FirstUseEver);
-    ImGui::SetNextWindowSize({320, 0}, ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowPos({kPanelX, 10}, ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowSize({kPanelWidth, 0}, ImGuiCond_FirstUseEver);
     ImGui::SetNextWindowBgAlpha(0.72f);
     ImGui::Begin("ParticleStream");
+    panel_rect = {ImGui::GetWindowPos().x, ImGui::GetWindowPos().y, ImGui::GetWindowSize().x, ImGui::GetWindowSize().y};
     ImGui::PushItemWidth(-110.0f);  // the widgets leave 110 pixels for their labels
     const auto tip = [](const char* text) {
       if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", text);
@@ -388,11 +411,13 @@ int run_viewer(const ViewerCli& cli) {
       const stream::ParticleStream& first = player->clip(0);
       const auto& m = first.metadata();
       const ImVec2 size = ImGui::GetIO().DisplaySize;
-      ImGui::SetNextWindowPos({0, size.y - 44});
-      ImGui::SetNextWindowSize({size.x, 44});
+      ImGui::SetNextWindowPos({0, size.y - kTimelineHeight});
+      ImGui::SetNextWindowSize({size.x, kTimelineHeight});
       ImGui::Begin("Timeline", nullptr,
                    ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoSavedSettings |
                        ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoBringToFrontOnFocus);
+      timeline_rect = {ImGui::GetWindowPos().x, ImGui::GetWindowPos().y, ImGui::GetWindowSize().x,
+                       ImGui::GetWindowSize().y};
       const stream::FrameView shown = first.frame();
       int frame = shown.valid ? int(shown.frame) : 0;
       const int last = m.frame_count() ? int(m.frame_count()) - 1 : 0;
@@ -406,6 +431,10 @@ int run_viewer(const ViewerCli& cli) {
 
     ++frame_number;
     if (cli.frames_to_run > 0 && frame_number >= cli.frames_to_run) {
+      // Where the panel and the timeline are (x y width height, window pixels), for scripts.
+      fmt::print("panel {:.0f} {:.0f} {:.0f} {:.0f}\ntimeline {:.0f} {:.0f} {:.0f} {:.0f}\n", panel_rect[0],
+                 panel_rect[1], panel_rect[2], panel_rect[3], timeline_rect[0], timeline_rect[1], timeline_rect[2],
+                 timeline_rect[3]);
       if (!cli.screenshot.empty()) {
         std::vector<std::uint8_t> pixels(std::size_t(width) * height * 4);
         glPixelStorei(GL_PACK_ALIGNMENT, 1);

@@ -28,11 +28,23 @@ Vec3 view_direction(const Mat4& view, const Vec3& world);  // a world direction 
 struct Camera {
   Vec3 eye{0, 0, 5}, target{0, 0, 0}, up{0, 1, 0};
   float fov_y_degrees = 45.0f, near = 0.01f, far = 1000.0f;
+  // A lens shift: where the view's centre lands on the image, in normalised device coordinates
+  // (0, 0: the image's centre). Lets a clip be framed in part of a window (the viewer's, beside
+  // its panel) while the perspective stays the camera's.
+  std::array<float, 2> shift{0.0f, 0.0f};
   Mat4 view() const { return look_at(eye, target, up); }
-  Mat4 projection(float aspect) const { return perspective(fov_y_degrees, aspect, near, far); }
+  Mat4 projection(float aspect) const {
+    Mat4 m = perspective(fov_y_degrees, aspect, near, far);
+    m[8] = -shift[0];  // x_ndc += shift.x (the clip-space w is -z)
+    m[9] = -shift[1];
+    return m;
+  }
   // A camera that frames the box [lo, hi] from a three-quarter view above the front, as close as
   // keeps all of it in a view of this width / height.
   static Camera framing(const Vec3& lo, const Vec3& hi, float aspect = 16.0f / 9.0f);
+  // The same framing inside the region [x0, x1] x [y0, y1] of an image of this aspect (fractions
+  // of its width and height from the top left): the box fills that region, through a lens shift.
+  static Camera framing(const Vec3& lo, const Vec3& hi, float aspect, const std::array<float, 4>& region);
 };
 
 enum class BlendMode { Alpha, Additive, AlphaTest };

@@ -112,7 +112,10 @@ DrawStyle look_preset(std::string_view name);
 // corner; the clips' whole bounds when that finds too few particles. framing_camera() frames
 // that box by render::Camera::framing (the default camera when no clip has a particle).
 std::array<float, 6> framing_box(std::span<const std::filesystem::path> files);
-render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect);
+// `region` frames them in part of the image (Camera::framing's region: x0, y0, x1, y1 as fractions
+// from the top left), as the viewer does beside its panel.
+render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect,
+                              const std::array<float, 4>& region = {0.0f, 0.0f, 1.0f, 1.0f});
 
 // The automatic colour-ramp range, for the same frames: speeds (the `velocity` attribute's
 // magnitude, `attribute` empty) from 0 to their 99th percentile, or a float attribute from its

@@ -60,7 +60,10 @@ Mat4 perspective(float fov_y_degrees, float aspect, float near, float far) {
   return m;
 }
 
-Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect) {
+namespace {
+
+// Camera::framing for a view of `aspect` whose height spans tan(fov_y / 2) = tan_y.
+Camera frame_box(const Vec3& lo, const Vec3& hi, float aspect, float tan_y) {
   Camera c;
   c.target = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
   const Vec3 half = sub(hi, c.target);
@@ -69,7 +72,6 @@ Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect) {
   const Vec3 right = normalize(cross({-dir[0], -dir[1], -dir[2]}, {0, 1, 0}));
   const Vec3 up = cross(right, {-dir[0], -dir[1], -dir[2]});
   // The nearest distance at which every corner of the box is inside the view, with a margin.
-  const float tan_y = std::tan(c.fov_y_degrees * std::numbers::pi_v<float> / 360.0f);
   const float tan_x = tan_y * std::max(aspect, 0.1f);
   float distance = 0;
   for (int k = 0; k < 8; ++k) {
@@ -81,6 +83,24 @@ Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect) {
   c.eye = {c.target[0] + dir[0] * distance, c.target[1] + dir[1] * distance, c.target[2] + dir[2] * distance};
   c.near = std::max(distance - radius * 2, distance * 0.01f);
   c.far = distance + radius * 2;
+  return c;
+}
+
+float half_tan(float fov_y_degrees) { return std::tan(fov_y_degrees * std::numbers::pi_v<float> / 360.0f); }
+
+}  // namespace
+
+Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect) {
+  return frame_box(lo, hi, aspect, half_tan(Camera{}.fov_y_degrees));
+}
+
+Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect, const std::array<float, 4>& region) {
+  const float x0 = std::clamp(region[0], 0.0f, 1.0f), y0 = std::clamp(region[1], 0.0f, 1.0f);
+  const float x1 = std::clamp(region[2], x0 + 1e-3f, 1.0f), y1 = std::clamp(region[3], y0 + 1e-3f, 1.0f);
+  // The region is (x1 - x0) of the width and (y1 - y0) of the height; projections are linear in
+  // NDC, so it sees the box as a whole view of that aspect and a height of (y1 - y0) x tan_y.
+  Camera c = frame_box(lo, hi, aspect * (x1 - x0) / (y1 - y0), half_tan(Camera{}.fov_y_degrees) * (y1 - y0));
+  c.shift = {x0 + x1 - 1.0f, 1.0f - (y0 + y1)};
   return c;
 }
 

@@ -65,10 +65,11 @@ std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
   return box;
 }
 
-render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect) {
+render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect,
+                              const std::array<float, 4>& region) {
   const std::array<float, 6> b = framing_box(files);
   const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);  // no particle anywhere
-  return empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, aspect);
+  return empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, aspect, region);
 }
 
 std::array<float, 2> ramp_range(std::span<const std::filesystem::path> files, const std::string& attribute) {
