@@ -164,6 +164,89 @@ TEST_F(LooksTest, ADenseBallIsDarkerOnTheSideAwayFromTheLight) {
   EXPECT_GT(sl, 0.03) << "the shadowed side still shows (ambient light)";
 }
 
+// Half-angle slicing must not band: a dense column lit along its length (the light from the side
+// of the view) darkens smoothly along it. The luminance profile along the column, its slow trend
+// removed, has no peak at the slices' period above 2 % of the mean, with 32 and with 128 slices,
+// and the two give the same mean luminance within 5 %.
+TEST_F(LooksTest, SlicedShadowsDoNotBand) {
+  use_light({1, 0, 0});  // along the column, across the view
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-1, 1);
+  std::vector<Particle> ps;
+  while (ps.size() < 12000) {  // a column along x: length 3, radius 0.25
+    const float x = u(rng) * 1.5f, y = u(rng) * 0.25f, z = u(rng) * 0.25f;
+    if (y * y + z * z > 0.0625f) continue;
+    ps.push_back({x, y, z, 0.05f, rgba(0.85f, 0.85f, 0.85f, 0.5f), 0, 0, 0, 0});
+  }
+  SpriteStyle style;
+  style.shadows = true;
+  style.shadow_density = 0.012f;  // light reaches along the whole column, fading: a gradient bands would show in
+  style.bounds = {-1.6f, -0.3f, -0.3f, 1.6f, 0.3f, 0.3f};
+  const Camera cam = front_camera();
+  const double px_per_unit = kH / 2.0 / (std::tan(22.5 * 3.14159265358979 / 180) * 5);
+  // The slices' period along the column in pixels: slices hold equal counts along the half-angle
+  // axis, so for a uniform column they are equally spaced along it.
+  const sort::DepthAxis axis = sort::depth_axis(half_angle(cam.view(), light).sort_view);
+  float lo = INFINITY, hi = -INFINITY;
+  for (const Particle& p : ps) {
+    const float d = axis.x * p.x + axis.y * p.y + axis.z * p.z;
+    lo = std::min(lo, d), hi = std::max(hi, d);
+  }
+  const double norm = std::sqrt(double(axis.x) * axis.x + double(axis.y) * axis.y + double(axis.z) * axis.z);
+  const double along_x = std::abs(axis.x) / norm;
+  double means[2]{}, lit_end = 0, far_end = 1;
+  int k = 0;
+  for (const int slices : {32, 128}) {
+    style.slices = slices;
+    const Image img = draw(cam, ps, style, BlendMode::Alpha, std::nullopt, fmt::format("column_{}_slices", slices));
+    // The profile along the column's middle third of rows, over its inner 80 % (away from its ends).
+    const int half_len = int(1.5 * px_per_unit * 0.8), half_h = int(0.25 * px_per_unit / 3);
+    std::vector<double> profile;
+    for (int x = kW / 2 - half_len; x < kW / 2 + half_len; ++x) {
+      double sum = 0;
+      for (int y = kH / 2 - half_h; y <= kH / 2 + half_h; ++y) sum += img.lum(x, y);
+      profile.push_back(sum / (2 * half_h + 1));
+    }
+    double mean = 0;
+    for (const double v : profile) mean += v;
+    mean /= double(profile.size());
+    means[k++] = mean;
+    lit_end = profile.back(), far_end = profile.front();
+    const double period = (hi - lo) / norm / slices / along_x * px_per_unit;
+    // The slow trend (the shadow deepening along the light) out: a moving average of twice the period.
+    const int w = std::max(2, int(std::lround(period)));
+    std::vector<double> detail(profile.size(), 0.0);
+    for (std::size_t i = 0; i < profile.size(); ++i) {
+      double s = 0;
+      int n = 0;
+      for (int j = -w; j <= w; ++j) {
+        const auto at = std::ptrdiff_t(i) + j;
+        if (at >= 0 && at < std::ptrdiff_t(profile.size())) s += profile[std::size_t(at)], ++n;
+      }
+      detail[i] = profile[i] - s / n;
+    }
+    // The largest Fourier amplitude at periods within 25 % of the slices'.
+    double peak = 0;
+    for (double p = period * 0.75; p <= period * 1.25; p += period * 0.05) {
+      double re = 0, im = 0;
+      for (std::size_t i = 0; i < detail.size(); ++i) {
+        re += detail[i] * std::cos(2 * 3.14159265358979 * double(i) / p);
+        im += detail[i] * std::sin(2 * 3.14159265358979 * double(i) / p);
+      }
+      peak = std::max(peak, 2 * std::sqrt(re * re + im * im) / double(detail.size()));
+    }
+    std::printf(
+        "%d slices: period %.2f px, luminance %.4f (lit end) .. %.4f (far end), mean %.4f, peak at the slice "
+        "period %.5f (%.2f %% of the mean)\n",
+        slices, period, profile.back(), profile.front(), mean, peak, 100 * peak / mean);
+    if (period >= 2.0) {  // shorter than 2 pixels, a band cannot show
+      EXPECT_LT(peak, 0.02 * mean) << slices << " slices band at their period (" << period << " px)";
+    }
+  }
+  EXPECT_NEAR(means[0] / means[1], 1.0, 0.05) << "32 and 128 slices should light the column alike";
+  EXPECT_GT(lit_end / far_end, 1.15) << "the column should darken along the light (else the test sees no gradient)";
+}
+
 TEST_F(LooksTest, ShadowsFallOnTheGround) {
   use_light({0.25f, 1.0f, 0.1f});  // from above
   const auto ps = ball(3000, 0.6f, 0.06f, rgba(0.8f, 0.8f, 0.8f, 0.7f), {0, 0.4f, 0});
@@ -290,7 +373,8 @@ TEST_F(LooksTest, EachStreamTakesItsTint) {
   renderer->end_frame();
   const Image img{ctx.read_rgba()};
   const double px_per_unit = 1.0 / std::tan(22.5 * 3.14159265 / 180) / 5 * kH / 2;
-  const auto left = img.at(int(kW / 2 - 0.8 * px_per_unit), kH / 2), right = img.at(int(kW / 2 + 0.8 * px_per_unit), kH / 2);
+  const auto left = img.at(int(kW / 2 - 0.8 * px_per_unit), kH / 2),
+             right = img.at(int(kW / 2 + 0.8 * px_per_unit), kH / 2);
   EXPECT_NEAR(left[0], 255, 3);
   EXPECT_NEAR(left[2], 255, 3);
   EXPECT_NEAR(right[0], 255, 3);
