@@ -23,6 +23,5 @@ native=$(ls "$work"/native/*.png)
 
 export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
   WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_OUT=${PSTREAM_WEB_OUT:-$work}
-export NODE_PATH=$site/../../web/node_modules
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults
