@@ -9,6 +9,8 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "particlestream/alembic_writer.hpp"
+#include "particlestream/demo.hpp"
 #include "particlestream/format.hpp"
 #include "test_util.hpp"
 
@@ -63,8 +65,27 @@ TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
     return j["frames"];
   };
   std::size_t empty = 0;
+  // An explosion as a studio cache holds one: no particles for its first frames, then a burst that
+  // dies out (the demo's simulator, written by our Alembic writer with ids, velocities, widths, Cd).
+  // ../shared has no explosion fixture; this stands in for it.
+  const fs::path explosion = dir / "explosion.abc";
+  {
+    pstream::demo::Simulator sim({"explosion", 3000, 2.0, 24.0, 3, 1});
+    pstream::alembic::PointsWriterOptions po;
+    po.name = "explosion";
+    po.float_params = {{"Cd", 4}};
+    pstream::alembic::ArchiveWriter writer(explosion, "cli_test", "explosion", 24.0, 1.0 / 24.0, po);
+    for (int k = 0; k < 3; ++k) writer.write_sample({{}, {}, {}, {}, {std::span<const float>{}}});  // before the burst
+    for (std::uint64_t f = 0; f < sim.frame_count(); ++f) {
+      sim.step();
+      const pstream::demo::ParticleState& st = sim.state();
+      writer.write_sample({st.position, st.id, st.velocity, st.width, {st.color}});
+    }
+    writer.close();
+  }
   for (const auto& [source, extra] : {std::pair<std::string, std::string>{abc, ""},
-                                      {pstream::test::data_path("sims/blender_sparks.abc"), " --attributes id"}}) {
+                                      {pstream::test::data_path("sims/blender_sparks.abc"), " --attributes id"},
+                                      {explosion.string(), " --attributes id"}}) {
     const fs::path sub = dir / fs::path(source).stem();
     fs::create_directories(sub);
     ASSERT_EQ(run_cli("cook -q --codec raw" + extra + " " + q(source) + " -o " + q(sub / "clip.pstream")).exit_code, 0);

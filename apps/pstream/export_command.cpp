@@ -187,10 +187,19 @@ int run_export(const ExportCli& given) {
     if (!cli.quiet) fmt::print("{} frames -> {}/{}.0001.ply ...\n", m.frame_count(), cli.out, ply_stem);
     return 0;
   }
-  // Alembic: widths are diameters (twice the record's radius); colours become Cd (rgb).
+  // Alembic: widths are diameters (twice the record's radius); colours become Cd: rgb, or rgba when
+  // any particle is not opaque (so that alpha comes back, as the cook reads a fourth Cd component).
   alembic::PointsWriterOptions po;
   po.velocities = m.find("velocity") != nullptr;
-  if (m.find("color")) po.float_params.push_back({"Cd", 3});
+  const Attribute* color = m.find("color");
+  bool alpha = false;
+  for (std::uint64_t f = 0; color && !alpha && f < m.frame_count(); ++f) {
+    reader.read_frame(f, records);
+    for (std::uint64_t i = 0; i < m.frames[f].count && !alpha; ++i)
+      alpha = std::to_integer<std::uint8_t>(records[i * m.record_size + color->offset + 3]) != 255;
+  }
+  const int cd_components = alpha ? 4 : 3;
+  if (color) po.float_params.push_back({"Cd", cd_components});
   for (const Attribute* a : c.float_attributes) po.float_params.push_back({a->name, a->components});
   const fs::path inputs[] = {cli.file};
   check_output(cli.output, inputs);
@@ -221,10 +230,10 @@ int run_export(const ExportCli& given) {
       s.ids = !m.find("id") ? std::span<const std::uint64_t>(index_ids) : std::span<const std::uint64_t>(c.id);
       s.velocities = c.velocity;
       s.widths = widths;
-      if (m.find("color")) {
-        cd.resize(n * 3);
+      if (color) {
+        cd.resize(n * cd_components);
         for (std::uint64_t i = 0; i < n; ++i)
-          for (int k = 0; k < 3; ++k) cd[i * 3 + k] = float(c.color[i * 4 + k]) / 255.0f;
+          for (int k = 0; k < cd_components; ++k) cd[i * cd_components + k] = float(c.color[i * 4 + k]) / 255.0f;
         s.params.push_back(cd);
       }
       for (const auto& values : c.floats) s.params.push_back(values);
