@@ -267,8 +267,8 @@ int main(int argc, char** argv) {
   auto* export_cmd = app.add_subcommand(
       "export",
       "Write a cooked clip back out for a DCC: a binary PLY sequence (x y z pscale, vx vy vz, red green blue\n"
-      "alpha, id and float attributes) or an Alembic points cache (P, ids, velocities, widths = 2 x scale, Cd: rgb, or "
-      "rgba when any particle is not opaque).\n"
+      "alpha, id and float attributes) or an Alembic points cache (P, ids, velocities, widths = 2 x scale, Cd:\n"
+      "rgb, or rgba when any particle is not opaque).\n"
       "Examples:\n"
       "  pstream export splash.pstream --out splash_ply        # splash_ply/frame.0001.ply ...\n"
       "  pstream export splash.pstream -o splash_decoded.abc");
