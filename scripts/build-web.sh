@@ -7,11 +7,13 @@ cd "$(dirname "$0")/.."
 out=build-web
 mkdir -p "$out/include" "$out/obj" "$out/site"
 
-# Emscripten's own sysroot, plus fmt's, xxhash's and Highway's headers from Debian (header-only here: fmt's
-# compiled part is src/base/fmt_impl.cpp; xxhash inlined). Links, so no system header leaks in.
+# Emscripten's own sysroot, plus headers from Debian, linked one by one so that no other system
+# header leaks in: fmt (its compiled part is src/base/fmt_impl.cpp), xxhash (inlined), Highway (its
+# WebAssembly SIMD target, chosen statically), nlohmann-json (the metadata the worker reads).
 ln -sfn /usr/include/fmt "$out/include/fmt"
 ln -sfn /usr/include/xxhash.h "$out/include/xxhash.h"
-ln -sfn /usr/include/hwy "$out/include/hwy"  # Highway: its WebAssembly SIMD target, chosen statically
+ln -sfn /usr/include/hwy "$out/include/hwy"
+ln -sfn /usr/include/nlohmann "$out/include/nlohmann"
 
 # The decoder's sources are the ones CMake builds the native decoder library from (one list).
 decoder=$(sed -n '/set(PSTREAM_FORMAT_DECODER_SOURCES/,/)/p' src/format/CMakeLists.txt |

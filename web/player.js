@@ -233,18 +233,24 @@ function recycled(message) {
   if (spare) { message.recycle = spare; message.transfer = [spare]; spare = null; }
   return message;
 }
+// Asks the worker for the particles at clip time `time` along the current view and draws them.
+async function drawAt(time) {
+  const view = lookAt(camera.eye, camera.target, camera.up);
+  const reply = await ask('show', recycled({ time, view, sorted: true }));
+  reply.view = view;
+  draw(reply);
+  spare = reply.instances;
+  return reply;
+}
+
 async function requestFrame(force = false) {
   if (!state.ready || state.error) return;
   if (inFlight) { wanted = wanted || force; return; }
   const time = clipTime(state.time);
   if (!force && time === shownTime) return;
   inFlight = true;
-  const view = lookAt(camera.eye, camera.target, camera.up);
   try {
-    const reply = await ask('show', recycled({ time, view, sorted: true }));
-    reply.view = view;
-    draw(reply);
-    spare = reply.instances;
+    const reply = await drawAt(time);
     shownTime = time;
     state.frame = reply.frame;
     state.fraction = reply.fraction;
@@ -372,17 +378,13 @@ window.player.records = async (frame) => {
   return { count: reply.count, bytes: new Uint8Array(reply.bytes) };
 };
 // Every cached frame in order, paused: per-frame decode (worker), sort and pack (worker) and draw
-// (this thread, to glFinish) times, with their medians and 95th percentiles.
+// (this thread, to a pixel read back) times, with their medians and 95th percentiles.
 async function bench() {
   state.playing = false;
   benchmarking = true;
   const rows = { decodeMs: [], sortMs: [], drawMs: [], fetchMs: [], count: [] };
   for (let f = 0; f < state.meta.frames; ++f) {
-    const view = lookAt(camera.eye, camera.target, camera.up);
-    const reply = await ask('show', recycled({ time: state.meta.times[f], view, sorted: true }));
-    reply.view = view;
-    draw(reply);
-    spare = reply.instances;
+    const reply = await drawAt(state.meta.times[f]);
     rows.decodeMs.push(reply.decodeMs);
     rows.sortMs.push(reply.sortMs);
     rows.fetchMs.push(reply.fetchMs);

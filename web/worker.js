@@ -348,7 +348,7 @@ const handlers = {
 
   // Frame `frame`'s decoded records, as the native Reader gives them (for tests and tools).
   async records({ frame }) {
-    await decodeFrames(M._pw_keyframe_of(frame), frame, () => M._pw_decode(frame));
+    await decodeFrames(M._pw_first_needed(meta.times[frame]), frame, () => M._pw_decode(frame));
     const ptr = M._pw_records(), n = M._pw_count() * meta.record_size;
     const bytes = M.HEAPU8.slice(ptr, ptr + n).buffer;
     return { frame, count: M._pw_count(), bytes, transfer: [bytes] };

@@ -21,6 +21,7 @@
 #include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
 #include "progress.hpp"
+#include "stats.hpp"
 
 namespace pstream::app {
 namespace {
@@ -60,12 +61,6 @@ double thread_ms() {
   timespec ts{};
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
   return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, std::size_t(p * double(v.size())))];
 }
 
 // One row: `path` played through a clip at host_hz. The host thread's CPU time per host frame

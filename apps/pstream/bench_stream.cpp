@@ -20,17 +20,12 @@
 #include "particlestream/io.hpp"
 #include "particlestream/stream.hpp"
 #include "progress.hpp"
+#include "stats.hpp"
 
 namespace pstream::app {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;  // a clip of no frames plays none
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<std::size_t>(q * double(v.size())))];
-}
 
 // Frame f of the generated clip: `count` particles orbiting a centre, particle i always i.
 void generated_frame(std::uint64_t count, std::uint64_t f, double fps, std::vector<float>& frame) {

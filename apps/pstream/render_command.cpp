@@ -24,6 +24,7 @@
 #include "particlestream/stream.hpp"
 #include "process.hpp"
 #include "progress.hpp"
+#include "stats.hpp"
 
 namespace pstream::app {
 namespace {
@@ -270,16 +271,12 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     bar.update(k + 1, outputs, fmt::format("frames ({}x{})", width, height));
   }
   if (cli.json) {
-    std::vector<double> sorted = frame_ms;
-    std::sort(sorted.begin(), sorted.end());
-    const auto at = [&](double p) {
-      return sorted.empty() ? 0.0 : sorted[std::min(sorted.size() - 1, std::size_t(p * double(sorted.size())))];
-    };
-    const nlohmann::ordered_json j = {{"frames", outputs},
-                                      {"out", cli.out},
-                                      {"size", {width, height}},
-                                      {"gl_renderer", render::Renderer::gl_renderer()},
-                                      {"frame_ms", {{"median", at(0.5)}, {"p95", at(0.95)}}}};
+    const nlohmann::ordered_json j = {
+        {"frames", outputs},
+        {"out", cli.out},
+        {"size", {width, height}},
+        {"gl_renderer", render::Renderer::gl_renderer()},
+        {"frame_ms", {{"median", percentile(frame_ms, 0.5)}, {"p95", percentile(frame_ms, 0.95)}}}};
     fmt::print("{}\n", j.dump());
   } else if (!cli.quiet) {
     fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());

@@ -123,6 +123,8 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
     wm = context.window_manager
     total = frame_end - frame_start + 1
     frames, counts = [], set()
+    # Vertices (no particle systems): their indices are ids only while the count holds.
+    from_particles = len(obj.particle_systems) > 0
     current = scene.frame_current
     wm.progress_begin(0, 2 * total)
     try:
@@ -140,8 +142,8 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             wm.progress_update(k + 1)
             if report:
                 report(k + 1, total, "frames read")
-        if not len(obj.evaluated_get(context.evaluated_depsgraph_get()).particle_systems) and len(counts) > 1:
-            for frame in frames:  # vertex indices are not particle identities when the count changes
+        if not from_particles and len(counts) > 1:
+            for frame in frames:
                 frame.pop("id", None)
 
         def progress(done, count):

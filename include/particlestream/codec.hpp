@@ -149,6 +149,10 @@ struct FramePacket {
 FramePacket frame_packet(const Metadata& meta, std::uint64_t frame);
 // The keyframe at or before `frame`: decoding frame f costs f - keyframe_of(f) extra decodes.
 std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame);
+// Where decoding `frame` starts when `last_decoded` (UINT64_MAX: none) was the frame decoded
+// last: on from it when it lies between frame's keyframe and frame, else at the keyframe. The
+// rule of Reader::read_frame and of the browser player's decoder.
+std::uint64_t decode_start(const Metadata& meta, std::uint64_t frame, std::uint64_t last_decoded);
 
 // ---- The registry ------------------------------------------------------------------------------
 

@@ -81,6 +81,12 @@ class MemorySource final : public Source {
   }
 
   void read(double time, const Request& request, ParticleFrame& out) override {
+    if (request.scale_from == ScaleFrom::Attribute) {
+      throw Error(
+          fmt::format("{}: no attribute '{}' to take the scale from (particles in memory have position, "
+                      "width, velocity, id and color)",
+                      clip_.name, request.scale_attribute));
+    }
     const MemoryFrame& f = clip_.frames[nearest(time)];
     const std::uint64_t base = out.count, n = f.count;
     out.count += n;
@@ -90,12 +96,6 @@ class MemorySource final : public Source {
     for (std::uint64_t i = 0; i < n; ++i) {
       out.scale[base + i] =
           request.scale_from == ScaleFrom::Widths && has_width_ ? scale_from_width(f.width[i]) : request.scale_constant;
-    }
-    if (request.scale_from == ScaleFrom::Attribute) {
-      throw Error(
-          fmt::format("{}: no attribute '{}' to take the scale from (particles in memory have position, "
-                      "width, velocity, id and color)",
-                      clip_.name, request.scale_attribute));
     }
     if (request.color) {
       ensure_size(out.color, out.count * 4);

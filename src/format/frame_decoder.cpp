@@ -24,6 +24,11 @@ std::uint64_t keyframe_of(const Metadata& meta, std::uint64_t frame) {
   return frame;
 }
 
+std::uint64_t decode_start(const Metadata& meta, std::uint64_t frame, std::uint64_t last_decoded) {
+  const std::uint64_t key = keyframe_of(meta, frame);
+  return last_decoded != UINT64_MAX && last_decoded < frame && last_decoded >= key ? last_decoded + 1 : key;
+}
+
 FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit)
     : meta_(meta), name_(std::move(name)) {
   const std::uint64_t limit = memory_limit ? memory_limit : unbudgeted_memory_limit(meta);

@@ -138,10 +138,7 @@ void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
     d.decoded = frame_buffer(m, d.name);
   }
   // Forward from the keyframe, or on from the frame decoded last.
-  std::uint64_t f = keyframe_of(m, frame);
-  if (d.frames->last_decoded() != UINT64_MAX && d.frames->last_decoded() < frame && d.frames->last_decoded() >= f)
-    f = d.frames->last_decoded() + 1;
-  for (; f <= frame; ++f) {
+  for (std::uint64_t f = decode_start(m, frame, d.frames->last_decoded()); f <= frame; ++f) {
     const std::uint64_t size = frame_packet(m, f).size;
     read_packet(f, d.packet, d.scratch);
     // Frames on the way are decoded aside: they may hold more particles than `out`.

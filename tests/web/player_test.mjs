@@ -8,11 +8,10 @@
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import { createRequire } from 'node:module';
+
+import { launch } from './chromium.mjs';
 
 const env = process.env;
-const require = createRequire(path.join(env.WEB_SITE, '../../web/package.json'));
-const puppeteer = require('puppeteer-core');
 const base = env.PSTREAM_TEST_URL_BASE;
 const site = `${base}${env.WEB_SITE}/index.html`;
 const frame = Number(env.WEB_FRAME);
@@ -26,12 +25,7 @@ const kMaxCentroidShift = 0.01;   // of the image width
 const kMaxCoverageRatio = 1.25;   // covered pixels, web / native, either way
 const kMaxMeanColorError = 16;    // mean |web - native| of R, G and B (of 255) where both cover
 
-const browser = await puppeteer.launch({
-  executablePath: '/usr/bin/chromium',
-  headless: true,
-  args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
-    '--disable-gpu-sandbox', '--disable-dev-shm-usage']
-});
+const browser = await launch(env.WEB_SITE);
 const failures = [];
 function check(name, fn) {
   return fn().then(() => console.log(`ok   ${name}`), (e) => {

@@ -16,6 +16,7 @@
 #include <string>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
@@ -104,44 +105,30 @@ int guarded(F&& f) {
   }
 }
 
-std::string json_string(std::string_view s) {
-  std::string out = "\"";
-  for (const char c : s) {
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += c;
-    } else if (static_cast<unsigned char>(c) < 0x20) {
-      out += fmt::format("\\u{:04x}", static_cast<unsigned>(c));
-    } else {
-      out += c;
-    }
-  }
-  return out + '"';
-}
-
+// What the page needs of the clip, as JSON (nlohmann's: names escaped, an empty clip's infinite
+// bounds written as null).
 std::string describe(const format::Metadata& m) {
-  std::string attrs;
+  nlohmann::json attributes = nlohmann::json::array(), chunks = nlohmann::json::array(),
+                 times = nlohmann::json::array();
   for (const format::Attribute& a : m.layout) {
-    if (!attrs.empty()) attrs += ',';
-    attrs += fmt::format("{{\"name\":{},\"type\":{},\"components\":{},\"offset\":{}}}", json_string(a.name),
-                         static_cast<int>(a.type), a.components, a.offset);
+    attributes.push_back(
+        {{"name", a.name}, {"type", static_cast<int>(a.type)}, {"components", a.components}, {"offset", a.offset}});
   }
-  std::string chunks;  // file offset and stored size of each chunk, for the page's cache view
-  for (const format::ChunkEntry& c : m.chunks) {
-    if (!chunks.empty()) chunks += ',';
-    chunks += fmt::format("{},{}", c.file_offset, c.stored_size);
+  for (const format::ChunkEntry& c : m.chunks) {  // file offset and stored size: the page's cache view
+    chunks.push_back(c.file_offset);
+    chunks.push_back(c.stored_size);
   }
-  std::string times;
-  for (const format::FrameEntry& f : m.frames) {
-    if (!times.empty()) times += ',';
-    times += fmt::format("{}", f.time);
-  }
-  const auto& b = m.bounds;
-  return fmt::format(
-      "{{\"frames\":{},\"fps\":{},\"time_of_frame0\":{},\"record_size\":{},\"max_count\":{},"
-      "\"bounds\":[{},{},{},{},{},{}],\"attributes\":[{}],\"chunks\":[{}],\"times\":[{}]}}",
-      m.frame_count(), m.fps, m.time_of_frame0, m.record_size, m.max_count, b[0], b[1], b[2], b[3], b[4], b[5], attrs,
-      chunks, times);
+  for (const format::FrameEntry& f : m.frames) times.push_back(f.time);
+  return nlohmann::json{{"frames", m.frame_count()},
+                        {"fps", m.fps},
+                        {"time_of_frame0", m.time_of_frame0},
+                        {"record_size", m.record_size},
+                        {"max_count", m.max_count},
+                        {"bounds", m.bounds},
+                        {"attributes", attributes},
+                        {"chunks", chunks},
+                        {"times", times}}
+      .dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 Slot* slot_of(std::uint64_t frame) {
@@ -153,9 +140,7 @@ Slot* slot_of(std::uint64_t frame) {
 // Where decoding `frame` starts: on from the frame decoded last, or at its keyframe.
 std::uint64_t first_to_decode(std::uint64_t frame) {
   if (slot_of(frame) != nullptr) return frame;
-  const std::uint64_t last = g->decoder->last_decoded();
-  const std::uint64_t key = format::keyframe_of(g->reader->metadata(), frame);
-  return last != UINT64_MAX && last < frame && last >= key ? last + 1 : key;
+  return format::decode_start(g->reader->metadata(), frame, g->decoder->last_decoded());
 }
 
 // Decodes up to `frame`, each frame into the slot not holding the one before it. A read that needs
@@ -230,9 +215,6 @@ EMSCRIPTEN_KEEPALIVE double pw_first_chunk(double frame) {
 }
 EMSCRIPTEN_KEEPALIVE double pw_last_chunk(double frame) {
   return static_cast<double>(g->reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).second);
-}
-EMSCRIPTEN_KEEPALIVE double pw_keyframe_of(double frame) {
-  return static_cast<double>(format::keyframe_of(g->reader->metadata(), static_cast<std::uint64_t>(frame)));
 }
 
 // Decodes frame `frame` (forward from its keyframe, or on from the frame decoded last), keeping
