@@ -242,9 +242,11 @@ function zstdDecompress(out, capacity, src, srcSize) {
 }
 
 // The chunks frames [from, to] read, in order.
+// (Frames of no particles have empty packets; a clip of only those has no chunks at all.)
 function chunksOf(from, to) {
   const out = [];
-  for (let c = M._pw_first_chunk(from); c <= M._pw_last_chunk(to); ++c) out.push(c);
+  const last = Math.min(M._pw_last_chunk(to), chunkSpans.length - 1);
+  for (let c = M._pw_first_chunk(from); c <= last; ++c) out.push(c);
   return out;
 }
 

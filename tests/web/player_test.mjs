@@ -129,7 +129,9 @@ if (mode === 'playback') {
       `last frame ${s.count} particles: decode ${s.timing.decodeMs.toFixed(2)} ms, sort ${s.timing.sortMs.toFixed(2)} ms, ` +
       `draw ${s.timing.drawMs.toFixed(2)} ms`);
   });
-  await check('the canvas is not blank', async () => {
+  await check(`the canvas is not blank (frame ${frame})`, async () => {
+    // A known frame, not wherever the loop stands: the clip's first frames hold a particle or two.
+    await page.evaluate((f) => window.player.show(f), frame);
     const c = coverage(await canvasPixels(page));
     assert.ok(c.n >= 100, `${c.n} of ${c.width * c.height} pixels differ from the background (a blank canvas: 0)`);
     console.log(`  ${c.n} of ${c.width * c.height} pixels drawn`);
@@ -169,6 +171,19 @@ if (mode === 'playback') {
     assert.ok(colorError <= kMaxMeanColorError, `mean colour error ${colorError}`);
   });
   await still.close();
+
+  // A valid clip whose frames hold no particles plays (nothing to draw), with no error.
+  const empty = await open(env.WEB_EMPTY_CLIP, '&size=320x180');
+  await check('a clip of empty frames plays without an error', async () => {
+    await waitFor(empty, () => window.player.state.error || window.player.state.shown >= 3, 30000);
+    const s = await playerState(empty);
+    assert.equal(s.error, null);
+    assert.equal(s.count, 0);
+    const c = coverage(await canvasPixels(empty));
+    assert.equal(c.n, 0, `${c.n} pixels drawn for a clip of no particles`);
+    console.log(`  ${s.shown} images of ${s.frames} empty frames`);
+  });
+  await empty.close();
 } else if (mode === 'faults') {
   const clip = env.WEB_CLIP;
   await check('50 ms latency and 503s: retried, played, and the frames are exact', async () => {

@@ -22,6 +22,7 @@ camera=2.6,2.4,4.2:0,0.9,0
 native=$(ls "$work"/native/*.png)
 
 export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
+  WEB_EMPTY_CLIP=$data/pstream/empty_frames.pstream \
   WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_OUT=${PSTREAM_WEB_OUT:-$work}
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults
