@@ -3,6 +3,8 @@
 // starvation shows as stalls and recovers; faults end in a clean error state.
 #include <gtest/gtest.h>
 
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -759,6 +761,89 @@ TEST(Http, ASeekCancelsTheReadsItMadeUseless) {
   EXPECT_GE(source->stats().cancelled, 1u);
   std::printf("seek over a slow link: %llu reads cancelled\n",
               static_cast<unsigned long long>(source->stats().cancelled));
+}
+
+// Reads waiting for a connection go out as one request when their ranges are neighbours (at most
+// merge_gap apart, the bytes between dropped): each read gets exactly its bytes, a far read keeps
+// its own request, and a read cancelled while riding in a merged request fails alone.
+TEST(Http, NeighbouringReadsShareOneRequest) {
+  if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = remote_clip(dir);
+  std::vector<std::byte> whole(fs::file_size(file));
+  std::ifstream(file, std::ios::binary)
+      .read(reinterpret_cast<char*>(whole.data()), static_cast<std::streamsize>(whole.size()));
+  io::HttpOptions ho = quick();
+  ho.connections = 1;  // the first read holds the connection; the others queue behind it
+  auto source = io::open_url(test::test_url(file, "/~latency=150"), ho);
+  ASSERT_GT(whole.size(), 2u << 20);
+  struct Read {
+    std::uint64_t offset, size;
+    std::vector<std::byte> out;
+    std::atomic<int> status{-1};
+  };
+  const std::uint64_t base = 1u << 20;  // past the prefix fetched at open
+  std::array<Read, 5> reads = {{{base, 1000, {}},
+                                {base + 5000, 3000, {}},                // 4,000 B after the first
+                                {base + 8000, 4096, {}},                // right after the one before
+                                {base + 8000 + 4096 + 30000, 512, {}},  // 30,000 B after it (dropped)
+                                {base + (1u << 20), 700, {}}}};         // 1 MiB on: its own request
+  const auto done = [](void* context, int status) { static_cast<Read*>(context)->status.store(status); };
+  for (Read& r : reads) {
+    r.out.assign(r.size, std::byte{0xEE});
+    ASSERT_TRUE(source->start_read(r.offset, r.out, done, &r));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  source->cancel(&reads[2]);  // under way or queued, merged or not: it alone fails
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  for (const Read& r : reads) {
+    while (r.status.load() < 0 && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+  }
+  for (std::size_t i = 0; i < reads.size(); ++i) {
+    const Read& r = reads[i];
+    SCOPED_TRACE(i);
+    if (i == 2) {
+      EXPECT_GT(r.status.load(), 0);
+      EXPECT_NE(source->failure_message(r.status.load()).find("cancelled"), std::string::npos)
+          << source->failure_message(r.status.load());
+      continue;
+    }
+    ASSERT_EQ(r.status.load(), 0) << source->failure_message(r.status.load());
+    EXPECT_TRUE(std::equal(r.out.begin(), r.out.end(), whole.begin() + static_cast<std::ptrdiff_t>(r.offset)));
+  }
+  const io::SourceStats st = source->stats();
+  // The probe at open, then: the first read alone (or with its neighbours, if they were queued
+  // before it went out), its three neighbours in one request, and the far read alone.
+  EXPECT_GE(st.merged, 2u);
+  EXPECT_EQ(st.requests - 1 + st.merged, reads.size());
+  EXPECT_LE(st.requests, 4u);
+  std::printf("5 reads: %llu requests after the open's, %llu reads merged\n",
+              static_cast<unsigned long long>(st.requests - 1), static_cast<unsigned long long>(st.merged));
+}
+
+// A clip of small chunks streamed over a slow round trip: the stream queues several loads per
+// connection, and neighbouring loads share requests; every frame is still exact.
+TEST(Http, SmallChunksMergeIntoFewerRequests) {
+  if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = remote_clip(dir);  // 64 KiB chunks
+  const Reference ref(file);
+  stream::StreamOptions o;
+  o.blocking = true;
+  o.io = io::open_url(test::test_url(file, "/~latency=40"), quick());
+  const io::ByteSource* source = o.io.get();
+  EXPECT_EQ(source->preferred_reads_in_flight(format::kMinChunkSize), 24u);  // 6 connections x 4
+  EXPECT_EQ(source->preferred_reads_in_flight(format::kDefaultChunkSize), 6u);
+  auto s = stream::ParticleStream::open(file, std::move(o));
+  EXPECT_NE(play_through(*s, &ref), stream::PlayState::Error) << s->error();
+  const io::SourceStats st = source->stats();
+  const std::uint64_t loads = s->debug().loads_done;
+  EXPECT_GT(st.merged, 0u);
+  EXPECT_LT(st.requests, loads);
+  std::printf("%llu chunk loads in %llu requests (%llu merged)\n", static_cast<unsigned long long>(loads),
+              static_cast<unsigned long long>(st.requests), static_cast<unsigned long long>(st.merged));
 }
 
 TEST(Http, CommandsTakeUrls) {

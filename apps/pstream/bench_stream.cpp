@@ -102,12 +102,13 @@ void generate_clip(const std::filesystem::path& path, std::uint64_t count, std::
 
 namespace {
 
-// One real-time run through `location` (a path or a URL): the per-frame cost against memcpy of
-// the same bytes, stalls, and what the source fetched.
-nlohmann::ordered_json measure(const std::string& location, const std::string& label, const BenchStreamOptions& o) {
+// One real-time run through `location` (a path or a URL, read with `http` when given): the
+// per-frame cost against memcpy of the same bytes, stalls, and what the source fetched.
+nlohmann::ordered_json measure(const std::string& location, const std::string& label, const BenchStreamOptions& o,
+                               const io::HttpOptions* http = nullptr) {
   stream::StreamOptions options;
   options.cache_seconds = o.cache_seconds;
-  options.io = io::open(location);
+  options.io = http != nullptr ? io::open_url(location, *http) : io::open(location);
   const io::ByteSource* source = options.io.get();  // owned by the stream, which outlives its use here
   auto s = stream::ParticleStream::open(location, std::move(options));
   const format::Metadata& m = s->metadata();
@@ -199,6 +200,7 @@ nlohmann::ordered_json measure(const std::string& location, const std::string& l
       {"requests", requests},
       {"bytes_fetched", fetched},
       {"retries", st.retries},
+      {"reads_merged", st.merged - primed_stats.merged},
       {"fetch_mb_s", per(double(fetched), seconds) / 1e6},
       {"clip_mb_s", per(double(m.stream_size()) * m.fps, double(m.frame_count())) / 1e6},
       {"first_byte_ms_mean", st.latency_ms}};
@@ -220,9 +222,11 @@ void print_run(const nlohmann::ordered_json& j) {
              j["frame_ms_p99"].get<double>());
   fmt::print("  memcpy of the frame   median {:.3f} ms\n", j["memcpy_ms_median"].get<double>());
   fmt::print("  ratio {:.2f} (target <= 1.3), stalls {}\n", j["ratio"].get<double>(), j["stalls"].get<std::uint64_t>());
-  fmt::print("  fetched while playing {:.1f} MB in {} requests ({} retried), {:.1f} MB/s (the clip: {:.1f} MB/s)\n",
-             j["bytes_fetched"].get<double>() / 1e6, j["requests"].get<std::uint64_t>(),
-             j["retries"].get<std::uint64_t>(), j["fetch_mb_s"].get<double>(), j["clip_mb_s"].get<double>());
+  fmt::print(
+      "  fetched while playing {:.1f} MB in {} requests ({} retried, {} reads merged), {:.1f} MB/s (the clip: {:.1f} "
+      "MB/s)\n",
+      j["bytes_fetched"].get<double>() / 1e6, j["requests"].get<std::uint64_t>(), j["retries"].get<std::uint64_t>(),
+      j["reads_merged"].get<std::uint64_t>(), j["fetch_mb_s"].get<double>(), j["clip_mb_s"].get<double>());
 }
 
 // The clip behind `url`, copied to `file` through the HTTP source in 4 MiB reads; returns MB/s.
@@ -280,14 +284,21 @@ int bench_stream(const BenchStreamOptions& o) {
   const double download_mb_s = download(o.file, local, !o.json);
   const nlohmann::ordered_json file_run = measure(local.string(), "stream (file)", o);
   nlohmann::ordered_json j = measure(o.file, "stream (url)", o);
+  // The peer: the same URL with every read in a request of its own (neighbours not merged).
+  io::HttpOptions unmerged;
+  unmerged.merge_bytes = 0;
+  nlohmann::ordered_json unmerged_run = measure(o.file, "stream (url, unmerged)", o, &unmerged);
+  unmerged_run["source"] = o.file + " (reads not merged)";
   const auto per = [](double a, double b) { return b > 0.0 ? a / b : 0.0; };
   j["download_mb_s"] = download_mb_s;
   j["frame_ms_median_vs_file"] = per(j["frame_ms_median"].get<double>(), file_run["frame_ms_median"].get<double>());
   j["file_backend"] = file_run;
+  j["unmerged"] = unmerged_run;
   if (o.json) {
     fmt::print("{}\n", j.dump());
   } else {
     print_run(file_run);
+    print_run(unmerged_run);
     print_run(j);
     fmt::print("  the URL's frame cost is {:.2f}x the file's; the whole clip downloads at {:.1f} MB/s\n",
                j["frame_ms_median_vs_file"].get<double>(), download_mb_s);

@@ -70,6 +70,14 @@ void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
   cmd.add_option("--exposure", look.sprites.exposure, "Brightness before the tone map")
       ->default_val(defaults.exposure)
       ->check(CLI::PositiveNumber);
+  cmd.add_option("--bloom", look.sprites.bloom,
+                 "Glow: this share of the light spreads into a blur around it before the tone map (the total is "
+                 "kept); 0: off")
+      ->default_val(defaults.bloom)
+      ->check(CLI::Range(0.0, 1.0));
+  cmd.add_option("--bloom-radius", look.sprites.bloom_radius, "The glow's size: its Gaussian sigma in image heights")
+      ->default_val(defaults.bloom_radius)
+      ->check(CLI::Range(0.001, 0.25));
   cmd.add_option("--tone-map", look.tone_map, "filmic (bright light keeps its hue) or linear (clamps)")
       ->check(CLI::IsMember({"filmic", "linear"}));
 }
@@ -358,8 +366,9 @@ int main(int argc, char** argv) {
   bench_stream_cmd
       ->add_option("clip", bench_stream_opts.file,
                    "A .pstream, or its http(s):// URL: then the clip is downloaded and played from the local copy "
-                   "(the file backend) and from the URL in the same run, and the requests, bytes fetched and "
-                   "stalls of both reported (default: generate 1M particles x 60 frames in a temporary folder)")
+                   "(the file backend), from the URL with every read its own request, and from the URL as the "
+                   "library reads it (neighbouring reads merged), in the same run, and the requests, bytes fetched "
+                   "and stalls of each reported (default: generate 1M particles x 60 frames in a temporary folder)")
       ->check(file_or_url());
   bench_stream_cmd->add_option("--particles", bench_stream_opts.particles, "Particles per generated frame")
       ->capture_default_str();
@@ -375,7 +384,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"records", "particle"}));
   bench_stream_cmd->add_flag(
       "--json", bench_stream_opts.json,
-      R"(Print {"frame_ms_median":…, "memcpy_ms_median":…, "ratio":…, "stalls":…, "requests":…, "bytes_fetched":…} (a URL: also "file_backend": {…}))");
+      R"(Print {"frame_ms_median":…, "memcpy_ms_median":…, "ratio":…, "stalls":…, "requests":…, "bytes_fetched":…} (a URL: also "file_backend": {…} and "unmerged": {…}))");
 
   BenchPlaybackOptions bench_playback_opts;
   auto* bench_playback_cmd = bench_cmd->add_subcommand(

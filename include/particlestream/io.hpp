@@ -25,6 +25,7 @@ struct SourceStats {
   double bandwidth_mb_s = 0;    // bytes over the time requests were in flight (MB/s)
   std::uint32_t in_flight = 0;  // reads under way now
   std::uint64_t cancelled = 0;  // reads ended early by cancel()
+  std::uint64_t merged = 0;     // reads that rode in another read's request (adjacent ranges merged)
 };
 
 // A read-only source of bytes at offsets.
@@ -56,8 +57,9 @@ class ByteSource {
   // Called by the stream's close() when a read never completed (fault() said so): completions
   // that come later must be ignored.
   virtual void abandon() {}
-  // How many reads the stream should keep under way (1: a local disk; HTTP: its connections).
-  virtual unsigned preferred_reads_in_flight() const { return 1; }
+  // How many reads of `read_bytes` each the stream should keep under way (1: a local disk; HTTP:
+  // enough to keep its connections busy with requests of about 1 MiB once neighbours are merged).
+  virtual unsigned preferred_reads_in_flight(std::uint64_t /*read_bytes*/) const { return 1; }
   // The whole source in memory when it is (a mapped local file); empty otherwise.
   virtual std::span<const std::byte> mapped() const { return {}; }
   // The asynchronous read started with `context` is no longer wanted (a seek made it useless). A
@@ -78,6 +80,10 @@ struct HttpOptions {
   double stall_timeout_seconds = 10;        // a request that receives nothing for this long is retried,
   unsigned stall_retries = 1;               // this many times (within `retries`)
   std::uint64_t prefix_bytes = 256 * 1024;  // fetched at open (header and tables usually fit)
+  // Reads waiting for a connection whose ranges lie at most merge_gap bytes apart go out as one
+  // request of at most merge_bytes (the bytes between them are fetched and dropped; 0: never).
+  std::uint64_t merge_bytes = 4 << 20;
+  std::uint64_t merge_gap = 64 * 1024;
 };
 
 // "http://" or "https://" (case-insensitive).

@@ -7,6 +7,8 @@
 // - timeouts, connection resets, short bodies, 408, 429 and 5xx are retried with exponential
 //   backoff and full jitter, HttpOptions::retries times per read;
 // - a body longer than asked for is cut off (never read to its end);
+// - reads waiting for a connection whose ranges lie at most merge_gap apart go out as one request
+//   of at most merge_bytes, whose body is split between them (PMTiles and COPC readers do this);
 // - every message names the URL, the byte range and the cause.
 // One thread per source drives a curl multi handle: up to `connections` requests in flight, kept
 // alive and reused (HTTP/2 when the server offers it over TLS), redirects followed.
@@ -32,6 +34,9 @@ namespace pstream::io {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// Reads the stream may keep queued per connection (small chunks): what the pool is sized for.
+constexpr std::uint64_t kReadsPerConnection = 4;
 
 void global_init() {
   static std::once_flag once;
@@ -73,8 +78,11 @@ bool parse_content_range(std::string_view v, std::uint64_t& first, std::uint64_t
   return r.ec == std::errc() && r.ptr == v.data() + v.size() && last >= first;
 }
 
+class HttpSource;
+
 // One read: a range, where its bytes go, and what its responses said.
 struct Request {
+  HttpSource* owner = nullptr;
   std::uint64_t offset = 0;
   std::span<std::byte> out;
   ByteSource::ReadDone done = nullptr;
@@ -82,6 +90,16 @@ struct Request {
   bool probe = false;  // the first request at open: any length up to out.size(), learns the size
   unsigned attempt = 0, stalls = 0;
   bool cancelled = false;  // cancel() asked: ended by the run loop, never retried
+  // Merged neighbours: the reads riding in this request, in offset order (a chain through the
+  // pool, so merging allocates nothing). `span` is what the request asks for: from `offset` to
+  // the end of its last read; `fill` is the read the body is being written into.
+  Request* next = nullptr;
+  Request* fill = nullptr;
+  std::uint64_t span = 0;
+  // A merged request whose headers hold completes each read as soon as its last byte is in
+  // (`early`), not when the whole request ends; `completed` marks a read so done.
+  bool early = false;
+  bool completed = false;
   Clock::time_point not_before{};
   // The current response.
   long status = 0;
@@ -103,7 +121,9 @@ class HttpSource final : public ByteSource {
     curl_multi_setopt(multi_, CURLMOPT_MAX_HOST_CONNECTIONS, static_cast<long>(o_.connections));
     curl_multi_setopt(multi_, CURLMOPT_MAX_TOTAL_CONNECTIONS, static_cast<long>(o_.connections));
     // A fixed pool of requests and easy handles, made here: reading allocates nothing of ours.
-    pool_.resize(std::size_t{o_.connections} * 4 + 2);
+    // The stream's reads, a head per connection whose reads completed early while its request
+    // runs on, and the two synchronous reads at open.
+    pool_.resize(std::size_t{o_.connections} * (kReadsPerConnection + 1) + 2);
     free_.reserve(pool_.size());
     queue_.reserve(pool_.size());
     active_.reserve(pool_.size());
@@ -115,6 +135,7 @@ class HttpSource final : public ByteSource {
         throw Error(url_ + ": libcurl could not make an easy handle");
       }
       for (std::string* text : {&r.content_range, &r.etag, &r.last_modified}) text->reserve(256);
+      r.owner = this;
       free_.push_back(&r);
     }
     thread_ = std::thread([this] { run(); });
@@ -157,7 +178,13 @@ class HttpSource final : public ByteSource {
 
   std::uint64_t size() const override { return size_; }
   const std::string& name() const override { return url_; }
-  unsigned preferred_reads_in_flight() const override { return o_.connections; }
+  // Small reads are worth queueing beyond the connections: queued neighbours merge into
+  // requests of about 1 MiB, so one round trip carries more than one small chunk.
+  unsigned preferred_reads_in_flight(std::uint64_t read_bytes) const override {
+    const std::uint64_t per_connection =
+        std::clamp<std::uint64_t>((1u << 20) / std::max<std::uint64_t>(read_bytes, 1), 1, kReadsPerConnection);
+    return o_.connections * static_cast<unsigned>(per_connection);
+  }
   std::string failure_message(int status) const override {
     std::lock_guard lock(mutex_);
     if (status <= 0 || static_cast<std::size_t>(status) > messages_.size()) return {};
@@ -167,8 +194,12 @@ class HttpSource final : public ByteSource {
     bool found = false;
     {
       std::lock_guard lock(mutex_);
-      for (Request* r : queue_) found = found || (r->context == context && (r->cancelled = true));
-      for (Request* r : active_) found = found || (r->context == context && (r->cancelled = true));
+      for (const auto* list : {&queue_, &active_}) {
+        for (Request* r : *list) {
+          for (Request* m = r; m != nullptr; m = m->next)
+            found = found || (m->context == context && (m->cancelled = true));
+        }
+      }
     }
     if (found) curl_multi_wakeup(multi_);  // the run loop ends it
   }
@@ -178,7 +209,11 @@ class HttpSource final : public ByteSource {
     SourceStats s = stats_;
     s.latency_ms = latency_count_ ? latency_sum_ms_ / double(latency_count_) : 0.0;
     s.bandwidth_mb_s = transfer_seconds_ > 0 ? double(s.bytes) / transfer_seconds_ / 1e6 : 0.0;
-    s.in_flight = static_cast<std::uint32_t>(active_.size() + queue_.size());
+    for (const auto* list : {&queue_, &active_}) {
+      for (const Request* r : *list) {
+        for (const Request* m = r; m != nullptr; m = m->next) s.in_flight += m->completed ? 0 : 1;
+      }
+    }
     return s;
   }
 
@@ -221,6 +256,9 @@ class HttpSource final : public ByteSource {
       r->attempt = 0;
       r->stalls = 0;
       r->cancelled = false;
+      r->next = nullptr;
+      r->span = out.size();
+      r->completed = false;
       r->not_before = Clock::now();
       queue_.push_back(r);
     }
@@ -276,11 +314,53 @@ class HttpSource final : public ByteSource {
       r->overflow = true;
       return 0;
     }
-    if (r->received + bytes > r->out.size()) {  // longer than the range: refused, never read on
+    if (r->received + bytes > r->span) {  // longer than the range: refused, never read on
       r->overflow = true;
       return 0;
     }
-    std::memcpy(r->out.data() + r->received, data, bytes);
+    if (r->received == 0 && r->next != nullptr) {
+      std::uint64_t got = 0, total = 0;
+      r->early = r->owner->range_problem(*r, got, total).empty();
+    }
+    // Into the read that holds each byte; bytes between merged reads are dropped.
+    for (std::size_t used = 0; used < bytes;) {
+      const std::uint64_t at = r->offset + r->received + used;
+      while (r->fill != nullptr && at >= r->fill->offset + r->fill->out.size()) r->fill = r->fill->next;
+      Request* f = r->fill;  // not null: the span ends where the last read ends
+      if (at < f->offset) {
+        used += static_cast<std::size_t>(std::min<std::uint64_t>(bytes - used, f->offset - at));
+        continue;
+      }
+      const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(bytes - used, f->offset + f->out.size() - at));
+      std::memcpy(f->out.data() + (at - f->offset), data + used, n);
+      used += n;
+      // A read whose bytes are all in needs not wait for its neighbours' (the request's last
+      // read completes when the request ends, as a lone read does).
+      if (r->early && f->next != nullptr && at + n == f->offset + f->out.size()) {
+        // Reads complete in order, so every read before f is done: a follower leaves the chain
+        // and goes back to the pool now (the request keeps only its head), so reads completed
+        // early never pile up while their requests run on.
+        const ReadDone done = f->done;
+        void* context = f->context;
+        bool cancelled = false;
+        {
+          std::lock_guard lock(r->owner->mutex_);
+          cancelled = f->cancelled;
+        }
+        const int status = cancelled ? r->owner->cancelled_status(*f) : 0;
+        {
+          std::lock_guard lock(r->owner->mutex_);
+          f->completed = true;
+          if (f != r) {
+            r->next = f->next;
+            r->fill = f->next;
+            f->next = nullptr;
+            r->owner->free_.push_back(f);
+          }
+        }
+        done(context, status);  // outside mutex_: a completion may start or cancel reads
+      }
+    }
     r->received += bytes;
     return bytes;
   }
@@ -290,12 +370,14 @@ class HttpSource final : public ByteSource {
     curl_easy_reset(e);
     r.status = 0;
     r.received = 0;
+    r.fill = &r;
+    r.early = false;
     r.overflow = false;
     r.content_range.clear();
     r.etag.clear();
     r.last_modified.clear();
     r.curl_error[0] = '\0';
-    fmt::format_to_n(r.range, sizeof r.range - 1, "{}-{}", r.offset, r.offset + r.out.size() - 1).out[0] = '\0';
+    fmt::format_to_n(r.range, sizeof r.range - 1, "{}-{}", r.offset, r.offset + r.span - 1).out[0] = '\0';
     curl_easy_setopt(e, CURLOPT_URL, url_.c_str());
     curl_easy_setopt(e, CURLOPT_RANGE, r.range);
     curl_easy_setopt(e, CURLOPT_ACCEPT_ENCODING, "identity");
@@ -316,6 +398,28 @@ class HttpSource final : public ByteSource {
     curl_easy_setopt(e, CURLOPT_USERAGENT, "ParticleStream");
   }
 
+  // What is wrong with a 206's headers (empty: nothing): its Content-Range must be the range asked
+  // for, and (after the probe) the size and validators those seen at open.
+  std::string range_problem(const Request& r, std::uint64_t& got_len, std::uint64_t& total) const {
+    std::uint64_t first = 0, last = 0;
+    if (!parse_content_range(r.content_range, first, last, total)) {
+      return fmt::format("a 206 without a valid Content-Range (got '{}')", r.content_range);
+    }
+    got_len = last - first + 1;
+    if (first != r.offset || (r.probe ? got_len > r.span : got_len != r.span)) {
+      return fmt::format("Content-Range '{}' is not the range asked for", r.content_range);
+    }
+    if (r.probe) return {};
+    if (total != size_)
+      return fmt::format("the file is now {} bytes, {} when it was opened (it changed)", total, size_);
+    if ((!etag_.empty() && r.etag != etag_) || (!last_modified_.empty() && r.last_modified != last_modified_)) {
+      return fmt::format("the file changed since it was opened (ETag {} / Last-Modified {}, was {} / {})",
+                         r.etag.empty() ? "none" : r.etag, r.last_modified.empty() ? "none" : r.last_modified,
+                         etag_.empty() ? "none" : etag_, last_modified_.empty() ? "none" : last_modified_);
+    }
+    return {};
+  }
+
   // What a finished transfer means: 0 (the bytes are in), or a message and whether to retry.
   struct Outcome {
     bool ok = false, transient = false;
@@ -324,7 +428,7 @@ class HttpSource final : public ByteSource {
   Outcome judge(Request& r, CURLcode code) {
     Outcome o;
     curl_easy_getinfo(r.easy, CURLINFO_RESPONSE_CODE, &r.status);
-    const std::uint64_t want = r.out.size();
+    const std::uint64_t want = r.span;
     // A body cut off on purpose: the whole file (200), or more than the range (206). Other
     // statuses' bodies (error pages) were cut off too; their status decides below.
     if (r.overflow && (r.status == 200 || r.status == 206)) {
@@ -356,29 +460,9 @@ class HttpSource final : public ByteSource {
                                 : fmt::format("HTTP {} where 206 Partial Content was expected", r.status);
       return o;
     }
-    std::uint64_t first = 0, last = 0, total = 0;
-    if (!parse_content_range(r.content_range, first, last, total)) {
-      o.why = fmt::format("a 206 without a valid Content-Range (got '{}')", r.content_range);
-      return o;
-    }
-    const std::uint64_t got_len = last - first + 1;
-    const bool range_ok = first == r.offset && (r.probe ? got_len <= want : got_len == want);
-    if (!range_ok) {
-      o.why = fmt::format("Content-Range '{}' is not the range asked for", r.content_range);
-      return o;
-    }
-    if (!r.probe) {
-      if (total != size_) {
-        o.why = fmt::format("the file is now {} bytes, {} when it was opened (it changed)", total, size_);
-        return o;
-      }
-      if ((!etag_.empty() && r.etag != etag_) || (!last_modified_.empty() && r.last_modified != last_modified_)) {
-        o.why = fmt::format("the file changed since it was opened (ETag {} / Last-Modified {}, was {} / {})",
-                            r.etag.empty() ? "none" : r.etag, r.last_modified.empty() ? "none" : r.last_modified,
-                            etag_.empty() ? "none" : etag_, last_modified_.empty() ? "none" : last_modified_);
-        return o;
-      }
-    }
+    std::uint64_t got_len = 0, total = 0;
+    o.why = range_problem(r, got_len, total);
+    if (!o.why.empty()) return o;
     if (r.received != got_len) {
       o.transient = true;
       o.why = fmt::format("a short body: {} of {} bytes", r.received, got_len);
@@ -434,23 +518,86 @@ class HttpSource final : public ByteSource {
       r->not_before = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait));
       std::lock_guard lock(mutex_);
       ++stats_.retries;
-      queue_.push_back(r);
+      // Each read not yet completed goes back alone; due together, they merge again when they go out.
+      for (Request* m = r; m != nullptr;) {
+        Request* const next = m->next;
+        m->next = nullptr;
+        if (m->completed) {
+          free_.push_back(m);
+          m = next;
+          continue;
+        }
+        m->span = m->out.size();
+        m->attempt = r->attempt;
+        m->stalls = r->stalls;
+        m->not_before = r->not_before;
+        queue_.push_back(m);
+        m = next;
+      }
       return;
     }
-    int status = 0;
-    if (!o.ok) {
-      const std::uint64_t end = r->offset + r->out.size() - 1;
-      status = keep_message(fmt::format(
-          "{}: bytes {}-{}: {}{}", url_, r->offset, end, o.why,
-          r->attempt ? fmt::format(" (after {} {})", r->attempt, r->attempt == 1 ? "retry" : "retries") : ""));
+    const std::uint64_t first = r->offset, last = r->offset + r->span - 1;
+    const bool merged = r->next != nullptr;
+    const unsigned attempts = r->attempt;
+    complete_all(r, [&](const Request& m) {
+      if (m.cancelled) return cancelled_status(m);
+      if (o.ok) return 0;
+      return keep_message(
+          fmt::format("{}: bytes {}-{}: {}{}{}", url_, m.offset, m.offset + m.out.size() - 1, o.why,
+                      attempts ? fmt::format(" (after {} {})", attempts, attempts == 1 ? "retry" : "retries") : "",
+                      merged ? fmt::format(" (in one request for bytes {}-{})", first, last) : ""));
+    });
+  }
+
+  int cancelled_status(const Request& m) {
+    return keep_message(
+        fmt::format("{}: bytes {}-{}: cancelled (no longer wanted)", url_, m.offset, m.offset + m.out.size() - 1));
+  }
+
+  // Hands every read of the request `r` back to the pool and completes the ones not completed
+  // early; status(read) says how (0: its bytes are in). A completion may start reads that reuse
+  // these requests at once.
+  template <typename Status>
+  void complete_all(Request* r, Status&& status) {
+    for (Request* m = r; m != nullptr;) {
+      Request* const next = m->next;
+      const bool completed = m->completed;
+      const int st = completed ? 0 : status(*m);
+      const ReadDone done = m->done;
+      void* context = m->context;
+      m->next = nullptr;
+      {
+        std::lock_guard lock(mutex_);
+        free_.push_back(m);
+      }
+      if (!completed) done(context, st);
+      m = next;
     }
-    const ReadDone done = r->done;
-    void* context = r->context;
-    {
-      std::lock_guard lock(mutex_);
-      free_.push_back(r);
+  }
+
+  // Takes the due reads that continue `r` (at most merge_gap bytes after its end, the whole
+  // request within merge_bytes) out of the queue and chains them to it. Under mutex_.
+  void merge_neighbours(Request& r, Clock::time_point now) {
+    if (r.probe) return;
+    Request* tail = &r;
+    for (;;) {
+      const std::uint64_t end = r.offset + r.span;
+      auto best = queue_.end();
+      for (auto it = queue_.begin(); it != queue_.end(); ++it) {
+        const Request* q = *it;
+        if (q->probe || q->cancelled || q->not_before > now || q->offset < end || q->offset - end > o_.merge_gap ||
+            q->offset + q->out.size() - r.offset > o_.merge_bytes)
+          continue;
+        if (best == queue_.end() || q->offset < (*best)->offset) best = it;
+      }
+      if (best == queue_.end()) return;
+      Request* q = *best;
+      queue_.erase(best);
+      tail->next = q;
+      tail = q;
+      r.span = q->offset + q->out.size() - r.offset;
+      ++stats_.merged;
     }
-    done(context, status);  // r may be reused from here on
   }
 
   void run() {
@@ -461,44 +608,40 @@ class HttpSource final : public ByteSource {
       {
         std::lock_guard lock(mutex_);
         if (stopping_) break;
+        // A request ends early only when every read riding in it is cancelled.
         for (auto* list : {&active_, &queue_}) {
           for (auto it = list->begin(); it != list->end();) {
-            if (!(*it)->cancelled) {
+            bool all = true;
+            for (const Request* m = *it; m != nullptr; m = m->next) all = all && (m->cancelled || m->completed);
+            if (!all) {
               ++it;
               continue;
             }
             if (list == &active_) curl_multi_remove_handle(multi_, (*it)->easy);
+            for (const Request* m = *it; m != nullptr; m = m->next) stats_.cancelled += m->completed ? 0 : 1;
             ended_.push_back(*it);
             it = list->erase(it);
           }
         }
-        stats_.cancelled += ended_.size();
         const auto now = Clock::now();
-        for (auto it = queue_.begin(); it != queue_.end() && active_.size() < o_.connections;) {
-          Request* r = *it;
-          if (r->not_before > now) {
-            const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(r->not_before - now).count();
-            wait_ms = std::min<int>(wait_ms, static_cast<int>(ms) + 1);
-            ++it;
-            continue;
-          }
-          it = queue_.erase(it);
+        for (const Request* r : queue_) {
+          if (r->not_before <= now) continue;
+          const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(r->not_before - now).count();
+          wait_ms = std::min<int>(wait_ms, static_cast<int>(ms) + 1);
+        }
+        while (active_.size() < o_.connections) {
+          const auto due =
+              std::find_if(queue_.begin(), queue_.end(), [&](const Request* q) { return q->not_before <= now; });
+          if (due == queue_.end()) break;
+          Request* r = *due;
+          queue_.erase(due);
+          merge_neighbours(*r, now);
           prepare(*r);
           curl_multi_add_handle(multi_, r->easy);
           active_.push_back(r);
         }
       }
-      for (Request* r : ended_) {
-        const int status = keep_message(fmt::format("{}: bytes {}-{}: cancelled (no longer wanted)", url_, r->offset,
-                                                    r->offset + r->out.size() - 1));
-        const ReadDone done = r->done;
-        void* context = r->context;
-        {
-          std::lock_guard lock(mutex_);
-          free_.push_back(r);
-        }
-        done(context, status);
-      }
+      for (Request* r : ended_) complete_all(r, [&](const Request& m) { return cancelled_status(m); });
       int running = 0;
       curl_multi_perform(multi_, &running);
       int left = 0;
@@ -527,15 +670,10 @@ class HttpSource final : public ByteSource {
       queue_.clear();
     }
     for (Request* r : left) {
-      const int status = keep_message(
-          fmt::format("{}: closed while bytes {}-{} were being read", url_, r->offset, r->offset + r->out.size() - 1));
-      const ReadDone done = r->done;
-      void* context = r->context;
-      {
-        std::lock_guard lock(mutex_);
-        free_.push_back(r);
-      }
-      done(context, status);
+      complete_all(r, [&](const Request& m) {
+        return keep_message(
+            fmt::format("{}: closed while bytes {}-{} were being read", url_, m.offset, m.offset + m.out.size() - 1));
+      });
     }
   }
 

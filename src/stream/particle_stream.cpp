@@ -415,8 +415,8 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->interpolate = options.interpolate;
   impl->scheduler = options.scheduler ? options.scheduler : IoScheduler::shared_default();
   impl->chunk_size = m.chunk_size;
-  const unsigned loads =
-      std::max(1u, options.max_loads_in_flight ? options.max_loads_in_flight : impl->io->preferred_reads_in_flight());
+  const unsigned loads = std::max(1u, options.max_loads_in_flight ? options.max_loads_in_flight
+                                                                  : impl->io->preferred_reads_in_flight(m.chunk_size));
   // A source with reads in flight (HTTP) sizes the look-ahead from what its open measured: at
   // least 4 round trips of playback, and a slot for every load in flight plus two (the chunk
   // being read and one ready). Fixed at open, like every other buffer.
