@@ -357,6 +357,59 @@ TEST_F(LooksTest, AnAdditiveCloudDoesNotClipToWhite) {
   EXPECT_GT(bright, 300);
 }
 
+// Bloom spreads an additive cloud's light beyond the sprites' footprint and keeps its total: the
+// linear tone map, exposed so that nothing clips, lets the 8-bit image be summed as light.
+TEST_F(LooksTest, BloomSpreadsLightBeyondTheSpritesAndKeepsItsTotal) {
+  const auto ps = ball(800, 0.8f, 0.03f, rgba(1.0f, 0.5f, 0.15f, 1.0f));
+  SpriteStyle style;
+  style.lit = false;
+  style.tone_map = ToneMap::Linear;
+  style.exposure = 0.12f;
+  const Image plain = draw(front_camera(), ps, style, BlendMode::Additive, std::nullopt, "bloom_off");
+  style.bloom = 0.5f;
+  style.bloom_radius = 0.02f;
+  const Image glow = draw(front_camera(), ps, style, BlendMode::Additive, std::nullopt, "bloom_on");
+  // The footprint: every pixel the plain render lights, grown by one pixel.
+  std::vector<std::uint8_t> footprint(std::size_t(kW) * kH, 0);
+  for (int y = 0; y < kH; ++y) {
+    for (int x = 0; x < kW; ++x) {
+      const auto c = plain.at(x, y);
+      if (c[0] + c[1] + c[2] == 0) continue;
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int u = std::clamp(x + dx, 0, kW - 1), v = std::clamp(y + dy, 0, kH - 1);
+          footprint[std::size_t(v) * kW + std::size_t(u)] = 1;
+        }
+      }
+    }
+  }
+  double total_plain = 0, total_glow = 0, outside_plain = 0, outside_glow = 0;
+  int brightest = 0;
+  for (int y = 0; y < kH; ++y) {
+    for (int x = 0; x < kW; ++x) {
+      const auto a = plain.at(x, y), b = glow.at(x, y);
+      const double la = a[0] + a[1] + a[2], lb = b[0] + b[1] + b[2];
+      brightest = std::max({brightest, a[0], a[1], a[2]});
+      total_plain += la;
+      total_glow += lb;
+      if (!footprint[std::size_t(y) * kW + std::size_t(x)]) {
+        outside_plain += la;
+        outside_glow += lb;
+      }
+    }
+  }
+  std::printf("bloom: total %.0f -> %.0f (%.3fx); outside the sprites %.2f%% -> %.2f%% of it; brightest %d\n",
+              total_plain, total_glow, total_glow / total_plain, 100 * outside_plain / total_plain,
+              100 * outside_glow / total_glow, brightest);
+  ASSERT_LT(brightest, 250) << "the control must not clip, or the totals are not light";
+  ASSERT_GT(total_plain, 0.0);
+  EXPECT_NEAR(total_glow / total_plain, 1.0, 0.05) << "bloom moves light, it does not add any";
+  EXPECT_EQ(outside_plain, 0.0);
+  // Half the light blurred with sigma 4.8 px, over a cloud about 45 px across: about 0.8 sigma / R
+  // of the blurred half lands outside, some 4 %.
+  EXPECT_GT(outside_glow / total_glow, 0.02) << "the glow reaches past the sprites";
+}
+
 TEST_F(LooksTest, EachStreamTakesItsTint) {
   // Two white streams side by side, drawn as one merged order; the second tinted orange.
   const std::vector<Particle> a = {{-0.8f, 0, 0, 0.4f, rgba(1, 1, 1, 1), 0, 0, 0, 0}};

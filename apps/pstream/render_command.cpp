@@ -72,6 +72,8 @@ void apply_look(const LookCli& cli, playback::DrawStyle& style) {
   if (set("--shadow-density")) s.shadow_density = c.shadow_density;
   if (set("--shutter")) s.shutter = c.shutter;
   if (set("--exposure")) s.exposure = c.exposure;
+  if (set("--bloom")) s.bloom = c.bloom;
+  if (set("--bloom-radius")) s.bloom_radius = c.bloom_radius;
   if (set("--opacity")) s.opacity = c.opacity;
   if (set("--min-pixels")) s.min_pixels = c.min_pixels;
   if (set("--flat")) s.lit = !cli.flat;

@@ -139,10 +139,11 @@ void cache_view(const stream::ParticleStream& clip) {
       d.slots.size(), d.cache_bytes / 1048576.0, static_cast<unsigned long long>(d.loads_done), d.loads_in_flight,
       d.bytes_read / 1048576.0, d.io_ms, d.decode_ms, static_cast<unsigned long long>(d.stalls));
   if (d.source.requests != 0) {  // a remote clip: what went over the wire
-    ImGui::TextWrapped("remote: %llu requests (%llu retried), %.1f MB, first byte %.0f ms, %.1f MB/s, %u in flight",
-                       static_cast<unsigned long long>(d.source.requests),
-                       static_cast<unsigned long long>(d.source.retries), d.source.bytes / 1e6, d.source.latency_ms,
-                       d.source.bandwidth_mb_s, d.source.in_flight);
+    ImGui::TextWrapped(
+        "remote: %llu requests (%llu retried, %llu reads merged), %.1f MB, first byte %.0f ms, %.1f MB/s, %u in flight",
+        static_cast<unsigned long long>(d.source.requests), static_cast<unsigned long long>(d.source.retries),
+        static_cast<unsigned long long>(d.source.merged), d.source.bytes / 1e6, d.source.latency_ms,
+        d.source.bandwidth_mb_s, d.source.in_flight);
   }
   ImGui::TextColored({0.45f, 0.75f, 0.5f, 1}, "Ready");
   ImGui::SameLine();
@@ -351,6 +352,9 @@ int run_viewer(const ViewerCli& cli) {
       ImGui::SliderFloat("Motion blur", &sp.shutter, 0.0f, 0.1f, "%.3f s");
       tip("Shutter: seconds of motion each sprite is stretched along (0: off)");
       ImGui::SliderFloat("Exposure", &sp.exposure, 0.1f, 8.0f, "%.2f", ImGuiSliderFlags_Logarithmic);
+      ImGui::SliderFloat("Bloom", &sp.bloom, 0.0f, 1.0f, "%.2f");
+      tip("Share of the light that spreads into a glow around it (the total is kept)");
+      if (sp.bloom > 0.0f) ImGui::SliderFloat("Bloom radius", &sp.bloom_radius, 0.002f, 0.1f, "%.3f");
       bool filmic = sp.tone_map == render::ToneMap::Filmic;
       if (ImGui::Checkbox("Filmic tone map", &filmic))
         sp.tone_map = filmic ? render::ToneMap::Filmic : render::ToneMap::Linear;

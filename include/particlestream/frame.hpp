@@ -135,6 +135,11 @@ struct SpriteStyle {
   float min_pixels = 1.0f;
   float exposure = 1.0f;
   ToneMap tone_map = ToneMap::Filmic;
+  // Bloom: this share (0..1) of the accumulated light moves into a Gaussian blur of it, whose
+  // sigma is `bloom_radius` image heights, before the tone map. Bright light spreads into a glow
+  // around it; the light's total stays the same. 0: none.
+  float bloom = 0.0f;
+  float bloom_radius = 0.02f;
 };
 
 // The order self-shadowed sprites are drawn in: sort front to back in `sort_view` (whose view

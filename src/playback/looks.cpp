@@ -49,6 +49,11 @@ DrawStyle look_preset(std::string_view name) {
     s.blend = render::BlendMode::Additive;
     p.lit = false;
     p.shutter = 1.0f / 48;
+    // Sparks are light: exposed to burn bright at their core, with a third of it spread into a
+    // glow of about 1 % of the image around them (the tone map keeps hot light in its hue).
+    p.exposure = 3.0f;
+    p.bloom = 0.35f;
+    p.bloom_radius = 0.012f;
     return s;
   }
   if (name == "liquid-sprites") {  // water as lit droplets, coloured by speed

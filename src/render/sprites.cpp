@@ -215,9 +215,11 @@ void main() {
 }
 )";
 
-// The accumulated sprites over the scene: exposure and tone map, premultiplied.
+// The accumulated sprites over the scene: bloom, exposure and tone map, premultiplied.
 constexpr const char* kCompositeFragment = R"(#version 450 core
 uniform sampler2D u_hdr;
+uniform sampler2D u_bloom;   // the HDR light blurred at half resolution
+uniform float u_bloom_strength;
 uniform float u_exposure;
 uniform int u_tone_map;      // 0 filmic, 1 linear
 out vec4 o_color;
@@ -227,6 +229,9 @@ float filmic(float x) {      // a fitted ACES curve, on 1.4 x so that white come
 }
 void main() {
   vec4 h = texelFetch(u_hdr, ivec2(gl_FragCoord.xy), 0);
+  // Bloom moves a share of the light into its blur: what glows spreads, and the light's total
+  // stays what it was.
+  if (u_bloom_strength > 0.0) h = mix(h, texture(u_bloom, gl_FragCoord.xy / vec2(textureSize(u_hdr, 0))), u_bloom_strength);
   vec3 c = max(h.rgb, vec3(0.0)) * u_exposure;
   if (u_tone_map == 0) {
     float m = max(max(c.r, c.g), c.b);
@@ -235,6 +240,29 @@ void main() {
     c = clamp(c, 0.0, 1.0);
   }
   o_color = vec4(c, clamp(h.a, 0.0, 1.0));
+}
+)";
+
+// One axis of the bloom's Gaussian, into a half-resolution buffer: read through bilinear
+// filtering, a tap between texels averages them, so the first pass also halves the full-size
+// buffer. The weights sum to one: the blur keeps the light's total.
+constexpr const char* kBloomFragment = R"(#version 450 core
+uniform sampler2D u_source;
+uniform vec2 u_step;        // one destination texel along the axis, in the source's uv
+uniform float u_sigma;      // in destination texels
+uniform int u_taps;         // each side
+uniform vec2 u_size;        // the destination's size
+out vec4 o_color;
+void main() {
+  vec2 uv = gl_FragCoord.xy / u_size;
+  vec4 sum = texture(u_source, uv);
+  float weights = 1.0;
+  for (int i = 1; i <= u_taps; ++i) {
+    float w = exp(-0.5 * float(i * i) / (u_sigma * u_sigma));
+    sum += w * (texture(u_source, uv + float(i) * u_step) + texture(u_source, uv - float(i) * u_step));
+    weights += 2.0 * w;
+  }
+  o_color = sum / weights;
 }
 )";
 
@@ -283,7 +311,10 @@ struct Uniforms {
 struct SpritePass::Impl {
   GLuint program = 0, composite = 0, ground_shadow = 0, vao = 0;
   Uniforms u{};
-  GLint c_hdr = -1, c_exposure = -1, c_tone_map = -1;
+  GLint c_hdr = -1, c_bloom = -1, c_bloom_strength = -1, c_exposure = -1, c_tone_map = -1;
+  GLuint bloom = 0;  // the blur program
+  GLint b_source = -1, b_step = -1, b_sigma = -1, b_taps = -1, b_size = -1;
+  std::array<GLuint, 2> bloom_texture{}, bloom_framebuffer{};  // half resolution: across, then down
   GLint g_view = -1, g_projection = -1, g_viewport = -1, g_ground = -1, g_light_vp = -1, g_light = -1, g_texel = -1,
         g_strength = -1;
   GLuint hdr_texture = 0, hdr_depth = 0, hdr_framebuffer = 0;  // depth: alpha-tested sprites only
@@ -296,8 +327,10 @@ struct SpritePass::Impl {
     if (hdr_framebuffer) glDeleteFramebuffers(1, &hdr_framebuffer);
     if (hdr_texture) glDeleteTextures(1, &hdr_texture);
     if (hdr_depth) glDeleteRenderbuffers(1, &hdr_depth);
+    delete_bloom();
     glCreateTextures(GL_TEXTURE_2D, 1, &hdr_texture);
     glTextureStorage2D(hdr_texture, 1, GL_RGBA16F, width, height);
+    linear_clamped(hdr_texture);  // the bloom reads it filtered (the composite by texel)
     glCreateRenderbuffers(1, &hdr_depth);
     glNamedRenderbufferStorage(hdr_depth, GL_DEPTH_COMPONENT24, width, height);
     glCreateFramebuffers(1, &hdr_framebuffer);
@@ -307,6 +340,60 @@ struct SpritePass::Impl {
       throw Error("the sprites' half-float buffer is not renderable on this GPU");
     hdr_width = width;
     hdr_height = height;
+  }
+
+  static void linear_clamped(GLuint texture) {
+    glTextureParameteri(texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    glTextureParameteri(texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    glTextureParameteri(texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTextureParameteri(texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+  }
+
+  // The bloom's two half-resolution buffers, made the first time a style asks for bloom.
+  void ensure_bloom() {
+    if (bloom_texture[0] != 0) return;
+    const int w = std::max(1, (hdr_width + 1) / 2), h = std::max(1, (hdr_height + 1) / 2);
+    for (std::size_t i = 0; i < 2; ++i) {
+      glCreateTextures(GL_TEXTURE_2D, 1, &bloom_texture[i]);
+      glTextureStorage2D(bloom_texture[i], 1, GL_RGBA16F, w, h);
+      linear_clamped(bloom_texture[i]);
+      glCreateFramebuffers(1, &bloom_framebuffer[i]);
+      glNamedFramebufferTexture(bloom_framebuffer[i], GL_COLOR_ATTACHMENT0, bloom_texture[i], 0);
+      if (glCheckNamedFramebufferStatus(bloom_framebuffer[i], GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+        throw Error("the sprites' bloom buffer is not renderable on this GPU");
+    }
+  }
+
+  void delete_bloom() {
+    for (std::size_t i = 0; i < 2; ++i) {
+      if (bloom_framebuffer[i]) glDeleteFramebuffers(1, &bloom_framebuffer[i]);
+      if (bloom_texture[i]) glDeleteTextures(1, &bloom_texture[i]);
+      bloom_framebuffer[i] = bloom_texture[i] = 0;
+    }
+  }
+
+  // Blurs the HDR buffer into bloom_texture[1]: a Gaussian of `radius` image heights, across
+  // into [0] (halving the resolution), then down into [1].
+  void blur(float radius) {
+    ensure_bloom();
+    const int w = std::max(1, (hdr_width + 1) / 2), h = std::max(1, (hdr_height + 1) / 2);
+    const float sigma = std::max(0.5f, radius * float(h));
+    const int taps = std::clamp(int(std::ceil(3.0f * sigma)), 1, 96);
+    glUseProgram(bloom);
+    glUniform1i(b_source, 3);
+    glUniform1f(b_sigma, sigma);
+    glUniform1i(b_taps, taps);
+    glUniform2f(b_size, float(w), float(h));
+    glViewport(0, 0, w, h);
+    glDisable(GL_BLEND);
+    glBindFramebuffer(GL_FRAMEBUFFER, bloom_framebuffer[0]);
+    glBindTextureUnit(3, hdr_texture);
+    glUniform2f(b_step, 1.0f / float(w), 0.0f);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glBindFramebuffer(GL_FRAMEBUFFER, bloom_framebuffer[1]);
+    glBindTextureUnit(3, bloom_texture[0]);
+    glUniform2f(b_step, 0.0f, 1.0f / float(h));
+    glDrawArrays(GL_TRIANGLES, 0, 3);
   }
 
   void ensure_light(int size) {
@@ -355,6 +442,14 @@ SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
   d.c_hdr = glGetUniformLocation(d.composite, "u_hdr");
   d.c_exposure = glGetUniformLocation(d.composite, "u_exposure");
   d.c_tone_map = glGetUniformLocation(d.composite, "u_tone_map");
+  d.c_bloom = glGetUniformLocation(d.composite, "u_bloom");
+  d.c_bloom_strength = glGetUniformLocation(d.composite, "u_bloom_strength");
+  d.bloom = link_program(kFullScreenVertexShader, kBloomFragment);
+  d.b_source = glGetUniformLocation(d.bloom, "u_source");
+  d.b_step = glGetUniformLocation(d.bloom, "u_step");
+  d.b_sigma = glGetUniformLocation(d.bloom, "u_sigma");
+  d.b_taps = glGetUniformLocation(d.bloom, "u_taps");
+  d.b_size = glGetUniformLocation(d.bloom, "u_size");
   const std::string ground_shadow = std::string("#version 450 core\n") + kGroundRayFunction + kGroundShadowFragment;
   d.ground_shadow = link_program(kFullScreenVertexShader, ground_shadow.c_str());
   const auto gloc = [&](const char* name) { return glGetUniformLocation(d.ground_shadow, name); };
@@ -376,6 +471,8 @@ SpritePass::~SpritePass() {
   if (d.hdr_depth) glDeleteRenderbuffers(1, &d.hdr_depth);
   if (d.light_framebuffer) glDeleteFramebuffers(1, &d.light_framebuffer);
   if (d.light_texture) glDeleteTextures(1, &d.light_texture);
+  d.delete_bloom();
+  glDeleteProgram(d.bloom);
   glDeleteVertexArrays(1, &d.vao);
   glDeleteProgram(d.program);
   glDeleteProgram(d.composite);
@@ -550,8 +647,18 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
     glDrawArrays(GL_TRIANGLES, 0, 3);
   }
 
+  const bool bloom = style.bloom > 0.0f && style.bloom_radius > 0.0f;
+  if (bloom) {
+    d.blur(style.bloom_radius);
+    glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
+    glViewport(0, 0, frame.width, frame.height);
+    glBindVertexArray(d.vao);
+  }
   glUseProgram(d.composite);
   glUniform1i(d.c_hdr, 2);
+  glUniform1i(d.c_bloom, 3);
+  glUniform1f(d.c_bloom_strength, bloom ? std::min(style.bloom, 1.0f) : 0.0f);
+  if (bloom) glBindTextureUnit(3, d.bloom_texture[1]);
   glUniform1f(d.c_exposure, std::max(style.exposure, 0.0f));
   glUniform1i(d.c_tone_map, static_cast<int>(style.tone_map));
   glBindTextureUnit(2, d.hdr_texture);
