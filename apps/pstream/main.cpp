@@ -494,6 +494,12 @@ int main(int argc, char** argv) {
       ->check(positive_number())
       ->capture_default_str();
   render_cmd
+      ->add_option("--liquid-opacity-depth", render_cli.liquid.opacity_depth,
+                   "Liquid: the thickness, in particle radii (a layer of touching spheres is about 1), that hides "
+                   "63 % of what is behind behind the liquid's own lit colour and blurs the rest; 0: clear as glass")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  render_cmd
       ->add_option("--liquid-smoothing", render_cli.liquid.smoothing,
                    "Liquid: the depth filter's radius in particle radii (larger: calmer surface, fewer beads)")
       ->check(CLI::Range(0.0f, 20.0f))

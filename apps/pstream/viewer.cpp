@@ -371,6 +371,8 @@ int run_viewer(const ViewerCli& cli) {
       ImGui::ColorEdit3("Colour", l.color.data());
       ImGui::SliderFloat("Colour depth", &l.color_depth, 1.0f, 100.0f, "%.0f r", ImGuiSliderFlags_Logarithmic);
       tip("How deep the liquid is before it takes its full colour, in particle radii");
+      ImGui::SliderFloat("Opacity depth", &l.opacity_depth, 0.0f, 20.0f, "%.1f r");
+      tip("Liquid this thick (particle radii) hides most of what is behind it; 0: clear as glass");
       ImGui::SliderFloat("Refraction", &l.refraction, 0.0f, 4.0f, "%.2f");
       ImGui::SliderFloat("Spray: thin", &l.foam_isolation, 0.0f, 10.0f, "%.1f r");
       tip("Particles in liquid thinner than this many radii are drawn as spray");

@@ -185,6 +185,10 @@ struct LiquidStyle {
   std::array<float, 3> color{0.30f, 0.66f, 0.82f};  // what `color_depth` of liquid lets through
   float color_depth = 16.0f;                        // in particle radii
   float refraction = 1.0f;                          // how far the normal bends what is behind, 0..4
+  // Liquid this thick (in particle radii of summed sphere chords: a layer of touching spheres
+  // adds about 1) hides 63 % of what is behind it behind its own lit colour, and blurs the rest;
+  // 0: clear as glass.
+  float opacity_depth = 2.0f;
   float foam_speed = 0.0f;      // world units per second: faster particles are spray (0: off; needs velocities)
   float foam_isolation = 3.0f;  // particles where the liquid is thinner than this (radii) are spray (0: off)
   LiquidOutput output = LiquidOutput::Shaded;

@@ -158,23 +158,18 @@ vec3 view_position(vec2 uv, float d, mat4 projection) {
 }
 )";
 
-// Normals: per axis the neighbour difference with the smaller depth change, so that edges do not
-// bend the normals of the pixels beside them.
+// Normals: a plane fitted to the smoothed depth of the 7x7 pixels around each pixel (weighted
+// least squares, Gaussian in distance), leaving out pixels with no liquid or more than the narrow
+// range away in depth (another surface). A fit in two dimensions at once: the separable depth
+// filter leaves each row a little different from the next, and one-sided differences turned that
+// into streaks along the rows; the fit averages across rows as much as along them.
 constexpr const char* kNormalFragment = R"(
 uniform sampler2D u_depth;
 uniform ivec2 u_size;
 uniform mat4 u_projection;
+uniform float u_range;  // view units: farther in depth is another surface
 layout(location = 0) out vec4 o_normal;
-vec3 at(ivec2 q, float d) { return view_position((vec2(q) + 0.5) / vec2(u_size), d, u_projection); }
-vec3 tangent(ivec2 p, ivec2 s, vec3 c) {
-  ivec2 pa = clamp(p + s, ivec2(0), u_size - 1), pb = clamp(p - s, ivec2(0), u_size - 1);
-  float a = texelFetch(u_depth, pa, 0).r, b = texelFetch(u_depth, pb, 0).r;
-  vec3 forward = at(pa, a) - c, backward = c - at(pb, b);
-  if (a <= 0.0 && b <= 0.0) return s.x != 0 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0);
-  if (a <= 0.0) return backward;
-  if (b <= 0.0) return forward;
-  return abs(forward.z) < abs(backward.z) ? forward : backward;
-}
+vec3 at(vec2 q, float d) { return view_position((q + 0.5) / vec2(u_size), d, u_projection); }
 void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);
   float d = texelFetch(u_depth, p, 0).r;
@@ -182,12 +177,46 @@ void main() {
     o_normal = vec4(0.0);
     return;
   }
-  vec3 c = at(p, d);
-  vec3 n = normalize(cross(tangent(p, ivec2(1, 0), c), tangent(p, ivec2(0, 1), c)));
+  float w0 = 0.0, sx = 0.0, sy = 0.0, sz = 0.0, sxx = 0.0, syy = 0.0, sxy = 0.0, sxz = 0.0, syz = 0.0;
+  for (int j = -3; j <= 3; ++j) {
+    for (int i = -3; i <= 3; ++i) {
+      ivec2 q = p + ivec2(i, j);
+      if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, u_size))) continue;
+      float z = texelFetch(u_depth, q, 0).r;
+      if (z <= 0.0 || abs(z - d) > u_range) continue;
+      float w = exp(-0.125 * float(i * i + j * j));
+      float x = float(i), y = float(j);
+      z -= d;
+      w0 += w;
+      sx += w * x;
+      sy += w * y;
+      sz += w * z;
+      sxx += w * x * x;
+      syy += w * y * y;
+      sxy += w * x * y;
+      sxz += w * x * z;
+      syz += w * y * z;
+    }
+  }
+  // Centred sums; then depth = d + a * dx + b * dy around the pixel.
+  float cxx = sxx - sx * sx / w0, cyy = syy - sy * sy / w0, cxy = sxy - sx * sy / w0;
+  float cxz = sxz - sx * sz / w0, cyz = syz - sy * sz / w0;
+  float det = cxx * cyy - cxy * cxy;
+  float a = 0.0, b = 0.0;
+  if (det > 1e-6) {
+    a = (cxz * cyy - cyz * cxy) / det;
+    b = (cyz * cxx - cxz * cxy) / det;
+  } else if (cxx > 1e-6) {
+    a = cxz / cxx;
+  } else if (cyy > 1e-6) {
+    b = cyz / cyy;
+  }
+  vec2 q = vec2(p);
+  vec3 c = at(q, d);
+  vec3 n = normalize(cross(at(q + vec2(1.0, 0.0), d + a) - c, at(q + vec2(0.0, 1.0), d + b) - c));
   o_normal = vec4(n, 1.0);
 }
 )";
-
 constexpr const char* kCompositeFragment = R"(
 uniform sampler2D u_depth;
 uniform sampler2D u_normal;
@@ -202,6 +231,7 @@ uniform vec3 u_color;
 uniform vec3 u_absorb;      // per view unit of thickness
 uniform float u_color_depth;
 uniform float u_refraction;
+uniform float u_opacity_depth;  // view units of thickness that hide 63 % of what is behind; 0: clear
 uniform int u_output;       // 0 shaded, 1 depth, 2 normals, 3 thickness
 layout(location = 0) out vec4 o_color;
 void main() {
@@ -232,11 +262,28 @@ void main() {
   vec3 reflected = sky_color(normalize(transpose(mat3(u_view)) * reflect(-v, n)));
   vec3 transmitted = exp(-u_absorb * thickness);
   vec2 bend = n.xy * u_refraction * 0.04 * (1.0 - exp(-thickness / u_color_depth));
-  vec3 behind = texture(u_scene, clamp(uv - bend, vec2(0.0), vec2(1.0))).rgb;
+  // A body of water scatters what crosses it: the scene behind is seen blurred, more so through
+  // more liquid (up to 6 px, on a ring of 8 taps), and then hidden by the body's own light by
+  // 1 - exp(-thickness / opacity_depth). A sheet a few particles thick reads as water, not glass.
+  float opacity = u_opacity_depth > 0.0 ? 1.0 - exp(-thickness / u_opacity_depth) : 0.0;
+  vec2 at = clamp(uv - bend, vec2(0.0), vec2(1.0));
+  vec3 behind = texture(u_scene, at).rgb;
+  if (opacity > 0.0) {
+    float spread = 6.0 * opacity / u_viewport.y;
+    for (int k = 0; k < 8; ++k) {
+      float a = 0.785398 * float(k);
+      behind += texture(u_scene, clamp(at + spread * vec2(cos(a) * u_viewport.y / u_viewport.x, sin(a)), vec2(0.0), vec2(1.0))).rgb;
+    }
+    behind /= 9.0;
+  }
   vec3 scattered = 0.5 * u_color * (1.0 - transmitted);  // light the liquid scatters back, tinted
+  // The body's own light: the liquid's colour, lit from the key light, darker and more saturated
+  // the deeper it is (the light it scatters back crossed some of it).
+  vec3 body = u_color * sqrt(transmitted) * (0.45 + 0.55 * max(dot(n, u_light), 0.0));
+  vec3 under = mix(behind * transmitted + scattered, body, opacity);
   vec3 h = normalize(u_light + v);
   float highlight = dot(n, u_light) > 0.0 ? 1.6 * pow(max(dot(n, h), 0.0), 180.0) : 0.0;
-  o_color = vec4(mix(behind * transmitted + scattered, reflected, fresnel) + vec3(highlight), 1.0);
+  o_color = vec4(mix(under, reflected, fresnel) + vec3(highlight), 1.0);
 }
 )";
 
@@ -309,11 +356,11 @@ struct FilterUniforms {
   GLint radius_at_1, range, clamp, mode, size, depth, step;
 };
 struct NormalUniforms {
-  GLint depth, size, projection;
+  GLint depth, size, projection, range;
 };
 struct CompositeUniforms {
   GLint depth, normal, thickness, scene, viewport, liquid_size, projection, view, light, color, absorb, color_depth,
-      refraction, output;
+      refraction, opacity_depth, output;
 };
 
 }  // namespace
@@ -372,12 +419,12 @@ LiquidPass::LiquidPass() : impl_(std::make_unique<Impl>()) {
   const auto in = [](GLuint program, const char* name) { return glGetUniformLocation(program, name); };
   d.fu = {in(d.filter, "u_radius_at_1"), in(d.filter, "u_range"), in(d.filter, "u_clamp"), in(d.filter, "u_mode"),
           in(d.filter, "u_size"),        in(d.filter, "u_depth"), in(d.filter, "u_step")};
-  d.nu = {in(d.normals, "u_depth"), in(d.normals, "u_size"), in(d.normals, "u_projection")};
-  d.cu = {in(d.composite, "u_depth"),      in(d.composite, "u_normal"),   in(d.composite, "u_thickness"),
-          in(d.composite, "u_scene"),      in(d.composite, "u_viewport"), in(d.composite, "u_liquid_size"),
-          in(d.composite, "u_projection"), in(d.composite, "u_view"),     in(d.composite, "u_light"),
-          in(d.composite, "u_color"),      in(d.composite, "u_absorb"),   in(d.composite, "u_color_depth"),
-          in(d.composite, "u_refraction"), in(d.composite, "u_output")};
+  d.nu = {in(d.normals, "u_depth"), in(d.normals, "u_size"), in(d.normals, "u_projection"), in(d.normals, "u_range")};
+  d.cu = {in(d.composite, "u_depth"),      in(d.composite, "u_normal"),        in(d.composite, "u_thickness"),
+          in(d.composite, "u_scene"),      in(d.composite, "u_viewport"),      in(d.composite, "u_liquid_size"),
+          in(d.composite, "u_projection"), in(d.composite, "u_view"),          in(d.composite, "u_light"),
+          in(d.composite, "u_color"),      in(d.composite, "u_absorb"),        in(d.composite, "u_color_depth"),
+          in(d.composite, "u_refraction"), in(d.composite, "u_opacity_depth"), in(d.composite, "u_output")};
 }
 
 LiquidPass::~LiquidPass() {
@@ -475,6 +522,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glUniform1i(d.nu.depth, 0);
   glUniform2i(d.nu.size, lw, lh);
   glUniformMatrix4fv(d.nu.projection, 1, GL_FALSE, frame.projection.data());
+  glUniform1f(d.nu.range, std::max(style.depth_range, 0.01f) * radius);
   glBindTextureUnit(0, d.smoothed->texture);
   glDrawArrays(GL_TRIANGLES, 0, 3);
 
@@ -505,6 +553,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glUniform3fv(d.cu.absorb, 1, absorb.data());
   glUniform1f(d.cu.color_depth, color_depth);
   glUniform1f(d.cu.refraction, std::clamp(style.refraction, 0.0f, 4.0f));
+  glUniform1f(d.cu.opacity_depth, std::max(style.opacity_depth, 0.0f) * radius);
   glUniform1i(d.cu.output, int(style.output));
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
