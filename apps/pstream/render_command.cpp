@@ -39,9 +39,11 @@ render::Vec3 parse_vec3(const std::string& text) {
 
 }  // namespace
 
-// --camera: auto (the library's framing rule, as the viewer and the demo use it) or eye:target.
-render::Camera camera_for(const std::string& spec, std::span<const std::filesystem::path> files, float aspect) {
-  if (spec.empty() || spec == "auto") return playback::framing_camera(files, aspect);
+// --camera: auto (the library's framing rule, as the viewer and the demo use it, over the clip
+// seconds rendered) or eye:target.
+render::Camera camera_for(const std::string& spec, std::span<const std::filesystem::path> files, float aspect,
+                          const std::array<double, 2>& seconds) {
+  if (spec.empty() || spec == "auto") return playback::framing_camera(files, aspect, {0.0f, 0.0f, 1.0f, 1.0f}, seconds);
   const auto colon = spec.find(':');
   if (colon == std::string::npos) throw Error(fmt::format("--camera '{}': expected auto or x,y,z:tx,ty,tz", spec));
   render::Camera c;
@@ -246,7 +248,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
-  const render::Camera camera = camera_for(cli.camera, files, float(width) / float(height));
+  const render::Camera camera = camera_for(cli.camera, files, float(width) / float(height), {t0, t1});
   const playback::SortPlan plan =
       playback::sort_plan(style, camera.view(), renderer.light_direction(), sort::parse_sort_mode(cli.sort));
 

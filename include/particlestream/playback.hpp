@@ -16,6 +16,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -107,15 +108,19 @@ SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, cons
 DrawStyle look_preset(std::string_view name);
 
 // The automatic camera, one rule for `pstream render`, the viewer and the demo: per axis, the
-// 0.5th to 99.5th percentile of the particles' positions in four frames of each clip (a quarter,
-// half, three quarters, the end), so that a few stray particles do not shrink the clip into a
-// corner; the clips' whole bounds when that finds too few particles. framing_camera() frames
-// that box by render::Camera::framing (the default camera when no clip has a particle).
-std::array<float, 6> framing_box(std::span<const std::filesystem::path> files);
+// 0.5th to 99.5th percentile of the particles' positions in four of the frames shown of each clip
+// (a quarter, half, three quarters, the end of those within `seconds`; by default the whole clip),
+// so that a few stray particles do not shrink the clip into a corner, and a render of an effect's
+// first frames frames those, not its later extent; the clips' whole bounds when that finds too
+// few particles. framing_camera() frames that box by render::Camera::framing (the default camera
+// when no clip has a particle).
+std::array<float, 6> framing_box(std::span<const std::filesystem::path> files,
+                                 const std::array<double, 2>& seconds = {-INFINITY, INFINITY});
 // `region` frames them in part of the image (Camera::framing's region: x0, y0, x1, y1 as fractions
 // from the top left), as the viewer does beside its panel.
 render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect,
-                              const std::array<float, 4>& region = {0.0f, 0.0f, 1.0f, 1.0f});
+                              const std::array<float, 4>& region = {0.0f, 0.0f, 1.0f, 1.0f},
+                              const std::array<double, 2>& seconds = {-INFINITY, INFINITY});
 
 // The automatic colour-ramp range, for the same frames: speeds (the `velocity` attribute's
 // magnitude, `attribute` empty) from 0 to their 99th percentile, or a float attribute from its

@@ -11,19 +11,25 @@ namespace pstream::playback {
 
 namespace {
 
-// Four frames of each clip (a quarter, half, three quarters, the end), at most 50,000 records of
-// each: what the automatic camera and ramp look at. `clip(meta)` sees each clip first, then
-// `use(meta, record)` each sampled record.
+// Four frames of each clip's frames within `seconds` (a quarter, half, three quarters, the end of
+// them), at most 50,000 records of each: what the automatic camera and ramp look at. `clip(meta)`
+// sees each clip first, then `use(meta, record)` each sampled record.
 template <class Clip, class Use>
-void sample_frames(std::span<const std::filesystem::path> files, Clip&& clip, Use&& use) {
+void sample_frames(std::span<const std::filesystem::path> files, const std::array<double, 2>& seconds, Clip&& clip,
+                   Use&& use) {
   for (const auto& file : files) {
     const format::Reader reader = format::Reader::open(file);
     const format::Metadata& m = reader.metadata();
     clip(m);
+    // The clip's frames shown: from the first at or after seconds[0] to the last at or before
+    // seconds[1] (times increase: the reader checked them).
+    std::uint64_t first = 0, last = m.frame_count();
+    while (first < last && m.frames[first].time < seconds[0]) ++first;
+    while (last > first && m.frames[last - 1].time > seconds[1]) --last;
     std::vector<std::byte> records;
     for (const double at : {0.25, 0.5, 0.75, 1.0}) {
-      if (m.frame_count() == 0) break;
-      const auto f = std::min<std::uint64_t>(m.frame_count() - 1, std::uint64_t(at * double(m.frame_count() - 1)));
+      if (first == last) break;
+      const auto f = first + std::min<std::uint64_t>(last - 1 - first, std::uint64_t(at * double(last - 1 - first)));
       if (records.empty()) records = format::frame_buffer(m, reader.name());
       reader.read_frame(f, records);
       const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
@@ -34,11 +40,12 @@ void sample_frames(std::span<const std::filesystem::path> files, Clip&& clip, Us
 
 }  // namespace
 
-std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
+std::array<float, 6> framing_box(std::span<const std::filesystem::path> files, const std::array<double, 2>& seconds) {
   std::array<std::vector<float>, 3> axes;
-  std::array<float, 6> whole{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+  std::array<float, 6> whole{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY}, sampled = whole;
+  float radius = 0;  // the largest particle sampled
   sample_frames(
-      files,
+      files, seconds,
       [&](const format::Metadata& m) {  // the clips' whole bounds, for when too few particles are found
         for (std::size_t a = 0; a < 3; ++a) {
           whole[a] = std::min(whole[a], m.bounds[a]);
@@ -46,12 +53,30 @@ std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
         }
       },
       [&](const format::Metadata&, const std::byte* record) {
-        float p[3];
+        float p[3], scale = 0;
         std::memcpy(p, record + render::kPositionOffset, sizeof p);
-        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))
-          for (std::size_t a = 0; a < 3; ++a) axes[a].push_back(p[a]);
+        std::memcpy(&scale, record + render::kScaleOffset, sizeof scale);
+        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2])) {
+          for (std::size_t a = 0; a < 3; ++a) {
+            axes[a].push_back(p[a]);
+            sampled[a] = std::min(sampled[a], p[a]);
+            sampled[a + 3] = std::max(sampled[a + 3], p[a]);
+          }
+        }
+        if (std::isfinite(scale)) radius = std::max(radius, scale);
       });
-  if (axes[0].size() < 16) return whole;
+  // A box no smaller than one particle: the first frames of an effect that starts from a point
+  // hold a handful.
+  const auto at_least_a_particle = [&](std::array<float, 6> b) {
+    for (std::size_t a = 0; a < 3; ++a) {
+      const float centre = 0.5f * (b[a] + b[a + 3]);
+      b[a] = std::min(b[a], centre - radius);
+      b[a + 3] = std::max(b[a + 3], centre + radius);
+    }
+    return b;
+  };
+  if (axes[0].empty()) return whole;
+  if (axes[0].size() < 16) return at_least_a_particle(sampled);  // too few for percentiles: all of them
   std::array<float, 6> box{};
   for (std::size_t a = 0; a < 3; ++a) {
     auto& v = axes[a];
@@ -62,12 +87,12 @@ std::array<float, 6> framing_box(std::span<const std::filesystem::path> files) {
     std::nth_element(v.begin(), hi, v.end());
     box[a + 3] = *hi;
   }
-  return box;
+  return at_least_a_particle(box);
 }
 
 render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect,
-                              const std::array<float, 4>& region) {
-  const std::array<float, 6> b = framing_box(files);
+                              const std::array<float, 4>& region, const std::array<double, 2>& seconds) {
+  const std::array<float, 6> b = framing_box(files, seconds);
   const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);  // no particle anywhere
   return empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, aspect, region);
 }
@@ -75,7 +100,7 @@ render::Camera framing_camera(std::span<const std::filesystem::path> files, floa
 std::array<float, 2> ramp_range(std::span<const std::filesystem::path> files, const std::string& attribute) {
   std::vector<float> values;
   sample_frames(
-      files, [](const format::Metadata&) {},
+      files, {-INFINITY, INFINITY}, [](const format::Metadata&) {},
       [&](const format::Metadata& m, const std::byte* record) {
         const format::Attribute* a = m.find(attribute.empty() ? "velocity" : attribute);
         if (a == nullptr || a->type != format::AttributeType::Float32) return;
