@@ -326,7 +326,11 @@ class HttpSource final : public ByteSource {
     for (std::size_t used = 0; used < bytes;) {
       const std::uint64_t at = r->offset + r->received + used;
       while (r->fill != nullptr && at >= r->fill->offset + r->fill->out.size()) r->fill = r->fill->next;
-      Request* f = r->fill;  // not null: the span ends where the last read ends
+      Request* f = r->fill;
+      if (f == nullptr) {  // past the last read: cannot be, the span ends where it ends
+        r->overflow = true;
+        return 0;
+      }
       if (at < f->offset) {
         used += static_cast<std::size_t>(std::min<std::uint64_t>(bytes - used, f->offset - at));
         continue;
