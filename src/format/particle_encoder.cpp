@@ -236,14 +236,42 @@ class GroupEncoder {
       for (int a = 0; a < 3; ++a)
         at[std::size_t(j) * 3 + a] = static_cast<std::int32_t>(source_[std::size_t(position_k_[a])][j]);
     }
-    // This frame's particles sorted by cell: a cell's particles are one range, found by a
-    // binary search.
-    std::vector<std::pair<std::uint64_t, std::uint32_t>> cells(n);
-    for (std::uint32_t j = 0; j < n; ++j) {
-      const std::int64_t* p = &at[std::size_t(j) * 3];
-      cells[j] = {key(floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell)), j};
+    // The cells as a dense grid over this frame's box, when it is not much larger than the frame
+    // (about one cell per particle, by the cell size's choice; a frame spread very unevenly can
+    // need far more): a cell's particles, and a column of three cells, are then one range found
+    // by indexing, not by binary searches. The same cells and the same candidates either way.
+    std::int64_t c0[3], dims[3];
+    double total = 1;
+    for (int a = 0; a < 3; ++a) {
+      c0[a] = floordiv(lo[a], cell);
+      dims[a] = floordiv(hi[a], cell) - c0[a] + 1;
+      total *= double(dims[a]);
     }
-    std::sort(cells.begin(), cells.end());
+    const bool dense = total <= 16.0 * n + 4096.0;
+    std::vector<std::uint32_t> start, order;
+    if (dense) {
+      const auto index = [&](const std::int64_t* p) {
+        return std::size_t(((floordiv(p[0], cell) - c0[0]) * dims[1] + (floordiv(p[1], cell) - c0[1])) * dims[2] +
+                           (floordiv(p[2], cell) - c0[2]));
+      };
+      start.assign(std::size_t(total) + 1, 0);
+      for (std::uint32_t j = 0; j < n; ++j) ++start[index(&at[std::size_t(j) * 3]) + 1];
+      for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+      order.resize(n);
+      std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+      for (std::uint32_t j = 0; j < n; ++j) order[fill[index(&at[std::size_t(j) * 3])]++] = j;
+    }
+    // Otherwise this frame's particles sorted by cell: a cell's particles are one range, found by
+    // a binary search.
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> cells;
+    if (!dense) {
+      cells.resize(n);
+      for (std::uint32_t j = 0; j < n; ++j) {
+        const std::int64_t* p = &at[std::size_t(j) * 3];
+        cells[j] = {key(floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell)), j};
+      }
+      std::sort(cells.begin(), cells.end());
+    }
     // Candidate pairs within reach of each previous particle, closest first; a pair is taken when
     // both particles are still free (a global greedy matching, deterministic by index on ties).
     struct Pair {
@@ -265,26 +293,36 @@ class GroupEncoder {
       constexpr int kCandidates = 8;
       Pair best[kCandidates];
       int found = 0;
+      const auto consider = [&](std::uint32_t j) {
+        const std::int64_t* s = &at[std::size_t(j) * 3];
+        const std::int64_t e =
+            (s[0] - p[0]) * (s[0] - p[0]) + (s[1] - p[1]) * (s[1] - p[1]) + (s[2] - p[2]) * (s[2] - p[2]);
+        if (e > reach) return;
+        // Insert into the sorted few, dropping the farthest when full.
+        const Pair candidate{e, i, j};
+        int slot = found < kCandidates ? found++ : kCandidates;
+        while (slot > 0 && std::tie(e, j) < std::tie(best[slot - 1].distance, best[slot - 1].cur)) {
+          if (slot < kCandidates) best[slot] = best[slot - 1];
+          --slot;
+        }
+        if (slot < kCandidates) best[slot] = candidate;
+      };
       for (std::int64_t dx = -1; dx <= 1; ++dx) {
         for (std::int64_t dy = -1; dy <= 1; ++dy) {
+          if (dense) {
+            const std::int64_t x = cx + dx - c0[0], y = cy + dy - c0[1];
+            const std::int64_t z0 = std::max<std::int64_t>(cz - 1 - c0[2], 0),
+                               z1 = std::min<std::int64_t>(cz + 1 - c0[2], dims[2] - 1);
+            if (x < 0 || x >= dims[0] || y < 0 || y >= dims[1] || z0 > z1) continue;
+            const std::size_t column = std::size_t((x * dims[1] + y) * dims[2]);
+            for (std::uint32_t t = start[column + std::size_t(z0)]; t < start[column + std::size_t(z1) + 1]; ++t)
+              consider(order[t]);
+            continue;
+          }
           for (std::int64_t dz = -1; dz <= 1; ++dz) {
             const std::uint64_t k = key(cx + dx, cy + dy, cz + dz);
             auto it = std::lower_bound(cells.begin(), cells.end(), std::pair{k, std::uint32_t{0}});
-            for (; it != cells.end() && it->first == k; ++it) {
-              const std::uint32_t j = it->second;
-              const std::int64_t* s = &at[std::size_t(j) * 3];
-              const std::int64_t e =
-                  (s[0] - p[0]) * (s[0] - p[0]) + (s[1] - p[1]) * (s[1] - p[1]) + (s[2] - p[2]) * (s[2] - p[2]);
-              if (e > reach) continue;
-              // Insert into the sorted few, dropping the farthest when full.
-              const Pair candidate{e, i, j};
-              int at = found < kCandidates ? found++ : kCandidates;
-              while (at > 0 && std::tie(e, j) < std::tie(best[at - 1].distance, best[at - 1].cur)) {
-                if (at < kCandidates) best[at] = best[at - 1];
-                --at;
-              }
-              if (at < kCandidates) best[at] = candidate;
-            }
+            for (; it != cells.end() && it->first == k; ++it) consider(it->second);
           }
         }
       }
