@@ -660,6 +660,7 @@ class HttpSource final : public ByteSource {
           active_.erase(std::find(active_.begin(), active_.end(), r));
         }
         finish(r, code);
+        wait_ms = 0;  // a connection is free (or a retry queued): start what waits for it at once
       }
       curl_multi_poll(multi_, nullptr, 0, wait_ms, nullptr);
     }
