@@ -346,14 +346,11 @@ class HttpSource final : public ByteSource {
         // early never pile up while their requests run on.
         const ReadDone done = f->done;
         void* context = f->context;
+        const std::uint64_t first = f->offset, size = f->out.size();
         bool cancelled = false;
         {
           std::lock_guard lock(r->owner->mutex_);
           cancelled = f->cancelled;
-        }
-        const int status = cancelled ? r->owner->cancelled_status(*f) : 0;
-        {
-          std::lock_guard lock(r->owner->mutex_);
           f->completed = true;
           if (f != r) {
             r->next = f->next;
@@ -362,7 +359,8 @@ class HttpSource final : public ByteSource {
             r->owner->free_.push_back(f);
           }
         }
-        done(context, status);  // outside mutex_: a completion may start or cancel reads
+        // Outside mutex_: the message keeps its own lock, and a completion may start or cancel reads.
+        done(context, cancelled ? r->owner->cancelled_status(first, size) : 0);
       }
     }
     r->received += bytes;
@@ -553,10 +551,10 @@ class HttpSource final : public ByteSource {
     });
   }
 
-  int cancelled_status(const Request& m) {
-    return keep_message(
-        fmt::format("{}: bytes {}-{}: cancelled (no longer wanted)", url_, m.offset, m.offset + m.out.size() - 1));
+  int cancelled_status(std::uint64_t offset, std::uint64_t size) {
+    return keep_message(fmt::format("{}: bytes {}-{}: cancelled (no longer wanted)", url_, offset, offset + size - 1));
   }
+  int cancelled_status(const Request& m) { return cancelled_status(m.offset, m.out.size()); }
 
   // Hands every read of the request `r` back to the pool and completes the ones not completed
   // early; status(read) says how (0: its bytes are in). A completion may start reads that reuse

@@ -62,4 +62,11 @@ GLuint link_program(const char* vertex_source, const char* fragment_source) {
 
 GLuint link_compute_program(const char* compute_source) { return link({compile(GL_COMPUTE_SHADER, compute_source)}); }
 
+void linear_clamped(GLuint texture) {
+  glTextureParameteri(texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTextureParameteri(texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTextureParameteri(texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTextureParameteri(texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+}
+
 }  // namespace pstream::render::detail

@@ -10,5 +10,7 @@ namespace pstream::render::detail {
 GLuint link_program(const char* vertex_source, const char* fragment_source);
 // A compute program, the same way.
 GLuint link_compute_program(const char* compute_source);
+// Bilinear filtering and clamping at the edges: how the passes read each other's render targets.
+void linear_clamped(GLuint texture);
 
 }  // namespace pstream::render::detail

@@ -295,10 +295,7 @@ Target make_target(GLenum format, int w, int h, GLuint depth_renderbuffer = 0) {
   Target t;
   glCreateTextures(GL_TEXTURE_2D, 1, &t.texture);
   glTextureStorage2D(t.texture, 1, format, w, h);
-  glTextureParameteri(t.texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-  glTextureParameteri(t.texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-  glTextureParameteri(t.texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-  glTextureParameteri(t.texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+  linear_clamped(t.texture);
   glCreateFramebuffers(1, &t.framebuffer);
   glNamedFramebufferTexture(t.framebuffer, GL_COLOR_ATTACHMENT0, t.texture, 0);
   if (depth_renderbuffer)

@@ -315,6 +315,7 @@ struct SpritePass::Impl {
   GLuint bloom = 0;  // the blur program
   GLint b_source = -1, b_step = -1, b_sigma = -1, b_taps = -1, b_size = -1;
   std::array<GLuint, 2> bloom_texture{}, bloom_framebuffer{};  // half resolution: across, then down
+  int bloom_width = 0, bloom_height = 0;
   GLint g_view = -1, g_projection = -1, g_viewport = -1, g_ground = -1, g_light_vp = -1, g_light = -1, g_texel = -1,
         g_strength = -1;
   GLuint hdr_texture = 0, hdr_depth = 0, hdr_framebuffer = 0;  // depth: alpha-tested sprites only
@@ -342,20 +343,14 @@ struct SpritePass::Impl {
     hdr_height = height;
   }
 
-  static void linear_clamped(GLuint texture) {
-    glTextureParameteri(texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-    glTextureParameteri(texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-    glTextureParameteri(texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-    glTextureParameteri(texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-  }
-
   // The bloom's two half-resolution buffers, made the first time a style asks for bloom.
   void ensure_bloom() {
     if (bloom_texture[0] != 0) return;
-    const int w = std::max(1, (hdr_width + 1) / 2), h = std::max(1, (hdr_height + 1) / 2);
+    bloom_width = std::max(1, (hdr_width + 1) / 2);
+    bloom_height = std::max(1, (hdr_height + 1) / 2);
     for (std::size_t i = 0; i < 2; ++i) {
       glCreateTextures(GL_TEXTURE_2D, 1, &bloom_texture[i]);
-      glTextureStorage2D(bloom_texture[i], 1, GL_RGBA16F, w, h);
+      glTextureStorage2D(bloom_texture[i], 1, GL_RGBA16F, bloom_width, bloom_height);
       linear_clamped(bloom_texture[i]);
       glCreateFramebuffers(1, &bloom_framebuffer[i]);
       glNamedFramebufferTexture(bloom_framebuffer[i], GL_COLOR_ATTACHMENT0, bloom_texture[i], 0);
@@ -376,7 +371,7 @@ struct SpritePass::Impl {
   // into [0] (halving the resolution), then down into [1].
   void blur(float radius) {
     ensure_bloom();
-    const int w = std::max(1, (hdr_width + 1) / 2), h = std::max(1, (hdr_height + 1) / 2);
+    const int w = bloom_width, h = bloom_height;
     const float sigma = std::max(0.5f, radius * float(h));
     const int taps = std::clamp(int(std::ceil(3.0f * sigma)), 1, 96);
     glUseProgram(bloom);
@@ -402,10 +397,7 @@ struct SpritePass::Impl {
     if (light_texture) glDeleteTextures(1, &light_texture);
     glCreateTextures(GL_TEXTURE_2D, 1, &light_texture);
     glTextureStorage2D(light_texture, 1, GL_R16F, size, size);
-    glTextureParameteri(light_texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-    glTextureParameteri(light_texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-    glTextureParameteri(light_texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-    glTextureParameteri(light_texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    linear_clamped(light_texture);
     glCreateFramebuffers(1, &light_framebuffer);
     glNamedFramebufferTexture(light_framebuffer, GL_COLOR_ATTACHMENT0, light_texture, 0);
     if (glCheckNamedFramebufferStatus(light_framebuffer, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
