@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <thread>
 #include <vector>
 
 #include <fmt/format.h>
@@ -68,7 +69,7 @@ double thread_ms() {
 // and sort), draw_data() and the renderer's preparation of the frame (the CPU path's copy into
 // the mapped buffer; the GPU path's uploads of new cached frames and its compute dispatches).
 // The draw calls themselves are left out (the same on both paths); glFinish() after each frame,
-// outside the timing, keeps the GPU's work from piling up.
+// outside the timing, keeps the GPU's work from piling up, and frames are paced at host_hz.
 nlohmann::ordered_json measure(const std::filesystem::path& file, playback::PlaybackPath path, double host_hz,
                                bool show) {
   playback::PlayerOptions options;
@@ -87,13 +88,19 @@ nlohmann::ordered_json measure(const std::filesystem::path& file, playback::Play
   glGenQueries(1, &query);
   std::vector<double> host_ms, gpu_ms, steady_upload, interpolate_ms, sort_ms, memcpy_ms;
   std::vector<std::byte> copy(2 * m.max_count * m.record_size);  // the baseline: a memcpy of the frame
-  std::uint64_t total_upload = 0, new_pairs = 0;
+  std::uint64_t total_upload = 0, total_staged = 0, new_pairs = 0;
   const render::Camera camera{{0, 3, 6}, {0, 0, 0}, {0, 1, 0}};
   const render::Mat4 view = camera.view();
   const playback::DrawStyle style;
   const double duration = m.frames.back().time - m.frames.front().time;
   const auto steps = static_cast<std::uint64_t>(std::floor(duration * host_hz));
   player->play();
+  // Host frames are paced at host_hz in wall time, as a host would draw them (a late frame is not
+  // caught up on): the IO worker decodes ahead, and the renderer stages the frame ahead, while the
+  // host thread waits.
+  const auto period =
+      std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(1.0 / host_hz));
+  auto tick = std::chrono::steady_clock::now();
   std::uint64_t last_frame = ~0ull;
   ProgressBar bar(path == playback::PlaybackPath::Gpu ? "playback, gpu" : "playback, cpu", show);
   for (std::uint64_t k = 0; k <= steps; ++k) {
@@ -105,17 +112,28 @@ nlohmann::ordered_json measure(const std::filesystem::path& file, playback::Play
     renderer.prepare(player->draw_data(style));
     const double t1 = thread_ms();
     if (std::getenv("PSTREAM_BENCH_DEBUG") != nullptr) {
-      fmt::print(stderr, "advance {:.3f} ms, prepare {:.3f} ms, fraction {:.3f}, uploaded {} bytes\n", ta - t0, t1 - ta,
-                 player->clip(0).fraction(), renderer.stats().upload_bytes);
+      fmt::print(
+          stderr, "{:.1f}: advance {:.3f} ms, prepare {:.3f} ms, fraction {:.3f}, uploaded {} bytes, staged {} bytes\n",
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count(),
+          ta - t0, t1 - ta, player->clip(0).fraction(), renderer.stats().upload_bytes, renderer.stats().staged_bytes);
+      const stream::DebugInfo info = player->clip(0).debug();
+      int st[3] = {0, 0, 0};
+      for (const auto& sl : info.slots) ++st[int(sl.state)];
+      fmt::print(stderr,
+                 "  decoded ready {}/{}, decode frame {}, loads done {}, in flight {}, io {:.1f} ms, decode {:.1f} ms, "
+                 "slots E{} L{} R{}, read slot {}, frames decoded {}\n",
+                 info.decoded_ready, info.decoded_slots, info.decode_frame, info.loads_done, info.loads_in_flight,
+                 info.io_ms, info.decode_ms, st[0], st[1], st[2], info.read_slot, info.frames_decoded);
     }
     glEndQuery(GL_TIME_ELAPSED);
     renderer.end_frame();
     glFinish();
     player->check();
     const std::uint64_t frame = player->clip(0).frame().frame;
-    const std::uint64_t bytes = renderer.stats().upload_bytes;
+    const std::uint64_t bytes = renderer.stats().upload_bytes;  // by the host thread
     if (k > 0) {  // the first frame uploads the first pair on the GPU path
       total_upload += bytes;
+      total_staged += renderer.stats().staged_bytes;  // the frame ahead, copied on the renderer's thread
       if (frame != last_frame) ++new_pairs;
       if (s.pair_table_ms > 0 || frame != last_frame) {
         // a new cached frame or pair of them: what is uploaded once per cached frame
@@ -139,6 +157,8 @@ nlohmann::ordered_json measure(const std::filesystem::path& file, playback::Play
     }
     last_frame = frame;
     bar.update(k + 1, steps + 1, "host frames");
+    tick = std::max(tick + period, std::chrono::steady_clock::now());
+    std::this_thread::sleep_until(tick);
   }
   glDeleteQueries(1, &query);
   if (host_ms.empty()) throw Error(fmt::format("{}: no host frame fell between two frames", file.string()));
@@ -153,7 +173,9 @@ nlohmann::ordered_json measure(const std::filesystem::path& file, playback::Play
       {"host_thread_ms_mean", mean},
       {"host_thread_ms_max", percentile(host_ms, 1.0)},
       {"upload_bytes_per_host_frame", percentile(steady_upload, 1.0)},
-      {"upload_bytes_per_cached_frame", new_pairs ? total_upload / new_pairs : 0},
+      {"upload_bytes_per_cached_frame", new_pairs ? (total_upload + total_staged) / new_pairs : 0},
+      // Of those, what the host thread uploaded itself (a frame that was not staged ahead in time).
+      {"host_upload_bytes_per_cached_frame", new_pairs ? total_upload / new_pairs : 0},
       {"gpu_ms", percentile(gpu_ms, 0.5)},
       // The CPU path's stages, and the baseline of the same run: a memcpy of the interpolated frame.
       {"interpolate_ms", percentile(interpolate_ms, 0.5)},
@@ -201,14 +223,14 @@ int bench_playback(const BenchPlaybackOptions& o) {
       "host frames at {:g} Hz between cached frames; host thread CPU time (CLOCK_THREAD_CPUTIME_ID) per host "
       "frame: advance + draw_data + the renderer's preparation ({})\n",
       o.host_hz, rows.empty() ? "" : rows[0]["gl_renderer"].get<std::string>());
-  fmt::print("  {:4} {:>10} {:>12} {:>12} {:>18} {:>20} {:>10} {:>14}\n", "path", "particles", "host ms", "host ms max",
-             "upload B/host fr", "upload B/cached fr", "GPU ms", "interp/memcpy");
+  fmt::print("  {:4} {:>10} {:>10} {:>10} {:>10} {:>18} {:>20} {:>10} {:>14}\n", "path", "particles", "host ms", "mean",
+             "max", "upload B/host fr", "upload B/cached fr", "GPU ms", "interp/memcpy");
   for (const auto& r : rows) {
-    fmt::print("  {:4} {:>10} {:>12.3f} {:>12.3f} {:>18} {:>20} {:>10.2f} {:>14.2f}\n", r["path"].get<std::string>(),
-               r["particles"].get<std::uint64_t>(), r["host_thread_ms"].get<double>(),
-               r["host_thread_ms_max"].get<double>(), r["upload_bytes_per_host_frame"].get<double>(),
-               r["upload_bytes_per_cached_frame"].get<std::uint64_t>(), r["gpu_ms"].get<double>(),
-               r["interpolate_vs_memcpy"].get<double>());
+    fmt::print("  {:4} {:>10} {:>10.3f} {:>10.3f} {:>10.3f} {:>18} {:>20} {:>10.2f} {:>14.2f}\n",
+               r["path"].get<std::string>(), r["particles"].get<std::uint64_t>(), r["host_thread_ms"].get<double>(),
+               r["host_thread_ms_mean"].get<double>(), r["host_thread_ms_max"].get<double>(),
+               r["upload_bytes_per_host_frame"].get<double>(), r["upload_bytes_per_cached_frame"].get<std::uint64_t>(),
+               r["gpu_ms"].get<double>(), r["interpolate_vs_memcpy"].get<double>());
   }
   return 0;
 }

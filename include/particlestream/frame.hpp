@@ -6,6 +6,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -247,6 +248,17 @@ struct FramePair {
   double t = 0.0, dt = 0.0;         // the fraction from a to b, and the seconds between them
   bool hermite = false;             // along the curve through the velocities (else straight lines)
   bool nearer = false;              // no matching: the table is the nearer frame, moved along its velocities
+  // Optional, ahead of the playhead: the cached frame after `b` once the stream has decoded it and,
+  // when its particles are matched to b's, the table from b to it (`ahead_pairs`, empty
+  // otherwise). A renderer can copy them towards the GPU on a thread of its own, so that the host
+  // frame which reaches them uploads nothing. The bytes are lent: the renderer stores 1 in `*lent`
+  // before its thread reads them and 0 (then notify_all()) once it is done; the player waits for 0
+  // before its streams move again.
+  std::span<const std::byte> ahead;
+  std::uint64_t ahead_frame = 0, ahead_count = 0;
+  std::span<const ParticlePair> ahead_pairs;
+  std::uint64_t ahead_pairs_version = 0;
+  std::atomic<std::uint32_t>* lent = nullptr;
 };
 
 // Most batches one merged draw takes: a merged order's entry is (batch << kMergedIndexBits) |

@@ -205,8 +205,10 @@ class Player {
  private:
   Player() = default;
   struct Clip;
+  struct TableThread;  // the GPU path: makes the next pair's table off the host thread
   std::uint64_t gpu_pair(Clip& c, const stream::FrameView& f);  // the GPU path: fills c's FramePair
   std::vector<Clip> clips_;
+  std::unique_ptr<TableThread> tables_;  // (declared after clips_: it ends before they do)
   std::unique_ptr<sort::DepthSorter> merged_sorter_;
   std::vector<render::ParticleBatch> batches_;  // one slot per clip; the first batch_count_ are this frame's
   std::size_t batch_count_ = 0;

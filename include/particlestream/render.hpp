@@ -33,11 +33,15 @@ struct RendererOptions {
   bool points = false;                              // draw GL points instead of quads (benchmark)
 };
 
-// What the renderer moved from host memory to the GPU since begin_frame(): on the CPU path every
-// frame's records and order; on the GPU path (ParticleBatch::pair) a cached frame's records and
-// its pair table when they first appear, and nothing between cached frames.
+// What the renderer moved from host memory to the GPU since begin_frame().
 struct RendererStats {
+  // By the host thread: on the CPU path every frame's records and order; on the GPU path
+  // (ParticleBatch::pair) a cached frame's records and its pair table when they are needed and
+  // were not staged ahead (the first frames, after a seek), else nothing.
   std::uint64_t upload_bytes = 0;
+  // The GPU path: bytes of the frame ahead of the playhead (FramePair::ahead) and its table, handed
+  // to the renderer's staging thread this frame to be copied once, before the playhead gets there.
+  std::uint64_t staged_bytes = 0;
 };
 
 // Needs a current OpenGL 4.5 core context. Throws pstream::Error naming what is missing.

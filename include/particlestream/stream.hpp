@@ -193,6 +193,10 @@ class ParticleStream {
   // at the end of the clip, or while it is still being decoded), and where the playhead is
   // between the two, in [0, 1).
   FrameView next_frame() const;
+  // The frame after next_frame() when it is decoded too (invalid otherwise, and across a loop's
+  // end): what a renderer can start moving to the GPU before the playhead reaches it. Like every
+  // view, valid until the next update(), seek(), set_range() or stop().
+  FrameView frame_after_next() const;
   double fraction() const;
 
   DebugInfo debug() const;

@@ -1,5 +1,9 @@
+#include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <thread>
 #include <utility>
 
 #include <fmt/format.h>
@@ -31,6 +35,73 @@ struct Player::Clip {
   std::uint64_t pairs_a = ~0ull, pairs_b = ~0ull;
   int pairs_side = -1;
   std::uint64_t pairs_count = 0;
+  // The table of the pair after this one (b and the frame after it), made ahead on the table
+  // thread once that frame is decoded and matched: the renderer can move it to the GPU before the
+  // playhead gets there.
+  std::vector<render::ParticlePair> ahead_pairs;
+  std::uint64_t ahead_a = ~0ull, ahead_b = ~0ull, ahead_count = 0, ahead_version = 0;
+  std::uint64_t versions = 0;  // the last table version handed out
+  struct TableJob {            // Idle -> Queued (host) -> Done (table thread) -> Idle (host)
+    enum : std::uint32_t { Idle, Queued, Done };
+    std::atomic<std::uint32_t> state{Idle};
+    std::uint64_t a = 0, b = 0, na = 0, nb = 0, count = 0;
+    std::span<const format::MatchRun> matching;  // the stream's, valid until its next update()
+  };
+  std::unique_ptr<TableJob> job;
+  std::unique_ptr<std::atomic<std::uint32_t>> lent;  // FramePair::lent: 1 while a renderer reads ahead
+  // Waits until the table thread and the renderer are done with what the stream lent them (the
+  // frame ahead's records and matching): called before the stream moves, which may release them.
+  void settle() const {
+    if (job) {
+      for (std::uint32_t v; (v = job->state.load(std::memory_order_acquire)) == TableJob::Queued;)
+        job->state.wait(v, std::memory_order_acquire);
+    }
+    if (!lent) return;
+    for (std::uint32_t v; (v = lent->load(std::memory_order_acquire)) != 0;) lent->wait(v, std::memory_order_acquire);
+  }
+};
+
+struct Player::TableThread {
+  std::mutex mutex;
+  std::condition_variable wake;
+  std::uint32_t queued = 0;
+  bool stopping = false;
+  std::thread thread;
+
+  explicit TableThread(std::vector<Clip>& clips) : thread([this, &clips] { run(clips); }) {}
+  ~TableThread() {
+    {
+      std::lock_guard lock(mutex);
+      stopping = true;
+    }
+    wake.notify_all();
+    thread.join();
+  }
+  void submit() {
+    {
+      std::lock_guard lock(mutex);
+      ++queued;
+    }
+    wake.notify_one();
+  }
+  void run(std::vector<Clip>& clips) {
+    std::unique_lock lock(mutex);
+    for (;;) {
+      wake.wait(lock, [&] { return stopping || queued > 0; });
+      if (queued == 0) return;
+      for (Clip& c : clips) {
+        Clip::TableJob* j = c.job.get();
+        if (j == nullptr || j->state.load(std::memory_order_acquire) != Clip::TableJob::Queued) continue;
+        --queued;
+        lock.unlock();
+        bool nearer = false;
+        j->count = pair_table(j->na, j->nb, &j->matching, 0.0, c.ahead_pairs, nearer);
+        j->state.store(Clip::TableJob::Done, std::memory_order_release);
+        j->state.notify_all();
+        lock.lock();
+      }
+    }
+  }
 };
 
 namespace {
@@ -51,7 +122,10 @@ PlaybackPath parse_playback_path(std::string_view name) {
   throw Error(fmt::format("`playback` '{}': expected gpu or cpu{}", name, did_you_mean(name, {"gpu", "cpu"})));
 }
 
-Player::~Player() = default;
+Player::~Player() {
+  for (const auto& c : clips_) c.settle();
+  tables_.reset();
+}
 
 std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> files, PlayerOptions options) {
   if (files.empty()) throw Error("a player needs at least one clip");
@@ -66,6 +140,10 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     o.max_slots = options.stream.max_slots;
     o.max_loads_in_flight = options.stream.max_loads_in_flight;
     o.decoded_frames = options.stream.decoded_frames;
+    // The GPU path stages the frame after next before the playhead gets there (FramePair::ahead):
+    // one more decoded frame lets the IO worker decode it a whole cached frame ahead.
+    if (options.path == PlaybackPath::Gpu && options.interpolation != Interpolation::None)
+      o.decoded_frames = std::max<std::size_t>(o.decoded_frames, 4);
     o.blocking = options.stream.blocking;
     o.interpolate = options.interpolation != Interpolation::None;
     o.scheduler = options.stream.scheduler;
@@ -86,7 +164,12 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
       }
     } else {
       c.lanes = record_lanes(m);
-      if (options.interpolation != Interpolation::None) c.pairs.resize(most);
+      if (options.interpolation != Interpolation::None) {
+        c.pairs.resize(most);
+        c.ahead_pairs.resize(most);
+        c.job = std::make_unique<Clip::TableJob>();
+      }
+      c.lent = std::make_unique<std::atomic<std::uint32_t>>(0);
       render::FramePair& fp = c.pair;
       fp.source = next_source.fetch_add(1);
       fp.record_size = m.record_size;
@@ -98,6 +181,7 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
                             ? std::int32_t(color->offset)
                             : -1;
       fp.hermite = options.interpolation == Interpolation::Hermite;
+      fp.lent = c.lent.get();
     }
     c.stream->set_loop(options.loop);
     total += most;
@@ -110,6 +194,8 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
   p->batches_.resize(p->clips_.size());
   p->sorted_by_.resize(p->clips_.size());  // reused every frame (a texture name is not copied again)
   p->sources_.reserve(p->clips_.size());
+  if (options.path == PlaybackPath::Gpu && options.interpolation != Interpolation::None)
+    p->tables_ = std::make_unique<TableThread>(p->clips_);
   return p;
 }
 
@@ -126,19 +212,31 @@ void Player::pause() {
   for (auto& c : clips_) c.stream->pause();
 }
 void Player::stop() {
-  for (auto& c : clips_) c.stream->stop();
+  for (auto& c : clips_) {
+    c.settle();
+    c.stream->stop();
+  }
 }
 void Player::seek(double time) {
-  for (auto& c : clips_) c.stream->seek(time);
+  for (auto& c : clips_) {
+    c.settle();
+    c.stream->seek(time);
+  }
 }
 void Player::set_speed(double speed) {
-  for (auto& c : clips_) c.stream->set_speed(speed);
+  for (auto& c : clips_) {
+    c.settle();
+    c.stream->set_speed(speed);
+  }
 }
 void Player::set_loop(bool loop) {
   for (auto& c : clips_) c.stream->set_loop(loop);
 }
 void Player::set_range(double start, double end) {
-  for (auto& c : clips_) c.stream->set_range(start, end);
+  for (auto& c : clips_) {
+    c.settle();
+    c.stream->set_range(start, end);
+  }
 }
 
 std::uint64_t Player::max_frame_bytes() const {
@@ -159,6 +257,7 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
   const bool merge = sorting && merged_sorter_ && clips_.size() <= render::kMaxMergedBatches;
   for (auto& c : clips_) {
     const auto t0 = Clock::now();
+    c.settle();  // (the renderer's copy of the frame ahead is done long before, in practice)
     c.stream->update(dt);
     if (c.stream->state() == stream::PlayState::Error) {  // it shows nothing; check() reports it
       ++stats_.failed_clips;
@@ -243,6 +342,8 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
   p.a_count = f.count;
   p.b = {};
   p.pairs = {};
+  p.ahead = {};
+  p.ahead_pairs = {};
   p.t = 0.0;
   p.nearer = false;
   if (interpolation_ == Interpolation::None || c.stream->fraction() <= 0.0) return f.count;
@@ -255,15 +356,29 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
   // cached frame, never between.
   const int side = matched ? 0 : (t < 0.5 ? 1 : 2);
   std::uint64_t& n = c.pairs_count;
+  if (c.job && c.job->state.load(std::memory_order_acquire) == Clip::TableJob::Done) {  // (settle() waited for it)
+    c.ahead_a = c.job->a;
+    c.ahead_b = c.job->b;
+    c.ahead_count = c.job->count;
+    c.ahead_version = ++c.versions;
+    c.job->state.store(Clip::TableJob::Idle, std::memory_order_relaxed);
+  }
   if (c.pairs_a != f.frame || c.pairs_b != next.frame || c.pairs_side != side) {
-    const auto t0 = Clock::now();
-    bool nearer = false;
-    n = pair_table(f.count, next.count, matched ? &next.matching : nullptr, t, c.pairs, nearer);
+    if (matched && c.ahead_a == f.frame && c.ahead_b == next.frame) {  // made ahead: the renderer may hold it
+      std::swap(c.pairs, c.ahead_pairs);
+      n = c.ahead_count;
+      p.pairs_version = c.ahead_version;
+    } else {
+      const auto t0 = Clock::now();
+      bool nearer = false;
+      n = pair_table(f.count, next.count, matched ? &next.matching : nullptr, t, c.pairs, nearer);
+      p.pairs_version = ++c.versions;
+      stats_.pair_table_ms += ms(t0, Clock::now());
+    }
+    c.ahead_a = c.ahead_b = ~0ull;
     c.pairs_a = f.frame;
     c.pairs_b = next.frame;
     c.pairs_side = side;
-    ++p.pairs_version;
-    stats_.pair_table_ms += ms(t0, Clock::now());
   }
   p.b = next.first.first(next.count * p.record_size);
   p.b_frame = next.frame;
@@ -272,6 +387,30 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
   p.t = t;
   p.dt = next.time - f.time;
   p.nearer = !matched;
+  // The frame after `next`, once decoded, and (matched) the table from next to it, made on the
+  // table thread and handed out from the host frame after it is done.
+  const stream::FrameView after = c.stream->frame_after_next();
+  if (after.valid) {
+    p.ahead = after.first.first(after.count * p.record_size);
+    p.ahead_frame = after.frame;
+    p.ahead_count = after.count;
+    if (after.matched && after.frame == next.frame + 1) {
+      if ((c.ahead_a != next.frame || c.ahead_b != after.frame) &&
+          c.job->state.load(std::memory_order_acquire) == Clip::TableJob::Idle) {
+        Clip::TableJob& j = *c.job;
+        j.a = next.frame;
+        j.b = after.frame;
+        j.na = next.count;
+        j.nb = after.count;
+        j.matching = after.matching;
+        j.state.store(Clip::TableJob::Queued, std::memory_order_release);
+        tables_->submit();
+      } else if (c.ahead_a == next.frame && c.ahead_b == after.frame) {
+        p.ahead_pairs = std::span<const render::ParticlePair>(c.ahead_pairs).first(c.ahead_count);
+        p.ahead_pairs_version = c.ahead_version;
+      }
+    }
+  }
   return n;
 }
 

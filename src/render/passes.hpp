@@ -122,7 +122,8 @@ class GpuFrames {
   // order); `merged` tells whether its entries carry the batch.
   std::uint64_t stage(std::span<const ParticleBatch> batches, SortMode sort, const Mat4& sort_view, const Mat4& view,
                       StagedBatches& staged, bool& merged);
-  std::uint64_t uploaded_bytes = 0;  // since the last reset by the renderer
+  std::uint64_t uploaded_bytes = 0;  // by the host thread, since the last reset by the renderer
+  std::uint64_t staged_bytes = 0;    // queued for the staging thread, likewise
 
  private:
   struct Impl;

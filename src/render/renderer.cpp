@@ -251,8 +251,10 @@ std::uint64_t Renderer::Impl::stage_gpu(const DrawData& f, bool& merged) {
   Impl& d = *this;
   if (!d.gpu) d.gpu = std::make_unique<detail::GpuFrames>(d.options.max_bytes_per_frame, d.ssbo_alignment);
   d.gpu->uploaded_bytes = 0;
+  d.gpu->staged_bytes = 0;
   const std::uint64_t order = d.gpu->stage(f.batches, f.sort, f.sort_view, d.frame.view, d.staged, merged);
   d.stats.upload_bytes += d.gpu->uploaded_bytes;
+  d.stats.staged_bytes += d.gpu->staged_bytes;
   return order;
 }
 

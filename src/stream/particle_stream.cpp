@@ -144,6 +144,7 @@ struct ParticleStream::Impl {
   }
 
   std::uint64_t range_chunks() const { return c1 - c0 + 1; }
+  FrameView decoded_after(const format::Metadata& m, std::uint64_t ahead) const;
   // A Ready slot's runs are written before it became Ready and read only while it is held.
   void set_matching(std::size_t slot, FrameView& v) const {
     const std::size_t runs = frame_slots[slot].runs;
@@ -697,29 +698,43 @@ FrameView ParticleStream::frame() const {
   return v;
 }
 
-FrameView ParticleStream::next_frame() const {
+// The decoded frame `ahead` frames after the current one, when it is Ready (a Ready slot is only
+// released by the host thread, so the view stays valid until the host's next update()).
+FrameView ParticleStream::Impl::decoded_after(const format::Metadata& m, std::uint64_t ahead) const {
   FrameView v;
-  const Impl& d = *impl_;
-  if (!d.current_valid || state_ == PlayState::Error || d.playhead.fraction <= 0.0) return v;
-  const std::uint64_t seq = d.current_seq + 1;
-  const std::uint64_t frame = seq % meta_.frame_count();
-  if (frame == 0) return v;  // across a loop's end: not interpolated
-  std::size_t slot = d.frame_slots.size();
+  for (std::uint64_t k = 1; k <= ahead; ++k) {
+    if ((current_seq + k) % m.frame_count() == 0) return v;  // across a loop's end: not interpolated
+  }
+  const std::uint64_t seq = current_seq + ahead;
+  std::size_t slot = frame_slots.size();
   {
-    std::lock_guard lock(d.mutex);
-    for (std::size_t i = 0; i < d.frame_slots.size(); ++i) {
-      if (d.frame_slots[i].state == FrameSlot::Ready && d.frame_slots[i].seq == seq) slot = i;
+    std::lock_guard lock(mutex);
+    for (std::size_t i = 0; i < frame_slots.size(); ++i) {
+      if (frame_slots[i].state == FrameSlot::Ready && frame_slots[i].seq == seq) slot = i;
     }
   }
-  if (slot == d.frame_slots.size()) return v;  // still being decoded: the caller shows the current frame
-  const auto& f = meta_.frames[frame];
+  if (slot == frame_slots.size()) return v;  // still being decoded: the caller shows the current frame
+  const std::uint64_t frame = seq % m.frame_count();
+  const auto& f = m.frames[frame];
   v.frame = frame;
   v.count = f.count;
   v.time = f.time;
   v.valid = true;
-  v.first = {d.decoded.get() + slot * d.frame_bytes, static_cast<std::size_t>(f.count * meta_.record_size)};
-  d.set_matching(slot, v);
+  v.first = {decoded.get() + slot * frame_bytes, static_cast<std::size_t>(f.count * m.record_size)};
+  set_matching(slot, v);
   return v;
+}
+
+FrameView ParticleStream::next_frame() const {
+  const Impl& d = *impl_;
+  if (!d.current_valid || state_ == PlayState::Error || d.playhead.fraction <= 0.0) return {};
+  return d.decoded_after(meta_, 1);
+}
+
+FrameView ParticleStream::frame_after_next() const {
+  const Impl& d = *impl_;
+  if (!d.current_valid || state_ == PlayState::Error || d.playhead.fraction <= 0.0) return {};
+  return d.decoded_after(meta_, 2);
 }
 
 std::size_t ParticleStream::copy_frame(std::span<std::byte> out) const {
