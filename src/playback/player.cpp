@@ -77,9 +77,11 @@ struct Player::TableThread {
     wake.notify_all();
     thread.join();
   }
-  void submit() {
+  // Queues `job` (its fields set): under the mutex, so the thread counts only jobs it can see.
+  void submit(Clip::TableJob& job) {
     {
       std::lock_guard lock(mutex);
+      job.state.store(Clip::TableJob::Queued, std::memory_order_release);
       ++queued;
     }
     wake.notify_one();
@@ -403,8 +405,7 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
         j.na = next.count;
         j.nb = after.count;
         j.matching = after.matching;
-        j.state.store(Clip::TableJob::Queued, std::memory_order_release);
-        tables_->submit();
+        tables_->submit(j);
       } else if (c.ahead_a == next.frame && c.ahead_b == after.frame) {
         p.ahead_pairs = std::span<const render::ParticlePair>(c.ahead_pairs).first(c.ahead_count);
         p.ahead_pairs_version = c.ahead_version;
