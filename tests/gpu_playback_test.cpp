@@ -206,28 +206,42 @@ TEST(GpuPlayback, SlowMotionAndReverseEqualTheCpuPath) {
   expect_paths_agree(clips().flip_particle, -0.5);
 }
 
+// The sparks cooked with the records codec (ids) on the GPU path, a renderer for it, and one host
+// frame at 120 Hz drawn through both.
+struct SparksOnTheGpu {
+  render::HeadlessContext context{64, 64};
+  std::unique_ptr<playback::Player> gpu;
+  std::unique_ptr<render::Renderer> renderer;
+  render::Camera camera;
+  SparksOnTheGpu() {
+    context.bind();
+    gpu = open(clips().sparks_records, playback::PlaybackPath::Gpu, 1.0);
+    render::RendererOptions ro;
+    ro.max_bytes_per_frame = gpu->max_frame_bytes();
+    renderer = std::make_unique<render::Renderer>(ro);
+  }
+  const format::Metadata& metadata() const { return gpu->clip(0).metadata(); }
+  render::RendererStats host_frame(int k) {
+    gpu->advance(k == 0 ? 0.0 : 1.0 / 120, camera.view(), sort::SortMode::BackToFront);
+    renderer->begin_frame(64, 64, camera, {0, 0, 0, 1});
+    renderer->prepare(gpu->draw_data({}));
+    renderer->end_frame();
+    return renderer->stats();
+  }
+};
+
 // While the pair of cached frames stays, the host thread uploads nothing; when it changes, at most
 // one frame's records and the pair table (8 bytes a particle); the CPU path uploads the whole frame
 // every host frame.
 TEST(GpuPlayback, UploadsOncePerCachedFrame) {
-  render::HeadlessContext context(64, 64);
-  context.bind();
-  const auto gpu = open(clips().sparks_records, playback::PlaybackPath::Gpu, 1.0);
-  render::RendererOptions ro;
-  ro.max_bytes_per_frame = gpu->max_frame_bytes();
-  render::Renderer renderer(ro);
-  const format::Metadata& m = gpu->clip(0).metadata();
-  const render::Camera camera;
+  SparksOnTheGpu rig;
+  const format::Metadata& m = rig.metadata();
   // What the host frame draws: the pair of cached frames and the table's version.
   std::array<std::uint64_t, 3> last{~0ull, ~0ull, ~0ull};
   std::uint64_t steady = 0, changes = 0;
   for (int k = 0; k < 40; ++k) {
-    gpu->advance(k == 0 ? 0.0 : 1.0 / 120, camera.view(), sort::SortMode::BackToFront);
-    renderer.begin_frame(64, 64, camera, {0, 0, 0, 1});
-    renderer.prepare(gpu->draw_data({}));
-    renderer.end_frame();
-    const std::uint64_t bytes = renderer.stats().upload_bytes;  // by the host thread
-    const render::FramePair& pair = *gpu->batches()[0].pair;
+    const std::uint64_t bytes = rig.host_frame(k).upload_bytes;  // by the host thread
+    const render::FramePair& pair = *rig.gpu->batches()[0].pair;
     const std::array<std::uint64_t, 3> now{pair.a_frame, pair.pairs.empty() ? ~0ull : pair.b_frame,
                                            pair.pairs.empty() ? ~0ull : pair.pairs_version};
     if (k > 0 && now == last) {
@@ -249,23 +263,13 @@ TEST(GpuPlayback, UploadsOncePerCachedFrame) {
 // once the stream has decoded it, so the host frame that reaches it uploads nothing itself; each
 // cached frame's bytes still move once.
 TEST(GpuPlayback, TheFrameAheadIsStagedSoReachingItUploadsNothing) {
-  render::HeadlessContext context(64, 64);
-  context.bind();
-  const auto gpu = open(clips().sparks_records, playback::PlaybackPath::Gpu, 1.0);
-  render::RendererOptions ro;
-  ro.max_bytes_per_frame = gpu->max_frame_bytes();
-  render::Renderer renderer(ro);
-  const format::Metadata& m = gpu->clip(0).metadata();
-  const render::Camera camera;
+  SparksOnTheGpu rig;
+  const format::Metadata& m = rig.metadata();
   std::uint64_t last = ~0ull, crossings = 0, quiet_crossings = 0, staged = 0, moved = 0, frames_reached = 0;
   for (int k = 0; k < 60; ++k) {
-    gpu->advance(k == 0 ? 0.0 : 1.0 / 120, camera.view(), sort::SortMode::BackToFront);
-    renderer.begin_frame(64, 64, camera, {0, 0, 0, 1});
-    renderer.prepare(gpu->draw_data({}));
-    renderer.end_frame();
-    const render::RendererStats st = renderer.stats();
+    const render::RendererStats st = rig.host_frame(k);
     staged += st.staged_bytes;
-    const render::FramePair* pair = gpu->batches().empty() ? nullptr : gpu->batches()[0].pair;
+    const render::FramePair* pair = rig.gpu->batches().empty() ? nullptr : rig.gpu->batches()[0].pair;
     if (k > 2 && pair != nullptr && !pair->pairs.empty()) {
       moved += st.upload_bytes + st.staged_bytes;
       if (pair->b_frame != last) {  // the playhead reached a new later frame
