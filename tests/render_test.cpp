@@ -693,9 +693,12 @@ TEST(RenderCommand, TheAutomaticCameraFramesTheFramesRendered) {
                                              first, m.frame_count(), kWidth, kHeight, whole.string()));
     ASSERT_EQ(r.exit_code, 0) << r.output;
     const double in_whole = span_of(test::nth_frame(whole, 0));
-    std::printf("%s frame %llu in a render of the whole clip: silhouette spans %.0f%%\n", sim,
-                static_cast<unsigned long long>(first), 100 * in_whole);
+    const double middle_in_whole = span_of(test::nth_frame(whole, int(middle - first)));
+    std::printf("%s in a render of the whole clip: frame %llu spans %.0f%%, frame %llu %.0f%%\n", sim,
+                static_cast<unsigned long long>(first), 100 * in_whole, static_cast<unsigned long long>(middle),
+                100 * middle_in_whole);
     EXPECT_GT(alone[0], 3 * in_whole) << "the first frame rendered alone is framed for itself";
+    EXPECT_GE(middle_in_whole, 0.6) << "the middle frame of a render with every default";
   }
 }
 

@@ -46,6 +46,9 @@ struct Camera {
   // The same framing inside the region [x0, x1] x [y0, y1] of an image of this aspect (fractions
   // of its width and height from the top left): the box fills that region, through a lens shift.
   static Camera framing(const Vec3& lo, const Vec3& hi, float aspect, const std::array<float, 4>& region);
+  // The same view direction, as close as keeps every point (and `pad` around each: a particle's
+  // radius) inside that region: tighter than their box, whose corners are often empty.
+  static Camera framing(std::span<const Vec3> points, float pad, float aspect, const std::array<float, 4>& region);
 };
 
 enum class BlendMode { Alpha, Additive, AlphaTest };

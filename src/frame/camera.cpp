@@ -62,23 +62,35 @@ Mat4 perspective(float fov_y_degrees, float aspect, float near, float far) {
 
 namespace {
 
-// Camera::framing for a view of `aspect` whose height spans tan(fov_y / 2) = tan_y.
-Camera frame_box(const Vec3& lo, const Vec3& hi, float aspect, float tan_y) {
+float half_tan(float fov_y_degrees) { return std::tan(fov_y_degrees * std::numbers::pi_v<float> / 360.0f); }
+
+// Camera::framing for a view of `aspect` whose height spans tan(fov_y / 2) = tan_y: every point,
+// and `pad` around it, inside the view, with a margin.
+Camera frame_points(std::span<const Vec3> points, float pad, float aspect, float tan_y) {
   Camera c;
-  c.target = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
-  const Vec3 half = sub(hi, c.target);
-  const float radius = std::max(std::sqrt(dot(half, half)), 1e-3f);
   const Vec3 dir = normalize({0.55f, 0.4f, 1.0f});  // three-quarter view, from above the front
   const Vec3 right = normalize(cross({-dir[0], -dir[1], -dir[2]}, {0, 1, 0}));
   const Vec3 up = cross(right, {-dir[0], -dir[1], -dir[2]});
-  // The nearest distance at which every corner of the box is inside the view, with a margin.
-  const float tan_x = tan_y * std::max(aspect, 0.1f);
-  float distance = 0;
-  for (int k = 0; k < 8; ++k) {
-    const Vec3 d{(k & 1 ? half[0] : -half[0]), (k & 2 ? half[1] : -half[1]), (k & 4 ? half[2] : -half[2])};
-    const float toward = dot(d, dir);  // a corner nearer the camera needs more distance
-    distance = std::max({distance, std::abs(dot(d, up)) / tan_y + toward, std::abs(dot(d, right)) / tan_x + toward});
+  // The target: the middle of the points' extent across, up and along the view.
+  std::array<float, 3> lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+  for (const Vec3& p : points) {
+    const float q[3] = {dot(p, right), dot(p, up), dot(p, dir)};
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], q[a]), hi[a] = std::max(hi[a], q[a]);
   }
+  if (points.empty()) lo = hi = {0, 0, 0};
+  for (int a = 0; a < 3; ++a)
+    c.target[a] = right[a] * 0.5f * (lo[0] + hi[0]) + up[a] * 0.5f * (lo[1] + hi[1]) + dir[a] * 0.5f * (lo[2] + hi[2]);
+  // The nearest distance at which every point is inside the view.
+  const float tan_x = tan_y * std::max(aspect, 0.1f);
+  float distance = 0, radius = pad;
+  for (const Vec3& p : points) {
+    const Vec3 d = sub(p, c.target);
+    const float toward = dot(d, dir);  // a point nearer the camera needs more distance
+    distance = std::max({distance, (std::abs(dot(d, up)) + pad) / tan_y + toward,
+                         (std::abs(dot(d, right)) + pad) / tan_x + toward});
+    radius = std::max(radius, std::sqrt(dot(d, d)) + pad);
+  }
+  radius = std::max(radius, 1e-3f);
   distance = std::max(distance * 1.08f, radius * 0.2f);
   c.eye = {c.target[0] + dir[0] * distance, c.target[1] + dir[1] * distance, c.target[2] + dir[2] * distance};
   c.near = std::max(distance - radius * 2, distance * 0.01f);
@@ -86,7 +98,24 @@ Camera frame_box(const Vec3& lo, const Vec3& hi, float aspect, float tan_y) {
   return c;
 }
 
-float half_tan(float fov_y_degrees) { return std::tan(fov_y_degrees * std::numbers::pi_v<float> / 360.0f); }
+Camera frame_box(const Vec3& lo, const Vec3& hi, float aspect, float tan_y) {
+  std::array<Vec3, 8> corners;
+  for (int k = 0; k < 8; ++k) corners[std::size_t(k)] = {k & 1 ? hi[0] : lo[0], k & 2 ? hi[1] : lo[1], k & 4 ? hi[2] : lo[2]};
+  return frame_points(corners, 0.0f, aspect, tan_y);
+}
+
+// The region [x0, x1] x [y0, y1] of an image of `aspect` is (x1 - x0) of its width and (y1 - y0)
+// of its height; projections are linear in NDC, so it sees the content as a whole view of that
+// aspect and a height of (y1 - y0) x tan_y, moved there by a lens shift.
+template <class Frame>
+Camera in_region(const std::array<float, 4>& region, float aspect, Frame&& frame) {
+  const float x0 = std::clamp(region[0], 0.0f, 1.0f), y0 = std::clamp(region[1], 0.0f, 1.0f);
+  const float x1 = std::clamp(region[2], x0 + 1e-3f, 1.0f), y1 = std::clamp(region[3], y0 + 1e-3f, 1.0f);
+  Camera c = frame(aspect * (x1 - x0) / (y1 - y0), half_tan(Camera{}.fov_y_degrees) * (y1 - y0));
+  c.shift = {x0 + x1 - 1.0f, 1.0f - (y0 + y1)};
+  return c;
+}
+
 
 }  // namespace
 
@@ -95,13 +124,11 @@ Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect) {
 }
 
 Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect, const std::array<float, 4>& region) {
-  const float x0 = std::clamp(region[0], 0.0f, 1.0f), y0 = std::clamp(region[1], 0.0f, 1.0f);
-  const float x1 = std::clamp(region[2], x0 + 1e-3f, 1.0f), y1 = std::clamp(region[3], y0 + 1e-3f, 1.0f);
-  // The region is (x1 - x0) of the width and (y1 - y0) of the height; projections are linear in
-  // NDC, so it sees the box as a whole view of that aspect and a height of (y1 - y0) x tan_y.
-  Camera c = frame_box(lo, hi, aspect * (x1 - x0) / (y1 - y0), half_tan(Camera{}.fov_y_degrees) * (y1 - y0));
-  c.shift = {x0 + x1 - 1.0f, 1.0f - (y0 + y1)};
-  return c;
+  return in_region(region, aspect, [&](float a, float tan_y) { return frame_box(lo, hi, a, tan_y); });
+}
+
+Camera Camera::framing(std::span<const Vec3> points, float pad, float aspect, const std::array<float, 4>& region) {
+  return in_region(region, aspect, [&](float a, float tan_y) { return frame_points(points, pad, a, tan_y); });
 }
 
 Backdrop Backdrop::under(const Vec3& lo, const Vec3& hi) {

@@ -40,61 +40,83 @@ void sample_frames(std::span<const std::filesystem::path> files, const std::arra
 
 }  // namespace
 
-std::array<float, 6> framing_box(std::span<const std::filesystem::path> files, const std::array<double, 2>& seconds) {
-  std::array<std::vector<float>, 3> axes;
-  std::array<float, 6> whole{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY}, sampled = whole;
-  float radius = 0;  // the largest particle sampled
+namespace {
+
+// The sampled particles' positions and sizes, and the clips' whole bounds.
+struct Positions {
+  std::vector<render::Vec3> points;
+  std::vector<float> scales;
+  std::array<float, 6> whole{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+};
+
+Positions sample_positions(std::span<const std::filesystem::path> files, const std::array<double, 2>& seconds) {
+  Positions s;
   sample_frames(
       files, seconds,
       [&](const format::Metadata& m) {  // the clips' whole bounds, for when too few particles are found
         for (std::size_t a = 0; a < 3; ++a) {
-          whole[a] = std::min(whole[a], m.bounds[a]);
-          whole[a + 3] = std::max(whole[a + 3], m.bounds[a + 3]);
+          s.whole[a] = std::min(s.whole[a], m.bounds[a]);
+          s.whole[a + 3] = std::max(s.whole[a + 3], m.bounds[a + 3]);
         }
       },
       [&](const format::Metadata&, const std::byte* record) {
-        float p[3], scale = 0;
-        std::memcpy(p, record + render::kPositionOffset, sizeof p);
+        render::Vec3 p;
+        float scale = 0;
+        std::memcpy(p.data(), record + render::kPositionOffset, sizeof p);
         std::memcpy(&scale, record + render::kScaleOffset, sizeof scale);
-        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2])) {
-          for (std::size_t a = 0; a < 3; ++a) {
-            axes[a].push_back(p[a]);
-            sampled[a] = std::min(sampled[a], p[a]);
-            sampled[a + 3] = std::max(sampled[a + 3], p[a]);
-          }
-        }
-        if (std::isfinite(scale)) radius = std::max(radius, scale);
+        if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2])) s.points.push_back(p);
+        if (std::isfinite(scale)) s.scales.push_back(scale);
       });
-  // A box no smaller than one particle: the first frames of an effect that starts from a point
-  // hold a handful.
-  const auto at_least_a_particle = [&](std::array<float, 6> b) {
-    for (std::size_t a = 0; a < 3; ++a) {
-      const float centre = 0.5f * (b[a] + b[a + 3]);
-      b[a] = std::min(b[a], centre - radius);
-      b[a + 3] = std::max(b[a + 3], centre + radius);
-    }
-    return b;
-  };
-  if (axes[0].empty()) return whole;
-  if (axes[0].size() < 16) return at_least_a_particle(sampled);  // too few for percentiles: all of them
+  return s;
+}
+
+// Per axis, the 0.5th to 99.5th percentile of the points (all of them when there are too few),
+// no smaller than one particle: the first frames of an effect that starts from a point hold a
+// handful. The whole bounds when no point was found.
+std::array<float, 6> robust_box(const Positions& s) {
+  if (s.points.empty()) return s.whole;
+  const float radius = s.scales.empty() ? 0.0f : *std::max_element(s.scales.begin(), s.scales.end());
   std::array<float, 6> box{};
+  std::vector<float> v(s.points.size());
   for (std::size_t a = 0; a < 3; ++a) {
-    auto& v = axes[a];
-    const auto lo = v.begin() + std::ptrdiff_t(v.size() / 200),
-               hi = v.begin() + std::ptrdiff_t(v.size() - 1 - v.size() / 200);
+    for (std::size_t i = 0; i < v.size(); ++i) v[i] = s.points[i][a];
+    const std::size_t cut = v.size() < 16 ? 0 : v.size() / 200;
+    const auto lo = v.begin() + std::ptrdiff_t(cut), hi = v.begin() + std::ptrdiff_t(v.size() - 1 - cut);
     std::nth_element(v.begin(), lo, v.end());
     box[a] = *lo;
     std::nth_element(v.begin(), hi, v.end());
     box[a + 3] = *hi;
+    const float centre = 0.5f * (box[a] + box[a + 3]);
+    box[a] = std::min(box[a], centre - radius);
+    box[a + 3] = std::max(box[a + 3], centre + radius);
   }
-  return at_least_a_particle(box);
+  return box;
+}
+
+}  // namespace
+
+std::array<float, 6> framing_box(std::span<const std::filesystem::path> files, const std::array<double, 2>& seconds) {
+  return robust_box(sample_positions(files, seconds));
 }
 
 render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect,
                               const std::array<float, 4>& region, const std::array<double, 2>& seconds) {
-  const std::array<float, 6> b = framing_box(files, seconds);
-  const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);  // no particle anywhere
-  return empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, aspect, region);
+  Positions s = sample_positions(files, seconds);
+  const std::array<float, 6> b = robust_box(s);
+  if (!(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5])) return render::Camera{};  // no particle anywhere
+  // The points inside that box (the strays left out), each with the largest particle's radius
+  // around it: tighter than the box, whose corners a round or slanted cloud leaves empty. Framed
+  // in part of the image (beside the viewer's panel), the strays stay in: one must not end up
+  // under the panel.
+  const bool whole_image = region == std::array<float, 4>{0.0f, 0.0f, 1.0f, 1.0f};
+  if (whole_image) {
+    std::erase_if(s.points, [&](const render::Vec3& p) {
+      return p[0] < b[0] || p[1] < b[1] || p[2] < b[2] || p[0] > b[3] || p[1] > b[4] || p[2] > b[5];
+    });
+  }
+  if (s.points.empty()) return render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, aspect, region);
+  const float pad = s.scales.empty() ? 0.0f : std::max(*std::max_element(s.scales.begin(), s.scales.end()), 0.0f);
+  return render::Camera::framing(s.points, pad, aspect, region);
 }
 
 std::array<float, 2> ramp_range(std::span<const std::filesystem::path> files, const std::string& attribute) {
