@@ -86,8 +86,8 @@ Camera frame_points(std::span<const Vec3> points, float pad, float aspect, float
   for (const Vec3& p : points) {
     const Vec3 d = sub(p, c.target);
     const float toward = dot(d, dir);  // a point nearer the camera needs more distance
-    distance = std::max({distance, (std::abs(dot(d, up)) + pad) / tan_y + toward,
-                         (std::abs(dot(d, right)) + pad) / tan_x + toward});
+    distance = std::max(
+        {distance, (std::abs(dot(d, up)) + pad) / tan_y + toward, (std::abs(dot(d, right)) + pad) / tan_x + toward});
     radius = std::max(radius, std::sqrt(dot(d, d)) + pad);
   }
   radius = std::max(radius, 1e-3f);
@@ -100,7 +100,8 @@ Camera frame_points(std::span<const Vec3> points, float pad, float aspect, float
 
 Camera frame_box(const Vec3& lo, const Vec3& hi, float aspect, float tan_y) {
   std::array<Vec3, 8> corners;
-  for (int k = 0; k < 8; ++k) corners[std::size_t(k)] = {k & 1 ? hi[0] : lo[0], k & 2 ? hi[1] : lo[1], k & 4 ? hi[2] : lo[2]};
+  for (int k = 0; k < 8; ++k)
+    corners[std::size_t(k)] = {k & 1 ? hi[0] : lo[0], k & 2 ? hi[1] : lo[1], k & 4 ? hi[2] : lo[2]};
   return frame_points(corners, 0.0f, aspect, tan_y);
 }
 
@@ -115,7 +116,6 @@ Camera in_region(const std::array<float, 4>& region, float aspect, Frame&& frame
   c.shift = {x0 + x1 - 1.0f, 1.0f - (y0 + y1)};
   return c;
 }
-
 
 }  // namespace
 
