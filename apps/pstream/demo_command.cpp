@@ -40,9 +40,17 @@ json percentiles(std::vector<double> v) {
   return json{{"median", v[v.size() / 2]}, {"p99", v[std::min(v.size() - 1, v.size() * 99 / 100)]}};
 }
 
-// A grid of evenly spaced frames, each shrunk by averaging 4x4 pixel blocks.
-void contact_sheet(const std::filesystem::path& frames, std::uint64_t first, std::size_t count,
-                   const std::filesystem::path& out) {
+// A grid of evenly spaced frames, each shrunk by averaging 2x2 pixel blocks: from the first frame
+// at which the effect holds a quarter of its peak particle count (an effect that grows from a
+// point shows little before) to the last. `first` is the first rendered frame's number, which is
+// its frame in the clip.
+void contact_sheet(const std::filesystem::path& frames, const format::Metadata& clip, std::uint64_t first,
+                   std::size_t count, const std::filesystem::path& out) {
+  std::size_t from = 0;
+  while (from + 1 < count && first + from < clip.frame_count() && clip.frames[first + from].count * 4 < clip.max_count)
+    ++from;
+  first += from;
+  count -= from;
   constexpr int kColumns = 3, kRows = 3, kShrink = 2;  // thumbnails half the frame: big enough to see
   int w = 0, h = 0;
   render::read_png(frames / fmt::format("frame_{:05d}.png", first), w, h);
@@ -222,7 +230,8 @@ int run_demo(const DemoCli& cli) {
                       {"frames", render_ms.size()},
                       {"size", cli.size},
                       {"gl_renderer", rs.gl_renderer}};
-  contact_sheet(rc.out, rs.first_number, render_ms.size(), dir / "contact_sheet.png");
+  contact_sheet(rc.out, format::Reader::open(co.output).metadata(), rs.first_number, render_ms.size(),
+                dir / "contact_sheet.png");
   if (!have_ffmpeg) say("note: no demo.mp4 — the ffmpeg program is not installed (apt-get install ffmpeg)");
 
   rusage usage{};
