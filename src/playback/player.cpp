@@ -1,13 +1,12 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
-#include <condition_variable>
-#include <mutex>
 #include <thread>
 #include <utility>
 
 #include <fmt/format.h>
 
+#include "base/job_thread.hpp"
 #include "base/names.hpp"
 #include "particlestream/playback.hpp"
 #include "playback/interpolate.hpp"
@@ -41,69 +40,32 @@ struct Player::Clip {
   std::vector<render::ParticlePair> ahead_pairs;
   std::uint64_t ahead_a = ~0ull, ahead_b = ~0ull, ahead_count = 0, ahead_version = 0;
   std::uint64_t versions = 0;  // the last table version handed out
-  struct TableJob {            // Idle -> Queued (host) -> Done (table thread) -> Idle (host)
-    enum : std::uint32_t { Idle, Queued, Done };
-    std::atomic<std::uint32_t> state{Idle};
+  // The next pair's table, made on the table thread into `ahead_pairs`.
+  struct TableJob final : base::JobThread::Job {
     std::uint64_t a = 0, b = 0, na = 0, nb = 0, count = 0;
     std::span<const format::MatchRun> matching;  // the stream's, valid until its next update()
+    std::span<render::ParticlePair> out;
+    void run() override {
+      bool nearer = false;
+      count = pair_table(na, nb, &matching, 0.0, out, nearer);
+    }
   };
   std::unique_ptr<TableJob> job;
   std::unique_ptr<std::atomic<std::uint32_t>> lent;  // FramePair::lent: 1 while a renderer reads ahead
   // Waits until the table thread and the renderer are done with what the stream lent them (the
   // frame ahead's records and matching): called before the stream moves, which may release them.
   void settle() const {
-    if (job) {
-      for (std::uint32_t v; (v = job->state.load(std::memory_order_acquire)) == TableJob::Queued;)
-        job->state.wait(v, std::memory_order_acquire);
-    }
-    if (!lent) return;
-    for (std::uint32_t v; (v = lent->load(std::memory_order_acquire)) != 0;) lent->wait(v, std::memory_order_acquire);
+    if (job) job->wait();
+    // The renderer only stores 0 (it cannot wake us without touching `lent` after we may have
+    // moved on): polled, and in practice already 0, its copy taking a fraction of a host frame.
+    while (lent && lent->load(std::memory_order_acquire) != 0)
+      std::this_thread::sleep_for(std::chrono::microseconds(50));
   }
 };
 
-struct Player::TableThread {
-  std::mutex mutex;
-  std::condition_variable wake;
-  std::uint32_t queued = 0;
-  bool stopping = false;
-  std::thread thread;
-
-  explicit TableThread(std::vector<Clip>& clips) : thread([this, &clips] { run(clips); }) {}
-  ~TableThread() {
-    {
-      std::lock_guard lock(mutex);
-      stopping = true;
-    }
-    wake.notify_all();
-    thread.join();
-  }
-  // Queues `job` (its fields set): under the mutex, so the thread counts only jobs it can see.
-  void submit(Clip::TableJob& job) {
-    {
-      std::lock_guard lock(mutex);
-      job.state.store(Clip::TableJob::Queued, std::memory_order_release);
-      ++queued;
-    }
-    wake.notify_one();
-  }
-  void run(std::vector<Clip>& clips) {
-    std::unique_lock lock(mutex);
-    for (;;) {
-      wake.wait(lock, [&] { return stopping || queued > 0; });
-      if (queued == 0) return;
-      for (Clip& c : clips) {
-        Clip::TableJob* j = c.job.get();
-        if (j == nullptr || j->state.load(std::memory_order_acquire) != Clip::TableJob::Queued) continue;
-        --queued;
-        lock.unlock();
-        bool nearer = false;
-        j->count = pair_table(j->na, j->nb, &j->matching, 0.0, c.ahead_pairs, nearer);
-        j->state.store(Clip::TableJob::Done, std::memory_order_release);
-        j->state.notify_all();
-        lock.lock();
-      }
-    }
-  }
+// The GPU path's table thread: a JobThread with room for every clip's job.
+struct Player::TableThread : base::JobThread {
+  using base::JobThread::JobThread;
 };
 
 namespace {
@@ -197,7 +159,7 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
   p->sorted_by_.resize(p->clips_.size());  // reused every frame (a texture name is not copied again)
   p->sources_.reserve(p->clips_.size());
   if (options.path == PlaybackPath::Gpu && options.interpolation != Interpolation::None)
-    p->tables_ = std::make_unique<TableThread>(p->clips_);
+    p->tables_ = std::make_unique<TableThread>(p->clips_.size());
   return p;
 }
 
@@ -358,12 +320,11 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
   // cached frame, never between.
   const int side = matched ? 0 : (t < 0.5 ? 1 : 2);
   std::uint64_t& n = c.pairs_count;
-  if (c.job && c.job->state.load(std::memory_order_acquire) == Clip::TableJob::Done) {  // (settle() waited for it)
+  if (c.job && c.job->collect()) {  // (settle() waited for it)
     c.ahead_a = c.job->a;
     c.ahead_b = c.job->b;
     c.ahead_count = c.job->count;
     c.ahead_version = ++c.versions;
-    c.job->state.store(Clip::TableJob::Idle, std::memory_order_relaxed);
   }
   if (c.pairs_a != f.frame || c.pairs_b != next.frame || c.pairs_side != side) {
     if (matched && c.ahead_a == f.frame && c.ahead_b == next.frame) {  // made ahead: the renderer may hold it
@@ -397,14 +358,14 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
     p.ahead_frame = after.frame;
     p.ahead_count = after.count;
     if (after.matched && after.frame == next.frame + 1) {
-      if ((c.ahead_a != next.frame || c.ahead_b != after.frame) &&
-          c.job->state.load(std::memory_order_acquire) == Clip::TableJob::Idle) {
+      if ((c.ahead_a != next.frame || c.ahead_b != after.frame) && c.job->state() == Clip::TableJob::Idle) {
         Clip::TableJob& j = *c.job;
         j.a = next.frame;
         j.b = after.frame;
         j.na = next.count;
         j.nb = after.count;
         j.matching = after.matching;
+        j.out = c.ahead_pairs;
         tables_->submit(j);
       } else if (c.ahead_a == next.frame && c.ahead_b == after.frame) {
         p.ahead_pairs = std::span<const render::ParticlePair>(c.ahead_pairs).first(c.ahead_count);

@@ -5,14 +5,12 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <condition_variable>
 #include <cstring>
-#include <mutex>
-#include <thread>
 
 #include <epoxy/gl.h>
 #include <fmt/format.h>
 
+#include "base/job_thread.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "passes.hpp"
@@ -24,15 +22,21 @@ constexpr std::uint64_t kNoFrame = ~0ull;
 std::uint64_t align_up(std::uint64_t v, std::uint64_t a) { return (v + a - 1) / a * a; }
 
 // A copy of the frame ahead of the playhead (FramePair::ahead) into a clip's staging buffer, made
-// on the staging thread. Idle -> Queued (host) -> Done (staging thread) -> Idle (host: the GPU copies
-// it into the clip's buffers).
-struct AheadCopy {
-  enum : int { Idle, Queued, Done };
-  std::atomic<int> state{Idle};
+// on the staging thread; collected by the host, whose GPU-side copy then moves it into the
+// clip's buffers.
+struct AheadCopy final : base::JobThread::Job {
   std::span<const std::byte> records;
   std::span<const ParticlePair> pairs;
+  std::byte* into = nullptr;  // the mapped staging buffer; the table at into + pairs_at
+  std::uint64_t pairs_at = 0;
   std::atomic<std::uint32_t>* lent = nullptr;
   std::uint64_t frame = kNoFrame, pairs_version = kNoFrame;
+
+  void run() override {
+    if (!records.empty()) std::memcpy(into, records.data(), records.size());
+    if (!pairs.empty()) std::memcpy(into + pairs_at, pairs.data(), pairs.size_bytes());
+    lent->store(0, std::memory_order_release);  // the player's bytes are its own again (it polls)
+  }
 };
 
 // One clip's buffers: three cached frames (the pair on screen and the frame after it), two pair
@@ -67,7 +71,7 @@ struct Source {
     staging = 0;
     mapped = nullptr;
     staging_free = nullptr;
-    copy.state.store(AheadCopy::Idle);
+    copy.reset();
     interpolator.reset();
     id = 0;
   }
@@ -83,14 +87,9 @@ struct GpuFrames::Impl {
   std::array<Source, 2 * kMaxBatches> sources;
   std::uint64_t frame_counter = 0;
   // The staging thread: copies each queued frame ahead into its clip's mapped staging buffer.
-  std::mutex mutex;
-  std::condition_variable wake, done;
-  int queued = 0;
-  bool stopping = false;
-  std::thread thread;
+  // Declared after the sources, so it ends before their jobs do.
+  base::JobThread staging{2 * kMaxBatches};
 
-  void run_staging();
-  void wait_copy(Source& s);
   Source& source_for(const FramePair& p);
   // Moves a finished copy of the frame ahead from the staging buffer into the clip's buffers (a
   // GPU-side copy): into a frame buffer the pair on screen does not use, and the table into the
@@ -104,50 +103,20 @@ struct GpuFrames::Impl {
                  std::uint64_t ahead, std::uint64_t& uploaded);
 };
 
-void GpuFrames::Impl::run_staging() {
-  std::unique_lock lock(mutex);
-  for (;;) {
-    wake.wait(lock, [&] { return stopping || queued > 0; });
-    if (queued == 0) return;  // stopping, nothing left
-    for (Source& s : sources) {
-      if (s.copy.state.load(std::memory_order_acquire) != AheadCopy::Queued) continue;
-      lock.unlock();
-      AheadCopy& c = s.copy;
-      if (!c.records.empty()) std::memcpy(s.mapped, c.records.data(), c.records.size());
-      if (!c.pairs.empty()) std::memcpy(s.mapped + s.pairs_at, c.pairs.data(), c.pairs.size_bytes());
-      c.lent->store(0, std::memory_order_release);  // the player's bytes are its own again
-      c.lent->notify_all();
-      lock.lock();
-      c.state.store(AheadCopy::Done, std::memory_order_release);
-      --queued;
-      done.notify_all();
-    }
-  }
-}
-
-void GpuFrames::Impl::wait_copy(Source& s) {
-  std::unique_lock lock(mutex);
-  done.wait(lock, [&] { return s.copy.state.load(std::memory_order_acquire) != AheadCopy::Queued; });
-}
-
 GpuFrames::GpuFrames(std::uint64_t max_bytes_per_frame, GLint ssbo_alignment) : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
   d.capacity = std::max<std::uint64_t>(max_bytes_per_frame, 4096);
   d.alignment = std::max<GLint>(ssbo_alignment, 4);
   glCreateBuffers(1, &d.out);
   glNamedBufferStorage(d.out, GLsizeiptr(d.capacity), nullptr, 0);
-  d.thread = std::thread([&d] { d.run_staging(); });
 }
 
 GpuFrames::~GpuFrames() {
   Impl& d = *impl_;
-  {
-    std::lock_guard lock(d.mutex);
-    d.stopping = true;  // the thread finishes what is queued (the player waits for it), then ends
+  for (Source& s : d.sources) {
+    s.copy.wait();  // the thread finishes what is queued (the player waits for it too)
+    s.release();
   }
-  d.wake.notify_all();
-  d.thread.join();
-  for (Source& s : d.sources) s.release();
   d.sorter.reset();
   glDeleteBuffers(1, &d.out);
 }
@@ -161,7 +130,7 @@ Source& GpuFrames::Impl::source_for(const FramePair& p) {
   // A clip seen for the first time (or one whose buffers were given to another): its buffers
   // for its largest frame, made once.
   Source& s = *victim;
-  wait_copy(s);
+  s.copy.wait();
   s.release();
   s.id = p.source;
   s.max_count = std::max<std::uint64_t>(p.max_count, 1);
@@ -189,11 +158,10 @@ Source& GpuFrames::Impl::source_for(const FramePair& p) {
 
 void GpuFrames::Impl::commit(Source& s, const FramePair& p) {
   AheadCopy& c = s.copy;
-  if (c.state.load(std::memory_order_acquire) == AheadCopy::Queued &&
-      (c.frame == p.a_frame || (!p.pairs.empty() && c.frame == p.b_frame))) {
-    wait_copy(s);  // reached already (a slow staging thread, or a fast playhead): wait, never copy twice
+  if (c.state() == AheadCopy::Queued && (c.frame == p.a_frame || (!p.pairs.empty() && c.frame == p.b_frame))) {
+    c.wait();  // reached already (a slow staging thread, or a fast playhead): wait, never copy twice
   }
-  if (c.state.load(std::memory_order_acquire) != AheadCopy::Done) return;
+  if (!c.collect()) return;
   if (!c.records.empty() && !s.holds(c.frame)) {
     int slot = 0;
     while (slot < 2 && (s.frame_of[std::size_t(slot)] == p.a_frame ||
@@ -210,12 +178,11 @@ void GpuFrames::Impl::commit(Source& s, const FramePair& p) {
   }
   if (s.staging_free) glDeleteSync(s.staging_free);
   s.staging_free = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
-  c.state.store(AheadCopy::Idle, std::memory_order_relaxed);
 }
 
 void GpuFrames::Impl::start_copy(Source& s, const FramePair& p, std::uint64_t& staged) {
   AheadCopy& c = s.copy;
-  if (p.ahead.empty() || p.lent == nullptr || c.state.load(std::memory_order_acquire) != AheadCopy::Idle) return;
+  if (p.ahead.empty() || p.lent == nullptr || c.state() != AheadCopy::Idle) return;
   const bool frame_needed = !s.holds(p.ahead_frame);
   const bool pairs_needed = !p.ahead_pairs.empty() && s.pairs_version[0] != p.ahead_pairs_version &&
                             s.pairs_version[1] != p.ahead_pairs_version;
@@ -230,14 +197,11 @@ void GpuFrames::Impl::start_copy(Source& s, const FramePair& p, std::uint64_t& s
   c.pairs = pairs_needed ? p.ahead_pairs : std::span<const ParticlePair>{};
   c.frame = frame_needed ? p.ahead_frame : kNoFrame;
   c.pairs_version = p.ahead_pairs_version;
+  c.into = s.mapped;
+  c.pairs_at = s.pairs_at;
   c.lent = p.lent;
-  p.lent->store(1, std::memory_order_relaxed);  // (published to the thread by the mutex below)
-  {
-    std::lock_guard lock(mutex);
-    c.state.store(AheadCopy::Queued, std::memory_order_release);
-    ++queued;
-  }
-  wake.notify_one();
+  p.lent->store(1, std::memory_order_relaxed);  // (published to the thread by submit's mutex)
+  staging.submit(c);
   staged += c.records.size() + c.pairs.size_bytes();
 }
 

@@ -144,7 +144,7 @@ struct ParticleStream::Impl {
   }
 
   std::uint64_t range_chunks() const { return c1 - c0 + 1; }
-  FrameView decoded_after(const format::Metadata& m, std::uint64_t ahead) const;
+  FrameView decoded_after(std::uint64_t ahead) const;
   // A Ready slot's runs are written before it became Ready and read only while it is held.
   void set_matching(std::size_t slot, FrameView& v) const {
     const std::size_t runs = frame_slots[slot].runs;
@@ -700,7 +700,8 @@ FrameView ParticleStream::frame() const {
 
 // The decoded frame `ahead` frames after the current one, when it is Ready (a Ready slot is only
 // released by the host thread, so the view stays valid until the host's next update()).
-FrameView ParticleStream::Impl::decoded_after(const format::Metadata& m, std::uint64_t ahead) const {
+FrameView ParticleStream::Impl::decoded_after(std::uint64_t ahead) const {
+  const format::Metadata& m = *meta;
   FrameView v;
   for (std::uint64_t k = 1; k <= ahead; ++k) {
     if ((current_seq + k) % m.frame_count() == 0) return v;  // across a loop's end: not interpolated
@@ -728,13 +729,13 @@ FrameView ParticleStream::Impl::decoded_after(const format::Metadata& m, std::ui
 FrameView ParticleStream::next_frame() const {
   const Impl& d = *impl_;
   if (!d.current_valid || state_ == PlayState::Error || d.playhead.fraction <= 0.0) return {};
-  return d.decoded_after(meta_, 1);
+  return d.decoded_after(1);
 }
 
 FrameView ParticleStream::frame_after_next() const {
   const Impl& d = *impl_;
   if (!d.current_valid || state_ == PlayState::Error || d.playhead.fraction <= 0.0) return {};
-  return d.decoded_after(meta_, 2);
+  return d.decoded_after(2);
 }
 
 std::size_t ParticleStream::copy_frame(std::span<std::byte> out) const {
