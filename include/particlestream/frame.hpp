@@ -255,8 +255,8 @@ struct FramePair {
   // when its particles are matched to b's, the table from b to it (`ahead_pairs`, empty
   // otherwise). A renderer can copy them towards the GPU on a thread of its own, so that the host
   // frame which reaches them uploads nothing. The bytes are lent: the renderer stores 1 in `*lent`
-  // before its thread reads them and 0 (then notify_all()) once it is done; the player waits for 0
-  // before its streams move again.
+  // before its thread reads them and 0 once it is done, touching `*lent` no more after (the player
+  // polls for 0 before its streams move again, and may then free it).
   std::span<const std::byte> ahead;
   std::uint64_t ahead_frame = 0, ahead_count = 0;
   std::span<const ParticlePair> ahead_pairs;
