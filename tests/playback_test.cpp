@@ -950,4 +950,73 @@ TEST(Camera, FramingInARegionKeepsTheBoxInsideIt) {
   for (int a = 0; a < 3; ++a) EXPECT_NEAR(all.eye[a], plain.eye[a], 1e-5f);
 }
 
+// The automatic camera's track on the two shared simulations, which both grow from a few
+// particles: it pulls back at once as they grow and comes in no faster than 30 % a second; every
+// frame's particles stay in view between its keys, and the first frames fill the image.
+TEST(Camera, TheFramingTrackFollowsAnEffectThatGrows) {
+  const fs::path dir = test::fresh_dir();
+  for (const char* sim : {"blender_sparks", "blender_flip_pour_small"}) {
+    SCOPED_TRACE(sim);
+    cook::Options o;
+    o.input = test::data_path(std::string("sims/") + sim + ".abc");
+    o.output = dir / (std::string(sim) + ".pstream");
+    cook::cook(o);
+    const fs::path files[] = {o.output};
+    const float aspect = 16.0f / 9.0f;
+    const playback::CameraTrack track = playback::framing_track(files, aspect);
+    using CameraTrackKey = playback::CameraTrack::Key;
+    ASSERT_GE(track.keys.size(), 3u) << "an effect that grows from a point is followed";
+    const auto distance = [](const render::Camera& c) {
+      const float dx = c.eye[0] - c.target[0], dy = c.eye[1] - c.target[1], dz = c.eye[2] - c.target[2];
+      return std::sqrt(dx * dx + dy * dy + dz * dz);
+    };
+    for (std::size_t k = 1; k < track.keys.size(); ++k) {
+      const CameraTrackKey &a = track.keys[k - 1], &b = track.keys[k];
+      EXPECT_GT(b.time, a.time);
+      EXPECT_GE(distance(b.camera), distance(a.camera) * std::pow(0.7, b.time - a.time) * 0.999) << "key " << k;
+    }
+    const auto fixed = playback::framing_camera(files, aspect);
+    EXPECT_GT(distance(fixed), 2 * distance(track.keys.front().camera)) << "the first key frames the first frame";
+    EXPECT_EQ(track.at(-1.0).eye, track.keys.front().camera.eye);
+    EXPECT_EQ(track.at(1e9).eye, track.keys.back().camera.eye);
+
+    const format::Reader reader = format::Reader::open(o.output);
+    const format::Metadata& m = reader.metadata();
+    std::vector<std::byte> records = format::frame_buffer(m, reader.name());
+    bool first = true;
+    double worst_inside = 1.0;
+    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+      if (m.frames[f].count == 0) continue;
+      reader.read_frame(f, records);
+      const render::Camera c = track.at(m.frames[f].time);
+      const render::Mat4 vp = render::multiply(c.projection(aspect), c.view());
+      std::uint64_t inside = 0;
+      float lo[2] = {2, 2}, hi[2] = {-2, -2};
+      for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
+        float p[3];
+        std::memcpy(p, records.data() + i * m.record_size, sizeof p);
+        const float w = vp[3] * p[0] + vp[7] * p[1] + vp[11] * p[2] + vp[15];
+        const float x = (vp[0] * p[0] + vp[4] * p[1] + vp[8] * p[2] + vp[12]) / w;
+        const float y = (vp[1] * p[0] + vp[5] * p[1] + vp[9] * p[2] + vp[13]) / w;
+        if (w > 0 && std::abs(x) <= 1 && std::abs(y) <= 1) ++inside;
+        lo[0] = std::min(lo[0], x), hi[0] = std::max(hi[0], x), lo[1] = std::min(lo[1], y), hi[1] = std::max(hi[1], y);
+      }
+      const double share = double(inside) / double(m.frames[f].count);
+      worst_inside = std::min(worst_inside, share);
+      // A key leaves out the strays beyond the 0.5th and 99.5th percentiles of each axis: at most
+      // 3 % of a frame.
+      EXPECT_GE(share, 0.97) << "frame " << f;
+      if (first && m.frames[f].count >= 16) {  // the centres alone: a lone particle spans nothing
+        const float span = std::max(hi[0] - lo[0], hi[1] - lo[1]) / 2;
+        std::printf("%s: first frame with 16 particles or more (%llu): the centres span %.0f%% of the view\n", sim,
+                    static_cast<unsigned long long>(f), 100.0 * span);
+        EXPECT_GE(span, 0.4f);  // the centres only: the image adds their sprites
+        first = false;
+      }
+    }
+    std::printf("%s: %zu keys; at worst %.2f%% of a frame's particles in view\n", sim, track.keys.size(),
+                100 * worst_inside);
+  }
+}
+
 }  // namespace

@@ -435,7 +435,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   render_cmd->add_option("--frames", render_cli.frames, "Clip frames A:B (from A up to but not including B)");
   render_cmd->add_option("--size", render_cli.size, "Image size WIDTHxHEIGHT")->capture_default_str();
-  render_cmd->add_option("--camera", render_cli.camera, "auto (frame the clip's bounds) or x,y,z:tx,ty,tz")
+  render_cmd
+      ->add_option("--camera", render_cli.camera,
+                   "auto (follow the effect: pull back as it grows, come in slowly as it shrinks), fixed (one "
+                   "camera for every frame) or x,y,z:tx,ty,tz")
       ->capture_default_str();
   render_cmd->add_option("--fps", render_cli.fps, "Output frame rate (default: the clip's)")->check(positive_number());
   render_cmd

@@ -39,11 +39,16 @@ render::Vec3 parse_vec3(const std::string& text) {
 
 }  // namespace
 
-// --camera: auto (the library's framing rule, as the viewer and the demo use it, over the clip
-// seconds rendered) or eye:target.
-render::Camera camera_for(const std::string& spec, std::span<const std::filesystem::path> files, float aspect,
-                          const std::array<double, 2>& seconds) {
-  if (spec.empty() || spec == "auto") return playback::framing_camera(files, aspect, {0.0f, 0.0f, 1.0f, 1.0f}, seconds);
+// --camera: auto (the library's framing track, as the viewer and the demo use it, over the clip
+// seconds rendered), fixed (the same rule's one camera for every frame) or eye:target.
+playback::CameraTrack camera_for(const std::string& spec, std::span<const std::filesystem::path> files, float aspect,
+                                 const std::array<double, 2>& seconds) {
+  if (spec.empty() || spec == "auto") return playback::framing_track(files, aspect, {0.0f, 0.0f, 1.0f, 1.0f}, seconds);
+  if (spec == "fixed") {
+    playback::CameraTrack one;
+    one.keys.push_back({0.0, playback::framing_camera(files, aspect, {0.0f, 0.0f, 1.0f, 1.0f}, seconds)});
+    return one;
+  }
   const auto colon = spec.find(':');
   if (colon == std::string::npos) throw Error(fmt::format("--camera '{}': expected auto or x,y,z:tx,ty,tz", spec));
   render::Camera c;
@@ -53,7 +58,9 @@ render::Camera camera_for(const std::string& spec, std::span<const std::filesyst
   const float distance = std::sqrt(dx * dx + dy * dy + dz * dz);
   c.near = std::max(0.001f, distance * 0.001f);
   c.far = distance * 100.0f + 100.0f;
-  return c;
+  playback::CameraTrack track;
+  track.keys.push_back({0.0, c});
+  return track;
 }
 
 void parse_size(const std::string& text, int& width, int& height) {
@@ -248,9 +255,8 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   render::RendererOptions ro;
   ro.max_bytes_per_frame = std::max<std::uint64_t>(player->max_frame_bytes(), 4096);
   render::Renderer renderer(ro);
-  const render::Camera camera = camera_for(cli.camera, files, float(width) / float(height), {t0, t1});
-  const playback::SortPlan plan =
-      playback::sort_plan(style, camera.view(), renderer.light_direction(), sort::parse_sort_mode(cli.sort));
+  const playback::CameraTrack track = camera_for(cli.camera, files, float(width) / float(height), {t0, t1});
+  const sort::SortMode sort_mode = sort::parse_sort_mode(cli.sort);
 
   if (stats) stats->gl_renderer = render::Renderer::gl_renderer();
   player->set_range(t0, t1);
@@ -260,6 +266,11 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
   ProgressBar bar("render", !cli.quiet && !cli.json);
   std::vector<double> frame_ms;
   for (std::uint64_t k = 0; k < outputs; ++k) {
+    // The camera at the time this frame shows (the playhead after the advance), and the sort
+    // for it: the track only moves the camera along its view, but the plan is cheap.
+    const double shown = k == 0 ? t0 : std::min(t1, t0 + double(k) / fps * cli.speed);
+    const render::Camera camera = track.at(shown);
+    const playback::SortPlan plan = playback::sort_plan(style, camera.view(), renderer.light_direction(), sort_mode);
     player->advance(k == 0 ? 0.0 : 1.0 / fps, plan.view, plan.mode);
     player->check();
     const auto start = std::chrono::steady_clock::now();

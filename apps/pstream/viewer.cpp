@@ -64,7 +64,8 @@ std::array<float, 4> free_region(int width, int height) {
 
 struct Ui {
   Orbit orbit;
-  render::Camera home;  // what F returns to
+  playback::CameraTrack track;  // the automatic camera over the clip (render's), beside the panel
+  bool follow = true;           // the camera follows the track until the user moves it; F resumes
   bool dragging_left = false, dragging_right = false;
   double last_x = 0, last_y = 0;
   float speed = 1.0f, size = 1.0f;
@@ -102,7 +103,7 @@ void on_key(GLFWwindow* window, int key, int, int action, int) {
   } else if (key == GLFW_KEY_LEFT) {
     step_frames(player, -1);
   } else if (key == GLFW_KEY_F) {
-    ui.orbit.frame(ui.home);
+    ui.follow = true;
   } else if (key == GLFW_KEY_H) {
     ui.show_ui = !ui.show_ui;
   } else if (key == GLFW_KEY_ESCAPE) {
@@ -200,9 +201,9 @@ int run_viewer(const ViewerCli& cli) {
   ui.show_ui = !cli.hide_ui;
   int window_width = 0, window_height = 0;
   glfwGetWindowSize(window, &window_width, &window_height);
-  ui.home = playback::framing_camera(files, window_height > 0 ? float(window_width) / float(window_height) : 1.0f,
+  ui.track = playback::framing_track(files, window_height > 0 ? float(window_width) / float(window_height) : 1.0f,
                                      free_region(window_width, window_height));
-  ui.orbit.frame(ui.home);
+  ui.orbit.frame(ui.track.at(player->clip(0).time()));
   glfwSetWindowUserPointer(window, &ui);
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();
@@ -241,6 +242,7 @@ int run_viewer(const ViewerCli& cli) {
         for (int i = 0; i < 3; ++i)
           ui.orbit.target[i] += (-float(x - ui.last_x) * v[i * 4] + float(y - ui.last_y) * v[i * 4 + 1]) * k;
       }
+      if ((left && ui.dragging_left) || (right && ui.dragging_right) || io.MouseWheel != 0) ui.follow = false;
       ui.dragging_left = left;
       ui.dragging_right = right;
       ui.last_x = x;
@@ -250,6 +252,7 @@ int run_viewer(const ViewerCli& cli) {
 
     int width = 0, height = 0;
     glfwGetFramebufferSize(window, &width, &height);
+    if (ui.follow) ui.orbit.frame(ui.track.at(player->clip(0).time()));
     const render::Camera camera = ui.orbit.camera();
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
     renderer->begin_frame(width, height, camera, {ui.background[0], ui.background[1], ui.background[2], 1});
@@ -314,6 +317,10 @@ int run_viewer(const ViewerCli& cli) {
     if (ImGui::Button("Stop")) player->stop();
     ImGui::SameLine();
     if (ImGui::Checkbox("Loop", &ui.loop)) player->set_loop(ui.loop);
+    ImGui::SameLine();
+    ImGui::Checkbox("Follow the effect", &ui.follow);
+    if (ImGui::IsItemHovered())
+      ImGui::SetTooltip("The camera of `pstream render`: it pulls back as the effect grows (F)");
     {
       auto& first = player->clip(0);
       const auto& m = first.metadata();
@@ -409,7 +416,7 @@ int run_viewer(const ViewerCli& cli) {
       cache_view(clip);
     }
     ImGui::PushTextWrapPos(0.0f);
-    ImGui::TextDisabled("space play/pause, arrows step, F frame, drag orbit/pan, wheel zoom");
+    ImGui::TextDisabled("space play/pause, arrows step, F follow the effect, drag orbit/pan, wheel zoom");
     ImGui::PopTextWrapPos();
     ImGui::PopItemWidth();
     ImGui::End();

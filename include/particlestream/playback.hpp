@@ -107,17 +107,39 @@ SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, cons
 // the choices for another name.
 DrawStyle look_preset(std::string_view name);
 
-// The automatic camera, one rule for `pstream render`, the viewer and the demo: per axis, the
-// 0.5th to 99.5th percentile of the particles' positions in four of the frames shown of each clip
-// (a quarter, half, three quarters, the end of those within `seconds`; by default the whole clip),
-// so that a few stray particles do not shrink the clip into a corner, and a render of an effect's
-// first frames frames those, not its later extent; the clips' whole bounds when that finds too
-// few particles. framing_camera() frames that box by render::Camera::framing (the default camera
-// when no clip has a particle).
+// The automatic camera, one rule for `pstream render`, the viewer and the demo: a track over the
+// seconds shown (by default the whole clip) that follows the effect.
+//
+// Its keys frame a frame's particles: per axis their 0.5th to 99.5th percentile (so that a few
+// stray particles do not shrink the clip into a corner), the points inside it with the largest
+// particle's radius around each, by render::Camera::framing. Keys lie at the first and last frames
+// shown and wherever a frame's extent (its stored bounds, within the box of the sampled frames
+// below) has grown or shrunk by a quarter since the last key. The view's direction never changes.
+// The camera pulls back at once when the effect grows, and comes in by at most 30 % a second when
+// it shrinks. Between keys the target moves linearly; the distance is the next key's when that is
+// farther (the effect grows between them), else it shrinks geometrically. So an effect
+// that grows from a point fills the image from its first frame, and a clip of steady extent has
+// two keys that frame it alike.
+struct CameraTrack {
+  struct Key {
+    double time = 0.0;  // clip seconds
+    render::Camera camera;
+  };
+  std::vector<Key> keys;  // in time order, at least one
+  // The camera at `seconds`: the first key's before it, the last one's after it.
+  render::Camera at(double seconds) const;
+};
+// `region` frames them in part of the image (Camera::framing's region: x0, y0, x1, y1 as fractions
+// from the top left), as the viewer does beside its panel. One key with the default camera when no
+// clip has a particle.
+CameraTrack framing_track(std::span<const std::filesystem::path> files, float aspect,
+                          const std::array<float, 4>& region = {0.0f, 0.0f, 1.0f, 1.0f},
+                          const std::array<double, 2>& seconds = {-INFINITY, INFINITY});
+// One camera for all of those seconds (`render --camera fixed`, the viewer's F key): the same rule
+// on four frames of each clip (a quarter, half, three quarters and the end of those shown), and
+// their box (the clips' whole bounds when that finds too few particles).
 std::array<float, 6> framing_box(std::span<const std::filesystem::path> files,
                                  const std::array<double, 2>& seconds = {-INFINITY, INFINITY});
-// `region` frames them in part of the image (Camera::framing's region: x0, y0, x1, y1 as fractions
-// from the top left), as the viewer does beside its panel.
 render::Camera framing_camera(std::span<const std::filesystem::path> files, float aspect,
                               const std::array<float, 4>& region = {0.0f, 0.0f, 1.0f, 1.0f},
                               const std::array<double, 2>& seconds = {-INFINITY, INFINITY});
