@@ -222,8 +222,9 @@ TEST(RenderCommand, SlowMotionRendersInterpolatedImages) {
   cook::cook(o);
   const auto images = [&](const std::string& interpolation) {
     const fs::path out = dir / interpolation;
-    const auto r = test::run_cli("render -q '" + o.output.string() + "' --out '" + out.string() +
-                                 "' --frames 30:33 --size 160x96 --speed 0.25 --interpolation " + interpolation);
+    const auto r =
+        test::run_cli("render -q '" + o.output.string() + "' --out '" + out.string() +
+                      "' --frames 30:33 --size 160x96 --speed 0.25 --camera fixed --interpolation " + interpolation);
     EXPECT_EQ(r.exit_code, 0) << r.output;
     std::vector<std::vector<std::uint8_t>> frames;
     for (int k = 0;; ++k) {
@@ -282,8 +283,9 @@ TEST(RenderCommand, ADefaultCookHasWhatTheLooksNeed) {
   std::size_t changed = 0;
   for (std::size_t i = 0; i < streaks.size(); i += 4) changed += std::abs(int(streaks[i]) - int(dots[i])) > 12;
   EXPECT_GT(changed, 1000u);
-  // Slow motion of the FLIP liquid (no ids): each image interpolated, none repeated.
-  std::vector<std::vector<std::uint8_t>> slow{image(flip, "slow", "--frames 30:32 --speed 0.25")};
+  // Slow motion of the FLIP liquid (no ids): each image interpolated, none repeated (the camera
+  // fixed, so that only the particles can tell the images apart).
+  std::vector<std::vector<std::uint8_t>> slow{image(flip, "slow", "--frames 30:32 --speed 0.25 --camera fixed")};
   for (int k = 1; k < 5; ++k) {
     int w = 0, h = 0;
     slow.push_back(read_png(test::nth_frame(dir / "slow", k), w, h));
