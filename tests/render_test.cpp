@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 
 #include "particlestream/cook.hpp"
+#include "particlestream/demo.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
 #include "particlestream/render.hpp"
@@ -463,6 +464,37 @@ TEST(Viewer, RunsUnderXvfbAndShowsThePanel) {
   EXPECT_GT(particles, 500u) << "no particles in the screenshot";
 }
 
+// With a ramp, the viewer shows its legend at the timeline's right end: the fire ramp's colours
+// from dark red to near white. With the stored colours, there is none.
+TEST(Viewer, ARampShowsItsLegendBesideTheTimeline) {
+  if (test::run_cli_raw("command -v xvfb-run").exit_code != 0) GTEST_SKIP() << "xvfb-run is not installed";
+  const fs::path dir = test::fresh_dir();
+  const fs::path clip = dir / "sparks.pstream";
+  ASSERT_EQ(cook_default("sims/blender_sparks.abc", clip), 0);
+  std::size_t reds[2] = {0, 0}, whites[2] = {0, 0};
+  for (const int ramp : {0, 1}) {
+    const fs::path shot = dir / fmt::format("shot_{}.png", ramp);
+    const auto r = test::run_cli_raw(
+        fmt::format("xvfb-run -a -s '-screen 0 1280x720x24' {} play '{}' {} --frames-to-run 5 --screenshot '{}'",
+                    PSTREAM_CLI, clip.string(), ramp ? "--color-by speed" : "", shot.string()));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    int w = 0, h = 0;
+    const auto img = read_png(shot, w, h);
+    for (int y = h - 44; y < h; ++y) {  // the timeline's last 300 pixels
+      for (int x = w - 300; x < w; ++x) {
+        const std::uint8_t* p = &img[(std::size_t(y) * w + x) * 4];
+        if (p[0] > 120 && p[0] > p[2] + 80 && p[1] < p[0]) ++reds[ramp];
+        if (p[0] > 235 && p[1] > 225 && p[2] > 180) ++whites[ramp];
+      }
+    }
+  }
+  std::printf("legend pixels: %zu red, %zu near white (stored colours: %zu, %zu)\n", reds[1], whites[1], reds[0],
+              whites[0]);
+  EXPECT_GT(reds[1], 200u);
+  EXPECT_GT(whites[1], 50u);
+  EXPECT_EQ(reds[0], 0u);
+}
+
 // The viewer frames the clip beside its panel and above its timeline: at the default window size,
 // no pixel of the clip lies under either, on both fixture sims at three moments. The picture comes
 // from a run with the panel hidden (--hide-ui: laid out, drawn transparent); the rectangles from
@@ -651,23 +683,25 @@ namespace {
 // the sparks 48 % (one particle: a sphere framed by its box's corners) and 60 % (0 %). Issue
 // #26 asks 60 % at both frames of every render: the sparks' first frame misses it, and the whole
 // clip's render frames its whole extent.
+// The silhouette's span in a PNG: the larger of its width and height shares of the image (pixels
+// brighter than 20 of 255; the background is (5, 6, 9)).
+double span_of(const fs::path& png) {
+  int w = 0, h = 0;
+  const auto img = read_png(png, w, h);
+  int x0 = w, x1 = -1, y0 = h, y1 = -1;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const std::size_t i = (std::size_t(y) * std::size_t(w) + std::size_t(x)) * 4;
+      if (std::max({img[i], img[i + 1], img[i + 2]}) < 20) continue;
+      x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
+    }
+  }
+  return x1 < 0 ? 0.0 : std::max(double(x1 - x0 + 1) / w, double(y1 - y0 + 1) / h);
+}
+
 TEST(RenderCommand, TheAutomaticCameraFramesTheFramesRendered) {
   const fs::path dir = test::fresh_dir();
   constexpr int kWidth = 320, kHeight = 180;
-  // The silhouette's span: the larger of its width and height shares of the image.
-  const auto span_of = [&](const fs::path& png) {
-    int w = 0, h = 0;
-    const auto img = read_png(png, w, h);
-    int x0 = w, x1 = -1, y0 = h, y1 = -1;
-    for (int y = 0; y < h; ++y) {
-      for (int x = 0; x < w; ++x) {
-        const std::size_t i = (std::size_t(y) * std::size_t(w) + std::size_t(x)) * 4;
-        if (std::max({img[i], img[i + 1], img[i + 2]}) < 20) continue;  // the background is (5, 6, 9)
-        x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
-      }
-    }
-    return x1 < 0 ? 0.0 : std::max(double(x1 - x0 + 1) / w, double(y1 - y0 + 1) / h);
-  };
   // Rendered with every default (the whole clip, the automatic camera's track), then with the
   // camera fixed at the track's settled framing, which shows what the track is for.
   for (const char* sim : {"sims/blender_sparks.abc", "sims/blender_flip_pour_small.abc"}) {
@@ -702,6 +736,55 @@ TEST(RenderCommand, TheAutomaticCameraFramesTheFramesRendered) {
                                              middle, middle + 1, kWidth, kHeight, alone.string()));
     ASSERT_EQ(r.exit_code, 0) << r.output;
     EXPECT_GE(span_of(test::nth_frame(alone, 0)), 0.6);
+  }
+}
+
+// The demo's presets, simulated at their default length (20,000 particles, 6 frames a second),
+// cooked with defaults and rendered in the demo's look for each (demo_command.cpp's
+// preset_render) without the ground (which the silhouette would count): each fills 60 % of the
+// width or height at its first frame with particles and at its middle frame.
+TEST(RenderCommand, TheAutomaticCameraFramesEveryDemoPreset) {
+  const fs::path dir = test::fresh_dir();
+  constexpr int kWidth = 320, kHeight = 180;
+  for (const std::string& preset : demo::Simulator::presets()) {
+    SCOPED_TRACE(preset);
+    demo::SimulationOptions so;
+    so.preset = preset;
+    so.particles = 20000;
+    so.fps = 6;
+    demo::Simulator sim(so);
+    std::vector<demo::ParticleState> states;
+    cook::MemoryClip clip;
+    clip.name = preset;
+    clip.fps = so.fps;
+    states.reserve(sim.frame_count());
+    for (std::uint64_t f = 0; f < sim.frame_count(); ++f) {
+      sim.step();
+      states.push_back(sim.state());
+    }
+    for (std::size_t f = 0; f < states.size(); ++f) {
+      const demo::ParticleState& s = states[f];
+      clip.frames.push_back({double(f + 1) / so.fps, s.size(), s.position, s.width, s.velocity, s.id, s.color});
+    }
+    cook::Options co;
+    co.output = dir / (preset + ".pstream");
+    cook::cook(co, clip);
+    std::size_t first = 0;
+    while (first < states.size() && states[first].size() == 0) ++first;
+    ASSERT_LT(first, states.size());
+    const std::size_t middle = states.size() / 2;
+    const fs::path out = dir / preset;
+    const std::string look = preset == "explosion" ? "--preset sparks"
+                             : preset == "smoke"   ? "--preset smoke"
+                                                   : "--shutter 0.0333 --size-multiplier 0.45";
+    const auto r = test::run_cli(fmt::format("render -q '{}' {} --backdrop none --size {}x{} --out '{}'",
+                                             co.output.string(), look, kWidth, kHeight, out.string()));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    const double at_first = span_of(test::nth_frame(out, first)), at_middle = span_of(test::nth_frame(out, middle));
+    std::printf("demo preset %s: the first frame with particles (%zu) spans %.0f%%, the middle frame (%zu) %.0f%%\n",
+                preset.c_str(), first, 100 * at_first, middle, 100 * at_middle);
+    EXPECT_GE(at_first, 0.6);
+    EXPECT_GE(at_middle, 0.6);
   }
 }
 

@@ -40,27 +40,19 @@ json percentiles(std::vector<double> v) {
   return json{{"median", v[v.size() / 2]}, {"p99", v[std::min(v.size() - 1, v.size() * 99 / 100)]}};
 }
 
-// A grid of evenly spaced frames, each shrunk by averaging 2x2 pixel blocks: from the first frame
-// at which the effect holds a quarter of its peak particle count (an effect that grows from a
-// point shows little before) to the last. `first` is the first rendered frame's number, which is
-// its frame in the clip.
-void contact_sheet(const std::filesystem::path& frames, const format::Metadata& clip, std::uint64_t first,
-                   std::size_t count, const std::filesystem::path& out) {
-  std::size_t from = 0;
-  while (from + 1 < count && first + from < clip.frame_count() && clip.frames[first + from].count * 4 < clip.max_count)
-    ++from;
-  first += from;
-  count -= from;
-  constexpr int kColumns = 3, kRows = 3, kShrink = 2;  // thumbnails half the frame: big enough to see
+// The contact sheet: one image of each preset at the moment that shows it best, side by side,
+// each shrunk by averaging 2x2 pixel blocks.
+void contact_sheet(const std::vector<std::filesystem::path>& tiles, const std::filesystem::path& out) {
+  constexpr int kShrink = 2;
   int w = 0, h = 0;
-  render::read_png(frames / fmt::format("frame_{:05d}.png", first), w, h);
-  const int tw = w / kShrink, th = h / kShrink;
-  std::vector<std::uint8_t> sheet(std::size_t(tw) * kColumns * th * kRows * 4, 255);
-  for (int k = 0; k < kColumns * kRows; ++k) {
-    const std::size_t frame = std::min(count - 1, std::size_t(k) * (count - 1) / (kColumns * kRows - 1));
+  render::read_png(tiles.front(), w, h);
+  const int tw = w / kShrink, th = h / kShrink, columns = int(tiles.size());
+  std::vector<std::uint8_t> sheet(std::size_t(tw) * columns * th * 4, 255);
+  for (int k = 0; k < columns; ++k) {
     int fw = 0, fh = 0;
-    const auto img = render::read_png(frames / fmt::format("frame_{:05d}.png", first + frame), fw, fh);
-    const int ox = (k % kColumns) * tw, oy = (k / kColumns) * th;
+    const auto img = render::read_png(tiles[std::size_t(k)], fw, fh);
+    if (fw != w || fh != h)
+      throw Error(fmt::format("{}: {}x{}, expected {}x{}", tiles[std::size_t(k)].string(), fw, fh, w, h));
     for (int y = 0; y < th; ++y) {
       for (int x = 0; x < tw; ++x) {
         for (int c = 0; c < 4; ++c) {
@@ -69,12 +61,65 @@ void contact_sheet(const std::filesystem::path& frames, const format::Metadata& 
             for (int dx = 0; dx < kShrink; ++dx)
               sum += img[(std::size_t(y * kShrink + dy) * fw + x * kShrink + dx) * 4 + c];
           }
-          sheet[(std::size_t(oy + y) * tw * kColumns + ox + x) * 4 + c] = std::uint8_t(sum / (kShrink * kShrink));
+          sheet[(std::size_t(y) * tw * columns + k * tw + x) * 4 + c] = std::uint8_t(sum / (kShrink * kShrink));
         }
       }
     }
   }
-  render::write_png(out, tw * kColumns, th * kRows, sheet);
+  render::write_png(out, tw * columns, th, sheet);
+}
+
+// Each simulation in the look that reads as what it is, and what its render adds to the look.
+void preset_render(const std::string& preset, RenderCli& rc) {
+  LookCli look;
+  if (preset == "explosion") {
+    look.preset = "sparks";  // additive, glowing streaks
+  } else if (preset == "smoke") {
+    look.preset = "smoke";  // self-shadowed, shadows on the ground
+  } else {
+    look.preset = "sprites";  // small droplets streaked along their arcs, over a ground
+    look.sprites.shutter = 1.0f / 30;
+    look.given = {"--shutter"};
+    rc.size_multiplier = 0.45f;
+    rc.backdrop = "ground";
+  }
+  rc.sprite_look = look;
+}
+
+// One image of `preset`'s `clip` (its frame `frame`, framed alone) in the preset's look, rendered
+// into DIR/PRESET/; the image's path.
+std::filesystem::path showcase_image(const DemoCli& cli, const std::string& preset, const std::filesystem::path& clip,
+                                     std::uint64_t frame, const std::filesystem::path& dir) {
+  RenderCli rc;
+  preset_render(preset, rc);
+  rc.files = {clip.string()};
+  rc.frames = fmt::format("{}:{}", frame, frame + 1);
+  rc.out = (dir / preset).string();
+  rc.size = cli.size;
+  rc.quiet = true;
+  rc.playback = cli.playback;
+  RenderStats rs;
+  run_render(rc, &rs);
+  return dir / preset / fmt::format("frame_{:05d}.png", rs.first_number);
+}
+
+// `preset` at `seconds` of its simulation (at most `particles` of them), simulated up to that frame,
+// that frame cooked from memory into DIR/PRESET.pstream, and its image.
+std::filesystem::path showcase(const DemoCli& cli, const std::string& preset, std::uint64_t particles, double seconds,
+                               const std::filesystem::path& dir) {
+  const double frames = std::floor(seconds * cli.fps + 0.5) + 1;
+  demo::Simulator sim({preset, particles, frames / cli.fps, cli.fps, cli.seed, 0});
+  for (std::uint64_t f = 0; f < sim.frame_count(); ++f) sim.step();
+  const demo::ParticleState& s = sim.state();
+  cook::MemoryClip clip;
+  clip.name = fmt::format("pstream demo --preset {}", preset);
+  clip.object = preset;
+  clip.fps = cli.fps;
+  clip.frames.push_back({sim.time(), s.size(), s.position, s.width, s.velocity, s.id, s.color});
+  cook::Options co;
+  co.output = dir / (preset + ".pstream");
+  cook::cook(co, clip);
+  return showcase_image(cli, preset, co.output, 0, dir);
 }
 
 }  // namespace
@@ -157,22 +202,14 @@ int run_demo(const DemoCli& cli) {
                   per_particle, cr.error, cr.seconds));
 
   // Each simulation in the look that reads as what it is.
-  LookCli look;
-  if (cli.preset == "explosion") {
-    look.preset = "sparks";  // additive, glowing streaks
-  } else if (cli.preset == "smoke") {
-    look.preset = "smoke";  // self-shadowed, shadows on the ground
-  } else {
-    look.preset = "sprites";  // small droplets streaked along their arcs, over a ground
-    look.sprites.shutter = 1.0f / 30;
-    look.given = {"--shutter"};
-  }
+  RenderCli rc;
+  preset_render(cli.preset, rc);
   const bool window = cli.window || (!cli.headless && std::getenv("DISPLAY") != nullptr);
   if (window) {
     say("opening the viewer (use --headless to render frames instead)");
     ViewerCli viewer;
     viewer.files = {co.output.string()};
-    viewer.sprite_look = look;
+    viewer.sprite_look = rc.sprite_look;
     viewer.playback = cli.playback;
     return run_viewer(viewer);
   }
@@ -207,17 +244,11 @@ int run_demo(const DemoCli& cli) {
   report["sort"] = {{"frame_ms", percentiles(sort_ms)}};
 
   // 4. Render headless (blocking stream: no frame skipped), then the MP4 and the contact sheet.
-  RenderCli rc;
   rc.files = {co.output.string()};
   rc.out = (dir / "frames").string();
   rc.size = cli.size;
   rc.quiet = cli.quiet;
-  rc.sprite_look = look;
   rc.playback = cli.playback;
-  if (cli.preset == "fountain") {
-    rc.size_multiplier = 0.45f;
-    rc.backdrop = "ground";
-  }
   const bool have_ffmpeg = have_program("ffmpeg");
   if (have_ffmpeg) rc.video = (dir / "demo.mp4").string();
   fs::remove_all(rc.out);
@@ -230,8 +261,31 @@ int run_demo(const DemoCli& cli) {
                       {"frames", render_ms.size()},
                       {"size", cli.size},
                       {"gl_renderer", rs.gl_renderer}};
-  contact_sheet(rc.out, format::Reader::open(co.output).metadata(), rs.first_number, render_ms.size(),
-                dir / "contact_sheet.png");
+
+  // 5. The contact sheet: each preset at the moment that shows it best (Simulator::showcase_seconds,
+  // within the first three quarters of --seconds), each frame framed alone. This run's preset is
+  // that frame of its clip; the others are simulated (at most 60,000 particles) up to their moment,
+  // cooked from memory into DIR/presets/PRESET.pstream. Images in DIR/presets/PRESET/.
+  std::vector<fs::path> tiles;
+  fs::remove_all(dir / "presets");  // an earlier run's
+  {
+    ProgressBar bar("contact sheet", !cli.quiet);
+    const auto presets = demo::Simulator::presets();
+    for (std::size_t k = 0; k < presets.size(); ++k) {
+      const std::string& p = presets[k];
+      const double at = std::min(demo::Simulator::showcase_seconds(p), 0.75 * cli.seconds);
+      fs::create_directories(dir / "presets");
+      if (p == cli.preset) {
+        const std::uint64_t last = format::Reader::open(co.output).metadata().frame_count() - 1;
+        const auto frame = std::min<std::uint64_t>(last, std::uint64_t(std::llround(at * cli.fps)));
+        tiles.push_back(showcase_image(cli, p, co.output, frame, dir / "presets"));
+      } else {
+        tiles.push_back(showcase(cli, p, std::min<std::uint64_t>(cli.particles, 60000), at, dir / "presets"));
+      }
+      bar.update(k + 1, presets.size(), "presets");
+    }
+  }
+  contact_sheet(tiles, dir / "contact_sheet.png");
   if (!have_ffmpeg) say("note: no demo.mp4 — the ffmpeg program is not installed (apt-get install ffmpeg)");
 
   rusage usage{};
@@ -241,7 +295,8 @@ int run_demo(const DemoCli& cli) {
                        {"pstream", co.output.string()},
                        {"frames", rc.out},
                        {"video", have_ffmpeg ? rc.video : ""},
-                       {"contact_sheet", (dir / "contact_sheet.png").string()}};
+                       {"contact_sheet", (dir / "contact_sheet.png").string()},
+                       {"presets", (dir / "presets").string()}};
   write_file(dir / "report.json", report.dump(2) + "\n");
 
   const auto med = [&](const char* stage) { return report[stage]["frame_ms"]["median"].get<double>(); };

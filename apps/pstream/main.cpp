@@ -569,7 +569,8 @@ int main(int argc, char** argv) {
   auto* demo_cmd = app.add_subcommand(
       "demo",
       "The whole pipeline on a built-in simulation: simulate -> DIR/demo.abc -> cook DIR/demo.pstream -> stream in\n"
-      "real time -> sort -> render DIR/frames/*.png, DIR/demo.mp4, DIR/contact_sheet.png, DIR/report.md + .json.\n"
+      "real time -> sort -> render DIR/frames/*.png, DIR/demo.mp4, DIR/report.md + .json, and DIR/contact_sheet.png:\n"
+      "every preset at its best moment (the other two simulated, cooked and rendered into DIR/presets/).\n"
       "With a display (or --window) it opens the viewer instead of rendering headless.");
   demo_cmd->add_option("--preset", demo.preset, "fountain, explosion or smoke (smoke is where sorting matters)")
       ->capture_default_str();

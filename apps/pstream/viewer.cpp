@@ -317,7 +317,6 @@ int run_viewer(const ViewerCli& cli) {
     if (ImGui::Button("Stop")) player->stop();
     ImGui::SameLine();
     if (ImGui::Checkbox("Loop", &ui.loop)) player->set_loop(ui.loop);
-    ImGui::SameLine();
     ImGui::Checkbox("Follow the effect", &ui.follow);
     if (ImGui::IsItemHovered())
       ImGui::SetTooltip("The camera of `pstream render`: it pulls back as the effect grows (F)");
@@ -434,9 +433,41 @@ int run_viewer(const ViewerCli& cli) {
       const stream::FrameView shown = first.frame();
       int frame = shown.valid ? int(shown.frame) : 0;
       const int last = m.frame_count() ? int(m.frame_count()) - 1 : 0;
-      ImGui::SetNextItemWidth(size.x - 20);
+      // A ramp's legend at the timeline's right end, where it never covers the clip: the ramp's
+      // colours over its range, and what it measures.
+      const render::SpriteStyle& sp = style.sprites;
+      const bool legend = ui.look == 0 && sp.color_by != render::ColorBy::Stored;
+      constexpr float kLegendWidth = 300;
+      ImGui::SetNextItemWidth(size.x - 20 - (legend ? kLegendWidth + 10 : 0.0f));
       if (ImGui::SliderInt("##frame", &frame, 0, last, "frame %d") && m.frame_count())
         player->seek(m.frames[std::size_t(frame)].time);
+      if (legend) {
+        ImGui::SameLine();
+        const std::string low = fmt::format("{:.3g}", sp.ramp.low);
+        const std::string high = fmt::format(
+            "{:.3g} {}", sp.ramp.high,
+            sp.color_by == render::ColorBy::Speed ? std::string("units/s") : cli.sprite_look.ramp_attribute);
+        ImGui::TextUnformatted(low.c_str());
+        ImGui::SameLine();
+        const float bar = kLegendWidth - ImGui::CalcTextSize(low.c_str()).x - ImGui::CalcTextSize(high.c_str()).x - 16;
+        const ImVec2 at = ImGui::GetCursorScreenPos();
+        const float h = ImGui::GetTextLineHeight();
+        ImDrawList* draw = ImGui::GetWindowDrawList();
+        constexpr int kSteps = 24;
+        const auto colour = [&](int k) {  // linear RGB, shown with the sRGB curve's 1/2.2 power
+          const auto c = sp.ramp.at(sp.ramp.low + (sp.ramp.high - sp.ramp.low) * float(k) / kSteps);
+          return IM_COL32(int(255 * std::pow(std::clamp(c[0], 0.0f, 1.0f), 1 / 2.2f)),
+                          int(255 * std::pow(std::clamp(c[1], 0.0f, 1.0f), 1 / 2.2f)),
+                          int(255 * std::pow(std::clamp(c[2], 0.0f, 1.0f), 1 / 2.2f)), 255);
+        };
+        for (int k = 0; k < kSteps; ++k) {
+          const float x0 = at.x + bar * float(k) / kSteps, x1 = at.x + bar * float(k + 1) / kSteps;
+          draw->AddRectFilledMultiColor({x0, at.y}, {x1, at.y + h}, colour(k), colour(k + 1), colour(k + 1), colour(k));
+        }
+        ImGui::Dummy({bar, h});
+        ImGui::SameLine();
+        ImGui::TextUnformatted(high.c_str());
+      }
       ImGui::End();
     }
     ImGui::Render();

@@ -37,6 +37,9 @@ class Simulator {
   double time() const { return double(frame_) / options_.fps; }
   std::uint64_t frame_count() const { return static_cast<std::uint64_t>(options_.seconds * options_.fps + 0.5); }
   static std::vector<std::string> presets();
+  // The moment that shows a preset best (seconds): the fountain's arcs over its pool, the
+  // explosion's glowing burst, the smoke's risen plume. Throws pstream::Error for an unknown one.
+  static double showcase_seconds(const std::string& preset);
 
  private:
   SimulationOptions options_;

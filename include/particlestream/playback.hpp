@@ -113,13 +113,13 @@ DrawStyle look_preset(std::string_view name);
 // Its keys frame a frame's particles: per axis their 0.5th to 99.5th percentile (so that a few
 // stray particles do not shrink the clip into a corner), the points inside it with the largest
 // particle's radius around each, by render::Camera::framing. Keys lie at the first and last frames
-// shown and wherever a frame's extent (its stored bounds, within the box of the sampled frames
-// below) has grown or shrunk by a quarter since the last key. The view's direction never changes.
-// The camera pulls back at once when the effect grows, and comes in by at most 30 % a second when
-// it shrinks. Between keys the target moves linearly; the distance is the next key's when that is
-// farther (the effect grows between them), else it shrinks geometrically. So an effect
-// that grows from a point fills the image from its first frame, and a clip of steady extent has
-// two keys that frame it alike.
+// shown, at least every half second, and wherever a frame's extent (its stored bounds, within the
+// box of the sampled frames below) has grown or shrunk by a quarter since the last key, or its
+// centre has moved by a quarter of it. The view's direction never changes. The camera pulls back
+// at once when the effect grows, and comes in by at most 30 % a second when it shrinks. Between
+// keys the target moves linearly; the distance is the next key's when that is farther (the effect
+// grows between them), else it shrinks geometrically. So an effect that grows from a point fills
+// the image from its first frame. Making the track decodes the frames shown once.
 struct CameraTrack {
   struct Key {
     double time = 0.0;  // clip seconds

@@ -31,7 +31,8 @@ struct PresetData {
   float bounce, friction;
   float color_start[4], color_end[4];
   float width_start, width_end;
-  bool burst;  // explosion: most particles are born in the first moments
+  bool burst;      // explosion: most particles are born in the first moments
+  float showcase;  // seconds: the moment that shows the effect best (the demo's contact sheet)
 };
 
 constexpr PresetData kPresets[] = {
@@ -50,7 +51,8 @@ constexpr PresetData kPresets[] = {
      {0.1f, 0.35f, 0.95f, 0.6f},
      0.07f,
      0.04f,
-     false},
+     false,
+     5.0f},
     {"explosion",
      1.5f,
      3.5f,
@@ -66,7 +68,8 @@ constexpr PresetData kPresets[] = {
      {0.35f, 0.08f, 0.05f, 0.5f},
      0.05f,
      0.03f,
-     true},
+     true,
+     0.4f},
     {"smoke",
      4.0f,
      7.0f,
@@ -82,7 +85,8 @@ constexpr PresetData kPresets[] = {
      {0.25f, 0.25f, 0.28f, 0.0f},
      0.08f,
      0.55f,
-     false},
+     false,
+     3.0f},
 };
 
 const PresetData& find_preset(const std::string& name) {
@@ -93,6 +97,8 @@ const PresetData& find_preset(const std::string& name) {
 }
 
 }  // namespace
+
+double Simulator::showcase_seconds(const std::string& preset) { return find_preset(preset).showcase; }
 
 std::vector<std::string> Simulator::presets() {
   std::vector<std::string> out;

@@ -147,6 +147,7 @@ float extent_within(const std::array<float, 6>& box, const std::array<float, 6>&
 }
 
 constexpr float kKeyChange = 1.25f;  // a new key where the frames' extent has changed by this factor
+constexpr double kKeyEvery = 0.5;    // and at least this often (seconds): the bounds miss a shrinking bulk
 constexpr float kPullIn = 0.7f;      // the distance shrinks by at most this factor a second
 constexpr std::size_t kMaxKeys = 64;
 
@@ -229,8 +230,8 @@ CameraTrack framing_track(std::span<const std::filesystem::path> files, float as
     return track;
   }
   // Keys: the first frame, each frame whose extent differs from the last key's by kKeyChange
-  // (either way) or whose centre has moved by a quarter of that extent, and the last frame; every
-  // n-th of those when there are more than kMaxKeys.
+  // (either way) or whose centre has moved by a quarter of that extent or that comes kKeyEvery
+  // after it, and the last frame; every n-th of those when there are more than kMaxKeys.
   std::vector<std::size_t> keys{0};
   for (std::size_t k = 1; k < shown.size(); ++k) {
     const Shown& last = shown[keys.back()];
@@ -238,7 +239,9 @@ CameraTrack framing_track(std::span<const std::filesystem::path> files, float as
     const render::Vec3 moved{shown[k].centre[0] - last.centre[0], shown[k].centre[1] - last.centre[1],
                              shown[k].centre[2] - last.centre[2]};
     const float travel = std::sqrt(moved[0] * moved[0] + moved[1] * moved[1] + moved[2] * moved[2]);
-    if (ratio >= kKeyChange || ratio <= 1.0f / kKeyChange || travel >= 0.25f * last.extent) keys.push_back(k);
+    if (ratio >= kKeyChange || ratio <= 1.0f / kKeyChange || travel >= 0.25f * last.extent ||
+        shown[k].time - last.time >= kKeyEvery)
+      keys.push_back(k);
   }
   if (keys.back() != shown.size() - 1) keys.push_back(shown.size() - 1);
   if (keys.size() > kMaxKeys) {
