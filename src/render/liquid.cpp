@@ -281,8 +281,27 @@ void main() {
   // the deeper it is (the light it scatters back crossed some of it).
   vec3 body = u_color * sqrt(transmitted) * (0.45 + 0.55 * max(dot(n, u_light), 0.0));
   vec3 under = mix(behind * transmitted + scattered, body, opacity);
+  // The key light's highlight, its sharpness from how much the normals vary around the pixel
+  // (Toksvig 2005): the mean of the unit normals over 5x5 pixels is shorter where they disagree,
+  // and a sharp highlight there would alias into glints that the foreshortening of a surface seen
+  // at a grazing angle draws out into bright lines along the rows. Flat water keeps the sharp one.
+  vec3 mean_n = vec3(0.0);
+  float taps = 0.0;
+  for (int j = -2; j <= 2; j += 2) {
+    for (int i = -2; i <= 2; i += 2) {
+      ivec2 t = clamp(q + ivec2(i, j), ivec2(0), ivec2(u_liquid_size) - 1);
+      if (texelFetch(u_depth, t, 0).r <= 0.0) continue;
+      mean_n += texelFetch(u_normal, t, 0).xyz;
+      taps += 1.0;
+    }
+  }
+  float agree = clamp(length(mean_n) / max(taps, 1.0), 0.0, 1.0);
+  const float kShininess = 180.0;
+  float shininess = kShininess * agree / (agree + kShininess * (1.0 - agree));
   vec3 h = normalize(u_light + v);
-  float highlight = dot(n, u_light) > 0.0 ? 1.6 * pow(max(dot(n, h), 0.0), 180.0) : 0.0;
+  // Scaled by (1 + shininess) / (1 + kShininess): a broader highlight spreads the same light.
+  float highlight = dot(n, u_light) > 0.0
+      ? 1.6 * (1.0 + shininess) / (1.0 + kShininess) * pow(max(dot(n, h), 0.0), shininess) : 0.0;
   o_color = vec4(mix(under, reflected, fresnel) + vec3(highlight), 1.0);
 }
 )";
