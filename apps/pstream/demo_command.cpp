@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <sstream>
@@ -70,7 +71,8 @@ void contact_sheet(const std::vector<std::filesystem::path>& tiles, const std::f
 }
 
 // Each simulation in the look that reads as what it is, and what its render adds to the look.
-void preset_render(const std::string& preset, RenderCli& rc) {
+// `peak`: the clip's peak particle count.
+void preset_render(const std::string& preset, std::uint64_t peak, RenderCli& rc) {
   LookCli look;
   if (preset == "explosion") {
     look.preset = "sparks";  // additive, glowing streaks
@@ -80,7 +82,9 @@ void preset_render(const std::string& preset, RenderCli& rc) {
     look.preset = "sprites";  // small droplets streaked along their arcs, over a ground
     look.sprites.shutter = 1.0f / 30;
     look.given = {"--shutter"};
-    rc.size_multiplier = 0.45f;
+    // Droplets thinner as there are more of them, so that the spray's cover stays about the same:
+    // at 250,000 the fountain's curtain of drops would read as a solid sheet at 20,000's size.
+    rc.size_multiplier = 0.45f * std::clamp(std::cbrt(20000.0f / float(std::max<std::uint64_t>(peak, 1))), 0.4f, 1.0f);
     rc.backdrop = "ground";
   }
   rc.sprite_look = look;
@@ -88,10 +92,11 @@ void preset_render(const std::string& preset, RenderCli& rc) {
 
 // One image of `preset`'s `clip` (its frame `frame`, framed alone) in the preset's look, rendered
 // into DIR/PRESET/; the image's path.
-std::filesystem::path showcase_image(const DemoCli& cli, const std::string& preset, const std::filesystem::path& clip,
-                                     std::uint64_t frame, const std::filesystem::path& dir) {
+std::filesystem::path showcase_image(const DemoCli& cli, const std::string& preset, std::uint64_t peak,
+                                     const std::filesystem::path& clip, std::uint64_t frame,
+                                     const std::filesystem::path& dir) {
   RenderCli rc;
-  preset_render(preset, rc);
+  preset_render(preset, peak, rc);
   rc.files = {clip.string()};
   rc.frames = fmt::format("{}:{}", frame, frame + 1);
   rc.out = (dir / preset).string();
@@ -109,7 +114,11 @@ std::filesystem::path showcase(const DemoCli& cli, const std::string& preset, st
                                const std::filesystem::path& dir) {
   const double frames = std::floor(seconds * cli.fps + 0.5) + 1;
   demo::Simulator sim({preset, particles, frames / cli.fps, cli.fps, cli.seed, 0});
-  for (std::uint64_t f = 0; f < sim.frame_count(); ++f) sim.step();
+  std::uint64_t peak = 0;
+  for (std::uint64_t f = 0; f < sim.frame_count(); ++f) {
+    sim.step();
+    peak = std::max<std::uint64_t>(peak, sim.state().size());
+  }
   const demo::ParticleState& s = sim.state();
   cook::MemoryClip clip;
   clip.name = fmt::format("pstream demo --preset {}", preset);
@@ -119,7 +128,7 @@ std::filesystem::path showcase(const DemoCli& cli, const std::string& preset, st
   cook::Options co;
   co.output = dir / (preset + ".pstream");
   cook::cook(co, clip);
-  return showcase_image(cli, preset, co.output, 0, dir);
+  return showcase_image(cli, preset, peak, co.output, 0, dir);
 }
 
 }  // namespace
@@ -203,7 +212,7 @@ int run_demo(const DemoCli& cli) {
 
   // Each simulation in the look that reads as what it is.
   RenderCli rc;
-  preset_render(cli.preset, rc);
+  preset_render(cli.preset, peak, rc);
   const bool window = cli.window || (!cli.headless && std::getenv("DISPLAY") != nullptr);
   if (window) {
     say("opening the viewer (use --headless to render frames instead)");
@@ -278,7 +287,7 @@ int run_demo(const DemoCli& cli) {
       if (p == cli.preset) {
         const std::uint64_t last = format::Reader::open(co.output).metadata().frame_count() - 1;
         const auto frame = std::min<std::uint64_t>(last, std::uint64_t(std::llround(at * cli.fps)));
-        tiles.push_back(showcase_image(cli, p, co.output, frame, dir / "presets"));
+        tiles.push_back(showcase_image(cli, p, peak, co.output, frame, dir / "presets"));
       } else {
         tiles.push_back(showcase(cli, p, std::min<std::uint64_t>(cli.particles, 60000), at, dir / "presets"));
       }

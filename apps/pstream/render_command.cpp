@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/names.hpp"
 #include "base/output_file.hpp"
 #include "cli_terms.hpp"
 #include "commands.hpp"
@@ -50,7 +51,10 @@ playback::CameraTrack camera_for(const std::string& spec, std::span<const std::f
     return one;
   }
   const auto colon = spec.find(':');
-  if (colon == std::string::npos) throw Error(fmt::format("--camera '{}': expected auto or x,y,z:tx,ty,tz", spec));
+  if (colon == std::string::npos) {
+    throw Error(fmt::format("--camera '{}': expected auto, fixed or x,y,z:tx,ty,tz{}", spec,
+                            did_you_mean(spec, {"auto", "fixed"})));
+  }
   render::Camera c;
   c.eye = parse_vec3(spec.substr(0, colon));
   c.target = parse_vec3(spec.substr(colon + 1));
