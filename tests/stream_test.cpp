@@ -7,10 +7,12 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <random>
 #include <thread>
 
@@ -166,6 +168,41 @@ TEST(Stream, EveryCookedFileFrameByFrameWithATinyCache) {
     ASSERT_TRUE(frame_matches(*s, ref, m.frame_count() - 1));
   }
   EXPECT_GT(wraps, 0u) << "no frame's packet crossed the ring's wrap";
+}
+
+// A blocking stream (offline rendering) asked for a frame several keyframe groups ahead jumps to
+// that frame's keyframe and must still bring it. A chunk the ring kept for the decode under way at
+// the jump used to stay where the next load was to go, and the stream waited forever (`pstream
+// render --fps 0.2` of the demo clip; here some of these step and ring sizes). A watchdog turns a
+// hang into a failure.
+TEST(Stream, BlockingStepsOverSeveralKeyframeGroupsBringTheirFrames) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = cook_particle(dir, "sims/blender_sparks.abc", {}, 4);  // a keyframe every 4 frames
+  const Reference ref(file);
+  const auto& m = ref.reader.metadata();
+  auto run = std::async(std::launch::async, [&] {
+    for (const std::uint64_t step : {5u, 9u, 13u, 21u, 30u}) {
+      for (const std::size_t slots : {2u, 3u, 4u, 6u, 8u}) {
+        SCOPED_TRACE(fmt::format("steps of {} frames, {} chunk slots", step, slots));
+        stream::StreamOptions o;
+        o.blocking = true;
+        o.min_slots = o.max_slots = slots;
+        auto s = open_stream(file, std::move(o));
+        s->play();
+        s->update(0);
+        ASSERT_TRUE(frame_matches(*s, ref, 0));
+        for (std::uint64_t f = step; f < m.frame_count(); f += step) {
+          s->update(double(step) / m.fps);
+          ASSERT_TRUE(frame_matches(*s, ref, f));
+        }
+      }
+    }
+  });
+  if (run.wait_for(std::chrono::seconds(120)) != std::future_status::ready) {
+    std::fprintf(stderr, "a blocking update() waited more than 120 s: the stream hangs\n");
+    std::abort();  // the stream's threads cannot be stopped: end the run rather than hang it
+  }
+  run.get();
 }
 
 TEST(Stream, LoopingAndSpeed) {

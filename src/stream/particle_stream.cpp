@@ -166,6 +166,11 @@ struct ParticleStream::Impl {
     while (in_flight < requests.size() && next - oldest < slot_count) {
       if (!loop && next >= N) return;  // never past the last chunk unless looping
       const std::size_t slot = slot_of(next);
+      // slot_of(next) lies outside [oldest, next), so a Ready chunk there belongs to no sequence:
+      // one a restart kept for the decode under way then, which that decode's end could not free
+      // (the slot was in the sequence at the time). Free it, unless a decode reads it now.
+      const bool pinned = pin_count > 0 && (slot + slot_count - pin_slot) % slot_count < pin_count;
+      if (slots[slot].state == SlotState::Ready && !pinned) slots[slot] = SlotInfo{};
       if (slots[slot].state != SlotState::Empty) return;  // still busy with a discarded load or decode
       LoadRequest* r = nullptr;
       for (LoadRequest& candidate : requests) {
