@@ -277,16 +277,15 @@ int run_demo(const DemoCli& cli) {
   // cooked from memory into DIR/presets/PRESET.pstream. Images in DIR/presets/PRESET/.
   std::vector<fs::path> tiles;
   fs::remove_all(dir / "presets");  // an earlier run's
+  fs::create_directories(dir / "presets");
   {
     ProgressBar bar("contact sheet", !cli.quiet);
     const auto presets = demo::Simulator::presets();
     for (std::size_t k = 0; k < presets.size(); ++k) {
       const std::string& p = presets[k];
       const double at = std::min(demo::Simulator::showcase_seconds(p), 0.75 * cli.seconds);
-      fs::create_directories(dir / "presets");
-      if (p == cli.preset) {
-        const std::uint64_t last = format::Reader::open(co.output).metadata().frame_count() - 1;
-        const auto frame = std::min<std::uint64_t>(last, std::uint64_t(std::llround(at * cli.fps)));
+      if (p == cli.preset) {  // the clip holds every simulated frame
+        const auto frame = std::min<std::uint64_t>(sim.frame_count() - 1, std::uint64_t(std::llround(at * cli.fps)));
         tiles.push_back(showcase_image(cli, p, peak, co.output, frame, dir / "presets"));
       } else {
         tiles.push_back(showcase(cli, p, std::min<std::uint64_t>(cli.particles, 60000), at, dir / "presets"));

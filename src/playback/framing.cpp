@@ -11,8 +11,16 @@ namespace pstream::playback {
 
 namespace {
 
-// At most about 50,000 records of a frame are looked at: every step-th.
-std::uint64_t sample_step(std::uint64_t count) { return std::max<std::uint64_t>(1, count / 50000); }
+// Frame `f` of `reader` decoded into `records` (sized on first use), and `use(record)` for about
+// 50,000 of its records at most: every step-th.
+template <class Use>
+void sample_frame(const format::Reader& reader, std::uint64_t f, std::vector<std::byte>& records, Use&& use) {
+  const format::Metadata& m = reader.metadata();
+  if (records.empty()) records = format::frame_buffer(m, reader.name());
+  reader.read_frame(f, records);
+  const std::uint64_t step = std::max<std::uint64_t>(1, m.frames[f].count / 50000);
+  for (std::uint64_t i = 0; i < m.frames[f].count; i += step) use(records.data() + i * m.record_size);
+}
 
 // Four frames of each clip's frames within `seconds` (a quarter, half, three quarters, the end of
 // them), at most 50,000 records of each: what the automatic camera and ramp look at. `clip(meta)`
@@ -33,10 +41,7 @@ void sample_frames(std::span<const std::filesystem::path> files, const std::arra
     for (const double at : {0.25, 0.5, 0.75, 1.0}) {
       if (first == last) break;
       const auto f = first + std::min<std::uint64_t>(last - 1 - first, std::uint64_t(at * double(last - 1 - first)));
-      if (records.empty()) records = format::frame_buffer(m, reader.name());
-      reader.read_frame(f, records);
-      const std::uint64_t step = sample_step(m.frames[f].count);
-      for (std::uint64_t i = 0; i < m.frames[f].count; i += step) use(m, records.data() + i * m.record_size);
+      sample_frame(reader, f, records, [&](const std::byte* record) { use(m, record); });
     }
   }
 }
@@ -264,10 +269,7 @@ CameraTrack framing_track(std::span<const std::filesystem::path> files, float as
       while (f > 0 && m.frames[f - 1].time > time) --f;
       if (f == 0 || m.frames[f - 1].time < seconds[0] || m.frames[f - 1].count == 0) continue;
       --f;
-      if (records[i].empty()) records[i] = format::frame_buffer(m, readers[i].name());
-      readers[i].read_frame(f, records[i]);
-      const std::uint64_t step = sample_step(m.frames[f].count);
-      for (std::uint64_t r = 0; r < m.frames[f].count; r += step) s.add(records[i].data() + r * m.record_size);
+      sample_frame(readers[i], f, records[i], [&](const std::byte* record) { s.add(record); });
     }
     if (s.points.empty()) continue;
     render::Camera c = frame_cloud(s, robust_box(s), aspect, region);
