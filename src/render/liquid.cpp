@@ -116,6 +116,8 @@ uniform float u_radius_at_1;  // filter radius in pixels at distance 1
 uniform float u_range;        // the narrow range, view units
 uniform float u_clamp;        // where samples behind it are clamped to, past the centre (half a radius)
 uniform int u_mode;           // 0 narrow range, 1 bilateral, 2 gaussian
+uniform sampler2D u_other;    // with u_average: the other order's result, averaged with this one's
+uniform int u_average;
 layout(location = 0) out vec4 o_depth;
 const int kMaxRadius = 48;
 void main() {
@@ -130,23 +132,51 @@ void main() {
   float sigma = max(0.5 * radius, 0.5);
   float k = 1.0 / (2.0 * sigma * sigma);
   float sum = 0.0, weights = 0.0;
-  for (int i = -n; i <= n; ++i) {
-    float z = texelFetch(u_depth, clamp(p + u_step * i, ivec2(0), u_size - 1), 0).r;
-    float w = exp(-float(i * i) * k);
-    if (u_mode == 0) {
-      if (z <= 0.0) w = 0.0;                          // nothing there: the silhouette stays put
-      else if (z > z0 + u_range) z = z0 + u_clamp;    // far behind: clamped, rounding the edge
-      else if (z < z0 - u_range) w = 0.0;             // far in front: another surface
-    } else if (u_mode == 1) {
-      if (z <= 0.0) w = 0.0;
-      else w *= exp(-((z - z0) * (z - z0)) / (2.0 * u_range * u_range));
-    } else if (z <= 0.0) {
-      w = 0.0;
+  if (u_mode == 0) {
+    // The narrow range (Truong and Yuksel 2018), walked outwards from the centre a pair (-i, +i)
+    // at a time. Past a silhouette on either side the pair is left out: the kernel stays
+    // symmetric, so an edge does not pull the depth of the pixels beside it towards the inside,
+    // which along a jagged edge differed from one line to the next and drew short bright lines
+    // at the rims. A sample behind the range is clamped, one in front (another surface) left out.
+    // The range follows the surface outwards: each sample taken widens it to that depth plus the
+    // range, so a surface seen at a grazing angle, whose depth changes by more than the range
+    // within the filter's width, keeps its own samples along both axes.
+    float lo = z0 - u_range, hi = z0 + u_range;
+    sum = z0;
+    weights = 1.0;
+    for (int i = 1; i <= n; ++i) {
+      float a = texelFetch(u_depth, clamp(p + u_step * i, ivec2(0), u_size - 1), 0).r;
+      float b = texelFetch(u_depth, clamp(p - u_step * i, ivec2(0), u_size - 1), 0).r;
+      if (a <= 0.0 || b <= 0.0) continue;  // past a silhouette on either side
+      if (a > hi) a = z0 + u_clamp;
+      if (b > hi) b = z0 + u_clamp;
+      float w = exp(-float(i * i) * k);
+      if (a >= lo) {
+        sum += w * a;
+        weights += w;
+        lo = min(lo, a - u_range);
+        hi = max(hi, a + u_range);
+      }
+      if (b >= lo) {
+        sum += w * b;
+        weights += w;
+        lo = min(lo, b - u_range);
+        hi = max(hi, b + u_range);
+      }
     }
-    sum += w * z;
-    weights += w;
+  } else {
+    for (int i = -n; i <= n; ++i) {
+      float z = texelFetch(u_depth, clamp(p + u_step * i, ivec2(0), u_size - 1), 0).r;
+      float w = exp(-float(i * i) * k);
+      if (z <= 0.0) w = 0.0;  // nothing there: the silhouette stays put
+      else if (u_mode == 1) w *= exp(-((z - z0) * (z - z0)) / (2.0 * u_range * u_range));
+      sum += w * z;
+      weights += w;
+    }
   }
-  o_depth = vec4(weights > 0.0 ? sum / weights : z0, 0.0, 0.0, 0.0);
+  float z = weights > 0.0 ? sum / weights : z0;
+  if (u_average != 0) z = 0.5 * (z + texelFetch(u_other, p, 0).r);
+  o_depth = vec4(z, 0.0, 0.0, 0.0);
 }
 )";
 
@@ -233,6 +263,7 @@ uniform float u_color_depth;
 uniform float u_refraction;
 uniform float u_opacity_depth;  // view units of thickness that hide 63 % of what is behind; 0: clear
 uniform int u_output;       // 0 shaded, 1 depth, 2 normals, 3 thickness
+uniform float u_radius_at_1;  // a particle's radius in liquid pixels at distance 1
 layout(location = 0) out vec4 o_color;
 void main() {
   vec2 uv = gl_FragCoord.xy / u_viewport;
@@ -282,14 +313,16 @@ void main() {
   vec3 body = u_color * sqrt(transmitted) * (0.45 + 0.55 * max(dot(n, u_light), 0.0));
   vec3 under = mix(behind * transmitted + scattered, body, opacity);
   // The key light's highlight, its sharpness from how much the normals vary around the pixel
-  // (Toksvig 2005): the mean of the unit normals over 5x5 pixels is shorter where they disagree,
+  // (Toksvig 2005): the mean of the unit normals over 3x3 taps a particle's radius apart (2 to 8
+  // pixels, so the same part of the surface at any image size) is shorter where they disagree,
   // and a sharp highlight there would alias into glints that the foreshortening of a surface seen
   // at a grazing angle draws out into bright lines along the rows. Flat water keeps the sharp one.
   vec3 mean_n = vec3(0.0);
   float taps = 0.0;
-  for (int j = -2; j <= 2; j += 2) {
-    for (int i = -2; i <= 2; i += 2) {
-      ivec2 t = clamp(q + ivec2(i, j), ivec2(0), ivec2(u_liquid_size) - 1);
+  int spacing = clamp(int(round(u_radius_at_1 / d)), 2, 8);
+  for (int j = -1; j <= 1; ++j) {
+    for (int i = -1; i <= 1; ++i) {
+      ivec2 t = clamp(q + ivec2(i, j) * spacing, ivec2(0), ivec2(u_liquid_size) - 1);
       if (texelFetch(u_depth, t, 0).r <= 0.0) continue;
       mean_n += texelFetch(u_normal, t, 0).xyz;
       taps += 1.0;
@@ -369,14 +402,14 @@ struct Uniforms {
       foam_thickness;
 };
 struct FilterUniforms {
-  GLint radius_at_1, range, clamp, mode, size, depth, step;
+  GLint radius_at_1, range, clamp, mode, size, depth, step, other, average;
 };
 struct NormalUniforms {
   GLint depth, size, projection, range;
 };
 struct CompositeUniforms {
   GLint depth, normal, thickness, scene, viewport, liquid_size, projection, view, light, color, absorb, color_depth,
-      refraction, opacity_depth, output;
+      refraction, opacity_depth, output, radius_at_1;
 };
 
 }  // namespace
@@ -387,7 +420,7 @@ struct LiquidPass::Impl {
   FilterUniforms fu{};
   NormalUniforms nu{};
   CompositeUniforms cu{};
-  Target raw, smooth[2], thickness, normal, scene;
+  Target raw, smooth[4], thickness, normal, scene;
   const Target* smoothed = &raw;  // the last filter output
   int width = 0, height = 0, liquid_width = 0, liquid_height = 0;
 
@@ -398,7 +431,7 @@ struct LiquidPass::Impl {
 };
 
 void LiquidPass::Impl::release() {
-  for (Target* t : {&raw, &smooth[0], &smooth[1], &thickness, &normal, &scene}) destroy(*t);
+  for (Target* t : {&raw, &smooth[0], &smooth[1], &smooth[2], &smooth[3], &thickness, &normal, &scene}) destroy(*t);
   if (depth_buffer) glDeleteRenderbuffers(1, &depth_buffer);
   depth_buffer = 0;
   width = height = liquid_width = liquid_height = 0;
@@ -412,8 +445,7 @@ void LiquidPass::Impl::resize(int w, int h, float resolution) {
   glCreateRenderbuffers(1, &depth_buffer);
   glNamedRenderbufferStorage(depth_buffer, GL_DEPTH_COMPONENT32F, lw, lh);
   raw = make_target(GL_R32F, lw, lh, depth_buffer);
-  smooth[0] = make_target(GL_R32F, lw, lh);
-  smooth[1] = make_target(GL_R32F, lw, lh);
+  for (Target& t : smooth) t = make_target(GL_R32F, lw, lh);
   thickness = make_target(GL_R32F, lw, lh);
   normal = make_target(GL_RGBA16F, lw, lh);
   scene = make_target(GL_RGBA8, w, h);
@@ -433,14 +465,16 @@ LiquidPass::LiquidPass() : impl_(std::make_unique<Impl>()) {
           loc("u_size"),       loc("u_velocity_word"), loc("u_fixed_radius"),  loc("u_pass"),
           loc("u_thickness"),  loc("u_foam_speed"),    loc("u_foam_thickness")};
   const auto in = [](GLuint program, const char* name) { return glGetUniformLocation(program, name); };
-  d.fu = {in(d.filter, "u_radius_at_1"), in(d.filter, "u_range"), in(d.filter, "u_clamp"), in(d.filter, "u_mode"),
-          in(d.filter, "u_size"),        in(d.filter, "u_depth"), in(d.filter, "u_step")};
+  d.fu = {in(d.filter, "u_radius_at_1"), in(d.filter, "u_range"), in(d.filter, "u_clamp"),
+          in(d.filter, "u_mode"),        in(d.filter, "u_size"),  in(d.filter, "u_depth"),
+          in(d.filter, "u_step"),        in(d.filter, "u_other"), in(d.filter, "u_average")};
   d.nu = {in(d.normals, "u_depth"), in(d.normals, "u_size"), in(d.normals, "u_projection"), in(d.normals, "u_range")};
   d.cu = {in(d.composite, "u_depth"),      in(d.composite, "u_normal"),        in(d.composite, "u_thickness"),
           in(d.composite, "u_scene"),      in(d.composite, "u_viewport"),      in(d.composite, "u_liquid_size"),
           in(d.composite, "u_projection"), in(d.composite, "u_view"),          in(d.composite, "u_light"),
           in(d.composite, "u_color"),      in(d.composite, "u_absorb"),        in(d.composite, "u_color_depth"),
-          in(d.composite, "u_refraction"), in(d.composite, "u_opacity_depth"), in(d.composite, "u_output")};
+          in(d.composite, "u_refraction"), in(d.composite, "u_opacity_depth"), in(d.composite, "u_output"),
+          in(d.composite, "u_radius_at_1")};
 }
 
 LiquidPass::~LiquidPass() {
@@ -519,17 +553,30 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
                                                                      : 2);
     glUniform2i(d.fu.size, lw, lh);
     glUniform1i(d.fu.depth, 0);
-    for (int i = 0; i < iterations; ++i) {
-      for (int pass = 0; pass < 2; ++pass) {  // the axes alternate in order, so neither leaves streaks last
-        const int axis = (pass + i) % 2;
-        const Target& out = d.smooth[pass];
-        glBindFramebuffer(GL_FRAMEBUFFER, out.framebuffer);
-        glBindTextureUnit(0, d.smoothed->texture);
-        glUniform2i(d.fu.step, axis == 0 ? 1 : 0, axis == 0 ? 0 : 1);
-        glDrawArrays(GL_TRIANGLES, 0, 3);
-        d.smoothed = &out;
-      }
+    glUniform1i(d.fu.other, 1);
+    // One pass along `axis` from `in` to `out`, averaged with `other` where given.
+    const auto pass = [&](const Target& in, int axis, const Target& out, const Target* other) {
+      glBindFramebuffer(GL_FRAMEBUFFER, out.framebuffer);
+      glBindTextureUnit(0, in.texture);
+      if (other) glBindTextureUnit(1, other->texture);
+      glUniform1i(d.fu.average, other ? 1 : 0);
+      glUniform2i(d.fu.step, axis == 0 ? 1 : 0, axis == 0 ? 0 : 1);
+      glDrawArrays(GL_TRIANGLES, 0, 3);
+    };
+    for (int i = 0; i + 1 < iterations; ++i) {  // the axes alternate in order
+      pass(*d.smoothed, i % 2, d.smooth[0], nullptr);
+      pass(d.smooth[0], 1 - i % 2, d.smooth[1], nullptr);
+      d.smoothed = &d.smooth[1];
     }
+    // The last pass of a separable filter leaves lines along its axis: each line is filtered on
+    // its own, and where the narrow range leaves samples out (silhouettes, layers, a grazing
+    // surface) neighbouring lines differ. The last iteration runs in both orders, and averages
+    // them: the lines along the rows and along the columns are each half as strong.
+    pass(*d.smoothed, 0, d.smooth[2], nullptr);
+    pass(d.smooth[2], 1, d.smooth[3], nullptr);
+    pass(*d.smoothed, 1, d.smooth[2], nullptr);
+    pass(d.smooth[2], 0, d.smooth[0], &d.smooth[3]);
+    d.smoothed = &d.smooth[0];
   }
 
   // 4. Normals from the smoothed depth.
@@ -571,6 +618,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glUniform1f(d.cu.refraction, std::clamp(style.refraction, 0.0f, 4.0f));
   glUniform1f(d.cu.opacity_depth, std::max(style.opacity_depth, 0.0f) * radius);
   glUniform1i(d.cu.output, int(style.output));
+  glUniform1f(d.cu.radius_at_1, radius * frame.projection[5] * 0.5f * float(lh));
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
   glDepthMask(GL_TRUE);
