@@ -96,6 +96,19 @@ float at(const LiquidImage& im, int x, int y, int c = 0) {
       .values[(std::size_t(y) * std::size_t(im.width) + std::size_t(x)) * std::size_t(im.channels) + std::size_t(c)];
 }
 
+// Liquid (raw depth) in the whole (2r+1)x(2r+1) window around (x, y).
+bool liquid_around(const LiquidImage& raw, int x, int y, int r) {
+  for (int dy = -r; dy <= r; ++dy)
+    for (int dx = -r; dx <= r; ++dx)
+      if (at(raw, x + dx, y + dy) <= 0) return false;
+  return true;
+}
+
+// The luminance (Rec. 709 weights, 0..1) of the pixel `i` of an RGBA8 image.
+double luminance(const std::vector<std::uint8_t>& rgba, std::size_t i) {
+  return (0.2126 * rgba[4 * i] + 0.7152 * rgba[4 * i + 1] + 0.0722 * rgba[4 * i + 2]) / 255.0;
+}
+
 // Pixels of calm water seen from above: liquid in a whole 13x13 window around them, and no more
 // than 3 radii above the lowest liquid in view (the pool on the floor, not the jet or the splash).
 std::vector<std::pair<int, int>> calm_pixels(const LiquidImage& raw) {
@@ -104,10 +117,7 @@ std::vector<std::pair<int, int>> calm_pixels(const LiquidImage& raw) {
   std::vector<std::pair<int, int>> out;
   for (int y = 6; y < raw.height - 6; ++y) {
     for (int x = 6; x < raw.width - 6; ++x) {
-      bool inside = at(raw, x, y) > deepest - 3 * kRadius;
-      for (int dy = -6; inside && dy <= 6; ++dy)
-        for (int dx = -6; inside && dx <= 6; ++dx) inside = at(raw, x + dx, y + dy) > 0;
-      if (inside) out.emplace_back(x, y);
+      if (at(raw, x, y) > deepest - 3 * kRadius && liquid_around(raw, x, y, 6)) out.emplace_back(x, y);
     }
   }
   return out;
@@ -179,10 +189,7 @@ TEST_F(LiquidTest, WaterSeenAtAGrazingAngleIsSmoothedAlongBothAxes) {
     std::size_t count = 0;
     for (int y = 6; y < n.height - 6; ++y) {
       for (int x = 6; x < n.width - 6; ++x) {
-        bool inside = true;
-        for (int dy = -6; inside && dy <= 6; ++dy)
-          for (int dx = -6; inside && dx <= 6; ++dx) inside = at(raw, x + dx, y + dy) > 0;
-        if (!inside) continue;
+        if (!liquid_around(raw, x, y, 6)) continue;
         for (int c = 0; c < 3; ++c) {
           *down += std::pow(at(n, x, y + 1, c) - at(n, x, y, c), 2.0);
           *along += std::pow(at(n, x + 1, y, c) - at(n, x, y, c), 2.0);
@@ -242,8 +249,7 @@ TEST_F(LiquidTest, TheShadedSurfaceHasNoStreaks) {
       mask = std::move(eroded);
     }
     std::vector<double> lum(std::size_t(kW * kH)), blurred(lum.size()), tmp(lum.size());
-    for (std::size_t i = 0; i < lum.size(); ++i)
-      lum[i] = (0.2126 * rgba_[4 * i] + 0.7152 * rgba_[4 * i + 1] + 0.0722 * rgba_[4 * i + 2]) / 255.0;
+    for (std::size_t i = 0; i < lum.size(); ++i) lum[i] = luminance(rgba_, i);
     double kernel[13], total = 0;
     for (int i = -6; i <= 6; ++i) total += kernel[i + 6] = std::exp(-i * i / 8.0);
     for (double& k : kernel) k /= total;
@@ -439,8 +445,7 @@ TEST_F(LiquidTest, AThinSheetHidesTheGroundBehindIt) {
     std::vector<double> p(std::size_t(x1 - x0), 0.0);
     for (int y = y0; y < y1; ++y) {
       for (int x = x0; x < x1; ++x) {
-        const std::size_t i = (std::size_t(y) * kW + std::size_t(x)) * 4;
-        p[std::size_t(x - x0)] += (0.2126 * rgba_[i] + 0.7152 * rgba_[i + 1] + 0.0722 * rgba_[i + 2]) / 255.0;
+        p[std::size_t(x - x0)] += luminance(rgba_, std::size_t(y) * kW + std::size_t(x));
       }
     }
     for (double& v : p) v /= double(y1 - y0);

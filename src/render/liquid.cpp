@@ -431,7 +431,8 @@ struct LiquidPass::Impl {
 };
 
 void LiquidPass::Impl::release() {
-  for (Target* t : {&raw, &smooth[0], &smooth[1], &smooth[2], &smooth[3], &thickness, &normal, &scene}) destroy(*t);
+  for (Target& t : smooth) destroy(t);
+  for (Target* t : {&raw, &thickness, &normal, &scene}) destroy(*t);
   if (depth_buffer) glDeleteRenderbuffers(1, &depth_buffer);
   depth_buffer = 0;
   width = height = liquid_width = liquid_height = 0;
@@ -539,13 +540,16 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   d.splat_batches(frame, s, 1, fixed_radius, style, radius);
   glDisable(GL_BLEND);
 
-  // 3. The separable filter, horizontal and vertical (alternating which goes first), `iterations` times.
+  // A particle's radius in liquid pixels at distance 1: a world length through the projection's
+  // focal length. The filter's radius is `smoothing` of these; the highlight's taps are one apart.
+  const float radius_px_at_1 = radius * frame.projection[5] * 0.5f * float(lh);
+
+  // 3. The separable filter, horizontal and vertical, `iterations` times; the last in both orders.
   d.smoothed = &d.raw;
   const int iterations = style.filter == LiquidFilter::None ? 0 : std::clamp(style.iterations, 0, 8);
   if (iterations > 0) {
     glUseProgram(d.filter);
-    // The radius in pixels at distance 1: a world length through the projection's focal length.
-    glUniform1f(d.fu.radius_at_1, style.smoothing * radius * frame.projection[5] * 0.5f * float(lh));
+    glUniform1f(d.fu.radius_at_1, style.smoothing * radius_px_at_1);
     glUniform1f(d.fu.range, std::max(style.depth_range, 0.01f) * radius);
     glUniform1f(d.fu.clamp, 0.5f * radius);
     glUniform1i(d.fu.mode, style.filter == LiquidFilter::NarrowRange ? 0
@@ -618,7 +622,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glUniform1f(d.cu.refraction, std::clamp(style.refraction, 0.0f, 4.0f));
   glUniform1f(d.cu.opacity_depth, std::max(style.opacity_depth, 0.0f) * radius);
   glUniform1i(d.cu.output, int(style.output));
-  glUniform1f(d.cu.radius_at_1, radius * frame.projection[5] * 0.5f * float(lh));
+  glUniform1f(d.cu.radius_at_1, radius_px_at_1);
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
   glDepthMask(GL_TRUE);
