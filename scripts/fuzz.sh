@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Bounded libFuzzer run of every reader of untrusted bytes, seeded with the test fixtures.
 #   FUZZ_SECONDS (default 25) per target; FUZZ_TARGETS="fuzz_pstream fuzz_ply" runs only those.
+#   The targets run side by side, one per core; each one's report is printed when it ends.
 # Expects `scripts/build.sh check` to have built build-check/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -8,13 +9,18 @@ seconds=${FUZZ_SECONDS:-25}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 
-run_target() {  # name, seed files...
+targets=()
+add_target() {  # name, seed files...: its corpus, filled now; run below
   local name=$1; shift
   if [[ -n ${FUZZ_TARGETS:-} && " $FUZZ_TARGETS " != *" $name "* ]]; then return 0; fi
-  local corpus="$work/$name"
-  mkdir -p "$corpus"
-  cp "$@" "$corpus/"
-  echo "fuzz: $name for ${seconds}s from $# seeds"
+  mkdir -p "$work/$name"
+  cp "$@" "$work/$name/"
+  targets+=("$name")
+}
+
+run_target() {  # name
+  local name=$1 corpus="$work/$1"
+  echo "fuzz: $name for ${seconds}s from $(find "$corpus" -type f | wc -l) seeds"
   # Crash reproducers land in the work directory; libFuzzer exits non-zero on any finding.
   if ! "build-check/tests/fuzz/$name" "$corpus" -max_total_time="$seconds" -max_len=1048576 -timeout=10 \
       -rss_limit_mb=2048 -artifact_prefix="$work/" -print_final_stats=1 >"$work/$name.log" 2>&1; then
@@ -28,7 +34,7 @@ run_target() {  # name, seed files...
 
 seeds=$(find tests/data/alembic -name '*.abc' -size -1024k | sort)
 # shellcheck disable=SC2086
-run_target fuzz_alembic $seeds
+add_target fuzz_alembic $seeds
 
 # .pstream seeds: small fixtures cooked with each codec and the smallest chunks.
 mkdir -p "$work/pstream-seeds"
@@ -41,12 +47,12 @@ for codec in raw lz4 zstd particle particle-lossless; do
   done
 done
 # and the committed clips: version 1, 2 and 3 (a relative scale word), records and particle codec.
-run_target fuzz_pstream "$work"/pstream-seeds/*.pstream tests/data/pstream/*.pstream tests/data/pstream_v1/*.pstream
+add_target fuzz_pstream "$work"/pstream-seeds/*.pstream tests/data/pstream/*.pstream tests/data/pstream_v1/*.pstream
 
 # Particle-codec bodies, from the encoder itself.
 mkdir -p "$work/particle-seeds"
 build-check/tests/fuzz/fuzz_particle_seeds "$work/particle-seeds"
-run_target fuzz_particle "$work"/particle-seeds/*
+add_target fuzz_particle "$work"/particle-seeds/*
 
 # PLY files: the test suite's sequences and a few written here (ascii, binary, with faces after).
 mkdir -p "$work/ply-seeds"
@@ -54,4 +60,27 @@ printf 'ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty floa
 printf 'ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty double z\nproperty uchar red\nend_header\n0123456789abcdefg' >"$work/ply-seeds/binary.ply"
 printf 'ply\nformat ascii 1.0\nelement vertex 1\nproperty int x\nproperty short y\nproperty uint z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n1 2 3\n3 0 0 0\n' >"$work/ply-seeds/faces.ply"
 cp tests/fuzz/ply_regressions/* "$work/ply-seeds/"  # inputs that once failed, kept as seeds
-run_target fuzz_ply "$work"/ply-seeds/*
+add_target fuzz_ply "$work"/ply-seeds/*
+
+# As many targets at a time as there are cores; any failure fails the run, after all have ended.
+lanes=$(nproc)
+failed=0
+running=0
+for name in "${targets[@]}"; do
+  if [ "$running" -ge "$lanes" ]; then
+    wait -n || failed=1
+    running=$((running - 1))
+  fi
+  (
+    rc=0
+    run_target "$name" >"$work/$name.report" 2>&1 || rc=$?
+    cat "$work/$name.report"
+    exit "$rc"
+  ) &
+  running=$((running + 1))
+done
+while [ "$running" -gt 0 ]; do
+  wait -n || failed=1
+  running=$((running - 1))
+done
+exit "$failed"

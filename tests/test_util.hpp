@@ -37,7 +37,11 @@ inline std::filesystem::path fresh_dir(std::string name = {}) {
   return dir;
 }
 
-inline std::string data_path(const std::string& relative) { return std::string(PSTREAM_TEST_DATA) + "/" + relative; }
+inline std::string data_path(const std::string& relative) {
+  std::string path = PSTREAM_TEST_DATA;
+  path.append("/").append(relative);
+  return path;
+}
 
 // The k-th image (in number order) of a `pstream render` folder: images are numbered by source
 // frame (frame_NNNNN.png), so a clip that starts at frame 1 has no frame_00000.png. An empty path
@@ -87,6 +91,11 @@ inline CommandResult run_cli_raw(const std::string& command) {
 }
 
 // Runs the pstream command-line tool with `args` (already shell-quoted).
-inline CommandResult run_cli(const std::string& args) { return run_cli_raw(std::string(PSTREAM_CLI) + " " + args); }
+// (Appended, not `+`: GCC 12 warns falsely of a bound overflow in `std::string(literal) + ...`.)
+inline CommandResult run_cli(const std::string& args) {
+  std::string command = PSTREAM_CLI;
+  command.append(" ").append(args);
+  return run_cli_raw(command);
+}
 
 }  // namespace pstream::test

@@ -227,53 +227,18 @@ class GroupEncoder {
     }
     const double volume = double(hi[0] - lo[0] + 1) * double(hi[1] - lo[1] + 1) * double(hi[2] - lo[2] + 1);
     const std::int64_t cell = std::max<std::int64_t>(2, std::llround(std::cbrt(volume / n)));
-    const auto key = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
-      return (std::uint64_t(x & 0x1fffff) << 42) | (std::uint64_t(y & 0x1fffff) << 21) | std::uint64_t(z & 0x1fffff);
-    };
     const auto floordiv = [](std::int64_t a, std::int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); };
-    std::vector<std::int64_t> at(std::size_t(n) * 3);
+    // Each current particle's position and cell (of side `cell`), six numbers together.
+    std::vector<std::int64_t> at(std::size_t(n) * 6);
     for (std::uint32_t j = 0; j < n; ++j) {
-      for (int a = 0; a < 3; ++a)
-        at[std::size_t(j) * 3 + a] = static_cast<std::int32_t>(source_[std::size_t(position_k_[a])][j]);
-    }
-    // The cells as a dense grid over this frame's box, when it is not much larger than the frame
-    // (about one cell per particle, by the cell size's choice; a frame spread very unevenly can
-    // need far more): a cell's particles, and a column of three cells, are then one range found
-    // by indexing, not by binary searches. The same cells and the same candidates either way.
-    std::int64_t c0[3], dims[3];
-    double total = 1;
-    for (int a = 0; a < 3; ++a) {
-      c0[a] = floordiv(lo[a], cell);
-      dims[a] = floordiv(hi[a], cell) - c0[a] + 1;
-      total *= double(dims[a]);
-    }
-    const bool dense = total <= 16.0 * n + 4096.0;
-    std::vector<std::uint32_t> start, order;
-    if (dense) {
-      const auto index = [&](const std::int64_t* p) {
-        return std::size_t(((floordiv(p[0], cell) - c0[0]) * dims[1] + (floordiv(p[1], cell) - c0[1])) * dims[2] +
-                           (floordiv(p[2], cell) - c0[2]));
-      };
-      start.assign(std::size_t(total) + 1, 0);
-      for (std::uint32_t j = 0; j < n; ++j) ++start[index(&at[std::size_t(j) * 3]) + 1];
-      for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
-      order.resize(n);
-      std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
-      for (std::uint32_t j = 0; j < n; ++j) order[fill[index(&at[std::size_t(j) * 3])]++] = j;
-    }
-    // Otherwise this frame's particles sorted by cell: a cell's particles are one range, found by
-    // a binary search.
-    std::vector<std::pair<std::uint64_t, std::uint32_t>> cells;
-    if (!dense) {
-      cells.resize(n);
-      for (std::uint32_t j = 0; j < n; ++j) {
-        const std::int64_t* p = &at[std::size_t(j) * 3];
-        cells[j] = {key(floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell)), j};
+      for (int a = 0; a < 3; ++a) {
+        at[std::size_t(j) * 6 + a] = static_cast<std::int32_t>(source_[std::size_t(position_k_[a])][j]);
+        at[std::size_t(j) * 6 + 3 + a] = floordiv(at[std::size_t(j) * 6 + a], cell);
       }
-      std::sort(cells.begin(), cells.end());
     }
-    // Candidate pairs within reach of each previous particle, closest first; a pair is taken when
-    // both particles are still free (a global greedy matching, deterministic by index on ties).
+    // A particle's candidates are the current particles in the 3x3x3 cells (of side `cell`) around
+    // it, within `reach`; of those, its 8 nearest (ties by index) are kept. The result depends on
+    // nothing else, so the search may visit them in any order and stop early.
     struct Pair {
       std::int64_t distance;
       std::uint32_t prev, cur;
@@ -281,56 +246,130 @@ class GroupEncoder {
     std::vector<Pair> pairs;
     pairs.reserve(std::size_t(state_.count) * 4);
     const std::int64_t reach = cell * cell * 2;  // squared: about 1.4 spacings
-    for (std::uint32_t i = 0; i < state_.count; ++i) {
+    constexpr int kCandidates = 8;
+    const auto search = [&](std::uint32_t i, const auto& visit_cells) {
       std::int64_t p[3];
-      for (int a = 0; a < 3; ++a) {
-        const auto k = std::size_t(position_k_[a]);
-        p[a] = static_cast<std::int32_t>(state_.q[k][i]);
-      }
-      const std::int64_t cx = floordiv(p[0], cell), cy = floordiv(p[1], cell), cz = floordiv(p[2], cell);
-      // The 8 nearest candidates of this previous particle (fewer pairs to sort, the same result
-      // wherever a particle has fewer than 8 rivals nearby).
-      constexpr int kCandidates = 8;
+      for (int a = 0; a < 3; ++a) p[a] = static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]);
+      const std::int64_t home[3] = {floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell)};
       Pair best[kCandidates];
       int found = 0;
-      const auto consider = [&](std::uint32_t j) {
-        const std::int64_t* s = &at[std::size_t(j) * 3];
+      const auto consider = [&](std::uint32_t j, const std::int64_t* s) {  // s: position and cell
         const std::int64_t e =
             (s[0] - p[0]) * (s[0] - p[0]) + (s[1] - p[1]) * (s[1] - p[1]) + (s[2] - p[2]) * (s[2] - p[2]);
         if (e > reach) return;
+        if (found == kCandidates &&
+            std::tie(e, j) >= std::tie(best[kCandidates - 1].distance, best[kCandidates - 1].cur))
+          return;
+        for (int a = 0; a < 3; ++a) {
+          if (s[3 + a] < home[a] - 1 || s[3 + a] > home[a] + 1) return;
+        }
         // Insert into the sorted few, dropping the farthest when full.
-        const Pair candidate{e, i, j};
-        int slot = found < kCandidates ? found++ : kCandidates;
+        int slot = found < kCandidates ? found++ : kCandidates - 1;
         while (slot > 0 && std::tie(e, j) < std::tie(best[slot - 1].distance, best[slot - 1].cur)) {
-          if (slot < kCandidates) best[slot] = best[slot - 1];
+          best[slot] = best[slot - 1];
           --slot;
         }
-        if (slot < kCandidates) best[slot] = candidate;
+        best[slot] = Pair{e, i, j};
       };
-      for (std::int64_t dx = -1; dx <= 1; ++dx) {
-        for (std::int64_t dy = -1; dy <= 1; ++dy) {
-          if (dense) {
-            const std::int64_t x = cx + dx - c0[0], y = cy + dy - c0[1];
-            const std::int64_t z0 = std::max<std::int64_t>(cz - 1 - c0[2], 0),
-                               z1 = std::min<std::int64_t>(cz + 1 - c0[2], dims[2] - 1);
-            if (x < 0 || x >= dims[0] || y < 0 || y >= dims[1] || z0 > z1) continue;
-            const std::size_t column = std::size_t((x * dims[1] + y) * dims[2]);
-            for (std::uint32_t t = start[column + std::size_t(z0)]; t < start[column + std::size_t(z1) + 1]; ++t)
-              consider(order[t]);
-            continue;
-          }
-          for (std::int64_t dz = -1; dz <= 1; ++dz) {
-            const std::uint64_t k = key(cx + dx, cy + dy, cz + dz);
-            auto it = std::lower_bound(cells.begin(), cells.end(), std::pair{k, std::uint32_t{0}});
-            for (; it != cells.end() && it->first == k; ++it) consider(it->second);
-          }
-        }
-      }
+      // The worst distance kept, once there are enough candidates: cells that cannot hold a
+      // closer particle are not visited.
+      const auto worst = [&] { return found == kCandidates ? best[kCandidates - 1].distance : reach; };
+      visit_cells(p, consider, worst);
       pairs.insert(pairs.end(), best, best + found);
+    };
+    // A dense grid over this frame's box, when it is not much larger than the frame: cells of half
+    // the candidates' side (a liquid fills a small part of its box, so a side-`cell` cell holds
+    // about ten particles), visited nearest first until the 8 kept are closer than any cell left.
+    // A cell's particles are one range found by indexing.
+    std::int64_t side = std::max<std::int64_t>(1, cell / 2), g0[3], dims[3];
+    double total = 1;
+    for (int pass = 0; pass < 2; ++pass) {
+      total = 1;
+      for (int a = 0; a < 3; ++a) {
+        g0[a] = floordiv(lo[a], side);
+        dims[a] = floordiv(hi[a], side) - g0[a] + 1;
+        total *= double(dims[a]);
+      }
+      if (total <= 16.0 * n + 4096.0 || side == cell) break;
+      side = cell;
     }
-    std::sort(pairs.begin(), pairs.end(), [](const Pair& x, const Pair& y) {
-      return std::tie(x.distance, x.prev, x.cur) < std::tie(y.distance, y.prev, y.cur);
-    });
+    if (total <= 16.0 * n + 4096.0) {
+      const auto index = [&](const std::int64_t* q) {
+        return std::size_t(((floordiv(q[0], side) - g0[0]) * dims[1] + (floordiv(q[1], side) - g0[1])) * dims[2] +
+                           (floordiv(q[2], side) - g0[2]));
+      };
+      // The particles in cell order, their positions and cells copied beside them.
+      std::vector<std::uint32_t> start(std::size_t(total) + 1, 0), order(n);
+      for (std::uint32_t j = 0; j < n; ++j) ++start[index(&at[std::size_t(j) * 6]) + 1];
+      for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+      std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+      std::vector<std::int64_t> sorted(std::size_t(n) * 6);
+      for (std::uint32_t j = 0; j < n; ++j) {
+        const std::uint32_t t = fill[index(&at[std::size_t(j) * 6])]++;
+        order[t] = j;
+        std::copy_n(&at[std::size_t(j) * 6], 6, &sorted[std::size_t(t) * 6]);
+      }
+      // Cell offsets by the least squared distance a particle in one can be from a particle in the
+      // other (whole cells between them), up to the reach.
+      struct Offset {
+        std::int64_t bound;
+        int d[3];
+      };
+      std::vector<Offset> offsets;
+      const int far = static_cast<int>(std::sqrt(double(reach)) / double(side)) + 2;
+      for (int x = -far; x <= far; ++x)
+        for (int y = -far; y <= far; ++y)
+          for (int z = -far; z <= far; ++z) {
+            std::int64_t bound = 0;
+            for (int d : {x, y, z})
+              bound +=
+                  std::int64_t(std::max(0, std::abs(d) - 1)) * side * std::int64_t(std::max(0, std::abs(d) - 1)) * side;
+            if (bound <= reach) offsets.push_back({bound, {x, y, z}});
+          }
+      std::stable_sort(offsets.begin(), offsets.end(),
+                       [](const Offset& u, const Offset& v) { return u.bound < v.bound; });
+      for (std::uint32_t i = 0; i < state_.count; ++i) {
+        search(i, [&](const std::int64_t* p, const auto& consider, const auto& worst) {
+          const std::int64_t c[3] = {floordiv(p[0], side) - g0[0], floordiv(p[1], side) - g0[1],
+                                     floordiv(p[2], side) - g0[2]};
+          for (const Offset& o : offsets) {
+            if (o.bound > worst()) break;
+            const std::int64_t x = c[0] + o.d[0], y = c[1] + o.d[1], z = c[2] + o.d[2];
+            if (x < 0 || x >= dims[0] || y < 0 || y >= dims[1] || z < 0 || z >= dims[2]) continue;
+            const std::size_t k = std::size_t((x * dims[1] + y) * dims[2] + z);
+            for (std::uint32_t t = start[k]; t < start[k + 1]; ++t) consider(order[t], &sorted[std::size_t(t) * 6]);
+          }
+        });
+      }
+    } else {
+      // Otherwise this frame's particles sorted by cell: a cell's particles are one range, found
+      // by a binary search.
+      const auto key = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+        return (std::uint64_t(x & 0x1fffff) << 42) | (std::uint64_t(y & 0x1fffff) << 21) | std::uint64_t(z & 0x1fffff);
+      };
+      std::vector<std::pair<std::uint64_t, std::uint32_t>> cells(n);
+      for (std::uint32_t j = 0; j < n; ++j) {
+        const std::int64_t* q = &at[std::size_t(j) * 6 + 3];
+        cells[j] = {key(q[0], q[1], q[2]), j};
+      }
+      std::sort(cells.begin(), cells.end());
+      for (std::uint32_t i = 0; i < state_.count; ++i) {
+        search(i, [&](const std::int64_t* p, const auto& consider, const auto&) {
+          const std::int64_t cx = floordiv(p[0], cell), cy = floordiv(p[1], cell), cz = floordiv(p[2], cell);
+          for (std::int64_t dx = -1; dx <= 1; ++dx)
+            for (std::int64_t dy = -1; dy <= 1; ++dy)
+              for (std::int64_t dz = -1; dz <= 1; ++dz) {
+                const std::uint64_t k = key(cx + dx, cy + dy, cz + dz);
+                auto it = std::lower_bound(cells.begin(), cells.end(), std::pair{k, std::uint32_t{0}});
+                for (; it != cells.end() && it->first == k; ++it)
+                  consider(it->second, &at[std::size_t(it->second) * 6]);
+              }
+        });
+      }
+    }
+    // Closest first, ties by previous then current index: the pairs were made in previous-index
+    // order, each particle's by (distance, current index), so a stable sort by distance is that.
+    std::stable_sort(pairs.begin(), pairs.end(), [](const Pair& x, const Pair& y) { return x.distance < y.distance; });
     std::vector<std::uint8_t> prev_taken(state_.count, 0);
     for (const Pair& pair : pairs) {
       if (prev_taken[pair.prev] || match[pair.cur] >= 0) continue;
