@@ -32,14 +32,8 @@ namespace {
 using namespace pstream;
 namespace fs = std::filesystem;
 
-std::string q(const fs::path& p) { return fmt::format("'{}'", p.string()); }
-
-void expect_error(const test::CommandResult& r, const std::string& fragment) {
-  EXPECT_NE(r.exit_code, 0) << r.output;
-  EXPECT_LT(r.exit_code, 128) << "ended by a signal: " << r.output;
-  EXPECT_EQ(r.output.find("internal error"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find(fragment), std::string::npos) << "expected '" << fragment << "' in:\n" << r.output;
-}
+using test::expect_error;
+using test::q;
 
 template <typename T>
 T get(const std::string& bytes, std::size_t at) {

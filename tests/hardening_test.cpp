@@ -32,7 +32,8 @@ namespace {
 using namespace pstream;
 namespace fs = std::filesystem;
 
-std::string q(const fs::path& p) { return fmt::format("'{}'", p.string()); }
+using test::expect_error;
+using test::q;
 
 void write(const fs::path& p, std::string_view bytes) { test::write_file(p, bytes); }
 
@@ -41,15 +42,6 @@ void expect_no_temporaries(const fs::path& dir) {
   for (const auto& e : fs::directory_iterator(dir)) {
     EXPECT_EQ(e.path().filename().string().find(".partial-"), std::string::npos) << "left behind: " << e.path();
   }
-}
-
-// A CLI run that must fail cleanly: exit code 1, "pstream: error:" and `fragment` in the output,
-// never "internal error".
-void expect_error(const test::CommandResult& r, const std::string& fragment) {
-  EXPECT_NE(r.exit_code, 0) << r.output;
-  EXPECT_LT(r.exit_code, 128) << "ended by a signal: " << r.output;
-  EXPECT_EQ(r.output.find("internal error"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find(fragment), std::string::npos) << "expected '" << fragment << "' in:\n" << r.output;
 }
 
 using test::ply_header;

@@ -90,12 +90,28 @@ inline CommandResult run_cli_raw(const std::string& command) {
   return r;
 }
 
+// `p` in single quotes, for the shell commands the CLI tests run.
+inline std::string q(const std::filesystem::path& p) {
+  std::string quoted = "'";
+  quoted.append(p.string()).append("'");
+  return quoted;
+}
+
 // Runs the pstream command-line tool with `args` (already shell-quoted).
 // (Appended, not `+`: GCC 12 warns falsely of a bound overflow in `std::string(literal) + ...`.)
 inline CommandResult run_cli(const std::string& args) {
   std::string command = PSTREAM_CLI;
   command.append(" ").append(args);
   return run_cli_raw(command);
+}
+
+// A CLI run that must fail cleanly: a non-zero exit code that is not a signal, `fragment` in the
+// output, never "internal error".
+inline void expect_error(const CommandResult& r, const std::string& fragment) {
+  EXPECT_NE(r.exit_code, 0) << r.output;
+  EXPECT_LT(r.exit_code, 128) << "ended by a signal: " << r.output;
+  EXPECT_EQ(r.output.find("internal error"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(fragment), std::string::npos) << "expected '" << fragment << "' in:\n" << r.output;
 }
 
 }  // namespace pstream::test

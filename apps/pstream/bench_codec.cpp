@@ -25,6 +25,7 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "progress.hpp"
+#include "stats.hpp"
 
 namespace pstream::app {
 namespace {
@@ -50,11 +51,6 @@ struct Contender {
 };
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
 
 std::vector<std::byte> zstd_compress(std::span<const std::byte> in, int level) {
   std::vector<std::byte> out(ZSTD_compressBound(in.size()));

@@ -14,6 +14,7 @@
 #include "commands.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/cook.hpp"
+#include "stats.hpp"
 
 namespace pstream::app {
 namespace {
@@ -50,11 +51,6 @@ double baseline_seconds(const std::string& input, const std::filesystem::path& o
   ::fsync(::fileno(f));
   std::fclose(f);
   return seconds_since(t0);
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
 }
 
 // Every timed run starts from the same state: no earlier output for it to free, nothing of

@@ -10,17 +10,13 @@
 
 #include "commands.hpp"
 #include "particlestream/alembic.hpp"
+#include "stats.hpp"
 
 namespace pstream::app {
 namespace {
 
 using namespace pstream::alembic;
 using Clock = std::chrono::steady_clock;
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
-}
 
 Object pick_points(const Archive& archive, const std::string& wanted) {
   if (!wanted.empty()) {

@@ -22,6 +22,7 @@
 #include "particlestream/sort.hpp"
 #include "progress.hpp"
 #include "sort_contenders.hpp"
+#include "stats.hpp"
 
 namespace pstream::app {
 namespace {
@@ -42,11 +43,6 @@ std::vector<float> make_input(const std::string& kind, std::size_t n, std::uint3
     for (std::size_t i = 0; i < n; ++i) d[i] = 1000.0f - 2000.0f * float(i) / float(n);
   }
   return d;
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
 }
 
 std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, double>>>& series,

@@ -15,4 +15,13 @@ inline double percentile(std::vector<double> v, double q) {
   return v[std::min(v.size() - 1, static_cast<std::size_t>(q * double(v.size())))];
 }
 
+// The median of `v`: the middle value, or the mean of the two middle values of an even count;
+// 0 for no values.
+inline double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const std::size_t h = v.size() / 2;
+  return v.size() % 2 ? v[h] : 0.5 * (v[h - 1] + v[h]);
+}
+
 }  // namespace pstream::app
