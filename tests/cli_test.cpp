@@ -58,7 +58,7 @@ TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
   namespace fs = std::filesystem;
   const fs::path dir = pstream::test::fresh_dir();
   const std::string abc = pstream::test::data_path("alembic/points_empty_frames.abc");
-  const auto q = [](const fs::path& p) { return fmt::format("'{}'", p.string()); };
+  using pstream::test::q;
   // Every frame's count and sums (info --json --frames: float64 sums of x y z scale).
   const auto frames = [&](const fs::path& clip) {
     const auto j = nlohmann::json::parse(run_cli("info --json --frames " + q(clip)).output);

@@ -274,13 +274,14 @@ class GroupEncoder {
       // The worst distance kept, once there are enough candidates: cells that cannot hold a
       // closer particle are not visited.
       const auto worst = [&] { return found == kCandidates ? best[kCandidates - 1].distance : reach; };
-      visit_cells(p, consider, worst);
+      visit_cells(p, home, consider, worst);
       pairs.insert(pairs.end(), best, best + found);
     };
     // A dense grid over this frame's box, when it is not much larger than the frame: cells of half
     // the candidates' side (a liquid fills a small part of its box, so a side-`cell` cell holds
     // about ten particles), visited nearest first until the 8 kept are closer than any cell left.
     // A cell's particles are one range found by indexing.
+    const double most_cells = 16.0 * n + 4096.0;
     std::int64_t side = std::max<std::int64_t>(1, cell / 2), g0[3], dims[3];
     double total = 1;
     for (int pass = 0; pass < 2; ++pass) {
@@ -290,10 +291,10 @@ class GroupEncoder {
         dims[a] = floordiv(hi[a], side) - g0[a] + 1;
         total *= double(dims[a]);
       }
-      if (total <= 16.0 * n + 4096.0 || side == cell) break;
+      if (total <= most_cells || side == cell) break;
       side = cell;
     }
-    if (total <= 16.0 * n + 4096.0) {
+    if (total <= most_cells) {
       const auto index = [&](const std::int64_t* q) {
         return std::size_t(((floordiv(q[0], side) - g0[0]) * dims[1] + (floordiv(q[1], side) - g0[1])) * dims[2] +
                            (floordiv(q[2], side) - g0[2]));
@@ -321,15 +322,16 @@ class GroupEncoder {
         for (int y = -far; y <= far; ++y)
           for (int z = -far; z <= far; ++z) {
             std::int64_t bound = 0;
-            for (int d : {x, y, z})
-              bound +=
-                  std::int64_t(std::max(0, std::abs(d) - 1)) * side * std::int64_t(std::max(0, std::abs(d) - 1)) * side;
+            for (int d : {x, y, z}) {
+              const std::int64_t gap = std::int64_t(std::max(0, std::abs(d) - 1)) * side;  // whole cells between
+              bound += gap * gap;
+            }
             if (bound <= reach) offsets.push_back({bound, {x, y, z}});
           }
       std::stable_sort(offsets.begin(), offsets.end(),
                        [](const Offset& u, const Offset& v) { return u.bound < v.bound; });
       for (std::uint32_t i = 0; i < state_.count; ++i) {
-        search(i, [&](const std::int64_t* p, const auto& consider, const auto& worst) {
+        search(i, [&](const std::int64_t* p, const std::int64_t*, const auto& consider, const auto& worst) {
           const std::int64_t c[3] = {floordiv(p[0], side) - g0[0], floordiv(p[1], side) - g0[1],
                                      floordiv(p[2], side) - g0[2]};
           for (const Offset& o : offsets) {
@@ -354,12 +356,11 @@ class GroupEncoder {
       }
       std::sort(cells.begin(), cells.end());
       for (std::uint32_t i = 0; i < state_.count; ++i) {
-        search(i, [&](const std::int64_t* p, const auto& consider, const auto&) {
-          const std::int64_t cx = floordiv(p[0], cell), cy = floordiv(p[1], cell), cz = floordiv(p[2], cell);
+        search(i, [&](const std::int64_t*, const std::int64_t* home, const auto& consider, const auto&) {
           for (std::int64_t dx = -1; dx <= 1; ++dx)
             for (std::int64_t dy = -1; dy <= 1; ++dy)
               for (std::int64_t dz = -1; dz <= 1; ++dz) {
-                const std::uint64_t k = key(cx + dx, cy + dy, cz + dz);
+                const std::uint64_t k = key(home[0] + dx, home[1] + dy, home[2] + dz);
                 auto it = std::lower_bound(cells.begin(), cells.end(), std::pair{k, std::uint32_t{0}});
                 for (; it != cells.end() && it->first == k; ++it)
                   consider(it->second, &at[std::size_t(it->second) * 6]);
