@@ -1,8 +1,6 @@
 // Chunk codecs, the decoding side: each codec a unit with its name, the most bytes a stored byte
 // can decode to, and its decoder (chunk_encode.cpp holds the encoders). Every chunk is compressed
 // on its own so that it decodes alone; ChunkDecoder is the only way chunks are decoded.
-#include <xxhash.h>
-
 #include <algorithm>
 #include <array>
 #include <cstring>
@@ -80,18 +78,6 @@ std::uint64_t max_decoded_size(Codec codec, std::uint64_t stored) {
   const ChunkCodecUnit* u = unit_of(codec);
   if (u == nullptr) return 0;
   return stored > (UINT64_MAX - u->max_extra) / u->max_ratio ? UINT64_MAX : stored * u->max_ratio + u->max_extra;
-}
-
-std::uint64_t checksum(std::span<const std::byte> bytes) { return XXH3_64bits(bytes.data(), bytes.size()); }
-
-bool checksum_matches(std::span<const std::byte> bytes, std::uint64_t stored) {
-#ifdef PSTREAM_FUZZING
-  (void)bytes;
-  (void)stored;
-  return true;
-#else
-  return checksum(bytes) == stored;
-#endif
 }
 
 ChunkDecoder::ChunkDecoder() : entropy_(std::make_unique<EntropyDecoder>()) {}
