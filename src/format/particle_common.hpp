@@ -57,16 +57,23 @@ struct Op {
   std::uint32_t keep = 0, drop = 0, insert = 0;
 };
 
-// Survivors of one run: q = q1 + (d1 if linear) + bias + residual, and the step taken.
+// Survivors of one run: q = q1 + (d1 if linear) + bias + residual, and the step taken. The
+// residuals are read straight from their `Bytes` byte planes (plane b at planes + b * stride).
+template <unsigned Bytes>
 inline void predict_run(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
-                        const std::uint32_t* __restrict d1, const std::uint32_t* __restrict r, std::uint32_t n,
-                        std::uint32_t linear_mask, std::uint32_t bias) {
+                        const std::uint32_t* __restrict d1, const std::uint8_t* __restrict planes, std::size_t stride,
+                        std::uint32_t n, std::uint32_t linear_mask, std::uint32_t bias) {
   for (std::uint32_t t = 0; t < n; ++t) {
-    const std::uint32_t step = (d1[t] & linear_mask) + bias + unzigzag(r[t]);
+    std::uint32_t r = 0;
+    for (unsigned b = 0; b < Bytes; ++b) r |= std::uint32_t(planes[b * stride + t]) << (8 * b);
+    const std::uint32_t step = (d1[t] & linear_mask) + bias + unzigzag(r);
     q0[t] = q1[t] + step;
     d0[t] = step;
   }
 }
+using PredictRun = void (*)(std::uint32_t*, std::uint32_t*, const std::uint32_t*, const std::uint32_t*,
+                            const std::uint8_t*, std::size_t, std::uint32_t, std::uint32_t, std::uint32_t);
+constexpr PredictRun kPredictRun[5] = {predict_run<0>, predict_run<1>, predict_run<2>, predict_run<3>, predict_run<4>};
 
 // The coded words of a layout (quantised or exact), where the id's two words are, and the derived
 // words with the coded word (index into `coded`) each is derived from.
@@ -118,6 +125,34 @@ inline float derived_value(std::uint32_t d0, std::uint32_t d1, std::uint8_t stat
                          : state == kOneStep || state == kSeeded ? 2 * s0
                                                                  : 0;
   return static_cast<float>(s) * step;
+}
+
+// derived_value() for the steps of a valid clip, |d0| and |d1| below 2^27 (grid values are
+// below 2^24): the numerator fits 32 bits, so this is the same integer and the same float, in
+// operations that vectorise. derive_run() checks the bound and takes derived_value() otherwise.
+inline float derived_value_small(std::uint32_t d0, std::uint32_t d1, std::uint8_t state, float step) {
+  const std::uint32_t two = d0 + d0;  // each case as a mask, so that the loop has no branch
+  const std::uint32_t s = ((two + d0 - d1) & (0u - std::uint32_t(state == kTwoSteps))) |
+                          ((two + two - d1 - d1) & (0u - std::uint32_t(state == kAfterSeed))) |
+                          (two & (0u - std::uint32_t(state == kOneStep || state == kSeeded)));
+  return static_cast<float>(static_cast<std::int32_t>(s)) * step;
+}
+constexpr std::uint32_t kSmallStep = 1u << 27;
+
+// The derived values of n particles: out[t] from their steps d0[t] (this frame), d1[t] (the one
+// before) and state[t].
+inline void derive_run(std::uint32_t* __restrict out, const std::uint32_t* __restrict d0,
+                       const std::uint32_t* __restrict d1, const std::uint8_t* __restrict state, std::uint32_t n,
+                       float step) {
+  std::uint32_t large = 0;
+  for (std::uint32_t t = 0; t < n; ++t) large |= ((d0[t] + kSmallStep) | (d1[t] + kSmallStep)) & ~(2 * kSmallStep - 1);
+  if (large == 0) {
+    for (std::uint32_t t = 0; t < n; ++t)
+      out[t] = std::bit_cast<std::uint32_t>(derived_value_small(d0[t], d1[t], state[t], step));
+  } else {
+    for (std::uint32_t t = 0; t < n; ++t)
+      out[t] = std::bit_cast<std::uint32_t>(derived_value(d0[t], d1[t], state[t], step));
+  }
 }
 
 inline std::uint64_t body_capacity(std::uint64_t max_count, std::size_t coded, bool ids) {

@@ -74,11 +74,11 @@ class ParticleUnit final : public FrameUnit {
         }
         continue;
       }
-      read_planes(w.keep, b.keep_total, w.keep_bytes, residual_.data());
       const std::uint32_t blocks = (b.keep_total + kBlock - 1) >> kBlockShift;
       read_planes(w.bias, blocks, w.bias_bytes, bias_.data());
       for (std::uint32_t acc = 0, x = 0; x < blocks; ++x) bias_[x] = acc += unzigzag(bias_[x]);
-      const std::uint32_t* r = residual_.data();
+      const auto* r = reinterpret_cast<const std::uint8_t*>(w.keep);
+      const PredictRun predict_run = kPredictRun[w.keep_bytes];
       const std::uint32_t* bias = bias_.data();
       const std::uint32_t linear = w.predictor == kLinear ? ~0u : 0u;
       std::uint32_t i = 0, j = 0, kt = 0, nt = 0, step = 0;
@@ -88,7 +88,8 @@ class ParticleUnit final : public FrameUnit {
         for (std::uint32_t t = 0; t < op.keep;) {
           const std::uint32_t block = (kt + t) >> kBlockShift;
           const std::uint32_t len = std::min(op.keep - t, ((block + 1) << kBlockShift) - (kt + t));
-          predict_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, r + kt + t, len, linear, bias[block]);
+          predict_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, r + kt + t, b.keep_total, len, linear,
+                      bias[block]);
           t += len;
         }
         i += op.keep + op.drop;
@@ -294,11 +295,12 @@ class ParticleUnit final : public FrameUnit {
         if (d_[state][dw.from * n + j] != 0) return true;
       return false;
     };
-    const auto value = [&](std::uint32_t j, std::uint32_t i) {
+    // Every derived word of particles j.. (steps d1 of particles i..), once their states are set.
+    const auto values = [&](std::uint32_t j, std::uint32_t i, std::uint32_t count) {
       for (std::size_t x = 0; x < plan_.derived.size(); ++x) {
         const WordPlan::Derived& dw = plan_.derived[x];
-        derived_[x * n + j] = std::bit_cast<std::uint32_t>(derived_value(
-            d_[cur_][dw.from * n + j], d_[prev][dw.from * n + i], steps[j], meta_.codec.words[dw.word].step));
+        derive_run(derived_.data() + x * n + j, d_[cur_].data() + dw.from * n + j, d_[prev].data() + dw.from * n + i,
+                   steps + j, count, meta_.codec.words[dw.word].step);
       }
     };
     if (b.keyframe) {  // the prior steps were decoded into the other state's d
@@ -308,23 +310,41 @@ class ParticleUnit final : public FrameUnit {
           for (const WordPlan::Derived& dw : plan_.derived) d_[cur_][dw.from * n + j] = d_[prev][dw.from * n + j];
         }
         steps[j] = moving ? (prior ? kTwoSteps : kOneStep) : prior ? kSeeded : kNoStep;
-        value(j, j);
       }
+      values(0, 0, b.count);
       return;
     }
     std::uint32_t i = 0, j = 0;
     for (std::uint32_t o = 0; o < b.op_count; ++o) {
       const Op op = op_at(b, o);
-      for (std::uint32_t t = 0; t < op.keep; ++t, ++i, ++j) {
-        steps[j] = after_step(before[i]);
-        value(j, i);
-      }
-      i += op.drop;
-      for (std::uint32_t t = 0; t < op.insert; ++t, ++j) {
-        steps[j] = any(cur_, j) ? kSeeded : kNoStep;
-        value(j, 0);
-      }
+      for (std::uint32_t t = 0; t < op.keep; ++t) steps[j + t] = after_step(before[i + t]);
+      values(j, i, op.keep);
+      i += op.keep + op.drop;
+      j += op.keep;
+      // A new particle's state (0 or 3) leaves its d1 unused: its own index stands in.
+      for (std::uint32_t t = 0; t < op.insert; ++t) steps[j + t] = any(cur_, j + t) ? kSeeded : kNoStep;
+      values(j, j, op.insert);
+      j += op.insert;
     }
+  }
+
+  // Four particles' four words from the tile's columns into four records `stride` bytes apart: a
+  // 4×4 transpose in vector registers (compilers do not vectorise the interleaving loop).
+  static void transpose4(const std::uint32_t* column, std::byte* dst, std::size_t stride) {
+    using V = std::uint32_t __attribute__((vector_size(16)));
+    V x, y, z, w;
+    std::memcpy(&x, column, 16);
+    std::memcpy(&y, column + kTile, 16);
+    std::memcpy(&z, column + 2 * kTile, 16);
+    std::memcpy(&w, column + 3 * kTile, 16);
+    const V xy01 = __builtin_shufflevector(x, y, 0, 4, 1, 5), zw01 = __builtin_shufflevector(z, w, 0, 4, 1, 5);
+    const V xy23 = __builtin_shufflevector(x, y, 2, 6, 3, 7), zw23 = __builtin_shufflevector(z, w, 2, 6, 3, 7);
+    const V r0 = __builtin_shufflevector(xy01, zw01, 0, 1, 4, 5), r1 = __builtin_shufflevector(xy01, zw01, 2, 3, 6, 7);
+    const V r2 = __builtin_shufflevector(xy23, zw23, 0, 1, 4, 5), r3 = __builtin_shufflevector(xy23, zw23, 2, 3, 6, 7);
+    std::memcpy(dst, &r0, 16);
+    std::memcpy(dst + stride, &r1, 16);
+    std::memcpy(dst + 2 * stride, &r2, 16);
+    std::memcpy(dst + 3 * stride, &r3, 16);
   }
 
   // Records are written a tile of particles at a time: each word's values computed into a
@@ -370,15 +390,17 @@ class ParticleUnit final : public FrameUnit {
         }
       }
       std::byte* dst = out.data() + std::size_t(j0) * rs;
-      if (words == 4) {  // the default [x y z scale] record
-        for (std::uint32_t t = 0; t < len; ++t) {
-          const std::uint32_t v[4] = {tile[t], tile[kTile + t], tile[2 * kTile + t], tile[3 * kTile + t]};
-          std::memcpy(dst + std::size_t(t) * 16, v, 16);
-        }
-      } else {
-        for (std::uint32_t t = 0; t < len; ++t)
-          for (std::uint32_t w = 0; w < words; ++w)
-            std::memcpy(dst + std::size_t(t) * rs + 4 * w, &tile[std::size_t(w) * kTile + t], 4);
+      // Groups of four words (the last one overlapping the one before when the words are not a
+      // multiple of four) four particles at a time, then the last particles word by word.
+      const std::uint32_t quads = words >= 4 ? len / 4 : 0;
+      for (std::uint32_t w0 = 0; w0 < words && quads != 0; w0 += 4) {
+        const std::uint32_t w = std::min(w0, words - 4);
+        for (std::uint32_t t = 0; t < 4 * quads; t += 4)
+          transpose4(tile + std::size_t(w) * kTile + t, dst + std::size_t(t) * rs + 4 * w, rs);
+      }
+      for (std::uint32_t t = 4 * quads; t < len; ++t) {
+        for (std::uint32_t w = 0; w < words; ++w)
+          std::memcpy(dst + std::size_t(t) * rs + 4 * w, &tile[std::size_t(w) * kTile + t], 4);
       }
     }
   }
