@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "format/particle_common.hpp"  // the decoder's derived-velocity rule, checked against the spec's
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
@@ -547,6 +548,42 @@ TEST(FrameCodecRegistry, EveryCodecRoundTripsThroughItsTwoHalves) {
           else
             ASSERT_LE(std::abs(double(a) - double(b)), w < 3 ? meta.codec.error : 0.01 * double(b));
         }
+      }
+    }
+  }
+}
+
+// The decoder derives velocity a run at a time, in 32-bit lanes when every step is below 2^27
+// (derive_run()). docs/format.md states the rule in 64-bit integers: both must give the same bits
+// for every state, for the steps of valid clips (below 2^25) and for any other (corrupt) steps,
+// in runs that mix both.
+TEST(DerivedVelocity, TheDecodersVectorRuleIsTheSpecsSixtyFourBitRule) {
+  namespace pc = pstream::format::particle;
+  std::uint64_t seed = 0x9e3779b97f4a7c15ull;
+  const auto next = [&] {
+    seed ^= seed << 13, seed ^= seed >> 7, seed ^= seed << 17;
+    return seed;
+  };
+  const std::uint32_t edges[] = {0u, 1u, 0xffffffffu, (1u << 25) - 1, 0u - (1u << 25), (1u << 27) - 1, 1u << 27,
+                                 0u - (1u << 27), 0u - (1u << 27) - 1, 0x7fffffffu, 0x80000000u};
+  for (const float step : {1e-4f, 0.37f, 3.0e5f}) {
+    for (int run = 0; run < 200; ++run) {
+      const std::uint32_t n = 1 + next() % 40;
+      std::vector<std::uint32_t> d0(n), d1(n), out(n);
+      std::vector<std::uint8_t> state(n);
+      const bool valid = run % 2 == 0;  // half the runs hold valid steps only
+      for (std::uint32_t t = 0; t < n; ++t) {
+        const auto pick = [&]() -> std::uint32_t {
+          if (valid) return static_cast<std::uint32_t>(static_cast<std::int32_t>(next() % (1u << 26)) - (1 << 25));
+          return next() % 3 == 0 ? edges[next() % std::size(edges)] : static_cast<std::uint32_t>(next());
+        };
+        d0[t] = pick(), d1[t] = pick();
+        state[t] = static_cast<std::uint8_t>(next() % 5);
+      }
+      pc::derive_run(out.data(), d0.data(), d1.data(), state.data(), n, step);
+      for (std::uint32_t t = 0; t < n; ++t) {
+        ASSERT_EQ(out[t], std::bit_cast<std::uint32_t>(pc::derived_value(d0[t], d1[t], state[t], step)))
+            << "d0 " << d0[t] << " d1 " << d1[t] << " state " << int(state[t]) << " step " << step;
       }
     }
   }
