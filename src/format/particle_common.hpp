@@ -21,7 +21,7 @@ namespace pstream::format::particle {
 constexpr std::int64_t kGridLimit = (1 << 24) - 1;  // |q| below this converts to float exactly
 constexpr std::size_t kBodyHeader = 16;             // count, prev_count, op_count, new_count
 constexpr std::size_t kWordHeader = 8;              // predictor, keep/new/motion/bias bytes, reserved
-constexpr std::uint32_t kBlockShift = 10;           // survivors share a bias per block of 64
+constexpr std::uint32_t kBlockShift = 10;           // survivors share a bias per block of 1024
 constexpr std::uint32_t kBlock = 1u << kBlockShift;
 constexpr std::size_t kIdHeader = 4;
 constexpr std::size_t kOpSize = 12;

@@ -5,7 +5,7 @@
 // Every record word is a 32-bit channel. A coded word (quantised or exact) keeps, per particle,
 // its value q and its last step d = q - q_previous (wrapping 32-bit arithmetic). A persisting
 // particle is predicted as q1 + bias (previous) or q1 + d1 + bias (linear), the predictor chosen
-// per word and frame, the bias per word and block of 64 survivors (local coherent motion: gravity,
+// per word and frame, the bias per word and block of 1024 survivors (local coherent motion: gravity,
 // drag of a cohort, a swirl); a new particle as the particle before it in the frame plus a
 // residual (spatial delta). Encoder and decoder keep identical state, so the encoder's
 // reconstruction is the decoder's output, bit for bit.
