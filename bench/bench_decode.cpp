@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "particlestream/codec.hpp"
@@ -18,42 +19,34 @@ namespace {
 
 using namespace pstream;
 
-// A fixture cooked with the defaults into a temporary file, read back into memory, removed.
+// A fixture cooked with the defaults into a temporary file (removed again): its metadata and
+// every frame's packet, in memory.
 struct CookedClip {
-  std::vector<std::byte> file;
-  format::Reader reader;
+  std::string name;
+  format::Metadata meta;
   std::vector<std::vector<std::byte>> packets;
   std::vector<std::byte> out;
   std::int64_t decoded_bytes = 0;
 
-  explicit CookedClip(const std::string& name) : reader(cook_and_read(name, file)) {
-    const format::Metadata& m = reader.metadata();
-    std::vector<std::byte> scratch(m.chunk_size * 2);
-    for (std::uint64_t f = 0; f < m.frames.size(); ++f) {
-      packets.emplace_back(m.frames[f].packet_size);
-      reader.read_packet(f, packets.back(), scratch);
-      decoded_bytes += std::int64_t(m.frames[f].count * m.record_size);
-    }
-    out.resize(m.max_count * m.record_size);
-  }
-
-  static format::Reader cook_and_read(const std::string& name, std::vector<std::byte>& file) {
-    const auto path = std::filesystem::temp_directory_path() /
-                      ("pstream-bench-decode-" + std::to_string(::getpid()) + "-" + name + ".pstream");
+  explicit CookedClip(std::string fixture) : name(std::move(fixture)) {
     cook::Options o;
     o.input = PSTREAM_TEST_DATA "/sims/" + name + ".abc";
-    o.output = path;
+    o.output = std::filesystem::temp_directory_path() /
+               ("pstream-bench-decode-" + std::to_string(::getpid()) + "-" + name + ".pstream");
+    struct Removed {
+      const std::filesystem::path& path;
+      ~Removed() { std::filesystem::remove(path); }
+    } removed{o.output};
     cook::cook(o);
-    {
-      const format::Reader r = format::Reader::open(path);
-      file.resize(r.file_size());
+    const format::Reader reader = format::Reader::open(o.output);
+    meta = reader.metadata();
+    std::vector<std::byte> scratch(meta.chunk_size * 2);
+    for (std::uint64_t f = 0; f < meta.frames.size(); ++f) {
+      packets.emplace_back(meta.frames[f].packet_size);
+      reader.read_packet(f, packets.back(), scratch);
+      decoded_bytes += std::int64_t(meta.frames[f].count * meta.record_size);
     }
-    std::FILE* f = std::fopen(path.c_str(), "rb");
-    const std::size_t got = f ? std::fread(file.data(), 1, file.size(), f) : 0;
-    if (f) std::fclose(f);
-    std::filesystem::remove(path);
-    if (got != file.size()) throw std::runtime_error("could not read back " + path.string());
-    return format::Reader::from_memory(file, name);
+    out.resize(meta.max_count * meta.record_size);
   }
 };
 
@@ -64,8 +57,8 @@ CookedClip& clip(int which) {
 
 void BM_DecodeDefaultCook(benchmark::State& state) {
   CookedClip& c = clip(static_cast<int>(state.range(0)));
-  const format::Metadata& m = c.reader.metadata();
-  format::FrameDecoder decoder(m, c.reader.name());
+  const format::Metadata& m = c.meta;
+  format::FrameDecoder decoder(m, c.name);
   for (auto _ : state) {
     for (std::uint64_t f = 0; f < m.frames.size(); ++f) decoder.decode(f, c.packets[f], c.out);
     benchmark::DoNotOptimize(c.out.data());
@@ -77,7 +70,7 @@ void BM_DecodeDefaultCook(benchmark::State& state) {
 
 void BM_MemcpyDecodedBytes(benchmark::State& state) {
   CookedClip& c = clip(static_cast<int>(state.range(0)));
-  const format::Metadata& m = c.reader.metadata();
+  const format::Metadata& m = c.meta;
   std::vector<std::byte> src(c.out.size(), std::byte{1});
   for (auto _ : state) {
     for (std::uint64_t f = 0; f < m.frames.size(); ++f)
