@@ -57,16 +57,22 @@ struct Op {
   std::uint32_t keep = 0, drop = 0, insert = 0;
 };
 
+// Value t of `bytes` byte planes `stride` values apart: byte b of the value at planes[b * stride + t].
+template <class T = std::uint32_t>
+inline T plane_value(const std::uint8_t* planes, std::size_t stride, std::size_t t, unsigned bytes) {
+  T v = 0;
+  for (unsigned b = 0; b < bytes; ++b) v |= T(planes[b * stride + t]) << (8 * b);
+  return v;
+}
+
 // Survivors of one run: q = q1 + (d1 if linear) + bias + residual, and the step taken. The
-// residuals are read straight from their `Bytes` byte planes (plane b at planes + b * stride).
+// residuals are read straight from their `Bytes` byte planes.
 template <unsigned Bytes>
 inline void predict_run(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
                         const std::uint32_t* __restrict d1, const std::uint8_t* __restrict planes, std::size_t stride,
                         std::uint32_t n, std::uint32_t linear_mask, std::uint32_t bias) {
   for (std::uint32_t t = 0; t < n; ++t) {
-    std::uint32_t r = 0;
-    for (unsigned b = 0; b < Bytes; ++b) r |= std::uint32_t(planes[b * stride + t]) << (8 * b);
-    const std::uint32_t step = (d1[t] & linear_mask) + bias + unzigzag(r);
+    const std::uint32_t step = (d1[t] & linear_mask) + bias + unzigzag(plane_value(planes, stride, t, Bytes));
     q0[t] = q1[t] + step;
     d0[t] = step;
   }

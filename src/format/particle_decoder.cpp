@@ -99,13 +99,9 @@ class ParticleUnit final : public FrameUnit {
           const auto* p = reinterpret_cast<const std::uint8_t*>(w.fresh);
           const auto* m = reinterpret_cast<const std::uint8_t*>(w.motion);
           for (std::uint32_t t = 0; t < op.insert; ++t, ++nt, ++j) {
-            std::uint32_t v = 0, s = 0;
-            for (unsigned byte = 0; byte < w.new_bytes; ++byte)
-              v |= std::uint32_t(p[byte * b.new_count + nt]) << (8 * byte);
-            for (unsigned byte = 0; byte < w.motion_bytes; ++byte)
-              s |= std::uint32_t(m[byte * b.new_count + nt]) << (8 * byte);
-            q0[j] = (j == 0 ? 0u : q0[j - 1]) + unzigzag(v);
-            d0[j] = step += unzigzag(s);  // a new particle's first step (version 3), else 0
+            q0[j] = (j == 0 ? 0u : q0[j - 1]) + unzigzag(plane_value(p, b.new_count, nt, w.new_bytes));
+            // A new particle's first step (version 3), else 0.
+            d0[j] = step += unzigzag(plane_value(m, b.new_count, nt, w.motion_bytes));
           }
         }
       }
@@ -263,10 +259,7 @@ class ParticleUnit final : public FrameUnit {
     const std::uint64_t* before = ids_[prev].data();
     const auto* planes = reinterpret_cast<const std::uint8_t*>(b.ids);
     const auto fresh = [&](std::uint32_t j, std::uint32_t nt) {
-      std::uint64_t v = 0;
-      for (unsigned byte = 0; byte < b.id_bytes; ++byte)
-        v |= std::uint64_t(planes[byte * b.new_count + nt]) << (8 * byte);
-      out[j] = (j == 0 ? 0 : out[j - 1]) + unzigzag64(v);
+      out[j] = (j == 0 ? 0 : out[j - 1]) + unzigzag64(plane_value<std::uint64_t>(planes, b.new_count, nt, b.id_bytes));
     };
     if (b.keyframe) {
       for (std::uint32_t j = 0; j < b.count; ++j) fresh(j, j);
