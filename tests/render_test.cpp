@@ -27,9 +27,17 @@ using namespace pstream;
 using namespace pstream::render;
 namespace fs = std::filesystem;
 
-// `pstream cook` of a test data file with no flags (the default a user gets) into `clip`.
+// `pstream cook` of a test data file with no flags (the default a user gets) into `clip`; once per
+// CTest run (test::shared_clip), copied for each test.
 int cook_default(const std::string& data, const fs::path& clip) {
-  return test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path(data), clip.string())).exit_code;
+  int exit_code = 0;
+  std::string key = "cli-default-" + data;
+  std::replace(key.begin(), key.end(), '/', '-');
+  const fs::path cooked = test::shared_clip(key, clip, [&](const fs::path& out) {
+    exit_code = test::run_cli(fmt::format("cook -q '{}' -o '{}'", test::data_path(data), out.string())).exit_code;
+  });
+  if (exit_code == 0 && cooked != clip) fs::copy_file(cooked, clip, fs::copy_options::overwrite_existing);
+  return exit_code;
 }
 
 constexpr int kW = 160, kH = 120;

@@ -31,18 +31,35 @@ namespace {
 using namespace pstream;
 namespace fs = std::filesystem;
 
+// The stream suite runs five times in each flavour of the test command: with its own IO, through
+// the host's IO callbacks (synchronous and asynchronous), and over HTTP from nginx and from the
+// fault-injecting server. Cooking its clips was most of each run under the sanitizers: each clip
+// is cooked once per CTest run (test::shared_clip), under a name made of every option.
+fs::path cook_once(const fs::path& dir, cook::Options o, const std::string& key) {
+  return test::shared_clip(key, dir / (key + ".pstream"), [&](const fs::path& out) {
+    o.output = out;
+    cook::cook(o);
+  });
+}
+
+std::string key_of(const std::string& name, const std::vector<std::string>& attributes) {
+  std::string key = name;
+  for (const std::string& a : attributes) key += "-" + a;
+  return key;
+}
+
 fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::Codec codec,
                       std::vector<std::string> attributes = {}, const std::string& object = {}) {
   cook::Options o;
   o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.object = object;
   o.input = test::data_path("alembic/" + fixture + ".abc");
-  o.output = dir / (fixture + "-" + std::string(format::codec_name(codec)) + ".pstream");
   o.chunk_size = format::kMinChunkSize;
   o.codec = codec;
-  o.attributes = std::move(attributes);
-  cook::cook(o);
-  return o.output;
+  o.attributes = attributes;
+  std::string name = fixture + "-" + std::string(format::codec_name(codec));
+  for (const char c : object) name += c == '/' ? '-' : c;  // "/grid": points_...-lz4-grid
+  return cook_once(dir, std::move(o), key_of(name, attributes));
 }
 
 // The stream over the file through the IO the run asks for (PSTREAM_TEST_IO, tests/test_io.hpp),
@@ -57,15 +74,15 @@ std::unique_ptr<stream::ParticleStream> open_stream(const fs::path& file, stream
 fs::path cook_particle(const fs::path& dir, const std::string& fixture, std::vector<std::string> attributes = {},
                        std::uint32_t keyframes = 8) {
   cook::Options o;
-  o.frame_codec = format::FrameCodec::Records;  // the exact records (the default is the particle codec)
   o.input = test::data_path(fixture);
-  o.output = dir / (fs::path(fixture).stem().string() + "-particle.pstream");
   o.chunk_size = format::kMinChunkSize;
   o.frame_codec = format::FrameCodec::Particle;
   o.particle.keyframe_interval = keyframes;
-  o.attributes = std::move(attributes);
-  cook::cook(o);
-  return o.output;
+  o.attributes = attributes;
+  const fs::path source(fixture);
+  const std::string name = source.parent_path().filename().string() + "-" + source.stem().string() + "-particle-k" +
+                           std::to_string(keyframes);
+  return cook_once(dir, std::move(o), key_of(name, attributes));
 }
 
 // A synthetic clip: frame f holds `count(f)` records whose floats encode (f, i).

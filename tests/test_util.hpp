@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -35,6 +36,25 @@ inline std::filesystem::path fresh_dir(std::string name = {}) {
   }
   std::filesystem::create_directories(dir);
   return dir;
+}
+
+// A clip that several tests or runs cook alike, cooked once per CTest run. Under CTest,
+// PSTREAM_TEST_CLIPS names a folder that the fixture SharedClips (tests/CMakeLists.txt) empties
+// before the tests and removes after them: the clip is `key`.pstream there, made by `cook` when it
+// is not there yet, and tests only read it (one that alters a clip alters a copy). `cook` must
+// write its output whole or not at all: the cook writes a temporary beside it and renames it, so
+// two tests cooking the same clip at once each leave a whole file. Without the variable (the test
+// program run by hand), `cook` makes `own`.
+inline std::filesystem::path shared_clip(const std::string& key, const std::filesystem::path& own,
+                                         const std::function<void(const std::filesystem::path&)>& cook) {
+  const char* shared = std::getenv("PSTREAM_TEST_CLIPS");
+  if (shared == nullptr || *shared == 0) {
+    cook(own);
+    return own;
+  }
+  const std::filesystem::path path = std::filesystem::path(shared) / (key + ".pstream");
+  if (!std::filesystem::exists(path)) cook(path);
+  return path;
 }
 
 inline std::string data_path(const std::string& relative) {
