@@ -34,18 +34,14 @@ namespace fs = std::filesystem;
 // The stream suite runs five times in each flavour of the test command: with its own IO, through
 // the host's IO callbacks (synchronous and asynchronous), and over HTTP from nginx and from the
 // fault-injecting server. Cooking its clips was most of each run under the sanitizers: each clip
-// is cooked once per CTest run (test::shared_clip), under a name made of every option.
-fs::path cook_once(const fs::path& dir, cook::Options o, const std::string& key) {
-  return test::shared_clip(key, dir / (key + ".pstream"), [&](const fs::path& out) {
+// is cooked once per CTest run (test::shared_clip), under `name` and its attributes, which with
+// the name make every option the helpers below set.
+fs::path cook_once(const fs::path& dir, cook::Options o, std::string name) {
+  for (const std::string& a : o.attributes) name += "-" + a;
+  return test::shared_clip(name, dir / (name + ".pstream"), [&](const fs::path& out) {
     o.output = out;
     cook::cook(o);
   });
-}
-
-std::string key_of(const std::string& name, const std::vector<std::string>& attributes) {
-  std::string key = name;
-  for (const std::string& a : attributes) key += "-" + a;
-  return key;
 }
 
 fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::Codec codec,
@@ -56,10 +52,10 @@ fs::path cook_fixture(const fs::path& dir, const std::string& fixture, format::C
   o.input = test::data_path("alembic/" + fixture + ".abc");
   o.chunk_size = format::kMinChunkSize;
   o.codec = codec;
-  o.attributes = attributes;
+  o.attributes = std::move(attributes);
   std::string name = fixture + "-" + std::string(format::codec_name(codec));
-  for (const char c : object) name += c == '/' ? '-' : c;  // "/grid": points_...-lz4-grid
-  return cook_once(dir, std::move(o), key_of(name, attributes));
+  for (const char c : object) name += c == '/' ? '-' : c;  // object "/grid": mesh_vertices-lz4-grid
+  return cook_once(dir, std::move(o), std::move(name));
 }
 
 // The stream over the file through the IO the run asks for (PSTREAM_TEST_IO, tests/test_io.hpp),
@@ -78,11 +74,11 @@ fs::path cook_particle(const fs::path& dir, const std::string& fixture, std::vec
   o.chunk_size = format::kMinChunkSize;
   o.frame_codec = format::FrameCodec::Particle;
   o.particle.keyframe_interval = keyframes;
-  o.attributes = attributes;
+  o.attributes = std::move(attributes);
   const fs::path source(fixture);
-  const std::string name = source.parent_path().filename().string() + "-" + source.stem().string() + "-particle-k" +
-                           std::to_string(keyframes);
-  return cook_once(dir, std::move(o), key_of(name, attributes));
+  return cook_once(dir, std::move(o),
+                   source.parent_path().filename().string() + "-" + source.stem().string() + "-particle-k" +
+                       std::to_string(keyframes));
 }
 
 // A synthetic clip: frame f holds `count(f)` records whose floats encode (f, i).
