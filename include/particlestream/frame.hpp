@@ -162,7 +162,7 @@ Look parse_look(const std::string& name);  // "sprites", "liquid"
 
 // Screen-space liquid (van der Laan, Green and Sainz 2009; Truong and Yuksel 2018). Every
 // particle is splatted as a sphere into a depth buffer and, additively, into a thickness buffer;
-// the depth is smoothed by a separable filter whose radius is a world-space length (so it
+// the depth is smoothed by a two-dimensional filter whose radius is a world-space length (so it
 // shrinks with distance in pixels); normals come from the smoothed depth; the surface reflects
 // the sky (Fresnel), refracts and absorbs what is behind it by its thickness (Beer-Lambert) and
 // takes a highlight from the key light. Isolated or fast particles are drawn over it as white
@@ -183,9 +183,9 @@ struct LiquidStyle {
   float particle_radius = 0.0f;  // world units; 0: the median radius of up to 255 records of the frame
   float resolution = 1.0f;       // depth and thickness buffers at this fraction of the viewport, 0.25..1
   LiquidFilter filter = LiquidFilter::NarrowRange;
-  float smoothing = 4.0f;                           // filter radius, in particle radii
-  int iterations = 2;                               // applications of the separable (horizontal, vertical) filter, 0..8
-  float depth_range = 4.0f;                         // the narrow range: farther than this (in radii) is another layer
+  float smoothing = 4.0f;    // filter radius, in particle radii
+  int iterations = 2;        // passes of the filter at its full radius (after three smaller ones), 0..8
+  float depth_range = 4.0f;  // the narrow range: farther than this (in radii) is another layer
   std::array<float, 3> color{0.30f, 0.66f, 0.82f};  // what `color_depth` of liquid lets through
   float color_depth = 16.0f;                        // in particle radii
   float refraction = 1.0f;                          // how far the normal bends what is behind, 0..4
