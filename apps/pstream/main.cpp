@@ -507,7 +507,10 @@ int main(int argc, char** argv) {
                    "Liquid: the depth filter's radius in particle radii (larger: calmer surface, fewer beads)")
       ->check(CLI::Range(0.0f, 20.0f))
       ->capture_default_str();
-  render_cmd->add_option("--liquid-iterations", render_cli.liquid.iterations, "Liquid: filter passes, 0..8")
+  render_cmd
+      ->add_option("--liquid-iterations", render_cli.liquid.iterations,
+                   "Liquid: passes of the depth filter at its full radius, after three at smaller radii; 0: the raw "
+                   "sphere splats, 0..8")
       ->check(CLI::Range(0, 8))
       ->capture_default_str();
   render_cmd->add_option(
