@@ -23,19 +23,13 @@ esac
 # The web player (web/, docs/web.md) with the release build: its test runs in that suite. It needs
 # none of the native build, so it runs beside it in the idle scheduling class, on the CPU that
 # the native build's serial steps (its links, its last big files) leave idle.
-web_pid="" web_log=""
+source scripts/background.sh
+web_log=""
 if [ "$flavour" = release ]; then
   web_log=$(mktemp)
-  trap '[ -n "$web_pid" ] && kill -- "-$web_pid" 2>/dev/null; rm -f "$web_log"' EXIT
-  setsid chrt --idle 0 bash scripts/build-web.sh >"$web_log" 2>&1 &
-  web_pid=$!
+  trap 'stop_background; rm -f "$web_log"' EXIT
+  start_background "$web_log" chrt --idle 0 bash scripts/build-web.sh
 fi
 cmake -S . -B "$dir" -G Ninja "${args[@]}" >/dev/null
 cmake --build "$dir" -j"$jobs"
-if [ -n "$web_pid" ]; then
-  web_rc=0
-  wait "$web_pid" || web_rc=$?
-  web_pid=""
-  cat "$web_log"
-  if [ "$web_rc" -ne 0 ]; then echo "build-web.sh FAILED (exit code $web_rc)" >&2; exit "$web_rc"; fi
-fi
+if [ -n "$background" ]; then finish_background "build-web.sh"; fi

@@ -20,17 +20,8 @@ jobs=$(nproc)
 log=$(mktemp)
 check_log=$(mktemp)
 fuzz_log=$(mktemp)
-background=""  # a job beside a suite: its own process group, ended with the script
-trap '[ -n "$background" ] && kill -- "-$background" 2>/dev/null; rm -f "$log" "$check_log" "$fuzz_log"' EXIT
-
-# Waits for the job beside the suite; prints its output, and stops the run if it failed.
-finish_background() {  # label, log
-  local rc=0
-  wait "$background" || rc=$?
-  background=""
-  cat "$2"
-  if [ "$rc" -ne 0 ]; then echo "$1 FAILED (exit code $rc)"; exit "$rc"; fi
-}
+source scripts/background.sh  # a job beside a suite
+trap 'stop_background; rm -f "$log" "$check_log" "$fuzz_log"' EXIT
 
 stages=()
 stage_start=$SECONDS
@@ -51,21 +42,19 @@ echo "== build (release)"
 bash scripts/build.sh release
 stage_done "build (release, gcc)"
 
-setsid chrt --idle 0 bash scripts/build.sh check >"$check_log" 2>&1 &
-background=$!
+start_background "$check_log" chrt --idle 0 bash scripts/build.sh check
 run_suite build "tests (release; the check build beside them)"
 stage_done "tests (release)"
 echo "== build (ASan + UBSan + libFuzzer coverage; begun beside the release tests)"
-finish_background "build (check)" "$check_log"
+finish_background "build (check)"
 stage_done "build (check, clang): the rest"
 
-FUZZ_LANES=4 FUZZ_TIMEOUT=120 setsid nice -n 19 bash scripts/fuzz.sh >"$fuzz_log" 2>&1 &
-background=$!
+start_background "$fuzz_log" env FUZZ_LANES=4 FUZZ_TIMEOUT=120 nice -n 19 bash scripts/fuzz.sh
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   run_suite build-check "tests (ASan + UBSan; the fuzz targets beside them)"
 stage_done "tests (ASan + UBSan)"
 echo "== fuzz (begun beside the sanitized tests)"
-finish_background "fuzz" "$fuzz_log"
+finish_background "fuzz"
 stage_done "fuzz: the rest"
 
 echo "== stage times"
