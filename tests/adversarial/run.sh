@@ -72,38 +72,17 @@ judge() {
 checksums() { (cd "$in" && find . -type f -print0 | sort -z | xargs -0 sha256sum); }
 before=$(checksums)
 
-for f in "$in"/*; do
-  name=$(basename "$f")
-  rm -rf "${out:?}"/*
-  run "$name" info "$f"
-  run "$name" info "$f" --json
-  run "$name" info "$f" --json --frames
-  run "$name" verify "$f"
-  run "$name" verify "$f" --json
-  run "$name" cook "$f" -o "$out/c.pstream" -q
-  run "$name" cook "$f" -o "$out/c.pstream" --codec particle -q
-  run "$name" cook "$f" -o "$out/c.pstream" --interpolate --fps 60 -q
-  run "$name" render "$f" --out "$out/r" --frames 0:3 --size 32x32 -q
-  run "$name" export "$f" --out "$out/e" -q
-  run "$name" export "$f" -o "$out/e.abc" -q
-  run "$name" bench stream "$f" --laps 1 --json
-  run "$name" bench codec "$f" --frames 3 --repetitions 1 --json
-  run "$name" bench read "$f" --repetitions 1 --json
-  run "$name" play "$f" --frames-to-run 2
-  [ -n "$host_open" ] && run_program "$name" "$host_open" "$f"
-  [ -n "$python" ] && run_program "$name" "$python" "$here/python_open.py" "$f"
-done
-
 # URL inputs (tests/http/fault_server.py, and a port that accepts and never answers): a server
 # that never answers, one that answers garbage instead of HTTP, one whose body never ends, at the
 # open and after it. Each run may wait out the HTTP source's stall budget (about 20 s a read), so
-# they run side by side, each checked as above.
+# they run side by side, started here and checked as above after the inputs' runs: their waits
+# (about 45 s, little CPU) overlap the inputs' runs rather than following them.
 url_runs=()
 url_run() {  # LABEL PROGRAM ARGS...: started in the background, checked by url_check
   local n=${#url_runs[@]} label=$1 program=$2; shift 2
   url_runs+=("$label|$program|$*")
   (
-    cd "$out" || exit 99
+    cd "$uout" || exit 99
     asan=${ASAN_OPTIONS:-}
     [ "$flavour" = sanitized ] && [ "$program" != "$pstream" ] && asan="detect_leaks=0:abort_on_error=1"
     # As above: render and play load the GL driver, whose allocations LeakSanitizer cannot name
@@ -126,17 +105,44 @@ open(sys.argv[1], "w").write(str(s.getsockname()[1])); time.sleep(3600)' "$root/
   clip=$in/good.pstream
   urls=("http://127.0.0.1:$(cat "$root/silent_port")$clip")
   for fault in hang garbage infinite; do urls+=("$base/~$fault=0$clip" "$base/~$fault=1$clip"); done
-  mkdir -p "$out/u"
+  uout=$root/url_out  # not under $out, which each input empties
+  mkdir -p "$uout"
   for i in "${!urls[@]}"; do
     u=${urls[$i]}
     url_run "$u" "$pstream" info "$u" --json
     url_run "$u" "$pstream" verify "$u"
-    url_run "$u" "$pstream" export "$u" -o "$out/u/e$i.abc" -q
-    url_run "$u" "$pstream" render "$u" --out "$out/u/r$i" --frames 0:3 --size 32x32 -q
+    url_run "$u" "$pstream" export "$u" -o "$uout/e$i.abc" -q
+    url_run "$u" "$pstream" render "$u" --out "$uout/r$i" --frames 0:3 --size 32x32 -q
     [ -n "$host_open" ] && url_run "$u" "$host_open" "$u"
     [ -n "$python" ] && url_run "$u" "$python" "$here/python_open.py" "$u"
   done
-  wait_start=$SECONDS
+  url_started=$SECONDS
+fi
+
+for f in "$in"/*; do
+  name=$(basename "$f")
+  rm -rf "${out:?}"/*
+  run "$name" info "$f"
+  run "$name" info "$f" --json
+  run "$name" info "$f" --json --frames
+  run "$name" verify "$f"
+  run "$name" verify "$f" --json
+  run "$name" cook "$f" -o "$out/c.pstream" -q
+  run "$name" cook "$f" -o "$out/c.pstream" --codec particle -q
+  run "$name" cook "$f" -o "$out/c.pstream" --interpolate --fps 60 -q
+  run "$name" render "$f" --out "$out/r" --frames 0:3 --size 32x32 -q
+  run "$name" export "$f" --out "$out/e" -q
+  run "$name" export "$f" -o "$out/e.abc" -q
+  run "$name" bench stream "$f" --laps 1 --json
+  run "$name" bench codec "$f" --frames 3 --repetitions 1 --json
+  run "$name" bench read "$f" --repetitions 1 --json
+  run "$name" play "$f" --frames-to-run 2
+  [ -n "$host_open" ] && run_program "$name" "$host_open" "$f"
+  [ -n "$python" ] && run_program "$name" "$python" "$here/python_open.py" "$f"
+done
+
+if [ -n "${url_started:-}" ]; then
+  wait_start=$url_started
   for n in "${!url_runs[@]}"; do
     while [ ! -e "$root/url.$n.rc" ] && [ $((SECONDS - wait_start)) -lt 300 ]; do sleep 0.5; done
     IFS='|' read -r label program args <<<"${url_runs[$n]}"
@@ -151,8 +157,9 @@ open(sys.argv[1], "w").write(str(s.getsockname()[1])); time.sleep(3600)' "$root/
   done
   kill "$fault_server" "$silent_server" 2>/dev/null
   wait "$fault_server" "$silent_server" 2>/dev/null
-  echo "adversarial: ${#url_runs[@]} URL runs in $((SECONDS - wait_start)) s"
+  echo "adversarial: ${#url_runs[@]} URL runs, done $((SECONDS - wait_start)) s after they started"
 fi
+
 
 # A host that breaks the C API's rules (a completion twice, one that never comes, double close).
 if [ -n "$misuse" ]; then
