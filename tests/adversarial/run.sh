@@ -78,7 +78,7 @@ before=$(checksums)
 # they run side by side, started here and checked as above after the inputs' runs: their waits
 # (about 45 s, little CPU) overlap the inputs' runs rather than following them.
 url_runs=()
-url_run() {  # LABEL PROGRAM ARGS...: started in the background, checked by url_check
+url_run() {  # LABEL PROGRAM ARGS...: started in the background, checked after the inputs' runs
   local n=${#url_runs[@]} label=$1 program=$2; shift 2
   url_runs+=("$label|$program|$*")
   (
@@ -142,9 +142,8 @@ for f in "$in"/*; do
 done
 
 if [ -n "${url_started:-}" ]; then
-  wait_start=$url_started
   for n in "${!url_runs[@]}"; do
-    while [ ! -e "$root/url.$n.rc" ] && [ $((SECONDS - wait_start)) -lt 300 ]; do sleep 0.5; done
+    while [ ! -e "$root/url.$n.rc" ] && [ $((SECONDS - url_started)) -lt 300 ]; do sleep 0.5; done
     IFS='|' read -r label program args <<<"${url_runs[$n]}"
     rc=$(cat "$root/url.$n.rc" 2>/dev/null || echo 124)
     why=""
@@ -157,9 +156,8 @@ if [ -n "${url_started:-}" ]; then
   done
   kill "$fault_server" "$silent_server" 2>/dev/null
   wait "$fault_server" "$silent_server" 2>/dev/null
-  echo "adversarial: ${#url_runs[@]} URL runs, done $((SECONDS - wait_start)) s after they started"
+  echo "adversarial: ${#url_runs[@]} URL runs, done $((SECONDS - url_started)) s after they started"
 fi
-
 
 # A host that breaks the C API's rules (a completion twice, one that never comes, double close).
 if [ -n "$misuse" ]; then
