@@ -49,5 +49,5 @@ if [ ! -d web/node_modules ] || [ web/package-lock.json -nt web/node_modules/.pa
   (cd web && npm ci --no-audit --no-fund --loglevel=error)
 fi
 cp web/index.html web/player.js web/worker.js web/style.css "$out/site/"
-cp web/node_modules/zstddec/dist/zstddec.mjs "$out/site/"
+cp web/node_modules/zstddec/dist/zstddec-stream.mjs "$out/site/"
 echo "build-web: $out/site/ (open index.html?url=CLIP from any static server with range requests)"

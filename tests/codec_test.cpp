@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <memory>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -263,22 +264,42 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
   const fs::path file = cook_with(dir, fixtures()[1], "sparks", format::FrameCodec::Particle);
   const auto r = format::Reader::open(file);
   const auto& m = r.metadata();
-  std::vector<std::byte> packet(m.frames[5].packet_size), scratch(m.chunk_size);
-  r.read_packet(5, packet, scratch);
-  std::vector<std::byte> body(ZSTD_getFrameContentSize(packet.data(), packet.size()));
-  ASSERT_EQ(ZSTD_decompress(body.data(), body.size(), packet.data(), packet.size()), body.size());
-  const auto decode_with = [&](const std::vector<std::byte>& changed) -> std::string {
-    std::vector<std::byte> z(ZSTD_compressBound(changed.size()));
-    z.resize(ZSTD_compress(z.data(), z.size(), changed.data(), changed.size(), 1));
-    format::FrameDecoder d(m, "clip.pstream");
-    std::vector<std::byte> out(m.max_count * m.record_size), p(m.frames[0].packet_size);
-    for (std::uint64_t f = 0; f < 5; ++f) {
-      p.resize(m.frames[f].packet_size);
-      r.read_packet(f, p, scratch);
-      d.decode(f, p, out);
+  ASSERT_FALSE(m.frames[5].keyframe);
+  // The bodies of frames 0 to 5: the packets from the keyframe on are one zstd stream.
+  std::vector<std::byte> scratch(m.chunk_size);
+  std::vector<std::vector<std::byte>> bodies;
+  {
+    const std::unique_ptr<ZSTD_DCtx, decltype(&ZSTD_freeDCtx)> d(ZSTD_createDCtx(), &ZSTD_freeDCtx);
+    for (std::uint64_t f = 0; f <= 5; ++f) {
+      std::vector<std::byte> packet(m.frames[f].packet_size), body(1 << 22);
+      r.read_packet(f, packet, scratch);
+      ZSTD_inBuffer in{packet.data(), packet.size(), 0};
+      ZSTD_outBuffer out{body.data(), body.size(), 0};
+      while (in.pos < in.size) ASSERT_FALSE(ZSTD_isError(ZSTD_decompressStream(d.get(), &out, &in)));
+      body.resize(out.pos);
+      bodies.push_back(std::move(body));
     }
+  }
+  std::vector<std::byte> body = bodies[5];
+  // Frames 0 to 4 as they were, and frame 5's body changed, written again as one stream.
+  const auto decode_with = [&](const std::vector<std::byte>& changed) -> std::string {
+    const std::unique_ptr<ZSTD_CCtx, decltype(&ZSTD_freeCCtx)> c(ZSTD_createCCtx(), &ZSTD_freeCCtx);
+    ZSTD_CCtx_setParameter(c.get(), ZSTD_c_windowLog, format::particle::kStreamWindowLog);
+    std::vector<std::vector<std::byte>> packets;
+    for (std::uint64_t f = 0; f <= 5; ++f) {
+      const std::vector<std::byte>& b = f == 5 ? changed : bodies[f];
+      std::vector<std::byte> z(ZSTD_compressBound(b.size()) + 64);
+      ZSTD_inBuffer in{b.data(), b.size(), 0};
+      ZSTD_outBuffer out{z.data(), z.size(), 0};
+      EXPECT_EQ(ZSTD_compressStream2(c.get(), &out, &in, ZSTD_e_flush), 0u);
+      z.resize(out.pos);
+      packets.push_back(std::move(z));
+    }
+    format::FrameDecoder d(m, "clip.pstream");
+    std::vector<std::byte> out(m.max_count * m.record_size);
+    for (std::uint64_t f = 0; f < 5; ++f) d.decode(f, packets[f], out);
     try {
-      d.decode(5, z, std::span(out).first(m.frames[5].count * m.record_size));
+      d.decode(5, packets[5], std::span(out).first(m.frames[5].count * m.record_size));
     } catch (const Error& e) {
       return e.what();
     }
@@ -301,6 +322,27 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
     const std::string e = decode_with(changed);
     EXPECT_NE(e.find("clip.pstream: frame 5"), std::string::npos) << e;
     EXPECT_NE(e.find(fragment), std::string::npos) << e;
+  }
+  // A packet cut short ends inside a zstd block; one from another stream does not continue this one.
+  for (const bool cut : {true, false}) {
+    format::FrameDecoder d(m, "clip.pstream");
+    std::vector<std::byte> out(m.max_count * m.record_size), p;
+    for (std::uint64_t f = 0; f <= 5; ++f) {
+      const std::uint64_t from = cut || f != 5 ? f : 7;
+      p.resize(m.frames[from].packet_size);
+      r.read_packet(from, p, scratch);
+      if (f == 5 && cut) p.pop_back();
+      if (f < 5) {
+        d.decode(f, p, out);
+        continue;
+      }
+      try {
+        d.decode(5, p, out);
+        ADD_FAILURE() << "frame 5 decoded from a wrong packet";
+      } catch (const Error& e) {
+        EXPECT_NE(std::string(e.what()).find("clip.pstream: frame 5: particle packet"), std::string::npos) << e.what();
+      }
+    }
   }
 }
 
@@ -408,6 +450,61 @@ TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
   EXPECT_LE(worst, 0.01);
   EXPECT_GT(worst, 0.001);  // a lossy bound, not an exact copy
   std::printf("scales spanning 100x: worst relative error %.4f%% (bound 1%%)\n", 100 * worst);
+}
+
+// Format version 4: a packet continues the zstd frame of the one before (a small body), or starts
+// one (a keyframe, or a body of 512 KiB or more); the decoder follows either, frame by frame.
+TEST(ParticleCodec, PacketsContinueOneZstdFrameUnlessTheyStartOne) {
+  const std::uint32_t counts[] = {3000, 3000, 150000, 150000, 3000};
+  std::vector<format::Attribute> layout = format::default_layout();
+  format::append_attribute(layout, "id", format::AttributeType::Uint64, 1);
+  const std::uint32_t rs = format::record_size_of(layout);
+  std::vector<std::vector<std::byte>> records;
+  std::vector<std::vector<std::uint64_t>> ids;
+  format::ClipStats stats(layout);
+  for (std::uint32_t f = 0; f < std::size(counts); ++f) {
+    records.emplace_back(std::size_t(counts[f]) * rs);
+    ids.emplace_back(counts[f]);
+    for (std::uint32_t i = 0; i < counts[f]; ++i) {
+      const std::uint32_t h = (i * 2654435761u) ^ (f * 40503u);
+      // Noise of up to a few hundred grid steps: residuals of two bytes, large bodies.
+      const float r[4] = {float(i % 500) * 0.01f + 0.3f * float(h % 1000) / 1000.0f + 0.03f * float(f),
+                          float(i / 500 % 300) * 0.01f + 0.3f * float(h / 1000 % 1000) / 1000.0f, 0.1f, 0.01f};
+      std::memcpy(records[f].data() + std::size_t(i) * rs, r, 16);
+      const std::uint64_t id = i;
+      std::memcpy(records[f].data() + std::size_t(i) * rs + 16, &id, 8);
+      ids[f][i] = id;
+    }
+    stats.add(records[f], counts[f]);
+  }
+  const format::CodecInfo info = format::plan_particle_codec(layout, stats, 24.0, true, {});
+  std::vector<format::SourceFrame> frames;
+  for (std::uint32_t f = 0; f < std::size(counts); ++f) frames.push_back({records[f], ids[f], counts[f]});
+  const auto encoded = format::encode_group(info, frames, {}, 0);
+  const auto starts_frame = [](const std::vector<std::byte>& packet) {
+    std::uint32_t magic = 0;
+    std::memcpy(&magic, packet.data(), 4);
+    return magic == format::particle::kZstdMagic;
+  };
+  const bool expected[] = {true, false, true, true, false};  // keyframe, small, large, large, small
+  format::Metadata meta = metadata_for(layout, info, encoded);
+  meta.version = format::kVersion;
+  format::FrameDecoder decoder(meta, "generated");
+  std::vector<std::byte> out(std::size_t(meta.max_count) * rs);
+  for (std::uint32_t f = 0; f < std::size(counts); ++f) {
+    EXPECT_EQ(starts_frame(encoded[f].packet), expected[f]) << "frame " << f;
+    decoder.decode(f, encoded[f].packet, out);
+    double worst = 0;
+    for (std::uint32_t i = 0; i < counts[f]; ++i) {
+      for (int c = 0; c < 3; ++c) {
+        float a, b;
+        std::memcpy(&a, records[f].data() + std::size_t(i) * rs + 4 * c, 4);
+        std::memcpy(&b, out.data() + std::size_t(i) * rs + 4 * c, 4);
+        worst = std::max(worst, double(std::abs(a - b)));
+      }
+    }
+    EXPECT_LE(worst, info.words[0].error) << "frame " << f;
+  }
 }
 
 TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
@@ -564,8 +661,17 @@ TEST(DerivedVelocity, TheDecodersVectorRuleIsTheSpecsSixtyFourBitRule) {
     seed ^= seed << 13, seed ^= seed >> 7, seed ^= seed << 17;
     return seed;
   };
-  const std::uint32_t edges[] = {0u, 1u, 0xffffffffu, (1u << 25) - 1, 0u - (1u << 25), (1u << 27) - 1, 1u << 27,
-                                 0u - (1u << 27), 0u - (1u << 27) - 1, 0x7fffffffu, 0x80000000u};
+  const std::uint32_t edges[] = {0u,
+                                 1u,
+                                 0xffffffffu,
+                                 (1u << 25) - 1,
+                                 0u - (1u << 25),
+                                 (1u << 27) - 1,
+                                 1u << 27,
+                                 0u - (1u << 27),
+                                 0u - (1u << 27) - 1,
+                                 0x7fffffffu,
+                                 0x80000000u};
   for (const float step : {1e-4f, 0.37f, 3.0e5f}) {
     for (int run = 0; run < 200; ++run) {
       const std::uint32_t n = 1 + next() % 40;

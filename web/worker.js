@@ -11,7 +11,7 @@
 // - every response is checked against what the open saw (size, ETag, Last-Modified): a file
 //   replaced on the server is an error, never a mix of two files.
 import createDecoder from './pstream.js';
-import { ZSTDDecoder } from './zstddec.mjs';
+import { ZSTDDecoder } from './zstddec-stream.mjs';
 
 const kPrefixBytes = 256 * 1024;    // fetched at open: header and tables usually fit
 const kMergeBytes = 4 << 20;        // the largest merged request
@@ -221,7 +221,17 @@ let viewPtr = 0;         // the view matrix's 16 floats in the module's heap, al
 const spares = [];       // particle buffers the page has handed back
 let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
 const kInstanceBytes = 20;  // a drawn particle: x, y, z, radius, RGBA8 (pstream_wasm.cpp)
-const zstd = new ZSTDDecoder();
+// zstddec's streaming build (zstd's own decoder in WebAssembly). Its exports, which _init is
+// handed, give the one stream a particle clip's keyframe group is (format version 4).
+let zx = null;
+class StreamingZSTD extends ZSTDDecoder {
+  _init(result) {
+    zx = result.instance.exports;
+    super._init(result);
+  }
+}
+const zstd = new StreamingZSTD();
+const stream = { dctx: 0, ok: false, io: 0, input: 0, inputSize: 0, output: 0, outputSize: 0 };
 
 function readFetched(offset, ptr, size) {
   const r = cache.find(offset, offset + size);
@@ -236,6 +246,52 @@ function zstdDecompress(out, capacity, src, srcSize) {
     if (decoded.length === 0 || decoded.length > capacity) return -1;
     M.HEAPU8.set(decoded, out);
     return decoded.length;
+  } catch (e) {
+    return -1;
+  }
+}
+
+// A buffer of at least `size` bytes in zstddec's heap, replacing `ptr` (of `had` bytes) when smaller.
+function zstdBuffer(ptr, had, size) {
+  if (ptr && had >= size) return [ptr, had];
+  if (ptr) zx.free(ptr);
+  const made = zx.malloc(size);
+  if (!made) throw new Error('out of memory');
+  return [made, size];
+}
+
+// The next packet of a zstd stream (the stream's first when `restart`) into at most `capacity`
+// bytes at `out`: the size, or -1 (corrupt, too large, or not following a decoded packet).
+function zstdStream(out, capacity, src, srcSize, restart) {
+  try {
+    if (restart) {
+      if (stream.dctx) zx.ZSTD_freeDCtx(stream.dctx);
+      stream.dctx = zx.ZSTD_createDCtx();
+      if (!stream.io) stream.io = zx.malloc(24);  // ZSTD_inBuffer, then ZSTD_outBuffer (wasm32)
+      stream.ok = stream.dctx !== 0 && stream.io !== 0;
+    }
+    if (!stream.ok) return -1;
+    stream.ok = false;  // until this packet decodes whole
+    [stream.input, stream.inputSize] = zstdBuffer(stream.input, stream.inputSize, Math.max(srcSize, 1));
+    [stream.output, stream.outputSize] = zstdBuffer(stream.output, stream.outputSize, capacity);
+    new Uint8Array(zx.memory.buffer).set(M.HEAPU8.subarray(src, src + srcSize), stream.input);
+    const view = () => new DataView(zx.memory.buffer);  // anew after anything that may grow it
+    const io = stream.io;
+    view().setUint32(io, stream.input, true);
+    view().setUint32(io + 4, srcSize, true);
+    view().setUint32(io + 8, 0, true);
+    view().setUint32(io + 12, stream.output, true);
+    view().setUint32(io + 16, capacity, true);
+    view().setUint32(io + 20, 0, true);
+    while (view().getUint32(io + 8, true) < srcSize) {
+      if (zx.ZSTD_decompressStream(stream.dctx, io + 12, io) < 0) return -1;  // an error code
+      if (view().getUint32(io + 20, true) === capacity) return -1;
+    }
+    const size = view().getUint32(io + 20, true);
+    if (size === capacity) return -1;
+    M.HEAPU8.set(new Uint8Array(zx.memory.buffer, stream.output, size), out);
+    stream.ok = true;
+    return size;
   } catch (e) {
     return -1;
   }
@@ -296,7 +352,7 @@ async function decodeFrames(from, to, decoder) {
 const handlers = {
   async open({ url, aspect }) {
     await zstd.init();
-    M = await createDecoder({ readFetched, zstdDecompress });
+    M = await createDecoder({ readFetched, zstdDecompress, zstdStream });
     cache = new RangeCache(new URL(url, self.location.href).href);
     await cache.open();
     const name = M.lengthBytesUTF8(cache.url) + 1, ptr = M._malloc(name);

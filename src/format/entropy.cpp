@@ -1,4 +1,5 @@
 // The entropy stage with libzstd and liblz4 (entropy.hpp): what every native build links.
+#define ZSTD_STATIC_LINKING_ONLY  // ZSTD_initStaticDStream, ZSTD_estimateDStreamSize, ZSTD_nextInputType
 #include "format/entropy.hpp"
 
 #include <lz4.h>
@@ -6,16 +7,35 @@
 
 #include <climits>
 
+#include "base/memory.hpp"
 #include "format/zstd_memory.hpp"
 #include "particlestream/error.hpp"
 
 namespace pstream::format {
 
-EntropyDecoder::EntropyDecoder() : state_(make_zstd_dctx()) {
+EntropyDecoder::EntropyDecoder(int stream_window_log) : state_(make_zstd_dctx()) {
   if (state_ == nullptr) throw Error("cannot create a zstd decoder");
+  if (stream_window_log <= 0) return;
+  // A static context: zstd takes its window and input buffers from this block and never
+  // allocates while decoding.
+  const std::size_t bytes = stream_bytes(stream_window_log);
+  stream_ = memory::allocate(bytes);
+  if (stream_ == nullptr || ZSTD_initStaticDStream(stream_, bytes) == nullptr) {
+    memory::deallocate(stream_);
+    ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(state_));
+    throw Error("cannot allocate the zstd stream decoder");
+  }
+  ZSTD_DCtx_setParameter(static_cast<ZSTD_DCtx*>(stream_), ZSTD_d_windowLogMax, stream_window_log);
 }
 
-EntropyDecoder::~EntropyDecoder() { ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(state_)); }
+EntropyDecoder::~EntropyDecoder() {
+  ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(state_));
+  memory::deallocate(stream_);  // a static context owns nothing else
+}
+
+std::uint64_t EntropyDecoder::stream_bytes(int stream_window_log) {
+  return stream_window_log <= 0 ? 0 : ZSTD_estimateDStreamSize(std::size_t{1} << stream_window_log);
+}
 
 std::size_t EntropyDecoder::zstd(std::span<std::byte> out, std::span<const std::byte> in, std::string& error) {
   const std::size_t n =
@@ -23,6 +43,47 @@ std::size_t EntropyDecoder::zstd(std::span<std::byte> out, std::span<const std::
   if (!ZSTD_isError(n)) return n;
   error = ZSTD_getErrorName(n);
   return kFailed;
+}
+
+std::size_t EntropyDecoder::zstd_stream(std::span<std::byte> out, std::span<const std::byte> in, bool restart,
+                                        std::string& error) {
+  auto* d = static_cast<ZSTD_DCtx*>(stream_);
+  if (d == nullptr) {
+    error = "this decoder holds no zstd stream";
+    return kFailed;
+  }
+  if (restart) {
+    ZSTD_DCtx_reset(d, ZSTD_reset_session_only);
+    streaming_ = true;
+  } else if (!streaming_) {
+    error = "the stream's earlier data was not decoded just before";
+    return kFailed;
+  }
+  streaming_ = false;  // until this piece decodes whole
+  ZSTD_inBuffer src{in.data(), in.size(), 0};
+  ZSTD_outBuffer dst{out.data(), out.size(), 0};
+  while (src.pos < src.size) {
+    const std::size_t r = ZSTD_decompressStream(d, &dst, &src);
+    if (ZSTD_isError(r)) {
+      error = ZSTD_getErrorName(r);
+      return kFailed;
+    }
+    if (dst.pos == dst.size && src.pos < src.size) {
+      error = "it decodes to more than the expected bytes";
+      return kFailed;
+    }
+  }
+  if (dst.pos == dst.size) {  // a body never fills its bound; the rest may still be held back
+    error = "it decodes to more than the expected bytes";
+    return kFailed;
+  }
+  const ZSTD_nextInputType_e next = ZSTD_nextInputType(d);
+  if (next != ZSTDnit_blockHeader && next != ZSTDnit_frameHeader) {
+    error = "the data ends inside a zstd block";
+    return kFailed;
+  }
+  streaming_ = true;
+  return dst.pos;
 }
 
 std::size_t EntropyDecoder::lz4(std::span<std::byte> out, std::span<const std::byte> in, std::string& error) {

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <span>
 #include <string>
 
@@ -14,18 +15,30 @@ namespace pstream::format {
 class EntropyDecoder {
  public:
   static constexpr std::size_t kFailed = static_cast<std::size_t>(-1);
-  EntropyDecoder();  // throws pstream::Error when its state cannot be allocated
+  // With `stream_window_log` > 0 it also decodes one zstd stream packet by packet (zstd_stream),
+  // in a buffer fixed here for windows up to 2^stream_window_log bytes. Throws pstream::Error
+  // when its state cannot be allocated.
+  explicit EntropyDecoder(int stream_window_log = 0);
   ~EntropyDecoder();
+  // The bytes the stream's fixed buffer takes (what the constructor allocates beyond a context).
+  static std::uint64_t stream_bytes(int stream_window_log);
   EntropyDecoder(const EntropyDecoder&) = delete;
   EntropyDecoder& operator=(const EntropyDecoder&) = delete;
   // Decompresses the zstd frame `in` into `out`, which bounds its size. Returns the bytes written,
   // or kFailed with `error` saying why (corrupt data, or more than out.size() bytes).
   std::size_t zstd(std::span<std::byte> out, std::span<const std::byte> in, std::string& error);
+  // Decodes the next piece of a zstd stream, `in` (the stream's start when `restart`), into `out`:
+  // everything its whole blocks hold. Returns the bytes written, or kFailed with `error` (corrupt
+  // data, a window larger than the stream's, more than out.size() bytes, or `in` ending inside a
+  // block). After a failure only a restart decodes.
+  std::size_t zstd_stream(std::span<std::byte> out, std::span<const std::byte> in, bool restart, std::string& error);
   // The same for an lz4 block.
   std::size_t lz4(std::span<std::byte> out, std::span<const std::byte> in, std::string& error);
 
  private:
-  [[maybe_unused]] void* state_ = nullptr;  // libzstd's DCtx natively; the host's handle in the browser
+  [[maybe_unused]] void* state_ = nullptr;   // libzstd's DCtx natively; the host's handle in the browser
+  [[maybe_unused]] void* stream_ = nullptr;  // natively: the stream's workspace, a static DCtx
+  [[maybe_unused]] bool streaming_ = false;  // a stream is open (restarted, and no failure since)
 };
 
 }  // namespace pstream::format

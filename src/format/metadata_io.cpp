@@ -227,8 +227,8 @@ Header parse_header(std::span<const std::byte> bytes, std::uint64_t file_size, s
   header.file_size = file_size;
   Metadata& m = header.meta;
   m.version = h.get<std::uint32_t>("version");
-  if (m.version < 1 || m.version > 3)
-    h.fail(fmt::format("unsupported format version {} (this build reads versions 1 to 3)", m.version));
+  if (m.version < 1 || m.version > kVersion)
+    h.fail(fmt::format("unsupported format version {} (this build reads versions 1 to {})", m.version, kVersion));
   const std::size_t expected_header_size = header_size_of(m.version);
   const auto header_size = h.get<std::uint32_t>("header_size");
   if (header_size != expected_header_size)

@@ -20,9 +20,12 @@ using namespace particle;
 
 // ---- the decoding unit ----------------------------------------------------------------------
 
+int stream_window_log(const Metadata& meta) { return meta.version >= kFirstStreamedVersion ? kStreamWindowLog : 0; }
+
 class ParticleUnit final : public FrameUnit {
  public:
-  ParticleUnit(const Metadata& meta, std::string_view name) : meta_(meta), name_(name), plan_(meta.codec) {
+  ParticleUnit(const Metadata& meta, std::string_view name)
+      : meta_(meta), name_(name), plan_(meta.codec), entropy_(stream_window_log(meta)) {
     const std::uint64_t n = meta.max_count;
     const std::size_t coded = plan_.coded.size();
     for (int b = 0; b < 2; ++b) {
@@ -43,7 +46,8 @@ class ParticleUnit final : public FrameUnit {
 
   void reset() override { count_[cur_ ^ 1] = 0; }
   std::uint64_t state_bytes() const override {
-    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size() + derived_.size()) * 4;
+    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size() + derived_.size()) * 4 +
+                          EntropyDecoder::stream_bytes(stream_window_log(meta_));
     for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8 + steps_[b].size();
     return bytes;
   }
@@ -143,7 +147,15 @@ class ParticleUnit final : public FrameUnit {
 
   Body parse(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet) {
     std::string why;
-    const std::size_t size = entropy_.zstd(body_, packet, why);
+    // Version 4: a packet continues the zstd frame of the packet before unless it starts one
+    // (every keyframe's does); before, each packet was a whole zstd frame.
+    std::uint32_t magic = 0;
+    if (packet.size() >= 4) std::memcpy(&magic, packet.data(), 4);
+    if (meta_.version >= kFirstStreamedVersion && keyframe && magic != kZstdMagic)
+      fail(frame, "a keyframe's packet must start a zstd frame", 0);
+    const std::size_t size = meta_.version >= kFirstStreamedVersion
+                                 ? entropy_.zstd_stream(body_, packet, magic == kZstdMagic, why)
+                                 : entropy_.zstd(body_, packet, why);
     if (size == EntropyDecoder::kFailed) {
       fail(frame,
            fmt::format("the zstd data does not decode within {} bytes, the most {} particles need: {} (corrupted)",
@@ -421,7 +433,8 @@ std::uint64_t particle_unit_state_bytes(const Metadata& meta) {
   // Per particle: Q and D of every coded word in two states, ids in two states, a residual.
   const std::uint64_t derived = plan.derived.empty() ? 0 : 2 + plan.derived.size() * 4;
   return n * (coded * 16 + (ids ? 16 : 0) + 4 + derived) + ((n + kBlock - 1) >> kBlockShift) * 4 +
-         std::uint64_t(plan.words) * kTile * 4 + body_capacity(n, coded, ids);
+         std::uint64_t(plan.words) * kTile * 4 + body_capacity(n, coded, ids) +
+         EntropyDecoder::stream_bytes(stream_window_log(meta));
 }
 
 std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name) {

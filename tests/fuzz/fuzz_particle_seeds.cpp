@@ -40,11 +40,17 @@ int main(int argc, char** argv) {
       const format::SourceFrame frames[2] = {{records[0], by_id ? std::span(ids[0]) : std::span<std::uint64_t>{}, n0},
                                              {records[1], by_id ? std::span(ids[1]) : std::span<std::uint64_t>{}, n1}};
       const auto encoded = format::encode_group(meta.codec, frames, {}, 0);
-      std::vector<std::byte> bodies[2];
+      std::vector<std::byte> bodies[2];  // the packets are one zstd stream
+      ZSTD_DCtx* d = ZSTD_createDCtx();
       for (int f = 0; f < 2; ++f) {
-        bodies[f].resize(ZSTD_getFrameContentSize(encoded[f].packet.data(), encoded[f].packet.size()));
-        ZSTD_decompress(bodies[f].data(), bodies[f].size(), encoded[f].packet.data(), encoded[f].packet.size());
+        bodies[f].resize(1 << 16);
+        ZSTD_inBuffer in{encoded[f].packet.data(), encoded[f].packet.size(), 0};
+        ZSTD_outBuffer out{bodies[f].data(), bodies[f].size(), 0};
+        while (in.pos < in.size && !ZSTD_isError(ZSTD_decompressStream(d, &out, &in))) {
+        }
+        bodies[f].resize(out.pos);
       }
+      ZSTD_freeDCtx(d);
       std::ofstream out(std::string(argv[1]) + "/seed-" + std::to_string(selector) + "-" + std::to_string(n0),
                         std::ios::binary);
       const auto size = static_cast<std::uint32_t>(bodies[0].size());

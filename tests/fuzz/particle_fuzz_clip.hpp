@@ -2,7 +2,8 @@
 // A fuzz input is: [selector][u32 size of the keyframe body][keyframe body][predicted frame body],
 // bodies uncompressed (the target compresses them, so mutations land in the body, not in zstd's
 // framing). The selector picks the layout (bit 0), the frame order (bit 1) and version 3 (bit 2):
-// the scale a relative word, and with bit 0 a derived velocity.
+// the scale a relative word, and with bit 0 a derived velocity; without bit 2 the clip is of the
+// current version (4: the second packet continues the first one's zstd frame).
 #pragma once
 
 #include <cstring>

@@ -10,10 +10,30 @@
 EM_JS(int, pstream_host_zstd, (std::byte * out, int capacity, const std::byte* src, int src_size),
       { return Module.zstdDecompress(out, capacity, src, src_size); });
 
+// The same for the next packet of a zstd stream, its first when `restart` is 1 (the worker keeps
+// the stream, in zstddec's heap).
+EM_JS(int, pstream_host_zstd_stream, (std::byte * out, int capacity, const std::byte* src, int src_size, int restart),
+      { return Module.zstdStream(out, capacity, src, src_size, restart != = 0); });
+
 namespace pstream::format {
 
-EntropyDecoder::EntropyDecoder() = default;
+EntropyDecoder::EntropyDecoder(int) {}
 EntropyDecoder::~EntropyDecoder() = default;
+
+std::uint64_t EntropyDecoder::stream_bytes(int) { return 0; }  // the stream lives in the worker's heap
+
+std::size_t EntropyDecoder::zstd_stream(std::span<std::byte> out, std::span<const std::byte> in, bool restart,
+                                        std::string& error) {
+  if (in.size() > 0x7fffffff || out.size() > 0x7fffffff) {
+    error = "more than 2 GiB in one zstd packet";
+    return kFailed;
+  }
+  const int n = pstream_host_zstd_stream(out.data(), static_cast<int>(out.size()), in.data(),
+                                         static_cast<int>(in.size()), restart ? 1 : 0);
+  if (n >= 0) return static_cast<std::size_t>(n);
+  error = "corrupt zstd data, more than the expected bytes, or not the packet after the one decoded last";
+  return kFailed;
+}
 
 std::size_t EntropyDecoder::zstd(std::span<std::byte> out, std::span<const std::byte> in, std::string& error) {
   if (in.size() > 0x7fffffff || out.size() > 0x7fffffff) {
