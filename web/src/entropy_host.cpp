@@ -13,7 +13,7 @@ EM_JS(int, pstream_host_zstd, (std::byte * out, int capacity, const std::byte* s
 // The same for the next packet of a zstd stream, its first when `restart` is 1 (the worker keeps
 // the stream, in zstddec's heap).
 EM_JS(int, pstream_host_zstd_stream, (std::byte * out, int capacity, const std::byte* src, int src_size, int restart),
-      { return Module.zstdStream(out, capacity, src, src_size, restart != = 0); });
+      { return Module.zstdStream(out, capacity, src, src_size, restart); });
 
 namespace pstream::format {
 
