@@ -13,24 +13,31 @@
 
 namespace pstream::format {
 
-EntropyDecoder::EntropyDecoder(int stream_window_log) : state_(make_zstd_dctx()) {
-  if (state_ == nullptr) throw Error("cannot create a zstd decoder");
-  if (stream_window_log <= 0) return;
-  // A static context: zstd takes its window and input buffers from this block and never
-  // allocates while decoding.
+EntropyDecoder::EntropyDecoder(int stream_window_log) {
+  if (stream_window_log <= 0) {
+    state_ = make_zstd_dctx();
+    if (state_ == nullptr) throw Error("cannot create a zstd decoder");
+    return;
+  }
+  // A static context, which serves whole frames and the stream alike: zstd takes its window and
+  // input buffers from this block and never allocates while decoding.
   const std::size_t bytes = stream_bytes(stream_window_log);
-  stream_ = memory::allocate(bytes);
-  if (stream_ == nullptr || ZSTD_initStaticDStream(stream_, bytes) == nullptr) {
-    memory::deallocate(stream_);
-    ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(state_));
+  void* block = memory::allocate(bytes);
+  ZSTD_DCtx* d = block == nullptr ? nullptr : ZSTD_initStaticDStream(block, bytes);
+  if (d == nullptr) {
+    memory::deallocate(block);
     throw Error("cannot allocate the zstd stream decoder");
   }
-  ZSTD_DCtx_setParameter(static_cast<ZSTD_DCtx*>(stream_), ZSTD_d_windowLogMax, stream_window_log);
+  ZSTD_DCtx_setParameter(d, ZSTD_d_windowLogMax, stream_window_log);
+  state_ = block;  // the context starts the block
+  static_ = true;
 }
 
 EntropyDecoder::~EntropyDecoder() {
-  ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(state_));
-  memory::deallocate(stream_);  // a static context owns nothing else
+  if (static_)
+    memory::deallocate(state_);  // a static context owns nothing else
+  else
+    ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(state_));
 }
 
 std::uint64_t EntropyDecoder::stream_bytes(int stream_window_log) {
@@ -47,8 +54,8 @@ std::size_t EntropyDecoder::zstd(std::span<std::byte> out, std::span<const std::
 
 std::size_t EntropyDecoder::zstd_stream(std::span<std::byte> out, std::span<const std::byte> in, bool restart,
                                         std::string& error) {
-  auto* d = static_cast<ZSTD_DCtx*>(stream_);
-  if (d == nullptr) {
+  auto* d = static_cast<ZSTD_DCtx*>(state_);
+  if (!static_) {
     error = "this decoder holds no zstd stream";
     return kFailed;
   }

@@ -15,12 +15,12 @@ namespace pstream::format {
 class EntropyDecoder {
  public:
   static constexpr std::size_t kFailed = static_cast<std::size_t>(-1);
-  // With `stream_window_log` > 0 it also decodes one zstd stream packet by packet (zstd_stream),
-  // in a buffer fixed here for windows up to 2^stream_window_log bytes. Throws pstream::Error
-  // when its state cannot be allocated.
+  // With `stream_window_log` > 0 it also decodes one zstd stream packet by packet (zstd_stream):
+  // its one context is then a buffer fixed here for windows up to 2^stream_window_log bytes.
+  // Throws pstream::Error when its state cannot be allocated.
   explicit EntropyDecoder(int stream_window_log = 0);
   ~EntropyDecoder();
-  // The bytes the stream's fixed buffer takes (what the constructor allocates beyond a context).
+  // The bytes the stream's fixed buffer takes (0 without a stream).
   static std::uint64_t stream_bytes(int stream_window_log);
   EntropyDecoder(const EntropyDecoder&) = delete;
   EntropyDecoder& operator=(const EntropyDecoder&) = delete;
@@ -37,7 +37,7 @@ class EntropyDecoder {
 
  private:
   [[maybe_unused]] void* state_ = nullptr;   // libzstd's DCtx natively; the host's handle in the browser
-  [[maybe_unused]] void* stream_ = nullptr;  // natively: the stream's workspace, a static DCtx
+  [[maybe_unused]] bool static_ = false;     // natively: state_ is a static DCtx in a block of ours
   [[maybe_unused]] bool streaming_ = false;  // a stream is open (restarted, and no failure since)
 };
 

@@ -26,7 +26,9 @@ std::array<std::vector<std::byte>, 2> compress(std::uint32_t version, std::span<
     z[f].resize(ZSTD_compressBound(body.size()) + 64);
     ZSTD_inBuffer in{body.data(), body.size(), 0};
     ZSTD_outBuffer out{z[f].data(), z[f].size(), 0};
-    while (ZSTD_compressStream2(c, &out, &in, version >= 4 ? ZSTD_e_flush : ZSTD_e_end) != 0) {
+    while (ZSTD_compressStream2(
+               c, &out, &in, version >= pstream::format::particle::kFirstStreamedVersion ? ZSTD_e_flush : ZSTD_e_end) !=
+           0) {
     }
     z[f].resize(out.pos);
   }
