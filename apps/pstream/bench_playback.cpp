@@ -58,12 +58,6 @@ void generate(const std::filesystem::path& path, std::uint64_t count, std::uint6
   writer.commit();
 }
 
-double thread_ms() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
-}
-
 // One row: `path` played through a clip at host_hz. The host thread's CPU time per host frame
 // covers what the playback costs it: advance() (stream update; on the CPU path interpolation
 // and sort), draw_data() and the renderer's preparation of the frame (the CPU path's copy into
@@ -106,11 +100,11 @@ nlohmann::ordered_json measure(const std::filesystem::path& file, playback::Play
   for (std::uint64_t k = 0; k <= steps; ++k) {
     renderer.begin_frame(64, 64, camera, {0, 0, 0, 1});
     glBeginQuery(GL_TIME_ELAPSED, query);
-    const double t0 = thread_ms();
+    const double t0 = thread_cpu_ms();
     const playback::FrameStats& s = player->advance(k == 0 ? 0.0 : 1.0 / host_hz, view, sort::SortMode::BackToFront);
-    const double ta = thread_ms();
+    const double ta = thread_cpu_ms();
     renderer.prepare(player->draw_data(style));
-    const double t1 = thread_ms();
+    const double t1 = thread_cpu_ms();
     if (std::getenv("PSTREAM_BENCH_DEBUG") != nullptr) {
       fmt::print(
           stderr, "{:.1f}: advance {:.3f} ms, prepare {:.3f} ms, fraction {:.3f}, uploaded {} bytes, staged {} bytes\n",

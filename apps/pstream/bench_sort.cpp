@@ -94,12 +94,6 @@ std::string svg_plot(const std::map<std::string, std::vector<std::pair<double, d
   return s + "</svg>\n";
 }
 
-double thread_cpu_ms() {
-  timespec t{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return double(t.tv_sec) * 1e3 + double(t.tv_nsec) / 1e6;
-}
-
 // The GPU radix sort (render::GpuSorter) on whatever OpenGL the headless context finds (Mesa's
 // llvmpipe on CI, the GPU where there is one): its wall time to completion (glFinish) and the
 // host thread's CPU time to issue it (CLOCK_THREAD_CPUTIME_ID: the driver's own threads do not

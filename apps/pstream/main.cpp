@@ -338,7 +338,8 @@ int main(int argc, char** argv) {
       "codec",
       "The particle codec against raw, lz4, zstd -3/-19, byte-shuffle + zstd, meshoptimizer's vertex codec + zstd\n"
       "and Draco, on the same frames of [x y z scale] records at the same error bound: bytes per particle per\n"
-      "frame, max error, encode MB/s and decode GB/s (one core, medians) next to a memcpy of the decoded bytes.\n"
+      "frame, max error, encode MB/s and decode GB/s (one core, thread CPU time, medians) next to a memcpy of the "
+      "decoded bytes.\n"
       "Examples:\n"
       "  pstream bench codec tests/data/sims/blender_sparks.abc\n"
       "  pstream bench codec out/demo/demo.abc --frames 60 --json");
