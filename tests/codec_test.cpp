@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <memory>
 
 #include <fmt/format.h>
@@ -584,6 +585,43 @@ namespace {
 // The registry: every frame codec has both halves under one name, and a clip planned and encoded
 // through its encoding half decodes through its decoding half (FrameDecoder finds it there):
 // records exactly, the particle codec within its bounds, with births and deaths.
+// `pstream bench codec --json`: every codec asked for, in one table, with the ratios of ours to
+// its baseline and its peer taken within repetitions (values, not timings: timings are for the
+// benchmark, not a test).
+TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
+  const std::string sparks = test::data_path("sims/blender_sparks.abc");
+  const auto r = test::run_cli(
+      fmt::format("bench codec {} --frames 4 --repetitions 3 --codec 'particle (ours)' --codec 'meshopt + zstd -3' "
+                  "--codec 'zstd -3' --json",
+                  sparks));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
+  EXPECT_EQ(j["clock"], "thread CPU time");
+  EXPECT_EQ(j["repetitions"], 3);
+  ASSERT_EQ(j["codecs"].size(), 3u);
+  std::map<std::string, nlohmann::json> by_name;
+  for (const auto& c : j["codecs"]) by_name[c["codec"].get<std::string>()] = c;
+  ASSERT_TRUE(by_name.count("particle (ours)") && by_name.count("meshopt + zstd -3") && by_name.count("zstd -3"));
+  const auto& ours = by_name["particle (ours)"];
+  const double bound = j["error_bound"];
+  EXPECT_LE(ours["max_error_position"].get<double>(), bound);
+  EXPECT_LT(ours["bytes_per_particle"].get<double>(), by_name["meshopt + zstd -3"]["bytes_per_particle"].get<double>());
+  EXPECT_EQ(by_name["zstd -3"]["max_error_position"].get<double>(), 0.0);  // lossless
+  for (const auto& c : j["codecs"]) {
+    EXPECT_GT(c["decode_gb_s"].get<double>(), 0.0) << c.dump();
+    EXPECT_GT(c["encode_mb_s"].get<double>(), 0.0) << c.dump();
+  }
+  EXPECT_GT(j["ours_decode_vs_zstd"].get<double>(), 0.0);
+  EXPECT_GT(j["ours_decode_vs_meshopt"].get<double>(), 0.0);
+  // Without its peers in the run, no ratio to them.
+  const auto alone =
+      test::run_cli(fmt::format("bench codec {} --frames 2 --repetitions 1 --codec 'particle (ours)' --json", sparks));
+  ASSERT_EQ(alone.exit_code, 0) << alone.output;
+  const auto k = nlohmann::json::parse(alone.output.substr(alone.output.find('{')));
+  EXPECT_EQ(k["ours_decode_vs_zstd"].get<double>(), 0.0);
+  EXPECT_EQ(k["ours_decode_vs_meshopt"].get<double>(), 0.0);
+}
+
 TEST(FrameCodecRegistry, EveryCodecRoundTripsThroughItsTwoHalves) {
   EXPECT_EQ(format::frame_codec_encoders().size(), format::frame_codec_decoders().size());
   EXPECT_EQ(format::find_frame_codec(static_cast<format::FrameCodec>(7)), nullptr);
