@@ -582,9 +582,6 @@ TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
 
 namespace {
 
-// The registry: every frame codec has both halves under one name, and a clip planned and encoded
-// through its encoding half decodes through its decoding half (FrameDecoder finds it there):
-// records exactly, the particle codec within its bounds, with births and deaths.
 // `pstream bench codec --json`: every codec asked for, in one table, with the ratios of ours to
 // its baseline and its peer taken within repetitions (values, not timings: timings are for the
 // benchmark, not a test).
@@ -622,6 +619,9 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   EXPECT_EQ(k["ours_decode_vs_meshopt"].get<double>(), 0.0);
 }
 
+// The registry: every frame codec has both halves under one name, and a clip planned and encoded
+// through its encoding half decodes through its decoding half (FrameDecoder finds it there):
+// records exactly, the particle codec within its bounds, with births and deaths.
 TEST(FrameCodecRegistry, EveryCodecRoundTripsThroughItsTwoHalves) {
   EXPECT_EQ(format::frame_codec_encoders().size(), format::frame_codec_decoders().size());
   EXPECT_EQ(format::find_frame_codec(static_cast<format::FrameCodec>(7)), nullptr);

@@ -330,17 +330,23 @@ class GroupEncoder {
         return std::size_t(((floordiv(q[0], side) - g0[0]) * dims[1] + (floordiv(q[1], side) - g0[1])) * dims[2] +
                            (floordiv(q[2], side) - g0[2]));
       };
-      // The particles in cell order, their positions and cells copied beside them.
-      std::vector<std::uint32_t> start(std::size_t(total) + 1, 0), order(n);
-      for (std::uint32_t j = 0; j < n; ++j) ++start[index(&at[std::size_t(j) * 6]) + 1];
-      for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
-      std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+      // Particles 0..count-1 by their cells (a counting sort, stable): `order` lists them, and
+      // cell c's are order[start[c]] to order[start[c + 1] - 1].
+      const auto by_cell = [&](std::uint32_t count, const auto& cell_of, std::vector<std::uint32_t>& start,
+                               std::vector<std::uint32_t>& order) {
+        start.assign(std::size_t(total) + 1, 0);
+        for (std::uint32_t j = 0; j < count; ++j) ++start[cell_of(j) + 1];
+        for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+        std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+        order.resize(count);
+        for (std::uint32_t j = 0; j < count; ++j) order[fill[cell_of(j)]++] = j;
+      };
+      // This frame's particles in cell order, their positions and cells copied beside them.
+      std::vector<std::uint32_t> start, order;
+      by_cell(
+          n, [&](std::uint32_t j) { return index(&at[std::size_t(j) * 6]); }, start, order);
       std::vector<std::int64_t> sorted(std::size_t(n) * 6);
-      for (std::uint32_t j = 0; j < n; ++j) {
-        const std::uint32_t t = fill[index(&at[std::size_t(j) * 6])]++;
-        order[t] = j;
-        std::copy_n(&at[std::size_t(j) * 6], 6, &sorted[std::size_t(t) * 6]);
-      }
+      for (std::uint32_t t = 0; t < n; ++t) std::copy_n(&at[std::size_t(order[t]) * 6], 6, &sorted[std::size_t(t) * 6]);
       // Cell offsets by the least squared distance a particle in one can be from a particle in the
       // other (whole cells between them), up to the reach.
       struct Offset {
@@ -363,19 +369,16 @@ class GroupEncoder {
                        [](const Offset& u, const Offset& v) { return u.bound < v.bound; });
       // The previous particles by cell (outside the box: its nearest cell), so that searches one
       // after another visit the same cells.
-      std::vector<std::uint32_t> visit(state_.count), by_cell(std::size_t(total) + 1, 0);
-      std::vector<std::size_t> home_cell(state_.count);
-      for (std::uint32_t i = 0; i < state_.count; ++i) {
+      std::vector<std::uint32_t> visit_start, visit;
+      const auto home_cell = [&](std::uint32_t i) {
         std::int64_t c[3];
         for (int a = 0; a < 3; ++a) {
           const std::int64_t v = static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]);
           c[a] = std::clamp<std::int64_t>(floordiv(v, side) - g0[a], 0, dims[a] - 1);
         }
-        home_cell[i] = static_cast<std::size_t>((c[0] * dims[1] + c[1]) * dims[2] + c[2]);
-        ++by_cell[home_cell[i] + 1];
-      }
-      for (std::size_t c = 1; c < by_cell.size(); ++c) by_cell[c] += by_cell[c - 1];
-      for (std::uint32_t i = 0; i < state_.count; ++i) visit[by_cell[home_cell[i]]++] = i;
+        return static_cast<std::size_t>((c[0] * dims[1] + c[1]) * dims[2] + c[2]);
+      };
+      by_cell(state_.count, home_cell, visit_start, visit);
       for (const std::uint32_t i : visit) {
         search(i, [&](const std::int64_t* p, const std::int64_t*, const auto& consider, const auto& worst) {
           const std::int64_t c[3] = {floordiv(p[0], side) - g0[0], floordiv(p[1], side) - g0[1],
