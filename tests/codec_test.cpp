@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <memory>
@@ -17,6 +19,7 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
+#include "particlestream/io.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -120,6 +123,68 @@ TEST(ParticleCodec, EveryDecodedValueIsWithinItsBoundOnEveryFixture) {
       EXPECT_NEAR(meta.codec.error, 1e-4 * diagonal, 2e-6 * diagonal);
       EXPECT_GT(quantized, 0u);
     }
+  }
+}
+
+// A source that is not in memory (a URL, host callbacks): the Reader asks it for each chunk it
+// needs. Counts the reads.
+class CountingSource final : public io::ByteSource {
+ public:
+  explicit CountingSource(const fs::path& path)
+      : name_(path.string()), bytes_([&] {
+          std::ifstream in(path, std::ios::binary);
+          std::vector<std::byte> b;
+          for (auto it = std::istreambuf_iterator<char>(in); it != std::istreambuf_iterator<char>(); ++it)
+            b.push_back(static_cast<std::byte>(*it));
+          return b;
+        }()) {}
+  void read(std::uint64_t offset, std::span<std::byte> out) override {
+    ASSERT_LE(offset + out.size(), bytes_.size());
+    std::memcpy(out.data(), bytes_.data() + offset, out.size());
+    ++*reads_;
+    *bytes_read_ += out.size();
+  }
+  std::uint64_t size() const override { return bytes_.size(); }
+  const std::string& name() const override { return name_; }
+  std::shared_ptr<std::uint64_t> reads_ = std::make_shared<std::uint64_t>(0);
+  std::shared_ptr<std::uint64_t> bytes_read_ = std::make_shared<std::uint64_t>(0);
+
+ private:
+  std::string name_;
+  std::vector<std::byte> bytes_;
+};
+
+// Frames read in turn mostly share a chunk (a particle packet is small): the Reader reads,
+// checks and decompresses each chunk once, not once per frame. Through a source that is not in
+// memory, every chunk is fetched exactly once when the frames are read in order, and the frames
+// are the same bytes as the mapped file's. Reading backwards still decodes from the keyframe.
+TEST(ParticleCodec, FramesReadInTurnFetchEachChunkOnce) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path file = cook_with(dir, fixtures()[0], "flip", format::FrameCodec::Particle);
+  const auto mapped = format::Reader::open(file);
+  auto counting = std::make_unique<CountingSource>(file);
+  const auto reads = counting->reads_;
+  const auto bytes_read = counting->bytes_read_;
+  const auto remote = format::Reader::open(std::move(counting));
+  const format::Metadata& m = mapped.metadata();
+  ASSERT_GT(m.chunk_count(), 2u);
+  ASSERT_GT(m.frame_count(), 3 * m.chunk_count()) << "several packets to a chunk";
+  const std::uint64_t at_open = *reads;
+  std::vector<std::byte> a(m.max_count * m.record_size), b(a.size());
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    mapped.read_frame(f, a);
+    remote.read_frame(f, b);
+    ASSERT_EQ(std::memcmp(a.data(), b.data(), m.frames[f].count * m.record_size), 0) << "frame " << f;
+  }
+  EXPECT_EQ(*reads - at_open, m.chunk_count());
+  std::uint64_t stored = 0;
+  for (const format::ChunkEntry& c : m.chunks) stored += c.stored_size;
+  EXPECT_LE(*bytes_read, file_size(file));
+  EXPECT_GE(*bytes_read, stored);
+  for (std::uint64_t f = m.frame_count(); f-- > 0;) {  // backwards: each frame from its keyframe on
+    mapped.read_frame(f, a);
+    remote.read_frame(f, b);
+    ASSERT_EQ(std::memcmp(a.data(), b.data(), m.frames[f].count * m.record_size), 0) << "frame " << f;
   }
 }
 

@@ -272,7 +272,9 @@ class Reader {
   void read_packet(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const;
   // The frame's records, decoded, into `out` (count × record_size bytes). With a predicting codec
   // this decodes forward from the frame's keyframe (or from the last frame read, when that is
-  // the one before): read frames in order for speed.
+  // the one before): read frames in order for speed. The chunk read last is kept (read, checked
+  // and decompressed once while frames in turn come from it), in a buffer of one chunk made on
+  // the first call.
   void read_frame(std::uint64_t frame, std::span<std::byte> out) const;
 
  private:

@@ -204,7 +204,9 @@ PSTREAM_API pstream_result pstream_clip_attribute(const pstream_clip* clip, uint
 /* Frame `frame`'s particle count and time. */
 PSTREAM_API pstream_result pstream_clip_frame_info(const pstream_clip* clip, uint64_t frame, uint64_t* count,
                                                    double* time);
-/* Decodes frame `frame`'s records into `out` (`capacity` bytes, at least count x record_size). */
+/* Decodes frame `frame`'s records into `out` (`capacity` bytes, at least count x record_size).
+   Read frames in order: each then continues from the one before, and a chunk is read and checked
+   once while the frames come from it (a keyframe's group is decoded again to go back). */
 PSTREAM_API pstream_result pstream_clip_read_frame(pstream_clip* clip, uint64_t frame, void* out, uint64_t capacity);
 
 /* ---- Playback -------------------------------------------------------------------------- */

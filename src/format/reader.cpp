@@ -7,6 +7,9 @@
 #include "particlestream/format.hpp"
 
 namespace pstream::format {
+namespace {
+constexpr std::uint64_t kNoChunk = UINT64_MAX;
+}  // namespace
 
 struct Reader::Impl {
   std::unique_ptr<io::ByteSource> source;  // null for from_memory()
@@ -19,6 +22,10 @@ struct Reader::Impl {
   std::unique_ptr<ChunkDecoder> chunks;
   std::unique_ptr<FrameDecoder> frames;
   std::vector<std::byte> packet, scratch, decoded;
+  // The chunk whose raw bytes `scratch` holds, checked, for read_frame(): the packets of the
+  // frames read in turn mostly share a chunk, which is then read (fetched, checked, decompressed)
+  // once instead of once per frame. kNoChunk when it holds none.
+  std::uint64_t scratch_chunk = kNoChunk;
 };
 
 Reader::Reader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -93,15 +100,21 @@ void Reader::read_chunk(std::uint64_t chunk, std::span<std::byte> out) const {
   impl_->chunks->decode(m.chunks[chunk], stored_chunk(chunk), out.first(raw), impl_->name, chunk);
 }
 
-void Reader::read_packet(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const {
-  const Metadata& m = impl_->meta;
+namespace {
+
+// The frame's packet: a span of `scratch` when the packet lies in one chunk, else assembled in
+// `out`. Chunks are read into `scratch` unless `held` (when not null) says it holds that chunk
+// already; it is updated as chunks are read.
+std::span<const std::byte> packet_bytes(const Reader& reader, std::uint64_t frame, std::span<std::byte> out,
+                                        std::span<std::byte> scratch, std::uint64_t* held) {
+  const Metadata& m = reader.metadata();
   if (frame >= m.frame_count()) {
-    throw Error(fmt::format("{}: frame {} requested, the file has {}", impl_->name, frame, m.frame_count()));
+    throw Error(fmt::format("{}: frame {} requested, the file has {}", reader.name(), frame, m.frame_count()));
   }
   const FramePacket p = frame_packet(m, frame);
   if (out.size() < p.size) {
-    throw Error(fmt::format("{}: buffer of {} bytes for frame {}'s packet of {} bytes", impl_->name, out.size(), frame,
-                            p.size));
+    throw Error(fmt::format("{}: buffer of {} bytes for frame {}'s packet of {} bytes", reader.name(), out.size(),
+                            frame, p.size));
   }
   std::uint64_t pos = p.offset, done = 0;
   while (done < p.size) {
@@ -109,14 +122,27 @@ void Reader::read_packet(std::uint64_t frame, std::span<std::byte> out, std::spa
     const std::uint64_t within = pos - chunk * m.chunk_size;
     const std::uint64_t take = std::min(p.size - done, m.chunk_raw_size(chunk) - within);
     if (scratch.size() < m.chunk_raw_size(chunk)) {
-      throw Error(fmt::format("{}: scratch buffer of {} bytes for chunk {} of {} bytes", impl_->name, scratch.size(),
+      throw Error(fmt::format("{}: scratch buffer of {} bytes for chunk {} of {} bytes", reader.name(), scratch.size(),
                               chunk, m.chunk_raw_size(chunk)));
     }
-    read_chunk(chunk, scratch);
+    if (held == nullptr || *held != chunk) {
+      if (held != nullptr) *held = kNoChunk;  // until the chunk is read whole and checked
+      reader.read_chunk(chunk, scratch);
+      if (held != nullptr) *held = chunk;
+    }
+    if (take == p.size) return scratch.subspan(within, take);  // the whole packet in one chunk
     std::memcpy(out.data() + done, scratch.data() + within, take);
     done += take;
     pos += take;
   }
+  return out.first(p.size);
+}
+
+}  // namespace
+
+void Reader::read_packet(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const {
+  const std::span<const std::byte> packet = packet_bytes(*this, frame, out, scratch, nullptr);
+  if (packet.data() != out.data() && !packet.empty()) std::memcpy(out.data(), packet.data(), packet.size());
 }
 
 void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
@@ -139,10 +165,9 @@ void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
   }
   // Forward from the keyframe, or on from the frame decoded last.
   for (std::uint64_t f = decode_start(m, frame, d.frames->last_decoded()); f <= frame; ++f) {
-    const std::uint64_t size = frame_packet(m, f).size;
-    read_packet(f, d.packet, d.scratch);
+    const std::span<const std::byte> packet = packet_bytes(*this, f, d.packet, d.scratch, &d.scratch_chunk);
     // Frames on the way are decoded aside: they may hold more particles than `out`.
-    d.frames->decode(f, std::span(d.packet).first(size), f == frame ? out : std::span(d.decoded));
+    d.frames->decode(f, packet, f == frame ? out : std::span(d.decoded));
   }
 }
 
