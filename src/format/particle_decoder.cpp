@@ -300,15 +300,7 @@ class ParticleUnit final : public FrameUnit {
         if (d_[state][dw.from * n + j] != 0) return true;
       return false;
     };
-    // Every derived word of particles j.. (steps d1 of particles i..), once their states are set.
-    const auto values = [&](std::uint32_t j, std::uint32_t i, std::uint32_t count) {
-      for (std::size_t x = 0; x < plan_.derived.size(); ++x) {
-        const WordPlan::Derived& dw = plan_.derived[x];
-        derive_run(derived_.data() + x * n + j, d_[cur_].data() + dw.from * n + j, d_[prev].data() + dw.from * n + i,
-                   steps + j, count, meta_.codec.words[dw.word].step);
-      }
-    };
-    if (b.keyframe) {  // the prior steps were decoded into the other state's d
+    if (b.keyframe) {  // the prior steps were decoded into the other state's d, in this frame's order
       for (std::uint32_t j = 0; j < b.count; ++j) {
         const bool moving = any(cur_, j), prior = any(prev, j);
         if (!moving && prior) {
@@ -316,20 +308,36 @@ class ParticleUnit final : public FrameUnit {
         }
         steps[j] = moving ? (prior ? kTwoSteps : kOneStep) : prior ? kSeeded : kNoStep;
       }
-      values(0, 0, b.count);
-      return;
+    } else {
+      for (std::uint32_t o = 0, i = 0, j = 0; o < b.op_count; ++o) {
+        const Op op = op_at(b, o);
+        for (std::uint32_t t = 0; t < op.keep; ++t) steps[j + t] = after_step(before[i + t]);
+        i += op.keep + op.drop;
+        j += op.keep;
+        // A new particle's state (0 or 3) leaves its step before unused.
+        for (std::uint32_t t = 0; t < op.insert; ++t) steps[j + t] = any(cur_, j + t) ? kSeeded : kNoStep;
+        j += op.insert;
+      }
     }
-    std::uint32_t i = 0, j = 0;
-    for (std::uint32_t o = 0; o < b.op_count; ++o) {
-      const Op op = op_at(b, o);
-      for (std::uint32_t t = 0; t < op.keep; ++t) steps[j + t] = after_step(before[i + t]);
-      values(j, i, op.keep);
-      i += op.keep + op.drop;
-      j += op.keep;
-      // A new particle's state (0 or 3) leaves its d1 unused: its own index stands in.
-      for (std::uint32_t t = 0; t < op.insert; ++t) steps[j + t] = any(cur_, j + t) ? kSeeded : kNoStep;
-      values(j, j, op.insert);
-      j += op.insert;
+    // Each derived word in one run over the frame (the runs between births and deaths are short):
+    // in a predicted frame the steps before are first gathered into this frame's order (0 for new
+    // particles).
+    for (std::size_t x = 0; x < plan_.derived.size(); ++x) {
+      const WordPlan::Derived& dw = plan_.derived[x];
+      const std::uint32_t* d1 = d_[prev].data() + dw.from * n;
+      if (!b.keyframe) {
+        std::uint32_t* gathered = residual_.data();
+        for (std::uint32_t o = 0, i = 0, j = 0; o < b.op_count; ++o) {
+          const Op op = op_at(b, o);
+          std::copy_n(d1 + i, op.keep, gathered + j);
+          std::fill_n(gathered + j + op.keep, op.insert, 0u);
+          i += op.keep + op.drop;
+          j += op.keep + op.insert;
+        }
+        d1 = gathered;
+      }
+      derive_run(derived_.data() + x * n, d_[cur_].data() + dw.from * n, d1, steps, b.count,
+                 meta_.codec.words[dw.word].step);
     }
   }
 
