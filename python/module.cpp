@@ -185,10 +185,9 @@ py::list layout_of(const format::Metadata& m) {
 
 struct PyClip {
   format::Reader reader;
-  std::vector<std::byte> buffer;
-  explicit PyClip(const std::filesystem::path& path) : reader(format::Reader::open(path)) {
-    buffer.resize(std::max<std::uint64_t>(reader.metadata().max_count * reader.metadata().record_size, 1));
-  }
+  py::dtype dtype;  // made once: building a structured dtype costs more than decoding a small frame
+  explicit PyClip(const std::filesystem::path& path)
+      : reader(format::Reader::open(path)), dtype(record_dtype(reader.metadata())) {}
 };
 
 struct PyPlayer {
@@ -495,7 +494,7 @@ PYBIND11_MODULE(particlestream, m) {
       .def_property_readonly(
           "layout", [](const PyClip& c) { return layout_of(c.reader.metadata()); },
           "[(name, type, components, offset)]")
-      .def_property_readonly("dtype", [](const PyClip& c) { return record_dtype(c.reader.metadata()); })
+      .def_property_readonly("dtype", [](const PyClip& c) { return c.dtype; })
       .def(
           "count",
           [](const PyClip& c, std::uint64_t f) {
@@ -517,10 +516,10 @@ PYBIND11_MODULE(particlestream, m) {
           [](PyClip& c, std::uint64_t f) {
             const format::Metadata& meta = c.reader.metadata();
             if (f >= meta.frame_count()) throw Error(c.reader.name() + ": no frame " + std::to_string(f));
-            c.reader.read_frame(f, c.buffer);
+            // Decoded straight into the array it returns.
             const std::uint64_t n = meta.frames[f].count;
-            py::array out(record_dtype(meta), std::vector<py::ssize_t>{py::ssize_t(n)});
-            if (n) std::memcpy(out.mutable_data(), c.buffer.data(), n * meta.record_size);
+            py::array out(c.dtype, std::vector<py::ssize_t>{py::ssize_t(n)});
+            c.reader.read_frame(f, {static_cast<std::byte*>(out.mutable_data()), std::size_t(n * meta.record_size)});
             return out;
           },
           py::arg("frame"), "Frame `frame`'s records as a structured array (its own copy).");

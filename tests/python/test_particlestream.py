@@ -158,6 +158,29 @@ def test_a_clip_of_empty_frames_plays():
         assert player.update(1 / 60)["particles"] == 0
 
 
+def test_read_frame_decodes_into_its_own_array_in_any_order(tmp_path):
+    # Empty frames among full ones (a particle clip: frames decode on from their keyframe). Every
+    # frame, read in order, backwards and again, has the clip's count and dtype, owns its memory,
+    # and holds the raw cook's particles within the position bound.
+    abc = DATA / "alembic" / "points_empty_frames.abc"
+    ps.cook(abc, tmp_path / "p.pstream", keyframe_interval=8, error="abs:0.001")
+    ps.cook(abc, tmp_path / "r.pstream", codec="raw")
+    clip, raw = ps.Clip(tmp_path / "p.pstream"), ps.Clip(tmp_path / "r.pstream")
+    assert clip.frame_count == raw.frame_count == 24
+    counts = [clip.count(f) for f in range(clip.frame_count)]
+    assert 0 in counts and max(counts) > 0
+    order = list(range(24)) + list(reversed(range(24))) + [5, 17, 3, 23, 0]
+    kept = {}
+    for f in order:
+        records = clip.read_frame(f)
+        assert records.dtype == clip.dtype and len(records) == counts[f] and records.flags.owndata
+        expected = raw.read_frame(f)
+        assert np.all(np.abs(np.sort(records["position"], axis=0) - np.sort(expected["position"], axis=0)) <= 0.001)
+        if f in kept:
+            assert np.array_equal(kept[f], records)  # the same bytes whatever came before
+        kept[f] = records
+
+
 def test_what_the_c_api_refuses_raises_particlestream_error():
     clip = DATA / "pstream" / "empty_frames.pstream"
     player = ps.Player([clip])
