@@ -492,6 +492,9 @@ PYBIND11_MODULE(particlestream, m) {
       .def_property_readonly("fps", [](const PyClip& c) { return c.reader.metadata().fps; })
       .def_property_readonly("record_size", [](const PyClip& c) { return c.reader.metadata().record_size; })
       .def_property_readonly(
+          "max_count", [](const PyClip& c) { return c.reader.metadata().max_count; },
+          "The most particles in any frame: room enough for read_frame(f, out=...).")
+      .def_property_readonly(
           "layout", [](const PyClip& c) { return layout_of(c.reader.metadata()); },
           "[(name, type, components, offset)]")
       .def_property_readonly("dtype", [](const PyClip& c) { return c.dtype; })
@@ -513,16 +516,38 @@ PYBIND11_MODULE(particlestream, m) {
           py::arg("frame"))
       .def(
           "read_frame",
-          [](PyClip& c, std::uint64_t f) {
+          [](PyClip& c, std::uint64_t f, const py::object& out) -> py::array {
             const format::Metadata& meta = c.reader.metadata();
             if (f >= meta.frame_count()) throw Error(c.reader.name() + ": no frame " + std::to_string(f));
-            // Decoded straight into the array it returns.
             const std::uint64_t n = meta.frames[f].count;
-            py::array out(c.dtype, std::vector<py::ssize_t>{py::ssize_t(n)});
-            c.reader.read_frame(f, {static_cast<std::byte*>(out.mutable_data()), std::size_t(n * meta.record_size)});
-            return out;
+            const std::size_t bytes = static_cast<std::size_t>(n * meta.record_size);
+            if (out.is_none()) {  // decoded straight into the array it returns
+              py::array records(c.dtype, std::vector<py::ssize_t>{py::ssize_t(n)});
+              c.reader.read_frame(f, {static_cast<std::byte*>(records.mutable_data()), bytes});
+              return records;
+            }
+            // The caller's array, reused from frame to frame: checked, never converted (a
+            // converted copy would take the frame and be thrown away).
+            const std::string what = fmt::format("{}: read_frame({}, out=...): ", c.reader.name(), f);
+            if (!py::isinstance<py::array>(out))
+              throw Error(what + "out must be a numpy array of the clip's dtype, not " +
+                          py::repr(out.get_type()).cast<std::string>());
+            auto a = py::reinterpret_borrow<py::array>(out);
+            if (!a.dtype().equal(c.dtype))
+              throw Error(what + "out's dtype is " + py::repr(a.dtype()).cast<std::string>() + ", expected clip.dtype");
+            if (a.ndim() != 1 || (a.flags() & py::array::c_style) == 0 || !a.writeable())
+              throw Error(what + "out must be a writable, contiguous one-dimensional array");
+            if (std::uint64_t(a.shape(0)) < n) {
+              throw Error(what + fmt::format("frame {} holds {} particles, out has room for {}", f, n, a.shape(0)));
+            }
+            c.reader.read_frame(f, {static_cast<std::byte*>(a.mutable_data()), bytes});
+            return a[py::slice(0, py::ssize_t(n), 1)];
           },
-          py::arg("frame"), "Frame `frame`'s records as a structured array (its own copy).");
+          py::arg("frame"), py::arg("out") = py::none(),
+          "Frame `frame`'s records as a structured array of `dtype`: a new array, or, with `out` (a "
+          "writable, contiguous 1-D array of `dtype` with room for the frame, e.g. "
+          "numpy.empty(clip.max_count, clip.dtype)), the view out[:count] of it, so that a loop over "
+          "frames allocates no records.");
 
   py::class_<PyPlayer>(m, "Player", "Playback of one or more clips (the C++ playback::Player).")
       .def(py::init([](std::vector<std::filesystem::path> paths, const std::string& interpolation, bool blocking,

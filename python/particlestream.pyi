@@ -54,6 +54,9 @@ class Clip:
     @property
     def record_size(self) -> int: ...
     @property
+    def max_count(self) -> int:
+        """The most particles in any frame: room enough for `read_frame(f, out=...)`."""
+    @property
     def layout(self) -> List[Tuple[str, str, int, int]]:
         """[(name, type, components, offset)] of the record's attributes."""
     @property
@@ -61,8 +64,11 @@ class Clip:
         """The numpy structured dtype of a record: one field per attribute."""
     def count(self, frame: int) -> int: ...
     def time(self, frame: int) -> float: ...
-    def read_frame(self, frame: int) -> np.ndarray:
-        """Frame `frame`'s records as a structured array of `dtype`."""
+    def read_frame(self, frame: int, out: Optional[np.ndarray] = None) -> np.ndarray:
+        """Frame `frame`'s records as a structured array of `dtype`: a new array, or, with `out` (a
+        writable, contiguous 1-D array of `dtype` with room for the frame, e.g.
+        `numpy.empty(clip.max_count, clip.dtype)`), the view `out[:count]` of it, so that a loop
+        over frames allocates no records."""
 
 class Player:
     """Playback of one or more clips (the C++ playback::Player): fixed memory, frames decoded on

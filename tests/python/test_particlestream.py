@@ -5,6 +5,7 @@ import json
 import math
 import os
 import pathlib
+import re
 
 import numpy as np
 import pytest
@@ -179,6 +180,23 @@ def test_read_frame_decodes_into_its_own_array_in_any_order(tmp_path):
         if f in kept:
             assert np.array_equal(kept[f], records)  # the same bytes whatever came before
         kept[f] = records
+    # Into the caller's array, reused: the view out[:count] of it, the same records.
+    out = np.empty(clip.max_count, clip.dtype)
+    assert clip.max_count == max(counts)
+    for f in order:
+        view = clip.read_frame(f, out=out)
+        assert len(view) == counts[f] and view.base is out and np.array_equal(view, kept[f])
+    # What it cannot take: named, never converted into a copy that would be thrown away.
+    big = counts.index(max(counts))
+    read_only = np.empty(clip.max_count, clip.dtype)
+    read_only.flags.writeable = False
+    for bad, message in [(np.empty(1, clip.dtype), f"frame {big} holds {max(counts)} particles, out has room for 1"),
+                         (np.empty(clip.max_count, np.float32), "out's dtype is dtype('float32'), expected clip.dtype"),
+                         (out[::2], "out must be a writable, contiguous one-dimensional array"),
+                         (read_only, "out must be a writable, contiguous one-dimensional array"),
+                         (list(range(10)), "out must be a numpy array of the clip's dtype, not <class 'list'>")]:
+        with pytest.raises(ps.Error, match=re.escape(message)):
+            clip.read_frame(big, out=bad)
 
 
 def test_what_the_c_api_refuses_raises_particlestream_error():
