@@ -6,8 +6,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <fstream>
-#include <iterator>
 #include <limits>
 #include <map>
 #include <memory>
@@ -130,24 +128,16 @@ TEST(ParticleCodec, EveryDecodedValueIsWithinItsBoundOnEveryFixture) {
 // needs. Counts the reads.
 class CountingSource final : public io::ByteSource {
  public:
-  explicit CountingSource(const fs::path& path)
-      : name_(path.string()), bytes_([&] {
-          std::ifstream in(path, std::ios::binary);
-          std::vector<std::byte> b;
-          for (auto it = std::istreambuf_iterator<char>(in); it != std::istreambuf_iterator<char>(); ++it)
-            b.push_back(static_cast<std::byte>(*it));
-          return b;
-        }()) {}
+  explicit CountingSource(const fs::path& path) : name_(path.string()), bytes_(test::read_bytes(name_)) {}
   void read(std::uint64_t offset, std::span<std::byte> out) override {
     ASSERT_LE(offset + out.size(), bytes_.size());
     std::memcpy(out.data(), bytes_.data() + offset, out.size());
-    ++*reads_;
-    *bytes_read_ += out.size();
+    ++reads;
+    bytes_read += out.size();
   }
   std::uint64_t size() const override { return bytes_.size(); }
   const std::string& name() const override { return name_; }
-  std::shared_ptr<std::uint64_t> reads_ = std::make_shared<std::uint64_t>(0);
-  std::shared_ptr<std::uint64_t> bytes_read_ = std::make_shared<std::uint64_t>(0);
+  std::uint64_t reads = 0, bytes_read = 0;
 
  private:
   std::string name_;
@@ -162,25 +152,24 @@ TEST(ParticleCodec, FramesReadInTurnFetchEachChunkOnce) {
   const fs::path dir = test::fresh_dir();
   const fs::path file = cook_with(dir, fixtures()[0], "flip", format::FrameCodec::Particle);
   const auto mapped = format::Reader::open(file);
-  auto counting = std::make_unique<CountingSource>(file);
-  const auto reads = counting->reads_;
-  const auto bytes_read = counting->bytes_read_;
-  const auto remote = format::Reader::open(std::move(counting));
+  auto source = std::make_unique<CountingSource>(file);
+  const CountingSource& counting = *source;  // the reader owns it from here on
+  const auto remote = format::Reader::open(std::move(source));
   const format::Metadata& m = mapped.metadata();
   ASSERT_GT(m.chunk_count(), 2u);
   ASSERT_GT(m.frame_count(), 3 * m.chunk_count()) << "several packets to a chunk";
-  const std::uint64_t at_open = *reads;
+  const std::uint64_t at_open = counting.reads;
   std::vector<std::byte> a(m.max_count * m.record_size), b(a.size());
   for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
     mapped.read_frame(f, a);
     remote.read_frame(f, b);
     ASSERT_EQ(std::memcmp(a.data(), b.data(), m.frames[f].count * m.record_size), 0) << "frame " << f;
   }
-  EXPECT_EQ(*reads - at_open, m.chunk_count());
+  EXPECT_EQ(counting.reads - at_open, m.chunk_count());
   std::uint64_t stored = 0;
   for (const format::ChunkEntry& c : m.chunks) stored += c.stored_size;
-  EXPECT_LE(*bytes_read, file_size(file));
-  EXPECT_GE(*bytes_read, stored);
+  EXPECT_LE(counting.bytes_read, fs::file_size(file));
+  EXPECT_GE(counting.bytes_read, stored);
   for (std::uint64_t f = m.frame_count(); f-- > 0;) {  // backwards: each frame from its keyframe on
     mapped.read_frame(f, a);
     remote.read_frame(f, b);

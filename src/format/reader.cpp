@@ -103,10 +103,10 @@ void Reader::read_chunk(std::uint64_t chunk, std::span<std::byte> out) const {
 namespace {
 
 // The frame's packet: a span of `scratch` when the packet lies in one chunk, else assembled in
-// `out`. Chunks are read into `scratch` unless `held` (when not null) says it holds that chunk
-// already; it is updated as chunks are read.
+// `out`. Chunks are read into `scratch` unless `held` says it holds that chunk already (kNoChunk:
+// none); it is updated as chunks are read.
 std::span<const std::byte> packet_bytes(const Reader& reader, std::uint64_t frame, std::span<std::byte> out,
-                                        std::span<std::byte> scratch, std::uint64_t* held) {
+                                        std::span<std::byte> scratch, std::uint64_t& held) {
   const Metadata& m = reader.metadata();
   if (frame >= m.frame_count()) {
     throw Error(fmt::format("{}: frame {} requested, the file has {}", reader.name(), frame, m.frame_count()));
@@ -125,10 +125,10 @@ std::span<const std::byte> packet_bytes(const Reader& reader, std::uint64_t fram
       throw Error(fmt::format("{}: scratch buffer of {} bytes for chunk {} of {} bytes", reader.name(), scratch.size(),
                               chunk, m.chunk_raw_size(chunk)));
     }
-    if (held == nullptr || *held != chunk) {
-      if (held != nullptr) *held = kNoChunk;  // until the chunk is read whole and checked
+    if (held != chunk) {
+      held = kNoChunk;  // until the chunk is read whole and checked
       reader.read_chunk(chunk, scratch);
-      if (held != nullptr) *held = chunk;
+      held = chunk;
     }
     if (take == p.size) return scratch.subspan(within, take);  // the whole packet in one chunk
     std::memcpy(out.data() + done, scratch.data() + within, take);
@@ -141,7 +141,8 @@ std::span<const std::byte> packet_bytes(const Reader& reader, std::uint64_t fram
 }  // namespace
 
 void Reader::read_packet(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const {
-  const std::span<const std::byte> packet = packet_bytes(*this, frame, out, scratch, nullptr);
+  std::uint64_t held = kNoChunk;  // the caller's scratch holds nothing of ours
+  const std::span<const std::byte> packet = packet_bytes(*this, frame, out, scratch, held);
   if (packet.data() != out.data() && !packet.empty()) std::memcpy(out.data(), packet.data(), packet.size());
 }
 
@@ -165,7 +166,7 @@ void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
   }
   // Forward from the keyframe, or on from the frame decoded last.
   for (std::uint64_t f = decode_start(m, frame, d.frames->last_decoded()); f <= frame; ++f) {
-    const std::span<const std::byte> packet = packet_bytes(*this, f, d.packet, d.scratch, &d.scratch_chunk);
+    const std::span<const std::byte> packet = packet_bytes(*this, f, d.packet, d.scratch, d.scratch_chunk);
     // Frames on the way are decoded aside: they may hold more particles than `out`.
     d.frames->decode(f, packet, f == frame ? out : std::span(d.decoded));
   }
