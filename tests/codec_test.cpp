@@ -1,7 +1,6 @@
 // The particle codec end to end: real caches cooked, every frame decoded and compared with the
 // source's records (the records codec), value by value.
 #include <gtest/gtest.h>
-#include <zstd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -19,6 +18,7 @@
 #include "particlestream/format.hpp"
 #include "particlestream/io.hpp"
 #include "test_util.hpp"
+#include "zstd_packets.hpp"
 
 namespace {
 
@@ -322,34 +322,19 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
   ASSERT_FALSE(m.frames[5].keyframe);
   // The bodies of frames 0 to 5: the packets from the keyframe on are one zstd stream.
   std::vector<std::byte> scratch(m.chunk_size);
-  std::vector<std::vector<std::byte>> bodies;
-  {
-    const std::unique_ptr<ZSTD_DCtx, decltype(&ZSTD_freeDCtx)> d(ZSTD_createDCtx(), &ZSTD_freeDCtx);
-    for (std::uint64_t f = 0; f <= 5; ++f) {
-      std::vector<std::byte> packet(m.frames[f].packet_size), body(1 << 22);
-      r.read_packet(f, packet, scratch);
-      ZSTD_inBuffer in{packet.data(), packet.size(), 0};
-      ZSTD_outBuffer out{body.data(), body.size(), 0};
-      while (in.pos < in.size) ASSERT_FALSE(ZSTD_isError(ZSTD_decompressStream(d.get(), &out, &in)));
-      body.resize(out.pos);
-      bodies.push_back(std::move(body));
-    }
+  std::vector<std::vector<std::byte>> stored(6);
+  for (std::uint64_t f = 0; f <= 5; ++f) {
+    stored[f].resize(m.frames[f].packet_size);
+    r.read_packet(f, stored[f], scratch);
   }
+  const std::vector<std::span<const std::byte>> stored_views(stored.begin(), stored.end());
+  const std::vector<std::vector<std::byte>> bodies = test::decompress_packets(stored_views, 1 << 22);
   std::vector<std::byte> body = bodies[5];
   // Frames 0 to 4 as they were, and frame 5's body changed, written again as one stream.
   const auto decode_with = [&](const std::vector<std::byte>& changed) -> std::string {
-    const std::unique_ptr<ZSTD_CCtx, decltype(&ZSTD_freeCCtx)> c(ZSTD_createCCtx(), &ZSTD_freeCCtx);
-    ZSTD_CCtx_setParameter(c.get(), ZSTD_c_windowLog, format::particle::kStreamWindowLog);
-    std::vector<std::vector<std::byte>> packets;
-    for (std::uint64_t f = 0; f <= 5; ++f) {
-      const std::vector<std::byte>& b = f == 5 ? changed : bodies[f];
-      std::vector<std::byte> z(ZSTD_compressBound(b.size()) + 64);
-      ZSTD_inBuffer in{b.data(), b.size(), 0};
-      ZSTD_outBuffer out{z.data(), z.size(), 0};
-      EXPECT_EQ(ZSTD_compressStream2(c.get(), &out, &in, ZSTD_e_flush), 0u);
-      z.resize(out.pos);
-      packets.push_back(std::move(z));
-    }
+    std::vector<std::span<const std::byte>> changed_bodies(bodies.begin(), bodies.end());
+    changed_bodies[5] = changed;
+    const auto packets = test::compress_packets(changed_bodies, true, 3);
     format::FrameDecoder d(m, "clip.pstream");
     std::vector<std::byte> out(m.max_count * m.record_size);
     for (std::uint64_t f = 0; f < 5; ++f) d.decode(f, packets[f], out);

@@ -40,6 +40,14 @@ struct Frame {
   std::uint64_t count = 0;
 };
 
+// The names the table prints (and --codec takes) of the codecs this file refers to again.
+constexpr std::string_view kOurs = "particle (ours)";
+constexpr std::string_view kOursLossless = "particle lossless (ours)";
+constexpr std::string_view kZstd3 = "zstd -3";  // the baseline
+constexpr std::string_view kZstd19 = "zstd -19";
+constexpr std::string_view kMeshopt = "meshopt + zstd -3";  // the peer
+constexpr std::string_view kDraco = "draco";
+
 // One codec under test: encode every frame, decode every frame in order into `out` (a frame's
 // records, the frame index given).
 struct Contender {
@@ -174,9 +182,9 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                    LZ4_decompress_safe(reinterpret_cast<const char*>(enc[f].data()),
                                        reinterpret_cast<char*>(out.data()), int(enc[f].size()), int(out.size()));
                  }});
-  for (const int level : {3, 19}) {
-    all.push_back({fmt::format("zstd -{}", level),
-                   [level](const std::vector<Frame>& frames) {
+  for (const auto& [name, level] : {std::pair{kZstd3, 3}, std::pair{kZstd19, 19}}) {
+    all.push_back({std::string(name),
+                   [level = level](const std::vector<Frame>& frames) {
                      std::vector<std::vector<std::byte>> out;
                      for (const Frame& f : frames) out.push_back(zstd_compress(f.records, level));
                      return out;
@@ -213,7 +221,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
   const Grid gx = grid_of(lossy, 0), gy = grid_of(lossy, 1), gz = grid_of(lossy, 2), gs = grid_of(lossy, 3);
   auto vertices = std::make_shared<std::vector<std::uint16_t>>(max_count * 4);
   auto packed = std::make_shared<std::vector<std::byte>>(meshopt_encodeVertexBufferBound(max_count, 8));
-  all.push_back({"meshopt + zstd -3",
+  all.push_back({std::string(kMeshopt),
                  [=](const std::vector<Frame>& frames) {
                    std::vector<std::vector<std::byte>> out;
                    std::vector<std::uint16_t> v;
@@ -252,7 +260,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
   // Draco's point-cloud codec, with quantisation bits that keep the same bound.
   const double bound = lossy.error;
   const double scale_bound = lossy.words[3].coding == format::WordCoding::Relative ? lossy.words[3].error : 0.0;
-  all.push_back({"draco",
+  all.push_back({std::string(kDraco),
                  [bound, scale_bound](const std::vector<Frame>& frames) {
                    std::vector<std::vector<std::byte>> out;
                    for (const Frame& f : frames) {
@@ -322,7 +330,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
     meta->codec = *info;
     meta->max_count = max_count;
     auto decoder = std::make_shared<std::unique_ptr<format::FrameDecoder>>();
-    all.push_back({info->lossless ? "particle lossless (ours)" : "particle (ours)",
+    all.push_back({std::string(info->lossless ? kOursLossless : kOurs),
                    [=](const std::vector<Frame>& frames) {
                      std::vector<std::vector<std::byte>> out;
                      meta->frames.clear();
@@ -496,7 +504,7 @@ int bench_codec(const BenchCodecOptions& o) {
           std::memcpy(sorted.data() + i * kRecord, fr.records.data() + order[i] * kRecord, kRecord);
         source = sorted;
       }
-      if (c.reorders && (!ids || c.name == "draco")) {
+      if (c.reorders && (!ids || c.name == kDraco)) {
         cmp.add(layout, out, fr.count, fr.records, fr.count, &lossy);  // nearest, within the bound's cells
       } else {
         compare_in_order(out, source, fr.count, cmp);
@@ -523,7 +531,7 @@ int bench_codec(const BenchCodecOptions& o) {
   const auto faster_than = [&](std::string_view other) {
     std::size_t us = all.size(), them = all.size();
     for (std::size_t i = 0; i < all.size(); ++i) {
-      if (all[i].name == "particle (ours)") us = i;
+      if (all[i].name == kOurs) us = i;
       if (all[i].name == other) them = i;
     }
     if (us == all.size() || them == all.size()) return 0.0;
@@ -531,7 +539,7 @@ int bench_codec(const BenchCodecOptions& o) {
     for (int rep = 0; rep < o.repetitions; ++rep) r.push_back(decode_s[them][rep] / decode_s[us][rep]);
     return median(r);
   };
-  const double vs_zstd = faster_than("zstd -3"), vs_meshopt = faster_than("meshopt + zstd -3");
+  const double vs_zstd = faster_than(kZstd3), vs_meshopt = faster_than(kMeshopt);
   nlohmann::ordered_json report{{"file", std::filesystem::path(o.file).filename().string()},
                                 {"frames", frames.size()},
                                 {"particles", particles},

@@ -22,26 +22,56 @@ using namespace particle;
 
 int stream_window_log(const Metadata& meta) { return meta.version >= kFirstStreamedVersion ? kStreamWindowLog : 0; }
 
+// The decoder's state, buffer by buffer, in elements: what a unit allocates at open, and what
+// particle_unit_state_bytes() counts before one is made (a unit's state_bytes() counts what it
+// did allocate; the codec tests check that the two agree).
+struct StateSizes {
+  std::uint64_t words = 0;      // q_ and d_, each in two states: every coded word of every particle
+  std::uint64_t ids = 0;        // ids_, in two states
+  std::uint64_t particles = 0;  // residual_
+  std::uint64_t steps = 0;      // steps_ (bytes), in two states
+  std::uint64_t derived = 0;    // derived_: every derived word of every particle
+  std::uint64_t blocks = 0;     // bias_: one per block of survivors
+  std::uint64_t tile = 0;       // tile_
+  std::uint64_t body = 0;       // body_ (bytes)
+  int window_log = 0;           // the zstd stream's
+
+  StateSizes(const Metadata& meta, const WordPlan& plan) {
+    const std::uint64_t n = meta.max_count;
+    const bool has_ids = plan.id_word >= 0;
+    words = plan.coded.size() * n;
+    ids = has_ids ? n : 0;
+    particles = n;
+    steps = plan.derived.empty() ? 0 : n;
+    derived = plan.derived.size() * n;
+    blocks = (n + kBlock - 1) >> kBlockShift;
+    tile = std::uint64_t(plan.words) * kTile;
+    body = body_capacity(n, plan.coded.size(), has_ids);
+    window_log = stream_window_log(meta);
+  }
+  std::uint64_t bytes() const {
+    return 2 * (2 * words * 4 + ids * 8 + steps) + (particles + derived + blocks + tile) * 4 + body +
+           EntropyDecoder::stream_bytes(window_log);
+  }
+};
+
 class ParticleUnit final : public FrameUnit {
  public:
   ParticleUnit(const Metadata& meta, std::string_view name)
       : meta_(meta), name_(name), plan_(meta.codec), entropy_(stream_window_log(meta)) {
-    const std::uint64_t n = meta.max_count;
-    const std::size_t coded = plan_.coded.size();
+    const StateSizes sizes(meta, plan_);
     for (int b = 0; b < 2; ++b) {
-      q_[b].assign(coded * n, 0);
-      d_[b].assign(coded * n, 0);
-      if (plan_.id_word >= 0) ids_[b].assign(n, 0);
+      q_[b].assign(sizes.words, 0);
+      d_[b].assign(sizes.words, 0);
+      ids_[b].assign(sizes.ids, 0);
+      steps_[b].assign(sizes.steps, 0);
     }
-    residual_.assign(n, 0);
-    if (!plan_.derived.empty()) {
-      for (int b = 0; b < 2; ++b) steps_[b].assign(n, 0);
-      derived_.assign(plan_.derived.size() * n, 0);
-    }
-    bias_.assign((n + kBlock - 1) >> kBlockShift, 0);
-    tile_.assign(std::size_t(plan_.words) * kTile, 0);
-    words_.resize(coded);
-    body_.resize(body_capacity(n, coded, plan_.id_word >= 0));
+    residual_.assign(sizes.particles, 0);
+    derived_.assign(sizes.derived, 0);
+    bias_.assign(sizes.blocks, 0);
+    tile_.assign(sizes.tile, 0);
+    words_.resize(plan_.coded.size());
+    body_.resize(sizes.body);
   }
 
   void reset() override { count_[cur_ ^ 1] = 0; }
@@ -434,16 +464,7 @@ class ParticleUnit final : public FrameUnit {
 
 }  // namespace
 
-std::uint64_t particle_unit_state_bytes(const Metadata& meta) {
-  const WordPlan plan(meta.codec);
-  const std::uint64_t n = meta.max_count, coded = plan.coded.size();
-  const bool ids = plan.id_word >= 0;
-  // Per particle: Q and D of every coded word in two states, ids in two states, a residual.
-  const std::uint64_t derived = plan.derived.empty() ? 0 : 2 + plan.derived.size() * 4;
-  return n * (coded * 16 + (ids ? 16 : 0) + 4 + derived) + ((n + kBlock - 1) >> kBlockShift) * 4 +
-         std::uint64_t(plan.words) * kTile * 4 + body_capacity(n, coded, ids) +
-         EntropyDecoder::stream_bytes(stream_window_log(meta));
-}
+std::uint64_t particle_unit_state_bytes(const Metadata& meta) { return StateSizes(meta, WordPlan(meta.codec)).bytes(); }
 
 std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name) {
   return std::make_unique<ParticleUnit>(meta, name);

@@ -331,15 +331,20 @@ class GroupEncoder {
                            (floordiv(q[2], side) - g0[2]));
       };
       // Particles 0..count-1 by their cells (a counting sort, stable): `order` lists them, and
-      // cell c's are order[start[c]] to order[start[c + 1] - 1].
+      // cell c's are order[start[c]] to order[start[c + 1] - 1]. Each particle's cell is found once.
+      std::vector<std::size_t> cell_of_particle;
       const auto by_cell = [&](std::uint32_t count, const auto& cell_of, std::vector<std::uint32_t>& start,
                                std::vector<std::uint32_t>& order) {
         start.assign(std::size_t(total) + 1, 0);
-        for (std::uint32_t j = 0; j < count; ++j) ++start[cell_of(j) + 1];
+        cell_of_particle.resize(count);
+        for (std::uint32_t j = 0; j < count; ++j) {
+          cell_of_particle[j] = cell_of(j);
+          ++start[cell_of_particle[j] + 1];
+        }
         for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
         std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
         order.resize(count);
-        for (std::uint32_t j = 0; j < count; ++j) order[fill[cell_of(j)]++] = j;
+        for (std::uint32_t j = 0; j < count; ++j) order[fill[cell_of_particle[j]]++] = j;
       };
       // This frame's particles in cell order, their positions and cells copied beside them.
       std::vector<std::uint32_t> start, order;

@@ -1,12 +1,11 @@
 // Writes seed inputs for fuzz_particle: real bodies of a keyframe and a predicted frame, for each
 // layout and order the target's selector picks, with births, deaths and moving particles.
-#include <zstd.h>
-
 #include <cmath>
 #include <fstream>
 #include <string>
 
 #include "particle_fuzz_clip.hpp"
+#include "zstd_packets.hpp"
 
 int main(int argc, char** argv) {
   using namespace pstream;
@@ -40,17 +39,8 @@ int main(int argc, char** argv) {
       const format::SourceFrame frames[2] = {{records[0], by_id ? std::span(ids[0]) : std::span<std::uint64_t>{}, n0},
                                              {records[1], by_id ? std::span(ids[1]) : std::span<std::uint64_t>{}, n1}};
       const auto encoded = format::encode_group(meta.codec, frames, {}, 0);
-      std::vector<std::byte> bodies[2];  // the packets are one zstd stream
-      ZSTD_DCtx* d = ZSTD_createDCtx();
-      for (int f = 0; f < 2; ++f) {
-        bodies[f].resize(1 << 16);
-        ZSTD_inBuffer in{encoded[f].packet.data(), encoded[f].packet.size(), 0};
-        ZSTD_outBuffer out{bodies[f].data(), bodies[f].size(), 0};
-        while (in.pos < in.size && !ZSTD_isError(ZSTD_decompressStream(d, &out, &in))) {
-        }
-        bodies[f].resize(out.pos);
-      }
-      ZSTD_freeDCtx(d);
+      const std::span<const std::byte> packets[2] = {encoded[0].packet, encoded[1].packet};
+      const auto bodies = test::decompress_packets(packets, 1 << 16);  // the packets are one zstd stream
       std::ofstream out(std::string(argv[1]) + "/seed-" + std::to_string(selector) + "-" + std::to_string(n0),
                         std::ios::binary);
       const auto size = static_cast<std::uint32_t>(bodies[0].size());
