@@ -2,6 +2,7 @@
 // Options in one place for the command line and the bindings.
 #include <charconv>
 #include <cmath>
+#include <optional>
 
 #include <fmt/format.h>
 
@@ -9,6 +10,18 @@
 #include "particlestream/cook.hpp"
 
 namespace pstream::cook {
+namespace {
+
+// All of `text` as a number, or nothing when it holds no number or more than one.
+template <class T>
+std::optional<T> whole_number(std::string_view text) {
+  T value{};
+  const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || ptr != text.data() + text.size()) return std::nullopt;
+  return value;
+}
+
+}  // namespace
 
 void set_codec(Options& o, std::string_view spec) {
   const std::string text(spec);
@@ -18,13 +31,12 @@ void set_codec(Options& o, std::string_view spec) {
     o.frame_codec = format::FrameCodec::Particle;
     o.particle.lossless = name == "particle-lossless";
     if (colon != std::string::npos) {  // the entropy stage's zstd level
-      const std::string level = text.substr(colon + 1);
-      const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.particle.zstd_level);
-      if (ec != std::errc() || ptr != level.data() + level.size() || o.particle.zstd_level < 1 ||
-          o.particle.zstd_level > 22) {
+      const std::optional<int> level = whole_number<int>(std::string_view(text).substr(colon + 1));
+      if (!level || *level < 1 || *level > 22) {
         throw Error(fmt::format("`codec` '{}': the particle codec's zstd level must be 1..22 (default {}, lossless {})",
                                 text, format::kDefaultParticleZstdLevel, format::kDefaultLosslessParticleZstdLevel));
       }
+      o.particle.zstd_level = *level;
     }
     return;
   }
@@ -44,11 +56,9 @@ void set_codec(Options& o, std::string_view spec) {
         "`codec` '{}': expected particle[:LEVEL], particle-lossless[:LEVEL], raw, lz4, lz4:LEVEL, zstd or zstd:LEVEL{}",
         text, did_you_mean(name, {"particle", "particle-lossless", "raw", "lz4", "zstd"})));
   if (colon != std::string::npos) {
-    const std::string level = text.substr(colon + 1);
-    const auto [ptr, ec] = std::from_chars(level.data(), level.data() + level.size(), o.codec_level);
-    if (ec != std::errc() || ptr != level.data() + level.size() || o.codec_level < 0 || o.codec_level > 22) {
-      throw Error(fmt::format("`codec` '{}': level must be 0..22", text));
-    }
+    const std::optional<int> level = whole_number<int>(std::string_view(text).substr(colon + 1));
+    if (!level || *level < 0 || *level > 22) throw Error(fmt::format("`codec` '{}': level must be 0..22", text));
+    o.codec_level = *level;
   }
 }
 
@@ -63,10 +73,8 @@ void set_error_bound(Options& o, std::string_view spec, std::string_view what) {
     relative = number[0] == 'r';
     number = number.substr(4);
   }
-  double value = 0.0;
-  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
-  if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !std::isfinite(value) ||
-      (relative && value >= 1)) {
+  const double value = whole_number<double>(number).value_or(0.0);
+  if (!(value > 0) || !std::isfinite(value) || (relative && value >= 1)) {
     throw Error(
         fmt::format("{} '{}': expected a fraction of the bounds diagonal such as 1e-4 (or rel:1e-4), or abs:VALUE in "
                     "scene units",
@@ -80,10 +88,8 @@ void set_scale_error(Options& o, std::string_view spec, std::string_view what) {
   std::string number(spec);
   const bool percent = !number.empty() && number.back() == '%';
   if (percent) number.pop_back();
-  double value = 0.0;
-  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
-  if (percent) value /= 100.0;
-  if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !(value < 0.5)) {
+  const double value = whole_number<double>(number).value_or(0.0) / (percent ? 100.0 : 1.0);
+  if (!(value > 0) || !(value < 0.5)) {
     throw Error(fmt::format(
         "{} '{}': expected the bound on each particle's scale relative to itself, such as 1% or 0.01 (above 0, "
         "below 50%)",
@@ -93,10 +99,8 @@ void set_scale_error(Options& o, std::string_view spec, std::string_view what) {
 }
 
 void set_attribute_error(Options& o, std::string_view spec, std::string_view what) {
-  const std::string number(spec);
-  double value = 0.0;
-  const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
-  if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !(value < 1)) {
+  const double value = whole_number<double>(spec).value_or(0.0);
+  if (!(value > 0) || !(value < 1)) {
     throw Error(fmt::format(
         "{} '{}': expected the bound on velocity and other float attributes as a fraction of their own range, such "
         "as 1e-3 (above 0, below 1)",
@@ -110,10 +114,8 @@ void set_scale_from(Options& o, std::string_view spec, std::string_view what) {
   if (text == "widths") {
     o.scale_from = ScaleFrom::Widths;
   } else if (text.rfind("constant:", 0) == 0) {
-    const std::string number = text.substr(9);
-    float value = 0.0f;
-    const auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value);
-    if (ec != std::errc() || ptr != number.data() + number.size() || !(value > 0) || !std::isfinite(value))
+    const float value = whole_number<float>(std::string_view(text).substr(9)).value_or(0.0f);
+    if (!(value > 0) || !std::isfinite(value))
       throw Error(fmt::format("{} '{}': expected constant:X with X a positive number (the radius)", what, text));
     o.scale_from = ScaleFrom::Constant;
     o.scale_constant = value;
