@@ -115,15 +115,15 @@ int run_cook(const CookCli& cli) {
       const double per_particle = r.particles ? double(r.file_bytes) / double(r.particles) : 0.0;
       const double match = r.predictable ? 100.0 * double(r.matched) / double(r.predictable) : 100.0;
       if (o.particle.lossless) {
-        fmt::print("  particle codec, lossless: {:.2f} bytes per particle per frame, {} keyframes\n", per_particle,
-                   r.keyframes);
+        fmt::print("  particle codec, lossless: {:.2f} bytes per particle per frame, {}\n", per_particle,
+                   count_of(r.keyframes, "keyframe"));
       } else {
         fmt::print(
-            "  particle codec: {:.2f} bytes per particle per frame, positions within {:.3g} ({}), {} keyframes, "
+            "  particle codec: {:.2f} bytes per particle per frame, positions within {:.3g} ({}), {}, "
             "{:.1f}% of particles predicted from the frame before ({})\n",
             per_particle, r.error,
             o.particle.error_relative ? fmt::format("{:g} of the bounds diagonal", o.particle.error) : "absolute",
-            r.keyframes, match,
+            count_of(r.keyframes, "keyframe"), match,
             r.order == format::FrameOrder::Id ? "matched by id" : "matched by predicted position, no ids");
       }
     }
