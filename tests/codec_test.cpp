@@ -351,7 +351,32 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
     std::memcpy(b.data() + at, &v, 4);
     return b;
   };
+  // Version 5: position.x's survivors are packed as nibbles. Two more escapes (a byte of two
+  // nibbles below 15 made 0xFF, with escape planes a byte wide) need bytes the body does not hold.
+  namespace pc = format::particle;
+  const auto u32_at = [&](std::size_t at) {
+    std::uint32_t v;
+    std::memcpy(&v, body.data() + at, 4);
+    return v;
+  };
+  const std::size_t coded = pc::WordPlan(m.codec).coded.size();
+  ASSERT_EQ(std::to_integer<int>(body[pc::kBodyHeader + 6]), pc::kNibbles);
+  std::size_t nibbles_at = pc::kBodyHeader + coded * pc::kWordHeader + pc::kIdHeader + u32_at(8) * pc::kOpSize;
+  std::uint64_t survivors = 0;
+  for (std::uint32_t o = 0; o < u32_at(8); ++o)
+    survivors += u32_at(pc::kBodyHeader + coded * pc::kWordHeader + pc::kIdHeader + o * pc::kOpSize);
+  nibbles_at += std::to_integer<std::size_t>(body[pc::kBodyHeader + 4]) * ((survivors + 1023) / 1024);  // bias
+  while ((std::to_integer<unsigned>(body[nibbles_at]) & 15) == 15 ||
+         (std::to_integer<unsigned>(body[nibbles_at]) >> 4) == 15)
+    ++nibbles_at;
+  auto escaped = body;
+  escaped[nibbles_at] = std::byte{0xff};
+  if (body[pc::kBodyHeader + 1] == std::byte{0}) escaped[pc::kBodyHeader + 1] = std::byte{1};  // escapes of 15 + 0..255
+  auto packing = body;
+  packing[pc::kBodyHeader + 6] = std::byte{2};
   for (const auto& [changed, fragment] : std::vector<std::pair<std::vector<std::byte>, std::string>>{
+           {escaped, "residual planes need"},
+           {packing, "keep packing 2"},
            {poke(0, 7), "particles, the frame index says"},
            {poke(4, 1), "but the previous frame has"},
            {poke(8, 0xffffffu), "operations for"},
@@ -382,6 +407,39 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
       } catch (const Error& e) {
         EXPECT_NE(std::string(e.what()).find("clip.pstream: frame 5: particle packet"), std::string::npos) << e.what();
       }
+    }
+  }
+}
+
+// Version 5's nibbles: any values written as nibbles and escape planes read back as byte planes
+// holding every value, whatever their count (odd, under one 16-nibble step, many steps) and the
+// width of their escapes (none, up to 15 + 240 in one plane, past it, two to four bytes).
+TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
+  namespace pc = format::particle;
+  std::uint32_t seed = 12345;
+  const auto next = [&] { return seed = seed * 1664525u + 1013904223u; };
+  const std::uint32_t largest[] = {0, 14, 15, 255, 256, 270, 271, 65535, 65550, 0xffffff, 0xffffffffu};
+  for (const std::uint32_t n : {0u, 1u, 2u, 15u, 16u, 17u, 33u, 1000u}) {
+    for (const std::uint32_t top : largest) {
+      std::vector<std::uint32_t> values(n);
+      for (std::uint32_t t = 0; t < n; ++t) values[t] = next() % 15;  // mostly nibbles
+      for (std::uint32_t t = 0; t < n; t += 3) values[t] = top == 0 ? 0 : next() % top;
+      if (n > 0) values[n / 2] = top;
+      SCOPED_TRACE(fmt::format("{} values up to {}", n, top));
+      std::vector<std::byte> packed;
+      const unsigned width = pc::escape_bytes(values);
+      pc::write_nibbles(packed, values, width);
+      const auto escapes = static_cast<std::uint32_t>(
+          std::count_if(values.begin(), values.end(), [](std::uint32_t v) { return v >= pc::kNibbleEscape; }));
+      ASSERT_EQ(packed.size(), (n + 1) / 2 + std::size_t(escapes) * width);
+      const auto* bytes = reinterpret_cast<const std::uint8_t*>(packed.data());
+      ASSERT_EQ(pc::count_escapes(bytes, n), escapes);
+      std::vector<std::uint8_t> planes(4 * std::size_t(n) + 1);
+      const unsigned count = pc::nibbles_to_planes(bytes, n, bytes + (n + 1) / 2, escapes, width, planes.data());
+      const std::uint32_t most = n == 0 ? 0 : *std::max_element(values.begin(), values.end());
+      EXPECT_GE(count, std::max(1u, pc::bytes_for(most)));
+      EXPECT_LE(count, 4u);
+      for (std::uint32_t t = 0; t < n; ++t) ASSERT_EQ(pc::plane_value(planes.data(), n, t, count), values[t]) << t;
     }
   }
 }

@@ -222,7 +222,7 @@ const spares = [];       // particle buffers the page has handed back
 let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
 const kInstanceBytes = 20;  // a drawn particle: x, y, z, radius, RGBA8 (pstream_wasm.cpp)
 // zstddec's streaming build (zstd's own decoder in WebAssembly). Its exports, which _init is
-// handed, give the one stream a particle clip's keyframe group is (format version 4).
+// handed, give the one stream a particle clip's keyframe group is (format version 4 on).
 let zx = null;
 class StreamingZSTD extends ZSTDDecoder {
   _init(result) {

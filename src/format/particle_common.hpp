@@ -32,6 +32,12 @@ constexpr std::uint32_t kTile = 256;  // particles written out at a time
 constexpr int kStreamWindowLog = 20;
 constexpr std::uint32_t kFirstStreamedVersion = 4;
 constexpr std::uint32_t kZstdMagic = 0xFD2FB528;  // little-endian in the packet's first 4 bytes
+// Version 5: a word's survivors' residuals may be packed as nibbles (Packing::Nibbles): each
+// below 15 in four bits, two a byte, and 15 an escape to 15 plus the next value of the escape
+// planes. zstd then makes half the bytes and the encoder's optimal parser runs on half the input.
+constexpr std::uint32_t kFirstNibbleVersion = 5;
+constexpr std::uint32_t kNibbleEscape = 15;
+enum Packing : std::uint8_t { kBytePlanes = 0, kNibbles = 1 };
 
 enum Predictor : std::uint8_t { kPrevious = 0, kLinear = 1 };
 
@@ -198,6 +204,126 @@ inline void read_planes(const std::byte* planes, std::size_t n, unsigned bytes, 
   }
 }
 
+// Nibbles: value t in byte t / 2, the low four bits when t is even; the last byte's high nibble
+// is 0 when n is odd. A value of 15 or more is the escape nibble, and its excess (value − 15) the
+// next value of the escape planes that follow (write_planes, `escape_bytes` wide).
+inline unsigned escape_bytes(std::span<const std::uint32_t> values) {
+  std::uint32_t largest = 0;
+  for (const std::uint32_t v : values) largest = std::max(largest, v >= kNibbleEscape ? v - kNibbleEscape : 0u);
+  return bytes_for(largest);
+}
+inline void write_nibbles(std::vector<std::byte>& out, std::span<const std::uint32_t> values, unsigned escape_width) {
+  const std::size_t n = values.size(), at = out.size();
+  out.resize(at + (n + 1) / 2, std::byte{0});
+  std::vector<std::uint32_t> escapes;
+  for (std::size_t t = 0; t < n; ++t) {
+    const std::uint32_t v = std::min(values[t], kNibbleEscape);
+    if (v == kNibbleEscape) escapes.push_back(values[t] - kNibbleEscape);
+    out[at + t / 2] |= static_cast<std::byte>(v << (4 * (t & 1)));
+  }
+  write_planes(out, escapes, escape_width);
+}
+// 64 bits of nibbles: one bit (the lowest of its nibble) for each escape nibble.
+inline std::uint64_t escape_bits(std::uint64_t x) { return x & (x >> 1) & (x >> 2) & (x >> 3) & 0x1111111111111111ull; }
+// The escapes among n nibbles (whose padding nibble, for odd n, is 0).
+inline std::uint64_t count_escapes(const std::uint8_t* packed, std::uint32_t n) {
+  const std::size_t bytes = (std::size_t(n) + 1) / 2;
+  std::uint64_t count = 0;
+  std::size_t b = 0;
+  for (; b + 8 <= bytes; b += 8) {
+    std::uint64_t x;
+    std::memcpy(&x, packed + b, 8);
+    // One bit a nibble: the nibbles' sum in each byte (at most 2), then the bytes' sum (at most 16).
+    const std::uint64_t bits = escape_bits(x), per_byte = (bits + (bits >> 4)) & 0x0F0F0F0F0F0F0F0Full;
+    count += (per_byte * 0x0101010101010101ull) >> 56;
+  }
+  for (; b < bytes; ++b) count += std::uint64_t((packed[b] & 15) == 15) + std::uint64_t((packed[b] >> 4) == 15);
+  return count;
+}
+// n nibbles and their escapes as byte planes of n bytes (out[b·n + t] is byte b of value t), the
+// form the survivors' loop reads; returns how many planes: as few as hold 15 plus the largest
+// escape value (1 without escapes, at most 4). `out` has room for 4n bytes.
+inline unsigned nibbles_to_planes(const std::uint8_t* packed, std::uint32_t n, const std::uint8_t* escape_planes,
+                                  std::uint32_t escapes, unsigned escape_width, std::uint8_t* out);
+
+// The positions of the escapes among n nibbles, in order, 16 nibbles at a time (most have none).
+class EscapeScan {
+ public:
+  static constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+  EscapeScan() = default;
+  EscapeScan(const std::uint8_t* packed, std::uint32_t n) : packed_(packed), bytes_((std::size_t(n) + 1) / 2) {
+    settle();
+  }
+  std::uint32_t next() const { return next_; }  // kNone when no escape is left
+  void pop() {
+    bits_ &= bits_ - 1;
+    settle();
+  }
+
+ private:
+  void settle() {
+    while (bits_ == 0 && at_ + 8 <= bytes_) {
+      std::uint64_t x;
+      std::memcpy(&x, packed_ + at_, 8);
+      bits_ = escape_bits(x);
+      base_ = static_cast<std::uint32_t>(2 * at_);
+      at_ += 8;
+    }
+    if (bits_ == 0 && at_ < bytes_) {  // the last bytes (the padding nibble is 0)
+      std::uint64_t x = 0;
+      std::memcpy(&x, packed_ + at_, bytes_ - at_);
+      bits_ = escape_bits(x);
+      base_ = static_cast<std::uint32_t>(2 * at_);
+      at_ = bytes_;
+    }
+    next_ = bits_ == 0 ? kNone : base_ + static_cast<std::uint32_t>(std::countr_zero(bits_)) / 4;
+  }
+  const std::uint8_t* packed_ = nullptr;
+  std::size_t bytes_ = 0, at_ = 0;
+  std::uint64_t bits_ = 0;
+  std::uint32_t base_ = 0, next_ = kNone;
+};
+
+inline unsigned nibbles_to_planes(const std::uint8_t* packed, std::uint32_t n, const std::uint8_t* escape_planes,
+                                  std::uint32_t escapes, unsigned escape_width, std::uint8_t* out) {
+  const std::uint32_t pairs = n / 2;
+  for (std::uint32_t b = 0; b < pairs; ++b) {  // two values a byte into two bytes
+    const auto two = static_cast<std::uint16_t>((packed[b] & 15u) | (std::uint32_t(packed[b] >> 4) << 8));
+    std::memcpy(out + 2 * b, &two, 2);
+  }
+  if (n & 1) out[n - 1] = packed[pairs] & 15u;
+  if (escapes == 0 || escape_width == 0) return 1;  // an escape of 0 is 15 itself
+  // The largest escape's top byte says whether 15 more needs another plane.
+  const std::uint8_t* top = escape_planes + std::size_t(escape_width - 1) * escapes;
+  const std::uint8_t largest_top = *std::max_element(top, top + escapes);
+  const unsigned planes = std::min(
+      4u, escape_width + ((escape_width == 1 ? largest_top > 255 - kNibbleEscape : largest_top == 255) ? 1 : 0));
+  if (planes > 1) std::memset(out + n, 0, std::size_t(planes - 1) * n);
+  const auto patch = [&]<unsigned Width, unsigned Planes>() {
+    std::uint32_t e = 0;
+    for (EscapeScan scan(packed, n); scan.next() != EscapeScan::kNone; scan.pop(), ++e) {
+      const std::uint32_t t = scan.next();
+      const std::uint32_t v = kNibbleEscape + plane_value(escape_planes, escapes, e, Width);
+      for (unsigned b = 0; b < Planes; ++b) out[std::size_t(b) * n + t] = static_cast<std::uint8_t>(v >> (8 * b));
+    }
+  };
+  if (escape_width == 1 && planes == 1)
+    patch.template operator()<1, 1>();
+  else if (escape_width == 1)
+    patch.template operator()<1, 2>();
+  else if (escape_width == 2 && planes == 2)
+    patch.template operator()<2, 2>();
+  else if (escape_width == 2)
+    patch.template operator()<2, 3>();
+  else if (escape_width == 3 && planes == 3)
+    patch.template operator()<3, 3>();
+  else if (escape_width == 3)
+    patch.template operator()<3, 4>();
+  else
+    patch.template operator()<4, 4>();
+  return planes;
+}
+
 template <class T>
 inline void put(std::vector<std::byte>& out, T v) {
   const std::size_t at = out.size();
@@ -211,7 +337,10 @@ struct Body {
   bool keyframe = false;
   struct Word {
     std::uint8_t predictor = 0, keep_bytes = 0, new_bytes = 0, motion_bytes = 0, bias_bytes = 0, prior_bytes = 0;
+    std::uint8_t keep_packing = kBytePlanes;  // kNibbles: keep_bytes is the escape planes' width
+    std::uint32_t keep_escapes = 0;           // escape values after the nibbles
     const std::byte *bias = nullptr, *keep = nullptr, *fresh = nullptr, *motion = nullptr, *prior = nullptr;
+    const std::byte* keep_escape_planes = nullptr;
   };
   std::span<Word> words;
   unsigned id_bytes = 0;

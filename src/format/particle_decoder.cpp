@@ -111,8 +111,17 @@ class ParticleUnit final : public FrameUnit {
       const std::uint32_t blocks = (b.keep_total + kBlock - 1) >> kBlockShift;
       read_planes(w.bias, blocks, w.bias_bytes, bias_.data());
       for (std::uint32_t acc = 0, x = 0; x < blocks; ++x) bias_[x] = acc += unzigzag(bias_[x]);
+      // The survivors' residuals, read from their byte planes as they go; nibbles (version 5) made
+      // byte planes first, in the residual buffer (free until derive()).
       const auto* r = reinterpret_cast<const std::uint8_t*>(w.keep);
-      const PredictRun predict_run = kPredictRun[w.keep_bytes];
+      PredictRun predict_run = kPredictRun[w.keep_bytes];
+      if (w.keep_packing == kNibbles) {
+        auto* planes = reinterpret_cast<std::uint8_t*>(residual_.data());
+        predict_run =
+            kPredictRun[nibbles_to_planes(r, b.keep_total, reinterpret_cast<const std::uint8_t*>(w.keep_escape_planes),
+                                          w.keep_escapes, w.keep_bytes, planes)];
+        r = planes;
+      }
       const std::uint32_t* bias = bias_.data();
       const std::uint32_t linear = w.predictor == kLinear ? ~0u : 0u;
       std::uint32_t i = 0, j = 0, kt = 0, nt = 0, step = 0;
@@ -232,17 +241,21 @@ class ParticleUnit final : public FrameUnit {
       std::memcpy(&w.motion_bytes, p + at + 3, 1);
       std::memcpy(&w.bias_bytes, p + at + 4, 1);
       std::memcpy(&w.prior_bytes, p + at + 5, 1);
-      const bool reserved = p[at + 6] != std::byte{0} || p[at + 7] != std::byte{0};
+      std::memcpy(&w.keep_packing, p + at + 6, 1);
+      const bool reserved = p[at + 7] != std::byte{0};
       at += 8;
       if (w.predictor > kLinear || w.keep_bytes > 4 || w.new_bytes > 4 || w.motion_bytes > 4 || w.bias_bytes > 4 ||
           w.prior_bytes > 4 || reserved || (!keyframe && w.motion_bytes != 0 && meta_.version < 3) ||
-          (keyframe && w.bias_bytes != 0) || (w.prior_bytes != 0 && (!keyframe || meta_.version < 3))) {
+          (keyframe && w.bias_bytes != 0) || (w.prior_bytes != 0 && (!keyframe || meta_.version < 3)) ||
+          w.keep_packing > kNibbles ||
+          (w.keep_packing == kNibbles && (keyframe || meta_.version < kFirstNibbleVersion))) {
         fail(frame,
-             fmt::format("{}: predictor {} with {}/{}/{}/{}/{} keep/new/motion/bias/prior residual bytes (expected "
-                         "a predictor 0..1, 0..4 bytes, motion only in keyframes before version 3, bias only in "
-                         "predicted frames, prior steps only in version 3 keyframes, reserved bytes 0)",
+             fmt::format("{}: predictor {} with {}/{}/{}/{}/{} keep/new/motion/bias/prior residual bytes and keep "
+                         "packing {} (expected a predictor 0..1, 0..4 bytes, motion only in keyframes before version "
+                         "3, bias only in predicted frames, prior steps only in version 3 keyframes, packing 0 or "
+                         "(predicted frames of version 5 on) 1, reserved byte 0)",
                          word_name(plan_.coded[k]), w.predictor, w.keep_bytes, w.new_bytes, w.motion_bytes,
-                         w.bias_bytes, w.prior_bytes),
+                         w.bias_bytes, w.prior_bytes, w.keep_packing),
              at - 8);
       }
     }
@@ -262,6 +275,7 @@ class ParticleUnit final : public FrameUnit {
       insert += op.insert;
     }
     at += std::size_t(b.op_count) * kOpSize;
+    const std::size_t start_of_planes = at;
     if (!keyframe && (keep + drop != b.prev_count || keep + insert != b.count || insert != b.new_count)) {
       fail(frame,
            fmt::format("the operations keep {}, drop {} and insert {} particles; the frame needs {} kept + dropped "
@@ -271,26 +285,42 @@ class ParticleUnit final : public FrameUnit {
     }
     b.keep_total = static_cast<std::uint32_t>(keyframe ? 0 : keep);
     const std::uint64_t blocks = (std::uint64_t(b.keep_total) + kBlock - 1) >> kBlockShift;
-    std::uint64_t planes = 0;
-    for (const Body::Word& w : b.words) {
-      planes += std::uint64_t(w.bias_bytes) * blocks + std::uint64_t(w.keep_bytes) * b.keep_total +
-                std::uint64_t(w.new_bytes + w.motion_bytes + w.prior_bytes) * b.new_count;
+    // The planes, word by word: each part must fit in what is left of the body.
+    const auto take = [&](std::uint64_t bytes, std::string_view what, std::size_t k) {
+      if (bytes > size - at) {
+        fail(frame,
+             fmt::format("the residual planes need more than the body holds: {}'s {} take {} bytes, {} are left",
+                         word_name(plan_.coded[k]), what, bytes, size - at),
+             at);
+      }
+      const std::byte* part = p + at;
+      at += static_cast<std::size_t>(bytes);
+      return part;
+    };
+    for (std::size_t k = 0; k < coded; ++k) {
+      Body::Word& w = words_[k];
+      w.bias = take(std::uint64_t(w.bias_bytes) * blocks, "bias planes", k);
+      if (w.keep_packing == kNibbles) {
+        const std::uint64_t packed = (std::uint64_t(b.keep_total) + 1) / 2;
+        w.keep = take(packed, "survivors' nibbles", k);
+        const auto* nibbles = reinterpret_cast<const std::uint8_t*>(w.keep);
+        if ((b.keep_total & 1) != 0 && (nibbles[packed - 1] >> 4) != 0)
+          fail(frame, fmt::format("{}: the padding nibble is not 0", word_name(plan_.coded[k])), at - 1);
+        w.keep_escapes = static_cast<std::uint32_t>(count_escapes(nibbles, b.keep_total));
+        w.keep_escape_planes = take(std::uint64_t(w.keep_bytes) * w.keep_escapes, "survivors' escape planes", k);
+      } else {
+        w.keep = take(std::uint64_t(w.keep_bytes) * b.keep_total, "survivors' planes", k);
+      }
+      w.fresh = take(std::uint64_t(w.new_bytes) * b.new_count, "new particles' planes", k);
+      w.motion = take(std::uint64_t(w.motion_bytes) * b.new_count, "motion planes", k);
+      w.prior = take(std::uint64_t(w.prior_bytes) * b.new_count, "prior steps' planes", k);
     }
-    planes += std::uint64_t(b.id_bytes) * b.new_count;
-    if (at + planes != size) {
-      fail(frame, fmt::format("the residual planes need {} bytes, the body holds {}", planes, size - at), at);
-    }
-    for (Body::Word& w : words_) {
-      w.bias = p + at;
-      at += std::size_t(w.bias_bytes) * blocks;
-      w.keep = p + at;
-      at += std::size_t(w.keep_bytes) * b.keep_total;
-      w.fresh = p + at;
-      at += std::size_t(w.new_bytes) * b.new_count;
-      w.motion = p + at;
-      at += std::size_t(w.motion_bytes) * b.new_count;
-      w.prior = p + at;
-      at += std::size_t(w.prior_bytes) * b.new_count;
+    const std::uint64_t id_planes = std::uint64_t(b.id_bytes) * b.new_count;
+    if (at + id_planes != size) {
+      fail(frame,
+           fmt::format("the residual planes need {} bytes, the body holds {}", at + id_planes - start_of_planes,
+                       size - start_of_planes),
+           start_of_planes);
     }
     b.ids = p + at;
     return b;

@@ -4,13 +4,64 @@
 #include <fstream>
 #include <string>
 
+#include "format/particle_common.hpp"
 #include "particle_fuzz_clip.hpp"
 #include "zstd_packets.hpp"
+
+namespace {
+
+// A predicted body whose nibble-packed words (version 5) are rewritten as byte planes, as the
+// older versions' bodies are.
+std::vector<std::byte> without_nibbles(const std::vector<std::byte>& in, const pstream::format::Metadata& meta) {
+  using namespace pstream::format::particle;
+  const WordPlan plan(meta.codec);
+  const std::size_t coded = plan.coded.size();
+  std::uint32_t head[4];  // count, prev_count, op_count, new_count
+  std::memcpy(head, in.data(), sizeof head);
+  std::size_t at = kBodyHeader + coded * kWordHeader + (plan.id_word >= 0 ? kIdHeader : 0);
+  std::uint64_t survivors = 0;
+  for (std::uint32_t o = 0; o < head[2]; ++o) {
+    Op op;
+    std::memcpy(&op, in.data() + at + o * kOpSize, kOpSize);
+    survivors += op.keep;
+  }
+  at += std::size_t(head[2]) * kOpSize;
+  std::vector<std::byte> out(in.begin(), in.begin() + std::ptrdiff_t(at));
+  const auto copy = [&](std::size_t bytes) {
+    out.insert(out.end(), in.begin() + std::ptrdiff_t(at), in.begin() + std::ptrdiff_t(at + bytes));
+    at += bytes;
+  };
+  const auto s = static_cast<std::uint32_t>(survivors);
+  for (std::size_t k = 0; k < coded; ++k) {
+    const std::size_t header = kBodyHeader + k * kWordHeader;  // in `out`, which grows
+    const auto byte = [&](std::size_t i) { return std::to_integer<std::size_t>(out[header + i]); };
+    copy(byte(4) * ((s + kBlock - 1) / kBlock));  // bias planes
+    if (byte(6) == kNibbles) {
+      const auto* packed = reinterpret_cast<const std::uint8_t*>(in.data() + at);
+      const auto escapes = static_cast<std::uint32_t>(count_escapes(packed, s));
+      std::vector<std::uint8_t> planes(4 * std::size_t(s));
+      const unsigned width =
+          nibbles_to_planes(packed, s, packed + (s + 1) / 2, escapes, unsigned(byte(1)), planes.data());
+      at += (s + 1) / 2 + escapes * byte(1);
+      const auto* values = reinterpret_cast<const std::byte*>(planes.data());
+      out.insert(out.end(), values, values + std::size_t(width) * s);
+      out[header + 1] = std::byte(width);
+      out[header + 6] = std::byte{kBytePlanes};
+    } else {
+      copy(byte(1) * s);
+    }
+    copy((byte(2) + byte(3) + byte(5)) * head[3]);  // new, motion and prior planes
+  }
+  copy(in.size() - at);  // the id planes
+  return out;
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   using namespace pstream;
   if (argc != 2) return 2;
-  for (std::uint8_t selector = 0; selector < 8; ++selector) {
+  for (std::uint8_t selector = 0; selector < 16; ++selector) {
     for (std::uint64_t n0 : {1u, 20u, 64u}) {
       const std::uint64_t n1 = n0 > 10 ? n0 - 7 : n0 + 3;  // deaths or births
       const format::Metadata meta = fuzz::particle_clip(selector, n0, n1);
@@ -20,8 +71,13 @@ int main(int argc, char** argv) {
         const std::uint64_t n = f == 0 ? n0 : n1;
         records[f].resize(n * meta.record_size);
         for (std::uint64_t i = 0; i < n; ++i) {
-          const std::uint64_t id = f == 0 ? i * 3 : i * 3 + 2;  // some ids persist, some are new
-          const float r[4] = {0.1f * float(i % 7) + 0.02f * float(f), 0.05f * float(i / 7), 0.3f, 0.02f};
+          const std::uint64_t id = f == 0 || i % 3 != 0 ? i * 3 : i * 3 + 2;  // some ids persist, some are new
+          // The second frame moves each particle its own few grid steps (0.01), some of them far:
+          // residuals of one and two bytes, and nibbles with escapes (version 5).
+          const float jitter = f == 0 ? 0.0f : 0.01f * float((i * 7) % 13) + (i % 11 == 0 ? 3.0f : 0.0f);
+          const float jump = f == 1 && i % 5 == 0 ? 0.2f : 0.0f;
+          const float r[4] = {0.1f * float(i % 7) + 0.02f * float(f) + jitter, 0.05f * float(i / 7) + jump, 0.3f,
+                              0.02f};
           std::memcpy(records[f].data() + i * meta.record_size, r, 16);
           if (meta.record_size > 16) {
             const std::uint32_t color = 0xff000000u | std::uint32_t(i * 40);
@@ -40,7 +96,8 @@ int main(int argc, char** argv) {
                                              {records[1], by_id ? std::span(ids[1]) : std::span<std::uint64_t>{}, n1}};
       const auto encoded = format::encode_group(meta.codec, frames, {}, 0);
       const std::span<const std::byte> packets[2] = {encoded[0].packet, encoded[1].packet};
-      const auto bodies = test::decompress_packets(packets, 1 << 16);  // the packets are one zstd stream
+      auto bodies = test::decompress_packets(packets, 1 << 16);  // the packets are one zstd stream
+      if (meta.version < format::particle::kFirstNibbleVersion) bodies[1] = without_nibbles(bodies[1], meta);
       std::ofstream out(std::string(argv[1]) + "/seed-" + std::to_string(selector) + "-" + std::to_string(n0),
                         std::ios::binary);
       const auto size = static_cast<std::uint32_t>(bodies[0].size());

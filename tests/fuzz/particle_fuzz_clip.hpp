@@ -1,9 +1,10 @@
 // The small clip the particle-codec fuzz target decodes against, shared with its seed generator.
 // A fuzz input is: [selector][u32 size of the keyframe body][keyframe body][predicted frame body],
 // bodies uncompressed (the target compresses them, so mutations land in the body, not in zstd's
-// framing). The selector picks the layout (bit 0), the frame order (bit 1) and version 3 (bit 2):
-// the scale a relative word, and with bit 0 a derived velocity; without bit 2 the clip is of the
-// current version (4: the second packet continues the first one's zstd frame).
+// framing). The selector picks the layout (bit 0), the frame order (bit 1), a relative scale and,
+// with bit 0, a derived velocity (bit 2), and the version: the current one (5: survivors'
+// residuals may be packed as nibbles, the second packet continues the first one's zstd frame),
+// or with bit 3 an older one: 3 with bit 2 (a zstd frame a packet), else 4 (byte planes only).
 #pragma once
 
 #include <cstring>
@@ -36,10 +37,8 @@ inline format::Metadata particle_clip(std::uint8_t selector, std::uint64_t count
   for (int w = 0; w < 4; ++w) {
     m.codec.words[w] = {WordCoding::Quantized, 0.01f, 0.005f, 0};
   }
-  if ((selector & 4) != 0) {  // format version 3: the scale within 1 % of itself (a relative word)
-    m.version = 3;
-    m.codec.words[3] = {WordCoding::Relative, 0.0f, 0.01f, 17};
-  }
+  if ((selector & 4) != 0) m.codec.words[3] = {WordCoding::Relative, 0.0f, 0.01f, 17};  // within 1 % of itself
+  if ((selector & 8) != 0) m.version = (selector & 4) != 0 ? 3 : 4;
   if (more) {
     m.codec.words[4].coding = WordCoding::Exact;
     const WordCoding id = m.codec.order == FrameOrder::Id ? WordCoding::Id : WordCoding::Exact;
