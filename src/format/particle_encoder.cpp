@@ -704,12 +704,12 @@ class GroupEncoder {
     }
     // Survivors' residuals as nibbles (format version 5) while most are below 15: zstd makes half
     // the bytes and its optimal parser runs on half the input (the sparks and the demo fountain
-    // cook about twice as fast, 1.2 % and 0.2 % smaller). A word keeps its packing through the
+    // cook about 2.3 times as fast, 1.2 % and 0.2 % smaller). A word keeps its packing through the
     // group unless its share of escapes leaves a band, judged on frames of 1024 survivors or
     // more: to byte planes above 25 %, back to nibbles at 10 % or less. A change costs zstd the
     // match history of the frames before: changing with every frame either side of 12.5 % made
     // the sparks 2.7 % larger; the FLIP pour, whose residuals grow from 0 to 55 % escapes over
-    // its first 20 frames, changes once (0.3 % larger than with planes throughout, where nibbles
+    // its first 20 frames, changes once (0.16 % larger than with planes throughout, where nibbles
     // throughout were 7 % larger).
     std::vector<std::uint8_t> packing(choices.size(), kBytePlanes);
     for (std::size_t k = 0; k < choices.size(); ++k) {
