@@ -21,7 +21,7 @@ namespace pstream::format {
 
 inline constexpr std::uint32_t kVersion = 5;  // what the writer writes; the reader takes 1 to 5
 inline constexpr std::size_t kHeaderSizeV1 = 160;
-inline constexpr std::size_t kHeaderSize = 192;  // versions 2 to 4
+inline constexpr std::size_t kHeaderSize = 192;  // versions 2 to 5
 inline constexpr std::uint32_t kDefaultKeyframeInterval = 64;
 inline constexpr int kDefaultParticleZstdLevel = 16;         // lossy: the optimal parser pays off on planes
 inline constexpr int kDefaultLosslessParticleZstdLevel = 3;  // lossless: float bits gain little from it

@@ -240,12 +240,6 @@ inline std::uint64_t count_escapes(const std::uint8_t* packed, std::uint32_t n) 
   for (; b < bytes; ++b) count += std::uint64_t((packed[b] & 15) == 15) + std::uint64_t((packed[b] >> 4) == 15);
   return count;
 }
-// n nibbles and their escapes as byte planes of n bytes (out[b·n + t] is byte b of value t), the
-// form the survivors' loop reads; returns how many planes: as few as hold 15 plus the largest
-// escape value (1 without escapes, at most 4). `out` has room for 4n bytes.
-inline unsigned nibbles_to_planes(const std::uint8_t* packed, std::uint32_t n, const std::uint8_t* escape_planes,
-                                  std::uint32_t escapes, unsigned escape_width, std::uint8_t* out);
-
 // The positions of the escapes among n nibbles, in order, 16 nibbles at a time (most have none).
 class EscapeScan {
  public:
@@ -284,6 +278,9 @@ class EscapeScan {
   std::uint32_t base_ = 0, next_ = kNone;
 };
 
+// n nibbles and their escapes as byte planes of n bytes (out[b·n + t] is byte b of value t), the
+// form the survivors' loop reads; returns how many planes: as few as hold 15 plus the largest
+// escape value (1 without escapes, at most 4). `out` has room for 4n bytes.
 inline unsigned nibbles_to_planes(const std::uint8_t* packed, std::uint32_t n, const std::uint8_t* escape_planes,
                                   std::uint32_t escapes, unsigned escape_width, std::uint8_t* out) {
   const std::uint32_t pairs = n / 2;

@@ -711,27 +711,34 @@ class GroupEncoder {
     // the sparks 2.7 % larger; the FLIP pour, whose residuals grow from 0 to 55 % escapes over
     // its first 20 frames, changes once (0.16 % larger than with planes throughout, where nibbles
     // throughout were 7 % larger).
-    std::vector<std::uint8_t> packing(choices.size(), kBytePlanes);
+    // Per word: its packing, and the keep_bytes its header states (the escape planes' width with
+    // nibbles, the planes' otherwise).
+    std::vector<std::uint8_t> packing(choices.size(), kBytePlanes), keep_bytes(choices.size());
     for (std::size_t k = 0; k < choices.size(); ++k) {
       const std::vector<std::uint32_t>& keep = choices[k].keep;
-      if (width(keep) == 0) continue;  // nothing stored either way
+      keep_bytes[k] = static_cast<std::uint8_t>(width(keep));
+      if (keep_bytes[k] == 0) continue;  // nothing stored either way
       const std::size_t escapes =
           std::size_t(std::count_if(keep.begin(), keep.end(), [](std::uint32_t v) { return v >= kNibbleEscape; }));
       if (keep.size() >= kBlock) {
         if (nibbles_[k] != 0 && escapes * 4 > keep.size()) nibbles_[k] = 0;
         if (nibbles_[k] == 0 && escapes * 10 <= keep.size()) nibbles_[k] = 1;
       }
+      if (nibbles_[k] == 0) continue;
       // Never more than 4 bytes a survivor, as the body's bound counts (only escapes of 4 bytes
       // could take more).
-      if (nibbles_[k] != 0 && (keep.size() + 1) / 2 + escapes * escape_bytes(keep) <= keep.size() * 4)
+      const unsigned escape_width = escape_bytes(keep);
+      if ((keep.size() + 1) / 2 + escapes * escape_width <= keep.size() * 4) {
         packing[k] = kNibbles;
+        keep_bytes[k] = static_cast<std::uint8_t>(escape_width);
+      }
     }
     std::vector<std::byte> body;
     header(body, n, state_.count, static_cast<std::uint32_t>(ops.size()), new_count);
     for (std::size_t k = 0; k < choices.size(); ++k) {
       const Choice& ch = choices[k];
       put(body, ch.predictor);
-      put(body, static_cast<std::uint8_t>(packing[k] == kNibbles ? escape_bytes(ch.keep) : width(ch.keep)));
+      put(body, keep_bytes[k]);
       put(body, static_cast<std::uint8_t>(width(ch.fresh)));
       put(body, static_cast<std::uint8_t>(width(ch.motion)));
       put(body, static_cast<std::uint8_t>(width(ch.bias)));
@@ -750,9 +757,9 @@ class GroupEncoder {
       const Choice& ch = choices[k];
       write_planes(body, ch.bias, width(ch.bias));
       if (packing[k] == kNibbles)
-        write_nibbles(body, ch.keep, escape_bytes(ch.keep));
+        write_nibbles(body, ch.keep, keep_bytes[k]);
       else
-        write_planes(body, ch.keep, width(ch.keep));
+        write_planes(body, ch.keep, keep_bytes[k]);
       write_planes(body, ch.fresh, width(ch.fresh));
       write_planes(body, ch.motion, width(ch.motion));
     }
