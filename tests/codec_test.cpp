@@ -411,15 +411,16 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
   }
 }
 
-// Version 5's nibbles: any values written as nibbles and escape planes read back as byte planes
-// holding every value, whatever their count (odd, under one 16-nibble step, many steps) and the
-// width of their escapes (none, up to 15 + 240 in one plane, past it, two to four bytes).
+// Version 5's nibbles: any values written as nibbles and escape planes read back as the values the
+// survivors' prediction adds (unzigzagged, plus their block's bias), whatever their count (odd,
+// under one 16-nibble step, many steps, several blocks of 1024) and the width of their escapes
+// (none, up to 15 + 240 in one plane, past it, two to four bytes); byte planes too.
 TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
   namespace pc = format::particle;
   std::uint32_t seed = 12345;
   const auto next = [&] { return seed = seed * 1664525u + 1013904223u; };
   const std::uint32_t largest[] = {0, 14, 15, 255, 256, 270, 271, 65535, 65550, 0xffffff, 0xffffffffu};
-  for (const std::uint32_t n : {0u, 1u, 2u, 15u, 16u, 17u, 33u, 1000u}) {
+  for (const std::uint32_t n : {0u, 1u, 2u, 15u, 16u, 17u, 33u, 1000u, 2500u}) {
     for (const std::uint32_t top : largest) {
       std::vector<std::uint32_t> values(n);
       for (std::uint32_t t = 0; t < n; ++t) values[t] = next() % 15;  // mostly nibbles
@@ -434,12 +435,29 @@ TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
       ASSERT_EQ(packed.size(), (n + 1) / 2 + std::size_t(escapes) * width);
       const auto* bytes = reinterpret_cast<const std::uint8_t*>(packed.data());
       ASSERT_EQ(pc::count_escapes(bytes, n), escapes);
-      std::vector<std::uint8_t> planes(4 * std::size_t(n) + 1);
-      const unsigned count = pc::nibbles_to_planes(bytes, n, bytes + (n + 1) / 2, escapes, width, planes.data());
-      const std::uint32_t most = n == 0 ? 0 : *std::max_element(values.begin(), values.end());
-      EXPECT_GE(count, std::max(1u, pc::bytes_for(most)));
-      EXPECT_LE(count, 4u);
-      for (std::uint32_t t = 0; t < n; ++t) ASSERT_EQ(pc::plane_value(planes.data(), n, t, count), values[t]) << t;
+      std::vector<std::uint32_t> bias((n + pc::kBlock - 1) / pc::kBlock);
+      for (std::uint32_t& b : bias) b = next();
+      // Block by block, as the decoder makes them.
+      const auto read_back = [&](const std::byte* keep, std::uint8_t packing, unsigned bytes,
+                                 const std::byte* escape_planes, std::uint32_t escape_count) {
+        std::vector<std::uint32_t> out(n);
+        pc::SurvivorResiduals residuals(keep, n, packing, bytes, escape_planes, escape_count, bias.data());
+        for (std::uint32_t b = 0; b * pc::kBlock < n; ++b)
+          EXPECT_EQ(residuals.fill(b, out.data() + std::size_t(b) * pc::kBlock),
+                    std::min(n - b * pc::kBlock, pc::kBlock));
+        return out;
+      };
+      std::vector<std::uint32_t> out =
+          read_back(packed.data(), pc::kNibbles, width, packed.data() + (n + 1) / 2, escapes);
+      for (std::uint32_t t = 0; t < n; ++t)
+        ASSERT_EQ(out[t], pc::unzigzag(values[t]) + bias[t >> pc::kBlockShift]) << t;
+      // The same values as byte planes.
+      std::vector<std::byte> planes;
+      const unsigned plane_bytes = pc::bytes_for(n == 0 ? 0u : *std::max_element(values.begin(), values.end()));
+      pc::write_planes(planes, values, plane_bytes);
+      out = read_back(planes.data(), pc::kBytePlanes, plane_bytes, nullptr, 0);
+      for (std::uint32_t t = 0; t < n; ++t)
+        ASSERT_EQ(out[t], pc::unzigzag(values[t]) + bias[t >> pc::kBlockShift]) << t;
     }
   }
 }

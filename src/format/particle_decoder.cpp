@@ -26,31 +26,33 @@ int stream_window_log(const Metadata& meta) { return meta.version >= kFirstStrea
 // particle_unit_state_bytes() counts before one is made (a unit's state_bytes() counts what it
 // did allocate; the codec tests check that the two agree).
 struct StateSizes {
-  std::uint64_t words = 0;      // q_ and d_, each in two states: every coded word of every particle
-  std::uint64_t ids = 0;        // ids_, in two states
-  std::uint64_t particles = 0;  // residual_
-  std::uint64_t steps = 0;      // steps_ (bytes), in two states
-  std::uint64_t derived = 0;    // derived_: every derived word of every particle
-  std::uint64_t blocks = 0;     // bias_: one per block of survivors
-  std::uint64_t tile = 0;       // tile_
-  std::uint64_t body = 0;       // body_ (bytes)
-  int window_log = 0;           // the zstd stream's
+  std::uint64_t words = 0;       // q_ and d_, each in two states: every coded word of every particle
+  std::uint64_t ids = 0;         // ids_, in two states
+  std::uint64_t particles = 0;   // residual_: new particles' values and steps
+  std::uint64_t steps = 0;       // steps_ (bytes), in two states
+  std::uint64_t derived = 0;     // derived_: every derived word of every particle
+  std::uint64_t blocks = 0;      // bias_: one per block of survivors
+  std::uint64_t tile = 0;        // tile_
+  std::uint64_t keep_block = 0;  // keep_block_: one block of survivors' residuals
+  std::uint64_t body = 0;        // body_ (bytes)
+  int window_log = 0;            // the zstd stream's
 
   StateSizes(const Metadata& meta, const WordPlan& plan) {
     const std::uint64_t n = meta.max_count;
     const bool has_ids = plan.id_word >= 0;
-    words = plan.coded.size() * n;
+    words = plan.coded.size() * n + kRunPad;  // keep_run() reads and writes past a run
     ids = has_ids ? n : 0;
-    particles = n;
+    particles = 2 * n;
     steps = plan.derived.empty() ? 0 : n;
     derived = plan.derived.size() * n;
     blocks = (n + kBlock - 1) >> kBlockShift;
     tile = std::uint64_t(plan.words) * kTile;
+    keep_block = kBlock + kRunPad;
     body = body_capacity(n, plan.coded.size(), has_ids);
     window_log = stream_window_log(meta);
   }
   std::uint64_t bytes() const {
-    return 2 * (2 * words * 4 + ids * 8 + steps) + (particles + derived + blocks + tile) * 4 + body +
+    return 2 * (2 * words * 4 + ids * 8 + steps) + (particles + derived + blocks + tile + keep_block) * 4 + body +
            EntropyDecoder::stream_bytes(window_log);
   }
 };
@@ -70,13 +72,15 @@ class ParticleUnit final : public FrameUnit {
     derived_.assign(sizes.derived, 0);
     bias_.assign(sizes.blocks, 0);
     tile_.assign(sizes.tile, 0);
+    keep_block_.assign(sizes.keep_block, 0);
     words_.resize(plan_.coded.size());
     body_.resize(sizes.body);
   }
 
   void reset() override { count_[cur_ ^ 1] = 0; }
   std::uint64_t state_bytes() const override {
-    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size() + derived_.size()) * 4 +
+    std::uint64_t bytes = body_.size() +
+                          (residual_.size() + bias_.size() + tile_.size() + derived_.size() + keep_block_.size()) * 4 +
                           EntropyDecoder::stream_bytes(stream_window_log(meta_));
     for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8 + steps_[b].size();
     return bytes;
@@ -111,42 +115,43 @@ class ParticleUnit final : public FrameUnit {
       const std::uint32_t blocks = (b.keep_total + kBlock - 1) >> kBlockShift;
       read_planes(w.bias, blocks, w.bias_bytes, bias_.data());
       for (std::uint32_t acc = 0, x = 0; x < blocks; ++x) bias_[x] = acc += unzigzag(bias_[x]);
-      // The survivors' residuals, read from their byte planes as they go; nibbles (version 5) made
-      // byte planes first, in the residual buffer (free until derive()).
-      const auto* r = reinterpret_cast<const std::uint8_t*>(w.keep);
-      PredictRun predict_run = kPredictRun[w.keep_bytes];
-      if (w.keep_packing == kNibbles) {
-        auto* planes = reinterpret_cast<std::uint8_t*>(residual_.data());
-        predict_run =
-            kPredictRun[nibbles_to_planes(r, b.keep_total, reinterpret_cast<const std::uint8_t*>(w.keep_escape_planes),
-                                          w.keep_escapes, w.keep_bytes, planes)];
-        r = planes;
-      }
-      const std::uint32_t* bias = bias_.data();
+      // The new particles' values and first steps, each in one vector pass into the residual
+      // buffer; then the runs of survivors (split at block borders, each block's residuals made
+      // when the first run reaches it) and new particles in the frame's order.
+      std::uint32_t* fresh = residual_.data();
+      std::uint32_t* motion = fresh + b.new_count;
+      read_values(w.fresh, b.new_count, w.new_bytes, fresh);
+      if (w.motion_bytes != 0) read_values(w.motion, b.new_count, w.motion_bytes, motion);
+      SurvivorResiduals residuals(w.keep, b.keep_total, w.keep_packing, w.keep_bytes, w.keep_escape_planes,
+                                  w.keep_escapes, bias_.data());
+      std::uint32_t* block_values = keep_block_.data();
+      std::uint32_t filled = ~0u;  // the block in keep_block_
       const std::uint32_t linear = w.predictor == kLinear ? ~0u : 0u;
       std::uint32_t i = 0, j = 0, kt = 0, nt = 0, step = 0;
       for (std::uint32_t o = 0; o < b.op_count; ++o) {
         const Op op = op_at(b, o);
-        // The run in pieces that share a bias (split at block borders), each a vector loop.
         for (std::uint32_t t = 0; t < op.keep;) {
-          const std::uint32_t block = (kt + t) >> kBlockShift;
-          const std::uint32_t len = std::min(op.keep - t, ((block + 1) << kBlockShift) - (kt + t));
-          predict_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, r + kt + t, b.keep_total, len, linear,
-                      bias[block]);
+          const std::uint32_t block = (kt + t) >> kBlockShift, at = (kt + t) & (kBlock - 1);
+          const std::uint32_t len = std::min(op.keep - t, kBlock - at);
+          if (block != filled) filled = (residuals.fill(block, block_values), block);
+          keep_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, block_values + at, len, linear);
           t += len;
         }
         i += op.keep + op.drop;
         j += op.keep;
         kt += op.keep;
-        if (op.insert != 0) {
-          const auto* p = reinterpret_cast<const std::uint8_t*>(w.fresh);
-          const auto* m = reinterpret_cast<const std::uint8_t*>(w.motion);
-          for (std::uint32_t t = 0; t < op.insert; ++t, ++nt, ++j) {
-            q0[j] = (j == 0 ? 0u : q0[j - 1]) + unzigzag(plane_value(p, b.new_count, nt, w.new_bytes));
-            // A new particle's first step (version 3), else 0.
-            d0[j] = step += unzigzag(plane_value(m, b.new_count, nt, w.motion_bytes));
-          }
+        if (op.insert == 0) continue;
+        // A new particle: the particle before it in the frame plus its value; its first step
+        // (version 3), else 0.
+        std::uint32_t before = j == 0 ? 0u : q0[j - 1];
+        for (std::uint32_t t = 0; t < op.insert; ++t) q0[j + t] = before += fresh[nt + t];
+        if (w.motion_bytes != 0) {
+          for (std::uint32_t t = 0; t < op.insert; ++t) d0[j + t] = step += motion[nt + t];
+        } else {
+          std::fill_n(d0 + j, op.insert, step);
         }
+        j += op.insert;
+        nt += op.insert;
       }
     }
     if (plan_.id_word >= 0) decode_ids(b, prev);
@@ -482,7 +487,7 @@ class ParticleUnit final : public FrameUnit {
   std::string_view name_;
   WordPlan plan_;
   EntropyDecoder entropy_;
-  std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_;
+  std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_, keep_block_;
   std::vector<std::uint64_t> ids_[2];
   std::vector<std::uint8_t> steps_[2];  // per particle: grid steps known (0, 1, 2 = two or more)
   std::vector<std::uint32_t> derived_;  // per derived word and particle: the value's bits

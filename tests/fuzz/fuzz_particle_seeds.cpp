@@ -39,12 +39,16 @@ std::vector<std::byte> without_nibbles(const std::vector<std::byte>& in, const p
     if (byte(6) == kNibbles) {
       const auto* packed = reinterpret_cast<const std::uint8_t*>(in.data() + at);
       const auto escapes = static_cast<std::uint32_t>(count_escapes(packed, s));
-      std::vector<std::uint8_t> planes(4 * std::size_t(s));
-      const unsigned width =
-          nibbles_to_planes(packed, s, packed + (s + 1) / 2, escapes, unsigned(byte(1)), planes.data());
+      // The values (no bias, zigzagged again) as byte planes, as few as hold the largest.
+      std::vector<std::uint32_t> values(s), none((s + kBlock - 1) / kBlock, 0);
+      SurvivorResiduals residuals(in.data() + at, s, kNibbles, unsigned(byte(1)), in.data() + at + (s + 1) / 2, escapes,
+                                  none.data());
+      for (std::uint32_t b = 0; b * kBlock < s; ++b) residuals.fill(b, values.data() + std::size_t(b) * kBlock);
+      std::uint32_t largest = 0;
+      for (std::uint32_t& v : values) largest = std::max(largest, v = zigzag(v));
+      const unsigned width = bytes_for(largest);
       at += (s + 1) / 2 + escapes * byte(1);
-      const auto* values = reinterpret_cast<const std::byte*>(planes.data());
-      out.insert(out.end(), values, values + std::size_t(width) * s);
+      write_planes(out, values, width);
       out[header + 1] = std::byte(width);
       out[header + 6] = std::byte{kBytePlanes};
     } else {
