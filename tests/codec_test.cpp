@@ -568,6 +568,89 @@ TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
   std::printf("scales spanning 100x: worst relative error %.4f%% (bound 1%%)\n", 100 * worst);
 }
 
+// Without ids the encoder pairs particles closest first among each one's 8 nearest. On a jittered
+// lattice whose particles each move a tenth of the spacing, written in another order in the second
+// frame, every particle is paired with itself: at the default bound (cells of side `cell` few
+// enough for the indexed search, and `cell` below 2048 grid steps) and at an absolute bound fine
+// enough that `cell` is 5000 grid steps (the general search).
+TEST(ParticleCodec, WithoutIdsEachParticlePairsWithItselfAfterASmallMove) {
+  constexpr std::uint32_t kSide = 10, kCount = kSide * kSide * kSide;
+  const std::vector<format::Attribute> layout = format::default_layout();
+  const std::uint32_t rs = format::record_size_of(layout);
+  std::uint32_t seed = 7;
+  const auto jitter = [&](double most) {
+    seed = seed * 1664525u + 1013904223u;
+    return most * (double(seed >> 8) / double(1u << 24) * 2 - 1);
+  };
+  std::vector<std::array<float, 3>> where[2];
+  for (std::uint32_t i = 0; i < kCount; ++i) {
+    const std::uint32_t c[3] = {i % kSide, i / kSide % kSide, i / (kSide * kSide)};
+    std::array<float, 3> p{}, q{};
+    for (int a = 0; a < 3; ++a) {
+      p[std::size_t(a)] = float(c[a] + jitter(0.2));  // spacing 1: neighbours at least 0.6 apart
+      q[std::size_t(a)] = float(p[std::size_t(a)] + jitter(0.1));
+    }
+    where[0].push_back(p);
+    where[1].push_back(q);
+  }
+  // The second frame's source order: particle i is at position (i * 389) % kCount.
+  std::vector<std::uint32_t> source_of(kCount);
+  for (std::uint32_t i = 0; i < kCount; ++i) source_of[(i * 389) % kCount] = i;
+  std::vector<std::vector<std::byte>> records(2, std::vector<std::byte>(kCount * rs));
+  format::ClipStats stats(layout);
+  for (int f = 0; f < 2; ++f) {
+    for (std::uint32_t t = 0; t < kCount; ++t) {
+      const std::uint32_t i = f == 0 ? t : source_of[t];
+      const float r[4] = {where[f][i][0], where[f][i][1], where[f][i][2], 0.05f};
+      std::memcpy(records[std::size_t(f)].data() + std::size_t(t) * rs, r, 16);
+    }
+    stats.add(records[std::size_t(f)], kCount);
+  }
+  // The particle a decoded record is (the nearest source position: errors are far below 0.3).
+  const auto particle_at = [&](int f, const std::byte* record) {
+    float r[3];
+    std::memcpy(r, record, 12);
+    std::uint32_t nearest = 0;
+    double best = 1e30;
+    for (std::uint32_t i = 0; i < kCount; ++i) {
+      double d = 0;
+      for (int a = 0; a < 3; ++a)
+        d += (double(r[a]) - where[f][i][std::size_t(a)]) * (double(r[a]) - where[f][i][std::size_t(a)]);
+      if (d < best) best = d, nearest = i;
+    }
+    EXPECT_LT(best, 0.01);
+    return nearest;
+  };
+  for (const double bound : {-1.0, 1e-4}) {  // the default; an absolute 0.1 mm
+    SCOPED_TRACE(bound < 0 ? "default bound" : "absolute bound 1e-4");
+    format::ParticleCodecOptions options;
+    if (bound > 0) options.error = bound, options.error_relative = false;
+    const format::CodecInfo info = format::plan_particle_codec(layout, stats, 24.0, false, options);
+    ASSERT_EQ(info.order, format::FrameOrder::Matched);
+    std::vector<format::SourceFrame> frames;
+    for (int f = 0; f < 2; ++f) frames.push_back({records[std::size_t(f)], {}, kCount});
+    const auto encoded = format::encode_group(info, frames, {}, 0);
+    ASSERT_EQ(encoded[1].matched, kCount);
+    const format::Metadata meta = metadata_for(layout, info, encoded);
+    format::FrameDecoder decoder(meta, "lattice");
+    std::vector<std::byte> before(kCount * rs), after(kCount * rs);
+    std::vector<format::MatchRun> runs(2 * kCount + 1);
+    decoder.decode(0, encoded[0].packet, before);
+    const std::size_t count = decoder.decode(1, encoded[1].packet, after, runs);
+    ASSERT_NE(count, format::kNoMatching);
+    std::uint32_t i = 0, j = 0, pairs = 0, wrong = 0;
+    for (std::size_t r = 0; r < count; ++r) {
+      for (std::uint32_t t = 0; t < runs[r].keep; ++t, ++i, ++j, ++pairs)
+        wrong +=
+            particle_at(0, before.data() + std::size_t(i) * rs) != particle_at(1, after.data() + std::size_t(j) * rs);
+      i += runs[r].drop;
+      j += runs[r].insert;
+    }
+    EXPECT_EQ(pairs, kCount);
+    EXPECT_EQ(wrong, 0u);
+  }
+}
+
 // Format version 4: a packet continues the zstd frame of the one before (a small body), or starts
 // one (a keyframe, or a body of 512 KiB or more); the decoder follows either, frame by frame.
 TEST(ParticleCodec, PacketsContinueOneZstdFrameUnlessTheyStartOne) {
