@@ -133,7 +133,10 @@ class ParticleUnit final : public FrameUnit {
         for (std::uint32_t t = 0; t < op.keep;) {
           const std::uint32_t block = (kt + t) >> kBlockShift, at = (kt + t) & (kBlock - 1);
           const std::uint32_t len = std::min(op.keep - t, kBlock - at);
-          if (block != filled) filled = (residuals.fill(block, block_values), block);
+          if (block != filled) {
+            residuals.fill(block, block_values);
+            filled = block;
+          }
           keep_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, block_values + at, len, linear);
           t += len;
         }

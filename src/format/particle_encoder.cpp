@@ -348,10 +348,7 @@ class GroupEncoder {
       std::copy_n(best, found, &slots[std::size_t(i) * kCandidates]);
       kept[i] = static_cast<std::uint8_t>(found);
     };
-    // A dense grid over this frame's box, when it is not much larger than the frame: cells of half
-    // the candidates' side (a liquid fills a small part of its box, so a side-`cell` cell holds
-    // about ten particles), visited nearest first until the 8 kept are closer than any cell left.
-    // A cell's particles are one range found by indexing.
+    // A dense grid over this frame's box only when it is not much larger than the frame.
     const double most_cells = 16.0 * n + 4096.0;
     // Particles 0..count-1 by their cells (a counting sort, stable): `order` lists them, and cell
     // c's are order[start[c]] to order[start[c + 1] - 1]. Each particle's cell is found once.
@@ -471,6 +468,10 @@ class GroupEncoder {
         kept[i] = static_cast<std::uint8_t>(found);
       }
     } else {
+      // Otherwise (sparse frames, or grid steps much finer than the spacing) a dense grid of cells
+      // of half the candidates' side (a liquid fills a small part of its box, so a side-`cell`
+      // cell holds about ten particles), or of their side, visited nearest first until the 8 kept
+      // are closer than any cell left; a cell's particles are one range found by indexing.
       std::int64_t side = std::max<std::int64_t>(1, cell / 2), g0[3], dims[3];
       double total = 1;
       for (int pass = 0; pass < 2; ++pass) {
