@@ -572,10 +572,34 @@ class GroupEncoder {
     // order, each particle's by (distance, current index), so a stable sort by distance is that.
     // Every distance is within the reach, so the depth sorter's radix sort does it (a comparison
     // sort here was about 15 % of a FLIP cook).
+    // A previous particle whose nearest candidate has it as its own nearest (by distance, then
+    // previous index) makes the first pair, in that order, of either: it is taken, and every later
+    // pair of either would be passed over. Only the others' pairs are sorted (on the FLIP pour,
+    // most particles pair this way).
+    std::vector<std::uint64_t> nearest_prev(n, ~std::uint64_t{0});  // per current: distance << 32 | prev
+    for (std::uint32_t i = 0; i < state_.count; ++i) {
+      for (std::uint32_t b = 0; b < kept[i]; ++b) {
+        const Pair& pair = slots[std::size_t(i) * kCandidates + b];
+        nearest_prev[pair.cur] = std::min(nearest_prev[pair.cur], std::uint64_t(pair.distance) << 32 | i);
+      }
+    }
+    std::vector<std::uint8_t> prev_taken(state_.count, 0);
+    for (std::uint32_t i = 0; i < state_.count; ++i) {
+      if (kept[i] == 0 || reach >= (std::int64_t{1} << 32)) continue;
+      const Pair& first = slots[std::size_t(i) * kCandidates];
+      if (nearest_prev[first.cur] != (std::uint64_t(first.distance) << 32 | i)) continue;
+      prev_taken[i] = 1;
+      match[first.cur] = i;
+    }
     std::vector<Pair> pairs;
-    pairs.reserve(std::size_t(state_.count) * 4);
-    for (std::uint32_t i = 0; i < state_.count; ++i)
-      pairs.insert(pairs.end(), &slots[std::size_t(i) * kCandidates], &slots[std::size_t(i) * kCandidates] + kept[i]);
+    pairs.reserve(std::size_t(state_.count) * 2);
+    for (std::uint32_t i = 0; i < state_.count; ++i) {
+      if (prev_taken[i]) continue;
+      for (std::uint32_t b = 0; b < kept[i]; ++b) {
+        const Pair& pair = slots[std::size_t(i) * kCandidates + b];
+        if (match[pair.cur] < 0) pairs.push_back(pair);
+      }
+    }
     std::vector<std::uint32_t> by_distance(pairs.size());
     if (reach < (std::int64_t{1} << 32) && pairs.size() < (std::size_t{1} << 32)) {
       std::vector<std::uint64_t> items(pairs.size()), scratch(pairs.size());
@@ -587,7 +611,6 @@ class GroupEncoder {
       std::stable_sort(by_distance.begin(), by_distance.end(),
                        [&](std::uint32_t x, std::uint32_t y) { return pairs[x].distance < pairs[y].distance; });
     }
-    std::vector<std::uint8_t> prev_taken(state_.count, 0);
     for (const std::uint32_t t : by_distance) {
       const Pair& pair = pairs[t];
       if (prev_taken[pair.prev] || match[pair.cur] >= 0) continue;
