@@ -146,12 +146,23 @@ class GroupEncoder {
       case FrameOrder::Matched: match_by_position(frame, match); break;
     }
     if (info_.order == FrameOrder::Matched) {
-      // Persisting particles in the previous frame's order, then the new ones in Morton order.
-      std::vector<std::uint64_t> key(n);
+      // Persisting particles in the previous frame's order (each previous index pairs with one
+      // particle at most, so they are placed, not sorted), then the new ones in Morton order.
+      std::vector<std::int64_t> by_prev(keyframe ? 0 : state_.count, -1);
+      std::vector<std::uint32_t> fresh;
       for (std::uint32_t j = 0; j < n; ++j) {
-        key[j] = (!keyframe && match[j] >= 0) ? std::uint64_t(match[j]) : (1ull << 63) | morton_of(j);
+        if (!keyframe && match[j] >= 0)
+          by_prev[std::size_t(match[j])] = j;
+        else
+          fresh.push_back(j);
       }
-      std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return key[a] < key[b]; });
+      std::vector<std::uint64_t> key(n);
+      for (const std::uint32_t j : fresh) key[j] = morton_of(j);
+      std::stable_sort(fresh.begin(), fresh.end(), [&](std::uint32_t a, std::uint32_t b) { return key[a] < key[b]; });
+      std::size_t at = 0;
+      for (const std::int64_t j : by_prev)
+        if (j >= 0) order[at++] = static_cast<std::uint32_t>(j);
+      std::copy(fresh.begin(), fresh.end(), order.begin() + std::ptrdiff_t(at));
     }
     EncodedFrame out;
     out.keyframe = keyframe;
