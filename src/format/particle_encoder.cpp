@@ -35,17 +35,34 @@ std::uint64_t morton(std::uint32_t x, std::uint32_t y, std::uint32_t z) {
   return spread(x) | spread(y) << 1 | spread(z) << 2;
 }
 
+// The least and the largest of values read as signed 32-bit numbers (grid values, residuals); `v`
+// is not empty.
+std::pair<std::int32_t, std::int32_t> signed_extremes(std::span<const std::uint32_t> v) {
+  std::int32_t lo = static_cast<std::int32_t>(v[0]), hi = lo;
+  for (const std::uint32_t x : v) {
+    lo = std::min(lo, static_cast<std::int32_t>(x));
+    hi = std::max(hi, static_cast<std::int32_t>(x));
+  }
+  return {lo, hi};
+}
+
+// A particle's nearest candidates, at most N, sorted by key (distance, then current index): `key`
+// goes in unless they are full and it is not below the last, which it then pushes out.
+template <class Key, std::size_t N>
+void keep_nearest(Key (&best)[N], int& found, const Key& key) {
+  if (found == int(N) && !(key < best[N - 1])) return;
+  int slot = found < int(N) ? found++ : int(N) - 1;
+  for (; slot > 0 && key < best[slot - 1]; --slot) best[slot] = best[slot - 1];
+  best[slot] = key;
+}
+
 // The median of residuals read as signed numbers: the value nth_element would put at size / 2.
 // Residuals usually span a few hundred values, so a histogram over their range finds it in two
 // passes (the demo fountain's cook spent a fifth of its time on nth_element); a wide span falls
 // back to nth_element on a copy in `scratch`.
 std::uint32_t median_of(std::span<const std::uint32_t> v, std::vector<std::uint32_t>& scratch) {
   if (v.empty()) return 0;
-  std::int32_t lo = static_cast<std::int32_t>(v[0]), hi = lo;
-  for (const std::uint32_t x : v) {
-    lo = std::min(lo, static_cast<std::int32_t>(x));
-    hi = std::max(hi, static_cast<std::int32_t>(x));
-  }
+  const auto [lo, hi] = signed_extremes(v);
   constexpr std::uint32_t kSpan = 4096;
   const std::uint32_t span = static_cast<std::uint32_t>(hi) - static_cast<std::uint32_t>(lo);
   const std::size_t rank = v.size() / 2;  // values before the median
@@ -149,20 +166,18 @@ class GroupEncoder {
       // Persisting particles in the previous frame's order (each previous index pairs with one
       // particle at most, so they are placed, not sorted), then the new ones in Morton order.
       std::vector<std::int64_t> by_prev(keyframe ? 0 : state_.count, -1);
-      std::vector<std::uint32_t> fresh;
+      std::vector<std::pair<std::uint64_t, std::uint32_t>> fresh;  // (Morton code, index): ties by index
       for (std::uint32_t j = 0; j < n; ++j) {
         if (!keyframe && match[j] >= 0)
           by_prev[std::size_t(match[j])] = j;
         else
-          fresh.push_back(j);
+          fresh.emplace_back(morton_of(j), j);
       }
-      std::vector<std::uint64_t> key(n);
-      for (const std::uint32_t j : fresh) key[j] = morton_of(j);
-      std::stable_sort(fresh.begin(), fresh.end(), [&](std::uint32_t a, std::uint32_t b) { return key[a] < key[b]; });
+      std::sort(fresh.begin(), fresh.end());
       std::size_t at = 0;
       for (const std::int64_t j : by_prev)
         if (j >= 0) order[at++] = static_cast<std::uint32_t>(j);
-      std::copy(fresh.begin(), fresh.end(), order.begin() + std::ptrdiff_t(at));
+      for (const auto& f : fresh) order[at++] = f.second;
     }
     EncodedFrame out;
     out.keyframe = keyframe;
@@ -296,14 +311,8 @@ class GroupEncoder {
     const std::uint32_t n = static_cast<std::uint32_t>(frame.count);
     if (state_.count == 0 || n == 0 || position_k_[0] < 0 || position_k_[1] < 0 || position_k_[2] < 0) return;
     std::int64_t lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) {
-      const auto& v = source_[std::size_t(position_k_[a])];
-      lo[a] = hi[a] = static_cast<std::int32_t>(v[0]);
-      for (std::uint32_t j = 1; j < n; ++j) {
-        lo[a] = std::min<std::int64_t>(lo[a], static_cast<std::int32_t>(v[j]));
-        hi[a] = std::max<std::int64_t>(hi[a], static_cast<std::int32_t>(v[j]));
-      }
-    }
+    for (int a = 0; a < 3; ++a)
+      std::tie(lo[a], hi[a]) = signed_extremes(std::span(source_[std::size_t(position_k_[a])]).first(n));
     const double volume = double(hi[0] - lo[0] + 1) * double(hi[1] - lo[1] + 1) * double(hi[2] - lo[2] + 1);
     const std::int64_t cell = std::max<std::int64_t>(2, std::llround(std::cbrt(volume / n)));
     const auto floordiv = [](std::int64_t a, std::int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); };
@@ -332,31 +341,23 @@ class GroupEncoder {
       std::int64_t p[3];
       for (int a = 0; a < 3; ++a) p[a] = static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]);
       const std::int64_t home[3] = {floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell)};
-      Pair best[kCandidates];
+      std::pair<std::int64_t, std::uint32_t> best[kCandidates];  // (distance, current index)
       int found = 0;
       const auto consider = [&](std::uint32_t j, const std::int64_t* s) {  // s: position and cell
         const std::int64_t e =
             (s[0] - p[0]) * (s[0] - p[0]) + (s[1] - p[1]) * (s[1] - p[1]) + (s[2] - p[2]) * (s[2] - p[2]);
         if (e > reach) return;
-        if (found == kCandidates &&
-            std::tie(e, j) >= std::tie(best[kCandidates - 1].distance, best[kCandidates - 1].cur))
-          return;
         for (int a = 0; a < 3; ++a) {
           if (s[3 + a] < home[a] - 1 || s[3 + a] > home[a] + 1) return;
         }
-        // Insert into the sorted few, dropping the farthest when full.
-        int slot = found < kCandidates ? found++ : kCandidates - 1;
-        while (slot > 0 && std::tie(e, j) < std::tie(best[slot - 1].distance, best[slot - 1].cur)) {
-          best[slot] = best[slot - 1];
-          --slot;
-        }
-        best[slot] = Pair{e, i, j};
+        keep_nearest(best, found, std::pair{e, j});
       };
       // The worst distance kept, once there are enough candidates: cells that cannot hold a
       // closer particle are not visited.
-      const auto worst = [&] { return found == kCandidates ? best[kCandidates - 1].distance : reach; };
+      const auto worst = [&] { return found == kCandidates ? best[kCandidates - 1].first : reach; };
       visit_cells(p, home, consider, worst);
-      std::copy_n(best, found, &slots[std::size_t(i) * kCandidates]);
+      for (int b = 0; b < found; ++b)
+        slots[std::size_t(i) * kCandidates + std::size_t(b)] = Pair{best[b].first, i, best[b].second};
       kept[i] = static_cast<std::uint8_t>(found);
     };
     // A dense grid over this frame's box only when it is not much larger than the frame.
@@ -464,11 +465,7 @@ class GroupEncoder {
           }
           for (std::uint32_t t = t0; t < t1; ++t) {
             if (e[t] > within) continue;
-            const std::uint64_t key = std::uint64_t(e[t]) << 32 | order[t];
-            if (found == kCandidates && key >= best[kCandidates - 1]) continue;
-            int slot = found < kCandidates ? found++ : kCandidates - 1;
-            for (; slot > 0 && key < best[slot - 1]; --slot) best[slot] = best[slot - 1];
-            best[slot] = key;
+            keep_nearest(best, found, std::uint64_t(e[t]) << 32 | order[t]);
             if (found == kCandidates) within = static_cast<std::int32_t>(best[kCandidates - 1] >> 32);
           }
         }
@@ -579,11 +576,8 @@ class GroupEncoder {
         }
       }
     }
-    // Closest first, ties by previous then current index: the pairs were made in previous-index
-    // order, each particle's by (distance, current index), so a stable sort by distance is that.
-    // Every distance is within the reach, so the depth sorter's radix sort does it (a comparison
-    // sort here was about 15 % of a FLIP cook).
-    // A previous particle whose nearest candidate has it as its own nearest (by distance, then
+    // The pairs are taken closest first, ties by previous then current index, each previous and
+    // current particle once. A previous particle whose nearest candidate has it as its own nearest (by distance, then
     // previous index) makes the first pair, in that order, of either: it is taken, and every later
     // pair of either would be passed over. Only the others' pairs are sorted (on the FLIP pour two
     // thirds of the particles pair this way, and a sixth of the candidate pairs are left).
@@ -604,6 +598,9 @@ class GroupEncoder {
         match[first.cur] = i;
       }
     }
+    // The rest: the pairs were made in previous-index order, each particle's by (distance, current
+    // index), so a stable sort by distance is that order. Every distance is within the reach, so
+    // the depth sorter's radix sort does it (a comparison sort here was about 15 % of a FLIP cook).
     std::vector<Pair> pairs;
     pairs.reserve(std::size_t(state_.count) * 2);
     for (std::uint32_t i = 0; i < state_.count; ++i) {
@@ -958,12 +955,7 @@ class GroupEncoder {
       const WordCodingEntry& e = info_.words[std::size_t(a)];
       if (e.coding == WordCoding::Quantized && e.step > 0 && state_.count > 0) {
         // dequantize() never decreases as q grows: the extremes are those of the grid values.
-        const std::vector<std::uint32_t>& q = state_.q[std::size_t(position_k_[a])];
-        std::int32_t lo = static_cast<std::int32_t>(q[0]), hi = lo;
-        for (std::uint32_t j = 0; j < state_.count; ++j) {
-          lo = std::min(lo, static_cast<std::int32_t>(q[j]));
-          hi = std::max(hi, static_cast<std::int32_t>(q[j]));
-        }
+        const auto [lo, hi] = signed_extremes(std::span(state_.q[std::size_t(position_k_[a])]).first(state_.count));
         b[std::size_t(a)] = dequantize(static_cast<std::uint32_t>(lo), e.step, as_float(e.base));
         b[std::size_t(a) + 3] = dequantize(static_cast<std::uint32_t>(hi), e.step, as_float(e.base));
         continue;
