@@ -217,11 +217,12 @@ int main(int argc, char** argv) {
   cook_cmd->add_option("--chunk-size", cook.chunk_size, "Chunk size, a power of two from 64KiB to 64MiB")
       ->capture_default_str();
   cook_cmd
-      ->add_option("--codec", cook.codec,
-                   "particle[:LEVEL] (the default): error-bounded (--error, --scale-error), predicted over time, "
-                   "about 1 byte per particle per frame (LEVEL, zstd's, 1..22, default 16: lower cooks faster, a "
-                   "little larger); particle-lossless: bit-exact, source order kept; raw, lz4[:HC level], "
-                   "zstd[:level]: the records as they are, chunk-compressed")
+      ->add_option(
+          "--codec", cook.codec,
+          "particle[:LEVEL] (the default): error-bounded (--error, --scale-error), predicted over time, "
+          "about 1 byte per particle per frame (LEVEL, zstd's, 1..22, default 16 with ids, 12 without: lower "
+          "cooks faster, a little larger); particle-lossless: bit-exact, source order kept; raw, lz4[:HC level], "
+          "zstd[:level]: the records as they are, chunk-compressed")
       ->capture_default_str();
   cook_cmd
       ->add_option("--error", cook.error,
@@ -355,7 +356,7 @@ int main(int argc, char** argv) {
       "Only these codecs (names as in the table, e.g. 'particle (ours)', 'zstd -3'); repeatable");
   bench_codec_cmd
       ->add_option("--zstd-level", bench_codec_opts.zstd_level,
-                   "The particle codec's zstd level (default 16: its entropy stage's trade-off)")
+                   "The particle codec's zstd level (default 16 with ids, 12 without: its entropy stage's trade-off)")
       ->check(CLI::Range(1, 22));
   bench_codec_cmd
       ->add_option("--repetitions", bench_codec_opts.repetitions, "Decode runs of every codec; medians are reported")

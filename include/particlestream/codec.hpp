@@ -54,7 +54,7 @@ struct ParticleCodecOptions {
   // bytes per particle more.
   bool derive_velocity = true;
   std::uint32_t keyframe_interval = kDefaultKeyframeInterval;
-  int zstd_level = 0;  // 0: kDefaultParticleZstdLevel, or kDefaultLosslessParticleZstdLevel when lossless
+  int zstd_level = 0;  // 0: default_particle_zstd_level() of the clip's order
 };
 
 // Facts about a whole clip that the encoder needs before its first frame: gathered by a pass

@@ -75,8 +75,9 @@ void set_frames(Options& options, std::string_view spec, std::string_view what =
 
 // What the file records about how it was made (its "cooked with" string): every setting that
 // changes the bytes, as key=value words, and the input's name and content hash. No paths, so
-// the same input and settings give the same file wherever either is.
-std::string describe_settings(const Options& options, std::uint64_t content_hash);
+// the same input and settings give the same file wherever either is. `has_ids`: whether frames
+// are ordered and matched by id, on which the particle codec's default zstd level depends.
+std::string describe_settings(const Options& options, std::uint64_t content_hash, bool has_ids);
 
 // Where a cook is: the particle codec reads its source twice (a scan for the ranges its grids
 // need, then the encoding), each stage counting frames_done from 1 to frame_count (the clip's

@@ -33,8 +33,11 @@ void set_codec(Options& o, std::string_view spec) {
     if (colon != std::string::npos) {  // the entropy stage's zstd level
       const std::optional<int> level = whole_number<int>(std::string_view(text).substr(colon + 1));
       if (!level || *level < 1 || *level > 22) {
-        throw Error(fmt::format("`codec` '{}': the particle codec's zstd level must be 1..22 (default {}, lossless {})",
-                                text, format::kDefaultParticleZstdLevel, format::kDefaultLosslessParticleZstdLevel));
+        throw Error(
+            fmt::format("`codec` '{}': the particle codec's zstd level must be 1..22 (default {} with ids, {} without, "
+                        "lossless {})",
+                        text, format::kDefaultParticleZstdLevel, format::kDefaultMatchedParticleZstdLevel,
+                        format::kDefaultLosslessParticleZstdLevel));
       }
       o.particle.zstd_level = *level;
     }

@@ -525,11 +525,11 @@ FramePlan plan_frames(const Options& options, const Source& source) {
   return p;
 }
 
-std::string codec_setting(const Options& o) {
+std::string codec_setting(const Options& o, bool has_ids) {
   if (o.frame_codec == format::FrameCodec::Particle) {
-    const int level = o.particle.zstd_level ? o.particle.zstd_level
-                      : o.particle.lossless ? format::kDefaultLosslessParticleZstdLevel
-                                            : format::kDefaultParticleZstdLevel;
+    const format::FrameOrder order = has_ids ? format::FrameOrder::Id : format::FrameOrder::Matched;
+    const int level =
+        o.particle.zstd_level ? o.particle.zstd_level : format::default_particle_zstd_level(order, o.particle.lossless);
     if (o.particle.lossless) return fmt::format("particle-lossless:{}", level);
     return fmt::format(
         "particle:{} error={}:{:g} scale_error={:g} attribute_error={:g} keyframe_interval={} velocity={}", level,
@@ -541,7 +541,7 @@ std::string codec_setting(const Options& o) {
 
 }  // namespace
 
-std::string describe_settings(const Options& o, std::uint64_t content_hash) {
+std::string describe_settings(const Options& o, std::uint64_t content_hash, bool has_ids) {
   std::string attributes;
   for (const std::string& a : o.attributes) attributes += (attributes.empty() ? "" : ",") + a;
   const char* scale = o.scale_from == ScaleFrom::Widths     ? "widths"
@@ -556,9 +556,9 @@ std::string describe_settings(const Options& o, std::uint64_t content_hash) {
       o.scale_from == ScaleFrom::Constant    ? fmt::format(":{:g}", o.scale_constant)
       : o.scale_from == ScaleFrom::Attribute ? ":" + o.scale_attribute
                                              : std::string(),
-      o.color_from, attributes.empty() ? "none" : attributes, int(o.keep_velocity), o.chunk_size, codec_setting(o),
-      o.frame_begin, o.frame_end < 0 ? std::string("end") : std::to_string(o.frame_end), int(o.drop_invalid),
-      int(o.keep_source_order));
+      o.color_from, attributes.empty() ? "none" : attributes, int(o.keep_velocity), o.chunk_size,
+      codec_setting(o, has_ids), o.frame_begin, o.frame_end < 0 ? std::string("end") : std::to_string(o.frame_end),
+      int(o.drop_invalid), int(o.keep_source_order));
 }
 
 namespace {
@@ -600,7 +600,7 @@ Report cook_source(const Options& options, Source& opened, const std::function<v
   meta.layout = plan.layout;
   meta.source_file = std::filesystem::path(source->name()).filename().string();
   meta.source_object = source->object();
-  meta.cooked_with = describe_settings(options, source->content_hash());
+  meta.cooked_with = describe_settings(options, source->content_hash(), plan.request.id);
   const unsigned threads = options.threads ? options.threads : std::max(1u, std::thread::hardware_concurrency());
 
   // One output frame through the general path: read, scanned, NaN/Inf dropped or refused, the

@@ -103,14 +103,13 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
   info.codec = FrameCodec::Particle;
   info.lossless = options.lossless;
   info.keyframe_interval = options.keyframe_interval;
-  info.zstd_level = options.zstd_level != 0 ? options.zstd_level
-                    : options.lossless      ? kDefaultLosslessParticleZstdLevel
-                                            : kDefaultParticleZstdLevel;
   if (info.keyframe_interval < 1 || info.keyframe_interval > kMaxKeyframeInterval) {
     throw Error(
         fmt::format("the keyframe interval is {}, expected 1 to {}", info.keyframe_interval, kMaxKeyframeInterval));
   }
   info.order = options.lossless ? FrameOrder::Source : has_ids ? FrameOrder::Id : FrameOrder::Matched;
+  info.zstd_level =
+      options.zstd_level != 0 ? options.zstd_level : default_particle_zstd_level(info.order, options.lossless);
   const std::uint32_t record_size = record_size_of(layout);
   info.words.resize(record_size / 4);
   const double diagonal = stats.diagonal();
