@@ -121,8 +121,11 @@ std::vector<EncodedFrame> encode_group(const CodecInfo& info, std::span<const So
 // partner. Particles are paired by id when the layout has one, else each decoded particle with
 // the unpaired source particle nearest in every float word (each difference scaled by that word's
 // bound in `codec`, when given: particles may nearly coincide in position and differ in velocity),
-// since the codec may re-order a frame without ids.
+// since the codec may re-order a frame without ids. With `in_order` set, and as many particles in
+// both, particle i is paired with particle i: a clip ordered by id (FrameOrder::Id) against its
+// source cooked in id order, where the nearest particle of a dense cloud may be another one.
 struct FrameComparison {
+  bool in_order = false;
   std::vector<double> max_error;           // per record word: |decoded - source| (float words)
   std::vector<double> max_relative_error;  // per record word: |decoded - source| / |source| (0 when both are 0)
   // Per float word, over paired particles with finite values: Σ (decoded - source)², Σ source², and

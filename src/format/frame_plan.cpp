@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <numeric>
 #include <unordered_map>
 
 #include <fmt/format.h>
@@ -273,7 +274,9 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
     }
   };
   std::vector<std::uint64_t> partner(decoded_count, UINT64_MAX);
-  if (id != nullptr) {
+  if (in_order && decoded_count == source_count) {
+    std::iota(partner.begin(), partner.end(), std::uint64_t{0});
+  } else if (id != nullptr) {
     const auto id_of = [&](std::span<const std::byte> recs, std::uint64_t i) {
       std::uint64_t v = 0;
       std::memcpy(&v, recs.data() + i * rs + id->offset, id->size());
