@@ -149,7 +149,9 @@ struct Grid {
 Grid grid_of(const format::CodecInfo& info, std::size_t word) {
   const format::WordCodingEntry& e = info.words[word];
   if (e.coding == format::WordCoding::Quantized) return {e.step, std::bit_cast<float>(e.base), 0};
-  if (e.coding == format::WordCoding::Relative) return {0.0f, 0.0f, e.base};
+  // The coarsest relative grid that keeps the bound (the particle codec's own is one bit finer,
+  // for its codes chosen in the loop): what a codec without a predictor of its own would use.
+  if (e.coding == format::WordCoding::Relative) return {0.0f, 0.0f, format::relative_shift_for(e.error)};
   if (e.coding == format::WordCoding::Constant) return {1.0f, std::bit_cast<float>(e.base), 0};
   return {};
 }

@@ -48,6 +48,27 @@ std::pair<std::int32_t, std::int32_t> signed_extremes(std::span<const std::uint3
   return {lo, hi};
 }
 
+// Whether Relative code `code` decodes within word `e`'s bound of the float with bits `bits`: the
+// decoder's exact arithmetic, the check load() makes of the nearest code.
+bool relative_within(std::uint32_t bits, std::uint32_t code, const WordCodingEntry& e) {
+  const float x = as_float(bits), y = as_float(relative_decode(code, e.base));
+  const double allowed = double(e.error) * std::max(double(std::abs(x)), double(FLT_MIN));
+  return std::isfinite(x) && std::isfinite(y) && std::abs(double(y) - double(x)) <= allowed;
+}
+
+// Of the Relative codes within the bound of a value (a run around its nearest code, `nearest`),
+// the one nearest `target`, the prediction: quantised in the loop, a value that follows its
+// prediction within the bound costs a residual of 0. The plan's grid is two bits finer than the
+// bound needs, so that about five codes are within it (frame_plan.cpp).
+std::uint32_t relative_toward(std::uint32_t bits, std::uint32_t nearest, std::uint32_t target,
+                              const WordCodingEntry& e) {
+  constexpr int kMostSteps = 8;  // the codes within the bound: at most 2 x 2.56 on the plan's grid
+  const std::uint32_t dir = static_cast<std::int32_t>(target - nearest) > 0 ? 1u : ~0u;
+  std::uint32_t code = nearest;
+  for (int s = 0; s < kMostSteps && code != target && relative_within(bits, code + dir, e); ++s) code += dir;
+  return code;
+}
+
 // A particle's nearest candidates, at most N, sorted by key (distance, then current index): `key`
 // goes in unless they are full and it is not below the last, which it then pushes out.
 template <class Key, std::size_t N>
@@ -222,6 +243,7 @@ class GroupEncoder {
       throw Error(fmt::format("frame {}: the clip is ordered by id, but the frame has {} ids for {} particles", index,
                               frame.ids.size(), n));
     source_.resize(plan_.coded.size());
+    raw_.resize(plan_.coded.size());
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
       const std::uint32_t w = plan_.coded[k];
       const WordCodingEntry& e = info_.words[w];
@@ -230,6 +252,7 @@ class GroupEncoder {
       for (std::uint32_t j = 0; j < n; ++j)
         std::memcpy(&v[j], frame.records.data() + std::size_t(j) * record_size_ + 4 * w, 4);
       if (e.coding == WordCoding::Relative) {
+        raw_[k].assign(v.begin(), v.end());  // the floats, for the codes chosen in the loop
         for (std::uint32_t j = 0; j < n; ++j) {
           const float x = as_float(v[j]);
           const std::uint32_t q = relative_code(v[j], e.base);
@@ -811,7 +834,7 @@ class GroupEncoder {
     };
     std::vector<Choice> choices(plan_.coded.size());
     const std::size_t kept = survivor_prev.size();
-    std::vector<std::uint32_t> prev_r(kept), lin_r(kept), scratch;
+    std::vector<std::uint32_t> prev_r(kept), lin_r(kept), prev_q, lin_q, scratch;
     // Per block of survivors, its median residual as the bias; the residuals it leaves, zigzagged.
     const auto biased = [&](const std::vector<std::uint32_t>& r, std::vector<std::uint32_t>& bias,
                             std::vector<std::uint32_t>& out) {
@@ -840,12 +863,28 @@ class GroupEncoder {
       q.resize(n);
       for (std::uint32_t j = 0; j < n; ++j) q[j] = source_[k][order[j]];
       std::size_t t = 0;
-      for (std::uint32_t j = 0; j < n; ++j) {
-        if (is_new[j]) continue;
-        const std::uint32_t i = survivor_prev[t];
-        prev_r[t] = q[j] - state_.q[k][i];
-        lin_r[t] = prev_r[t] - state_.d[k][i];
-        ++t;
+      const WordCodingEntry& entry = info_.words[plan_.coded[k]];
+      if (entry.coding == WordCoding::Relative) {
+        // Each predictor's own codes: of those within the bound, the nearest to its prediction.
+        prev_q.resize(kept);
+        lin_q.resize(kept);
+        for (std::uint32_t j = 0; j < n; ++j) {
+          if (is_new[j]) continue;
+          const std::uint32_t i = survivor_prev[t], bits = raw_[k][order[j]];
+          prev_q[t] = relative_toward(bits, q[j], state_.q[k][i], entry);
+          lin_q[t] = relative_toward(bits, q[j], state_.q[k][i] + state_.d[k][i], entry);
+          prev_r[t] = prev_q[t] - state_.q[k][i];
+          lin_r[t] = lin_q[t] - state_.q[k][i] - state_.d[k][i];
+          ++t;
+        }
+      } else {
+        for (std::uint32_t j = 0; j < n; ++j) {
+          if (is_new[j]) continue;
+          const std::uint32_t i = survivor_prev[t];
+          prev_r[t] = q[j] - state_.q[k][i];
+          lin_r[t] = prev_r[t] - state_.d[k][i];
+          ++t;
+        }
       }
       // Both predictors with their block biases; keep the one with the smaller residuals.
       Choice& ch = choices[k];
@@ -857,12 +896,25 @@ class GroupEncoder {
         ch.bias.swap(lin_bias);
         ch.keep.swap(lin_keep);
       }
+      if (entry.coding == WordCoding::Relative) {  // the chosen predictor's codes and steps
+        const std::vector<std::uint32_t>& codes = ch.predictor == kLinear ? lin_q : prev_q;
+        t = 0;
+        for (std::uint32_t j = 0; j < n; ++j) {
+          if (is_new[j]) continue;
+          q[j] = codes[t];
+          prev_r[t] = q[j] - state_.q[k][survivor_prev[t]];
+          ++t;
+        }
+      }
       // The decoder's state: a survivor's step is its residual plus the prediction's step.
       next.d[k].resize(n);
       t = 0;
       std::uint32_t before = 0, step_before = 0;
       for (std::uint32_t j = 0; j < n; ++j) {
         if (is_new[j]) {
+          // A Relative word's code in the loop here too: the one nearest the particle before it
+          // (the sparks' random radii 0.970 -> 0.967 B/p; in a keyframe it gained nothing).
+          if (entry.coding == WordCoding::Relative) q[j] = relative_toward(raw_[k][order[j]], q[j], before, entry);
           ch.fresh.push_back(zigzag(q[j] - before));
           next.d[k][j] = birth(k, order[j]);
           ch.motion.push_back(zigzag(next.d[k][j] - step_before));
@@ -987,6 +1039,7 @@ class GroupEncoder {
   int position_k_[3] = {-1, -1, -1};
   EncoderState state_;
   std::vector<std::vector<std::uint32_t>> source_;
+  std::vector<std::vector<std::uint32_t>> raw_;    // per Relative word and source particle: the float's bits
   std::vector<std::vector<std::uint32_t>> birth_;  // per coded word and source particle (or empty)
   std::span<const std::uint64_t> ids_in_;
   ZSTD_CCtx* zstd_ = nullptr;
