@@ -146,8 +146,9 @@ struct CodecInfo {
   bool lossless = false;
   std::uint32_t keyframe_interval = 1;
   int zstd_level = kDefaultParticleZstdLevel;  // encoder only; not stored
-  double error = 0.0;                          // the positions' bound, absolute; 0 when lossless
-  std::vector<WordCodingEntry> words;          // record_size / 4 entries (particle codec only)
+  bool nibbles = true;                 // encoder only: false packs no word as nibbles, as versions before 5 read
+  double error = 0.0;                  // the positions' bound, absolute; 0 when lossless
+  std::vector<WordCodingEntry> words;  // record_size / 4 entries (particle codec only)
 };
 
 struct Metadata {

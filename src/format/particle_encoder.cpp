@@ -135,7 +135,7 @@ class GroupEncoder {
     }
     state_.q.resize(plan_.coded.size());
     state_.d.resize(plan_.coded.size());
-    nibbles_.assign(plan_.coded.size(), 1);
+    nibbles_.assign(plan_.coded.size(), info.nibbles ? 1 : 0);
     zstd_ = make_zstd_cctx();
     if (zstd_ == nullptr) throw Error("cannot create a zstd encoder");
     ZSTD_CCtx_setParameter(zstd_, ZSTD_c_compressionLevel, info.zstd_level);
@@ -957,7 +957,7 @@ class GroupEncoder {
       if (keep_bytes[k] == 0) continue;  // nothing stored either way
       const std::size_t escapes =
           std::size_t(std::count_if(keep.begin(), keep.end(), [](std::uint32_t v) { return v >= kNibbleEscape; }));
-      if (keep.size() >= kBlock) {
+      if (keep.size() >= kBlock && info_.nibbles) {
         if (nibbles_[k] != 0 && escapes * 4 > keep.size()) nibbles_[k] = 0;
         if (nibbles_[k] == 0 && escapes * 10 <= keep.size()) nibbles_[k] = 1;
       }
