@@ -577,32 +577,60 @@ format::Metadata metadata_for(const std::vector<format::Attribute>& layout, cons
   return meta;
 }
 
+// A generated clip of `count` particles with ids 0..count-1 over `frames` frames, `[x y z scale]`
+// from `fill(frame, particle, record)`, and the stats a cook would gather.
+struct GeneratedClip {
+  std::vector<format::Attribute> layout;
+  std::uint32_t rs = 0, count = 0;
+  std::vector<std::vector<std::byte>> records;
+  std::vector<std::vector<std::uint64_t>> ids;
+  format::ClipStats stats;
+  template <class Fill>
+  GeneratedClip(std::uint32_t n, std::uint32_t frames, const Fill& fill)
+      : layout(with_id(format::default_layout())),
+        rs(format::record_size_of(layout)),
+        count(n),
+        records(frames, std::vector<std::byte>(std::size_t(n) * rs)),
+        ids(frames, std::vector<std::uint64_t>(n)),
+        stats(layout) {
+    for (std::uint32_t f = 0; f < frames; ++f) {
+      for (std::uint32_t i = 0; i < n; ++i) {
+        float r[4];
+        fill(f, i, r);
+        std::memcpy(records[f].data() + std::size_t(i) * rs, r, 16);
+        const std::uint64_t id = i;
+        std::memcpy(records[f].data() + std::size_t(i) * rs + 16, &id, 8);
+        ids[f][i] = id;
+      }
+      stats.add(records[f], n);
+    }
+  }
+  std::vector<format::SourceFrame> source_frames() const {
+    std::vector<format::SourceFrame> frames;
+    for (std::size_t f = 0; f < records.size(); ++f) frames.push_back({records[f], ids[f], count});
+    return frames;
+  }
+  static std::vector<format::Attribute> with_id(std::vector<format::Attribute> layout) {
+    format::append_attribute(layout, "id", format::AttributeType::Uint64, 1);
+    return layout;
+  }
+};
+
 TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
   constexpr std::uint32_t kCount = 4000, kFrames = 6;
-  std::vector<format::Attribute> layout = format::default_layout();
-  format::append_attribute(layout, "id", format::AttributeType::Uint64, 1);
-  const std::uint32_t rs = format::record_size_of(layout);
-  std::vector<std::vector<std::byte>> records(kFrames, std::vector<std::byte>(kCount * rs));
-  std::vector<std::vector<std::uint64_t>> ids(kFrames, std::vector<std::uint64_t>(kCount));
-  format::ClipStats stats(layout);
-  for (std::uint32_t f = 0; f < kFrames; ++f) {
-    for (std::uint32_t i = 0; i < kCount; ++i) {
-      const double u = double((i * 2654435761u) % kCount) / kCount;
-      const float r[4] = {float(20 * std::sin(i * 0.37) + f * 0.05), float(20 * std::cos(i * 0.11)),
-                          float(20 * std::sin(i * 0.73 + 1)),
-                          float(0.002 * std::pow(100.0, u) * (1.0 + 0.01 * f))};  // 2 mm to 20 cm, growing
-      std::memcpy(records[f].data() + std::size_t(i) * rs, r, 16);
-      const std::uint64_t id = i;
-      std::memcpy(records[f].data() + std::size_t(i) * rs + 16, &id, 8);
-      ids[f][i] = id;
-    }
-    stats.add(records[f], kCount);
-  }
-  const format::CodecInfo info = format::plan_particle_codec(layout, stats, 24.0, true, {});
+  const GeneratedClip clip(kCount, kFrames, [](std::uint32_t f, std::uint32_t i, float* r) {
+    const double u = double((i * 2654435761u) % kCount) / kCount;
+    r[0] = float(20 * std::sin(i * 0.37) + f * 0.05);
+    r[1] = float(20 * std::cos(i * 0.11));
+    r[2] = float(20 * std::sin(i * 0.73 + 1));
+    r[3] = float(0.002 * std::pow(100.0, u) * (1.0 + 0.01 * f));  // 2 mm to 20 cm, growing
+  });
+  const auto& layout = clip.layout;
+  const auto& records = clip.records;
+  const std::uint32_t rs = clip.rs;
+  const format::CodecInfo info = format::plan_particle_codec(layout, clip.stats, 24.0, true, {});
   ASSERT_EQ(info.words[3].coding, format::WordCoding::Relative);
-  std::vector<format::SourceFrame> frames;
-  for (std::uint32_t f = 0; f < kFrames; ++f) frames.push_back({records[f], ids[f], kCount});
-  const auto encoded = format::encode_group(info, frames, {}, 0);
+  const auto encoded = format::encode_group(info, clip.source_frames(), {}, 0);
   const format::Metadata meta = metadata_for(layout, info, encoded);
   format::FrameDecoder decoder(meta, "generated");
   std::vector<std::byte> out(kCount * rs);
@@ -646,37 +674,25 @@ TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
 // coarsest grid that keeps the bound, and every value stays within it.
 TEST(ParticleCodec, ScalesThatChangeOverLifeAreCodedInTheLoop) {
   constexpr std::uint32_t kCount = 3000, kFrames = 40;
-  std::vector<format::Attribute> layout = format::default_layout();
-  format::append_attribute(layout, "id", format::AttributeType::Uint64, 1);
-  const std::uint32_t rs = format::record_size_of(layout);
-  std::vector<std::vector<std::byte>> records(kFrames, std::vector<std::byte>(kCount * rs));
-  std::vector<std::vector<std::uint64_t>> ids(kFrames, std::vector<std::uint64_t>(kCount));
-  format::ClipStats stats(layout);
-  for (std::uint32_t f = 0; f < kFrames; ++f) {
-    for (std::uint32_t i = 0; i < kCount; ++i) {
+  const auto sizes = [](bool change) {
+    return [change](std::uint32_t f, std::uint32_t i, float* r) {
       // Each its own size and life (so the grid's rounding falls differently for each).
       const double u = double((i * 2654435761u) % 65536) / 65536.0, v = double((i * 40503u) % 65536) / 65536.0;
       const double life = 60.0 + 60.0 * v;  // frames
-      const float r[4] = {float(i % 50) * 0.1f + 0.01f * float(f), float(i / 50) * 0.1f, 1.0f,
-                          float((0.02 + 0.06 * u) * (1.0 - 0.6 * double(f) / life))};  // shrinks along its life
-      std::memcpy(records[f].data() + std::size_t(i) * rs, r, 16);
-      const std::uint64_t id = i;
-      std::memcpy(records[f].data() + std::size_t(i) * rs + 16, &id, 8);
-      ids[f][i] = id;
-    }
-    stats.add(records[f], kCount);
-  }
+      r[0] = float(i % 50) * 0.1f + 0.01f * float(f);
+      r[1] = float(i / 50) * 0.1f;
+      r[2] = 1.0f;
+      r[3] = float((0.02 + 0.06 * u) * (1.0 - (change ? 0.6 * double(f) / life : 0.0)));  // shrinks along its life
+    };
+  };
+  const GeneratedClip clip(kCount, kFrames, sizes(true));
   // The same clip with each particle's first size throughout: what the positions and ids cost.
-  std::vector<std::vector<std::byte>> constant = records;
-  for (std::uint32_t f = 1; f < kFrames; ++f) {
-    for (std::uint32_t i = 0; i < kCount; ++i)
-      std::memcpy(constant[f].data() + std::size_t(i) * rs + 12, constant[0].data() + std::size_t(i) * rs + 12, 4);
-  }
-  std::vector<format::SourceFrame> frames, constant_frames;
-  for (std::uint32_t f = 0; f < kFrames; ++f) {
-    frames.push_back({records[f], ids[f], kCount});
-    constant_frames.push_back({constant[f], ids[f], kCount});
-  }
+  const GeneratedClip constant(kCount, kFrames, sizes(false));
+  const auto& layout = clip.layout;
+  const auto& records = clip.records;
+  const std::uint32_t rs = clip.rs;
+  const auto& stats = clip.stats;
+  const std::vector<format::SourceFrame> frames = clip.source_frames(), constant_frames = constant.source_frames();
   const format::CodecInfo planned = format::plan_particle_codec(layout, stats, 24.0, true, {});
   ASSERT_EQ(planned.words[3].coding, format::WordCoding::Relative);
   EXPECT_EQ(planned.words[3].base, format::relative_shift_for(0.01) - 2);  // two bits finer
