@@ -121,6 +121,12 @@ enum class FrameOrder : std::uint8_t {
                 // position, then new particles in Morton order
 };
 
+// How the particle codec orders a clip's frames: the source's order when lossless, else by id
+// where particles have ids, else matched by position.
+constexpr FrameOrder particle_frame_order(bool has_ids, bool lossless) {
+  return lossless ? FrameOrder::Source : has_ids ? FrameOrder::Id : FrameOrder::Matched;
+}
+
 // The particle codec's zstd level when none is asked for. With ids (and in the source order), a
 // particle's residuals recur from frame to frame and zstd's optimal parser (level 16) finds 9 %
 // more than level 12 on Blender's sparks. Without ids they are a solver's re-sampling noise: on the

@@ -527,7 +527,7 @@ FramePlan plan_frames(const Options& options, const Source& source) {
 
 std::string codec_setting(const Options& o, bool has_ids) {
   if (o.frame_codec == format::FrameCodec::Particle) {
-    const format::FrameOrder order = has_ids ? format::FrameOrder::Id : format::FrameOrder::Matched;
+    const format::FrameOrder order = format::particle_frame_order(has_ids, o.particle.lossless);
     const int level =
         o.particle.zstd_level ? o.particle.zstd_level : format::default_particle_zstd_level(order, o.particle.lossless);
     if (o.particle.lossless) return fmt::format("particle-lossless:{}", level);

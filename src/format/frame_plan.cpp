@@ -108,7 +108,7 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
     throw Error(
         fmt::format("the keyframe interval is {}, expected 1 to {}", info.keyframe_interval, kMaxKeyframeInterval));
   }
-  info.order = options.lossless ? FrameOrder::Source : has_ids ? FrameOrder::Id : FrameOrder::Matched;
+  info.order = particle_frame_order(has_ids, options.lossless);
   info.zstd_level =
       options.zstd_level != 0 ? options.zstd_level : default_particle_zstd_level(info.order, options.lossless);
   const std::uint32_t record_size = record_size_of(layout);

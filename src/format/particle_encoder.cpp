@@ -48,8 +48,8 @@ std::pair<std::int32_t, std::int32_t> signed_extremes(std::span<const std::uint3
   return {lo, hi};
 }
 
-// Whether Relative code `code` decodes within word `e`'s bound of the float with bits `bits`: the
-// decoder's exact arithmetic, the check load() makes of the nearest code.
+// Whether Relative code `code` decodes within word `e`'s bound of the float with bits `bits`, by
+// the decoder's exact arithmetic (subnormals: within the smallest normal's bound).
 bool relative_within(std::uint32_t bits, std::uint32_t code, const WordCodingEntry& e) {
   const float x = as_float(bits), y = as_float(relative_decode(code, e.base));
   const double allowed = double(e.error) * std::max(double(std::abs(x)), double(FLT_MIN));
@@ -254,16 +254,12 @@ class GroupEncoder {
       if (e.coding == WordCoding::Relative) {
         raw_[k].assign(v.begin(), v.end());  // the floats, for the codes chosen in the loop
         for (std::uint32_t j = 0; j < n; ++j) {
-          const float x = as_float(v[j]);
           const std::uint32_t q = relative_code(v[j], e.base);
-          const float y = as_float(relative_decode(q, e.base));
-          // Within the bound relative to the value (subnormals: within the smallest normal's).
-          const double allowed = double(e.error) * std::max(double(std::abs(x)), double(FLT_MIN));
-          if (!std::isfinite(x) || !std::isfinite(y) || !(std::abs(double(y) - double(x)) <= allowed)) {
+          if (!relative_within(v[j], q, e)) {
             throw Error(
                 fmt::format("frame {}: particle {}: record word {} is {}, which a relative bound of {} "
                             "cannot hold (not a finite number)",
-                            index, j, w, x, e.error));
+                            index, j, w, as_float(v[j]), e.error));
           }
           v[j] = q;
         }
@@ -864,27 +860,23 @@ class GroupEncoder {
       for (std::uint32_t j = 0; j < n; ++j) q[j] = source_[k][order[j]];
       std::size_t t = 0;
       const WordCodingEntry& entry = info_.words[plan_.coded[k]];
-      if (entry.coding == WordCoding::Relative) {
-        // Each predictor's own codes: of those within the bound, the nearest to its prediction.
-        prev_q.resize(kept);
-        lin_q.resize(kept);
-        for (std::uint32_t j = 0; j < n; ++j) {
-          if (is_new[j]) continue;
-          const std::uint32_t i = survivor_prev[t], bits = raw_[k][order[j]];
-          prev_q[t] = relative_toward(bits, q[j], state_.q[k][i], entry);
-          lin_q[t] = relative_toward(bits, q[j], state_.q[k][i] + state_.d[k][i], entry);
-          prev_r[t] = prev_q[t] - state_.q[k][i];
-          lin_r[t] = lin_q[t] - state_.q[k][i] - state_.d[k][i];
-          ++t;
+      // A Relative word's survivors get each predictor's own codes: of those within the bound, the
+      // nearest to its prediction. Other words' codes are the nearest, whatever the predictor.
+      const bool in_loop = entry.coding == WordCoding::Relative;
+      prev_q.resize(in_loop ? kept : 0);
+      lin_q.resize(in_loop ? kept : 0);
+      for (std::uint32_t j = 0; j < n; ++j) {
+        if (is_new[j]) continue;
+        const std::uint32_t i = survivor_prev[t], previous = state_.q[k][i], linear = previous + state_.d[k][i];
+        std::uint32_t for_previous = q[j], for_linear = q[j];
+        if (in_loop) {
+          const std::uint32_t bits = raw_[k][order[j]];
+          prev_q[t] = for_previous = relative_toward(bits, q[j], previous, entry);
+          lin_q[t] = for_linear = relative_toward(bits, q[j], linear, entry);
         }
-      } else {
-        for (std::uint32_t j = 0; j < n; ++j) {
-          if (is_new[j]) continue;
-          const std::uint32_t i = survivor_prev[t];
-          prev_r[t] = q[j] - state_.q[k][i];
-          lin_r[t] = prev_r[t] - state_.d[k][i];
-          ++t;
-        }
+        prev_r[t] = for_previous - previous;
+        lin_r[t] = for_linear - linear;
+        ++t;
       }
       // Both predictors with their block biases; keep the one with the smaller residuals.
       Choice& ch = choices[k];
@@ -896,7 +888,7 @@ class GroupEncoder {
         ch.bias.swap(lin_bias);
         ch.keep.swap(lin_keep);
       }
-      if (entry.coding == WordCoding::Relative) {  // the chosen predictor's codes and steps
+      if (in_loop) {  // the chosen predictor's codes and steps
         const std::vector<std::uint32_t>& codes = ch.predictor == kLinear ? lin_q : prev_q;
         t = 0;
         for (std::uint32_t j = 0; j < n; ++j) {
@@ -915,7 +907,7 @@ class GroupEncoder {
           // A Relative word's code in the loop here too: the one nearest the particle before it
           // (the demo fountain's first 120 frames 0.3 % smaller, the sparks' random radii 0.03 %
           // larger; in a keyframe it made the demo larger).
-          if (entry.coding == WordCoding::Relative) q[j] = relative_toward(raw_[k][order[j]], q[j], before, entry);
+          if (in_loop) q[j] = relative_toward(raw_[k][order[j]], q[j], before, entry);
           ch.fresh.push_back(zigzag(q[j] - before));
           next.d[k][j] = birth(k, order[j]);
           ch.motion.push_back(zigzag(next.d[k][j] - step_before));
