@@ -420,3 +420,31 @@ def test_cook_particles_cooks_arrays_as_a_file_and_names_what_is_wrong(tmp_path)
     assert not (tmp_path / "bad.pstream").exists()
     with pytest.raises(ps.Error, match="frame 0 needs 'time'"):
         ps.cook_particles([{"position": frames[0]["position"]}], tmp_path / "bad.pstream")
+
+
+def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
+    # bench/particle_identity.py (docs/compression.md, "Where the FLIP pour's bytes go"): a spark
+    # moved on by its velocity lands near itself, a FLIP particle no nearer than unmoved.
+    import subprocess
+    import sys
+    script = pathlib.Path(__file__).parents[2] / "bench" / "particle_identity.py"
+    found = {}
+    for clip in ("blender_sparks", "blender_flip_pour_small"):
+        out = subprocess.run([sys.executable, str(script), str(DATA / "sims" / f"{clip}.abc"), "--frames", "32",
+                              "--sample", "600", "--json"], capture_output=True, text=True, check=True)
+        report = json.loads(out.stdout)
+        assert report["grid_step"] > 0
+        (row,) = report["frames"]
+        assert row["frame"] == 32 and row["particles"] > 1000
+        found[clip] = row
+    sparks, flip = found["blender_sparks"], found["blender_flip_pour_small"]
+    assert sparks["nearest_moved_one_step"] < 0.3 * sparks["nearest_previous"]
+    assert flip["nearest_moved_one_step"] > 0.9 * flip["nearest_previous"]
+    assert flip["nearest_previous"] < flip["spacing"] < flip["velocity_step"]
+    # A fresh set of points at the default bound: about 17-19 bits a particle on both.
+    for row in (sparks, flip):
+        assert 15 < row["set_bits_per_particle"] < 21
+    # Unknown frames are refused with the file named.
+    bad = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_sparks.abc"), "--frames", "999"],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "blender_sparks.abc: frame 999" in bad.stderr
