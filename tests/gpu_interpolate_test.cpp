@@ -93,8 +93,33 @@ TEST(GpuInterpolation, EqualsTheCpuPathWithin2Ulps) {
     render::GpuInterpolator gpu(lanes, c.velocity, c.color);
     std::uint32_t na = 0, nb = 0;
     const std::vector<format::MatchRun> runs = random_runs(na, nb, rng);
-    const std::vector<std::byte> a = random_records(c, na, rng), b = random_records(c, nb, rng);
+    const std::vector<std::byte> a = random_records(c, na, rng);
+    std::vector<std::byte> b = random_records(c, nb, rng);
+    // The kept particles moved along their velocities (and a little off them), as persisting
+    // particles do: the player then blends them along the curves (velocities_describe_matching()).
+    if (c.velocity >= 0) {
+      std::uniform_real_distribution<float> off(-0.02f, 0.02f);
+      std::size_t i = 0, j = 0;
+      for (const format::MatchRun& r : runs) {
+        for (std::uint32_t k = 0; k < r.keep; ++k, ++i, ++j) {
+          std::byte* rb = b.data() + j * c.meta.record_size;
+          const std::byte* ra = a.data() + i * c.meta.record_size;
+          for (int x = 0; x < 3; ++x) {
+            float p = 0, va = 0, vb = 0;
+            std::memcpy(&p, ra + 4 * x, 4);
+            std::memcpy(&va, ra + c.velocity + 4 * x, 4);
+            std::memcpy(&vb, rb + c.velocity + 4 * x, 4);
+            p += float(0.5 / 24 * (double(va) + double(vb))) + off(rng);
+            std::memcpy(rb + 4 * x, &p, 4);
+          }
+        }
+        i += r.drop, j += r.insert;
+      }
+    }
     const std::span<const format::MatchRun> matching(runs);
+    const bool curves =
+        playback::velocities_describe_matching(a, b, matching, c.meta.record_size, c.velocity, 1.0 / 24);
+    EXPECT_EQ(curves, c.velocity >= 0);
     for (const playback::Interpolation mode : {playback::Interpolation::Hermite, playback::Interpolation::Linear}) {
       for (const double t : {0.0, 0.25, 0.5, 0.9}) {
         for (const bool matched : {true, false}) {  // false: no matching, the nearer frame moved
@@ -112,7 +137,7 @@ TEST(GpuInterpolation, EqualsTheCpuPathWithin2Ulps) {
           ASSERT_EQ(pairs.size(), n);
           ASSERT_EQ(nearer, !matched);
           const std::vector<std::byte> got =
-              gpu.run_host(a, b, pairs, t, dt, mode == playback::Interpolation::Hermite, nearer);
+              gpu.run_host(a, b, pairs, t, dt, mode == playback::Interpolation::Hermite && curves, nearer);
           ASSERT_EQ(got.size(), expected.size());
           const std::size_t words = c.meta.record_size / 4;
           for (std::size_t i = 0; i < n; ++i) {

@@ -18,6 +18,7 @@
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
+#include "playback/interpolate.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -471,6 +472,121 @@ TEST(Playback, HalfwayFramesOfTheSimulations) {
   // Sparks through the particle codec (id order: the codec's own matching) as well as by id.
   const HalfwayError sparks_particle = halfway(dir, "blender_sparks", true, format::FrameCodec::Particle);
   EXPECT_LT(sparks_particle.mean, sparks_particle.nearest_mean / 3);
+}
+
+// Curves through the velocities only where they describe the matching: the FLIP liquid's solver
+// re-samples its particles, so the codec pairs each with a neighbour about 1 cm away while its
+// velocity moves it 5-10 cm a frame, and curves through those velocities swung the whole liquid
+// forward along its flow and back by 5-7 mm (a tenth of a frame's motion) between every two cached
+// frames. Its frames are blended along straight lines; the sparks' (the same particles in both
+// frames) along their curves. Both are the default cooks: the FLIP pour's velocity stored, the
+// sparks' derived.
+TEST(Playback, CurvesOnlyWhereTheVelocitiesDescribeTheMatching) {
+  const fs::path dir = test::fresh_dir();
+  for (const auto& [sim, curves] : {std::pair<std::string, bool>{"blender_flip_pour_small", false},
+                                    std::pair<std::string, bool>{"blender_sparks", true}}) {
+    cook::Options o;
+    o.input = test::data_path("sims/" + sim + ".abc");
+    o.output = dir / (sim + ".pstream");
+    o.frame_begin = 16;
+    o.frame_end = 28;
+    cook::cook(o);
+    // Each in-between point of both players, Hermite and linear.
+    std::vector<std::vector<float>> played[2];
+    for (const auto mode : {playback::Interpolation::Hermite, playback::Interpolation::Linear}) {
+      playback::PlayerOptions options;
+      options.stream.blocking = true;
+      options.interpolation = mode;
+      options.loop = false;
+      const fs::path files[] = {o.output};
+      const auto player = playback::Player::open(files, std::move(options));
+      const format::Metadata& m = player->clip(0).metadata();
+      ASSERT_GE(m.find("velocity") ? 1 : 0, 1) << sim << ": the default cook gives every clip a velocity";
+      for (std::uint64_t f = 0; f + 1 < m.frame_count(); ++f) {
+        for (const double s : {0.25, 0.5, 0.75}) {
+          player->seek(m.time_of_frame0 + (double(f) + s) / m.fps);
+          player->advance(0.0, render::identity(), sort::SortMode::None);
+          player->check();
+          std::vector<float> xyz;
+          for (const auto& b : player->batches()) {
+            for (std::uint64_t i = 0; i < b.count; ++i) {
+              float p[3];
+              std::memcpy(p, b.first.data() + i * b.record_size, 12);
+              xyz.insert(xyz.end(), p, p + 3);
+            }
+          }
+          played[mode == playback::Interpolation::Linear ? 1 : 0].push_back(std::move(xyz));
+        }
+      }
+    }
+    ASSERT_EQ(played[0].size(), played[1].size());
+    std::size_t curved = 0;
+    for (std::size_t k = 0; k < played[0].size(); ++k) {
+      ASSERT_EQ(played[0][k].size(), played[1][k].size());
+      double most = 0;
+      for (std::size_t c = 0; c < played[0][k].size(); ++c)
+        most = std::max(most, double(std::abs(played[0][k][c] - played[1][k][c])));
+      curved += most > 1e-4 ? 1 : 0;
+    }
+    if (curves) {
+      EXPECT_EQ(curved, played[0].size()) << sim << ": every in-between point along the curves";
+    } else {
+      EXPECT_EQ(curved, 0u) << sim << ": straight lines between frames whose velocities do not describe the matching";
+    }
+  }
+}
+
+// The rule itself, on records made for it: 28-byte records (position, scale, velocity), 1,000
+// particles in a, runs keeping 500, dropping 5, inserting 7 and keeping 495.
+TEST(Playback, VelocitiesDescribeTheMatchingWhereTheyMovedTheParticles) {
+  constexpr std::uint32_t kStride = 28;
+  constexpr double kDt = 1.0 / 24;
+  const std::vector<format::MatchRun> runs = {{500, 5, 7}, {495, 0, 0}};
+  std::vector<std::byte> a(1000 * kStride), b(1002 * kStride);
+  const auto put = [](std::vector<std::byte>& r, std::size_t i, std::size_t word, float v) {
+    std::memcpy(r.data() + i * kStride + 4 * word, &v, 4);
+  };
+  // velocity(i): about 2 m/s in a direction of its own; jitter(i, c): up to 1 cm.
+  const auto velocity = [](std::size_t i, int c) { return float(2.0 * std::cos(double(i) * 0.7 + c * 2.1)); };
+  const auto jitter = [](std::size_t i, int c) { return float(0.01 * std::sin(double(i) * 1.3 + c)); };
+  const auto make = [&](bool follow, float speed) {
+    for (std::size_t i = 0; i < 1000; ++i) {
+      for (int c = 0; c < 3; ++c) {
+        put(a, i, std::size_t(c), float(i % 10) * 0.1f + float(c));
+        put(a, i, 4 + std::size_t(c), speed * velocity(i, c));
+      }
+    }
+    // b's particles: a's kept ones moved along their velocity (or by a jitter unrelated to it), then
+    // the inserted ones anywhere.
+    std::size_t i = 0, j = 0;
+    for (const format::MatchRun& r : runs) {
+      for (std::uint32_t t = 0; t < r.keep; ++t, ++i, ++j) {
+        for (int c = 0; c < 3; ++c) {
+          float p = 0;
+          std::memcpy(&p, a.data() + i * kStride + 4 * std::size_t(c), 4);
+          const float v = speed * velocity(i, c);
+          put(b, j, std::size_t(c), follow ? float(p + kDt * v) : p + speed * jitter(i, c));
+          put(b, j, 4 + std::size_t(c), v);
+        }
+      }
+      i += r.drop;
+      for (std::uint32_t t = 0; t < r.insert; ++t, ++j)
+        for (int c = 0; c < 6; ++c) put(b, j, c < 3 ? std::size_t(c) : std::size_t(c + 1), 5.0f);
+    }
+  };
+  make(true, 1.0f);
+  EXPECT_TRUE(playback::velocities_describe_matching(a, b, runs, kStride, 16, kDt));
+  EXPECT_FALSE(playback::velocities_describe_matching(a, b, runs, kStride, -1, kDt)) << "no velocity";
+  make(false, 1.0f);  // re-sampled: paired with neighbours 1 cm away, velocities of 8 cm a frame
+  EXPECT_FALSE(playback::velocities_describe_matching(a, b, runs, kStride, 16, kDt));
+  make(false, 0.0f);  // at rest
+  EXPECT_FALSE(playback::velocities_describe_matching(a, b, runs, kStride, 16, kDt));
+  // Runs beyond the frames' records, or none kept: no curves, and nothing read outside the spans.
+  make(true, 1.0f);
+  const std::vector<format::MatchRun> beyond = {{1500, 0, 0}}, none = {{0, 1000, 1002}};
+  EXPECT_FALSE(playback::velocities_describe_matching(a, b, beyond, kStride, 16, kDt));
+  EXPECT_FALSE(playback::velocities_describe_matching(a, b, none, kStride, 16, kDt));
+  EXPECT_FALSE(playback::velocities_describe_matching({}, {}, runs, kStride, 16, kDt));
 }
 
 // match_by_id: the runs pair equal ids, drop the ids that end and insert the ones that begin, and

@@ -249,7 +249,7 @@ struct FramePair {
   std::span<const ParticlePair> pairs;
   std::uint64_t pairs_version = 0;  // changes whenever `pairs` holds a new table
   double t = 0.0, dt = 0.0;         // the fraction from a to b, and the seconds between them
-  bool hermite = false;             // along the curve through the velocities (else straight lines)
+  bool hermite = false;             // along curves through the velocities where they describe the matching
   bool nearer = false;              // no matching: the table is the nearer frame, moved along its velocities
   // Optional, ahead of the playhead: the cached frame after `b` once the stream has decoded it and,
   // when its particles are matched to b's, the table from b to it (`ahead_pairs`, empty

@@ -333,7 +333,7 @@ typedef struct pstream_frame_pair {
   uint64_t pairs_version; /* changes whenever the table does */
   double t;               /* 0..1 from a to b */
   double dt;              /* seconds from a to b */
-  int hermite;            /* along the curves (needs velocities), else straight lines */
+  int hermite;            /* along the curves where the velocities describe the matching, else straight lines */
   int nearer;             /* no matching: the table is the nearer frame alone, moved along its velocities */
   uint32_t record_size;
   uint32_t lane_count;     /* record_size / 4 */

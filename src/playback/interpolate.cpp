@@ -141,6 +141,39 @@ std::uint64_t FrameBlender::nearer_advected(std::span<const std::byte> a, std::u
   return n;
 }
 
+bool velocities_describe_matching(std::span<const std::byte> a, std::span<const std::byte> b,
+                                  std::span<const format::MatchRun> matching, std::uint32_t stride,
+                                  std::int32_t velocity_offset, double dt) {
+  if (velocity_offset < 0) return false;
+  std::uint64_t kept = 0;
+  for (const format::MatchRun& r : matching) kept += r.keep;
+  if (kept == 0) return false;
+  // Pair k * every + every / 2 of the kept ones, k = 0, 1, ...: at most kMotionSample of them.
+  const std::uint64_t every = (kept + kMotionSample - 1) / kMotionSample;
+  const auto velocity = [&](const std::byte* r, int c) { return double(load(r + velocity_offset + 4 * c)); };
+  double along = 0.0, still = 0.0;
+  std::uint64_t i = 0, j = 0, seen = 0, next = every / 2;
+  for (const format::MatchRun& r : matching) {
+    for (; next < seen + r.keep; next += every) {
+      const std::uint64_t t = next - seen;
+      const std::size_t ia = std::size_t(i + t) * stride, ib = std::size_t(j + t) * stride;
+      if (ia + stride > a.size() || ib + stride > b.size()) return false;  // runs beyond the frames
+      const std::byte* ra = a.data() + ia;
+      const std::byte* rb = b.data() + ib;
+      for (int c = 0; c < 3; ++c) {
+        const double step = double(load(rb + 4 * c)) - double(load(ra + 4 * c));
+        const double moved = step - 0.5 * dt * (velocity(ra, c) + velocity(rb, c));
+        along += moved * moved;
+        still += step * step;
+      }
+    }
+    seen += r.keep;
+    i += std::uint64_t(r.keep) + r.drop;
+    j += std::uint64_t(r.keep) + r.insert;
+  }
+  return along < still;
+}
+
 std::uint64_t FrameBlender::blend(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b,
                                   std::uint64_t nb, const std::span<const format::MatchRun>* matching, double t,
                                   double dt, Interpolation mode, std::byte* out) {
@@ -150,7 +183,9 @@ std::uint64_t FrameBlender::blend(std::span<const std::byte> a, std::uint64_t na
   for (const format::MatchRun& r : *matching)
     covers_a += std::uint64_t(r.keep) + r.drop, covers_b += std::uint64_t(r.keep) + r.insert;
   if (covers_a != na || covers_b != nb) return nearer_advected(a, na, b, nb, t, dt, out);
-  set_fraction(t, dt, mode == Interpolation::Hermite && velocity_ >= 0);
+  set_fraction(t, dt,
+               mode == Interpolation::Hermite && velocity_ >= 0 &&
+                   velocities_describe_matching(a, b, *matching, stride_, velocity_, dt));
   const std::size_t stride = stride_;
   const std::byte* pa = a.data();
   const std::byte* pb = b.data();

@@ -45,6 +45,21 @@ std::vector<render::RecordLane> record_lanes(const format::Metadata& meta);
 std::uint64_t pair_table(std::uint64_t na, std::uint64_t nb, const std::span<const format::MatchRun>* matching,
                          double t, std::span<render::ParticlePair> out, bool& nearer);
 
+// Whether the velocities describe the matching from frame `a` to frame `b` (`stride`-byte records,
+// velocity float32 x3 at `velocity_offset`, `dt` seconds apart): over up to kMotionSample matched
+// pairs spread evenly over the runs, the steps from a to b are closer, in the sum of their squares,
+// to dt times the pair's mean velocity than to no motion at all. Particles at rest weigh nothing
+// either way. It holds for particles that persist (every clip with ids, and caches without ids whose
+// particles are the same from frame to frame). It fails where the solver re-samples its particles
+// (Mantaflow's FLIP liquid: a particle is paired with a neighbour about 1 cm away while its velocity
+// moves it 5-10 cm a frame), and a Hermite curve through such a pair's velocities swings it
+// forward along the flow and back by up to a tenth of a frame's motion (5-7 mm on the FLIP
+// fixture): such pairs of frames are blended along straight lines (docs/playback.md).
+inline constexpr std::uint64_t kMotionSample = 256;
+bool velocities_describe_matching(std::span<const std::byte> a, std::span<const std::byte> b,
+                                  std::span<const format::MatchRun> matching, std::uint32_t stride,
+                                  std::int32_t velocity_offset, double dt);
+
 // Interpolates a clip's frames: built once when the clip opens (every table allocated then), used
 // every host frame between two cached frames with no allocation.
 class FrameBlender {
@@ -55,11 +70,11 @@ class FrameBlender {
   // `dt` seconds apart, written to `out` (room for na + nb records). Returns how many.
   // - With `matching` (the runs pairing b's particles with a's, codec.hpp): a particle in both
   //   moves along the cubic Hermite curve of its positions and velocities (`mode` Hermite,
-  //   velocities present) and its velocity becomes the curve's derivative, or it moves along the
-  //   straight line; other floats and colours blend linearly, ids and other integers are a's. One
-  //   only in `a` dies: it goes on along its velocity and shrinks to nothing by `b`. One only in
-  //   `b` is born: it comes in along its velocity from where it would have been, growing from
-  //   nothing.
+  //   velocities present and describing the matching: velocities_describe_matching()) and its
+  //   velocity becomes the curve's derivative, or it moves along the straight line; other floats and colours blend
+  //   linearly, ids and other integers are a's. One only in `a` dies: it goes on along its velocity and shrinks to
+  //   nothing by `b`. One only in `b` is born: it comes in along its velocity from where it would have been, growing
+  //   from nothing.
   // - Without (or with runs that do not cover both frames): the nearer frame, moved along its
   //   velocities to `t` when the clip has velocities, as it is otherwise.
   std::uint64_t blend(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b, std::uint64_t nb,

@@ -34,6 +34,7 @@ struct Player::Clip {
   std::uint64_t pairs_a = ~0ull, pairs_b = ~0ull;
   int pairs_side = -1;
   std::uint64_t pairs_count = 0;
+  bool pairs_hermite = false;  // the pair's positions along curves (velocities_describe_matching())
   // The table of the pair after this one (b and the frame after it), made ahead on the table
   // thread once that frame is decoded and matched: the renderer can move it to the GPU before the
   // playhead gets there.
@@ -144,7 +145,6 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
       fp.color_offset = color && color->type == format::AttributeType::Unorm8 && color->components == 4
                             ? std::int32_t(color->offset)
                             : -1;
-      fp.hermite = options.interpolation == Interpolation::Hermite;
       fp.lent = c.lent.get();
     }
     c.stream->set_loop(options.loop);
@@ -338,6 +338,10 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
       p.pairs_version = ++c.versions;
       stats_.pair_table_ms += ms(t0, Clock::now());
     }
+    // Along the curves through the velocities only where they describe the matching (once a pair).
+    c.pairs_hermite = matched && interpolation_ == Interpolation::Hermite &&
+                      velocities_describe_matching(f.first, next.first, next.matching, p.record_size, c.velocity_offset,
+                                                   next.time - f.time);
     c.ahead_a = c.ahead_b = ~0ull;
     c.pairs_a = f.frame;
     c.pairs_b = next.frame;
@@ -350,6 +354,7 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
   p.t = t;
   p.dt = next.time - f.time;
   p.nearer = !matched;
+  p.hermite = c.pairs_hermite;
   // The frame after `next`, once decoded, and (matched) the table from next to it, made on the
   // table thread and handed out from the host frame after it is done.
   const stream::FrameView after = c.stream->frame_after_next();
