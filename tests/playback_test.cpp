@@ -458,7 +458,7 @@ TEST(Playback, HalfwayFramesOfTheSimulations) {
   // between frames); it stays within 1% of the diagonal.
   const HalfwayError flip = halfway(dir, "blender_flip_pour_small", false);
   EXPECT_LT(flip.mean, 0.01 * flip.diagonal);
-  // The particle codec matches particles without ids across frames (by predicted position) and
+  // The particle codec matches particles without ids across frames (by position) and
   // the player blends the pairs it found. The sparks cooked without their ids show it (sparse
   // enough for the nearest-real-particle measure to see it): far closer than the nearest frame.
   const HalfwayError anonymous = halfway(dir, "blender_sparks", false, format::FrameCodec::Particle);

@@ -124,7 +124,7 @@ int run_cook(const CookCli& cli) {
             per_particle, r.error,
             o.particle.error_relative ? fmt::format("{:g} of the bounds diagonal", o.particle.error) : "absolute",
             count_of(r.keyframes, "keyframe"), match,
-            r.order == format::FrameOrder::Id ? "matched by id" : "matched by predicted position, no ids");
+            r.order == format::FrameOrder::Id ? "matched by id" : "matched by position, no ids");
       }
     }
   }

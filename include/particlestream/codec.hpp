@@ -8,7 +8,7 @@
 //             decodes alone. The chunk codec (raw, LZ4, zstd) compresses chunks of packets.
 //   particle  error-bounded quantisation and temporal prediction. Each frame is ordered so that
 //             particles that persist from the previous frame are predicted from it (by id, or,
-//             without ids, matched by predicted position); new particles are coded spatially;
+//             without ids, matched by position); new particles are coded spatially;
 //             residuals go to byte planes compressed by zstd. A keyframe every K frames decodes
 //             alone; the others need the frame before them. In lossless mode the source order and
 //             the exact bytes are kept.

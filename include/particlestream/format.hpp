@@ -117,8 +117,8 @@ std::uint32_t relative_shift_for(double error);
 enum class FrameOrder : std::uint8_t {
   Source = 0,   // as the source wrote it; particle i is predicted from particle i of the last frame
   Id = 1,       // ascending id; particles are matched by id
-  Matched = 2,  // the encoder's: persisting particles in the last frame's order, matched by predicted
-                // position, then new particles in Morton order
+  Matched = 2,  // the encoder's: persisting particles in the last frame's order, matched by position
+                // (closest first), then new particles in Morton order
 };
 
 // How the particle codec orders a clip's frames: the source's order when lossless, else by id
