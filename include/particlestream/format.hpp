@@ -118,7 +118,8 @@ enum class FrameOrder : std::uint8_t {
   Source = 0,   // as the source wrote it; particle i is predicted from particle i of the last frame
   Id = 1,       // ascending id; particles are matched by id
   Matched = 2,  // the encoder's: persisting particles in the last frame's order, matched by position
-                // (closest first), then new particles in Morton order
+                // (closest first; along a stored velocity where that finds them nearer), then new
+                // particles in Morton order
 };
 
 // How the particle codec orders a clip's frames: the source's order when lossless, else by id
@@ -155,6 +156,11 @@ struct CodecInfo {
   bool nibbles = true;                 // encoder only: false packs no word as nibbles, as versions before 5 read
   double error = 0.0;                  // the positions' bound, absolute; 0 when lossless
   std::vector<WordCodingEntry> words;  // record_size / 4 entries (particle codec only)
+  // Encoder only, for frames matched by position: the record word of a stored velocity's x (y and
+  // z follow), -1 when there is none, and the seconds between frames (docs/compression.md, "A
+  // cache whose particles persist but has no ids").
+  std::int32_t velocity_word = -1;
+  double frame_seconds = 0.0;
 };
 
 struct Metadata {

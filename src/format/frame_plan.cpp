@@ -210,6 +210,19 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
     }
     if (is_float) component += at.components;
   }
+  // Frames matched by position may pair particles moved on by their stored velocity, where that
+  // finds them again (particle_encoder.cpp, match_by_position()).
+  const Attribute* velocity = find_attribute(layout, "velocity");
+  if (info.order == FrameOrder::Matched && velocity != nullptr && velocity->type == AttributeType::Float32 &&
+      velocity->components == 3 && fps > 0.0 && std::isfinite(fps)) {
+    const std::uint32_t first = velocity->offset / 4;
+    bool quantized = true;
+    for (std::uint32_t c = 0; c < 3; ++c) quantized = quantized && info.words[first + c].coding == WordCoding::Quantized;
+    if (quantized) {
+      info.velocity_word = static_cast<std::int32_t>(first);
+      info.frame_seconds = 1.0 / fps;
+    }
+  }
   return info;
 }
 

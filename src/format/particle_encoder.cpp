@@ -130,9 +130,15 @@ class GroupEncoder {
   explicit GroupEncoder(const CodecInfo& info) : info_(info), plan_(info) {
     record_size_ = static_cast<std::uint32_t>(info.words.size() * 4);
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
-      for (int c = 0; c < 3; ++c)
+      for (int c = 0; c < 3; ++c) {
         if (plan_.coded[k] == std::uint32_t(c)) position_k_[c] = static_cast<int>(k);
+        if (info.velocity_word >= 0 && info.frame_seconds > 0 &&
+            plan_.coded[k] == std::uint32_t(info.velocity_word + c))
+          velocity_k_[c] = static_cast<int>(k);
+      }
     }
+    if (velocity_k_[0] < 0 || velocity_k_[1] < 0 || velocity_k_[2] < 0)
+      velocity_k_[0] = velocity_k_[1] = velocity_k_[2] = -1;
     state_.q.resize(plan_.coded.size());
     state_.d.resize(plan_.coded.size());
     nibbles_.assign(plan_.coded.size(), info.nibbles ? 1 : 0);
@@ -326,11 +332,25 @@ class GroupEncoder {
     return morton(c[0], c[1], c[2]);
   }
 
+  // Previous particle i's grid position on axis a, or (moved) that position moved on by its stored
+  // velocity over a frame, in grid steps.
+  std::int64_t position_of(std::uint32_t i, int a, bool moved) const {
+    const std::int64_t q = static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]);
+    if (!moved) return q;
+    const WordCodingEntry& v = info_.words[std::size_t(info_.velocity_word + a)];
+    const double velocity = dequantize(state_.q[std::size_t(velocity_k_[a])][i], v.step, as_float(v.base));
+    const double steps = velocity * info_.frame_seconds / double(info_.words[std::size_t(a)].step);
+    constexpr double kFar = 1 << 24;  // beyond any grid: no candidates there
+    return q + static_cast<std::int64_t>(std::llround(std::clamp(steps, -kFar, kFar)));
+  }
+
   // Without ids: previous and current particles are paired closest first, within about one
   // particle spacing. Measured on the Mantaflow FLIP fixture, pairing plain positions beats
   // pairing positions moved on by the last step (2.29 against 2.41 bytes per particle) or
   // moved back along the velocity (3.04): a FLIP solver re-samples its particles every frame and
-  // most move less than a spacing; the motion is left to the predictor.
+  // most move less than a spacing; the motion is left to the predictor. Particles that persist
+  // and move further than a spacing are paired from where their stored velocity takes them, when
+  // a sample finds them nearer that way (below).
   void match_by_position(const SourceFrame& frame, std::vector<std::int64_t>& match) {
     const std::uint32_t n = static_cast<std::uint32_t>(frame.count);
     if (state_.count == 0 || n == 0 || position_k_[0] < 0 || position_k_[1] < 0 || position_k_[2] < 0) return;
@@ -361,9 +381,11 @@ class GroupEncoder {
     std::vector<Pair> slots(std::size_t(state_.count) * kCandidates);
     std::vector<std::uint8_t> kept(state_.count, 0);
     const std::int64_t reach = cell * cell * 2;  // squared: about 1.4 spacings
+    // Where each previous particle is searched from: where it was, or moved on by its stored
+    // velocity (below), 3 numbers a particle.
+    std::vector<std::int64_t> from(std::size_t(state_.count) * 3);
     const auto search = [&](std::uint32_t i, const auto& visit_cells) {
-      std::int64_t p[3];
-      for (int a = 0; a < 3; ++a) p[a] = static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]);
+      const std::int64_t* p = &from[std::size_t(i) * 3];
       const std::int64_t home[3] = {floordiv(p[0], cell), floordiv(p[1], cell), floordiv(p[2], cell)};
       std::pair<std::int64_t, std::uint32_t> best[kCandidates];  // (distance, current index)
       int found = 0;
@@ -386,217 +408,294 @@ class GroupEncoder {
     };
     // A dense grid over this frame's box only when it is not much larger than the frame.
     const double most_cells = 16.0 * n + 4096.0;
-    // Particles 0..count-1 by their cells (a counting sort, stable): `order` lists them, and cell
-    // c's are order[start[c]] to order[start[c + 1] - 1]. Each particle's cell is found once.
-    std::vector<std::size_t> cell_of_particle;
-    const auto by_cell = [&](std::size_t cells, std::uint32_t count, const auto& cell_of,
-                             std::vector<std::uint32_t>& start, std::vector<std::uint32_t>& order) {
-      start.assign(cells + 1, 0);
-      cell_of_particle.resize(count);
-      for (std::uint32_t j = 0; j < count; ++j) {
-        cell_of_particle[j] = cell_of(j);
-        ++start[cell_of_particle[j] + 1];
-      }
-      for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
-      std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
-      order.resize(count);
-      for (std::uint32_t j = 0; j < count; ++j) order[fill[cell_of_particle[j]]++] = j;
+    // This frame's particles by cell, as the search below reads them: made by the first
+    // searches() and kept for the next.
+    struct Offset {
+      std::int64_t bound;
+      int d[3];
     };
-    // Where the frame's box holds few enough cells of side `cell`, and `cell` is below 2048, each
-    // search reads exactly its candidates' cells, the 3x3x3 around its home, as runs along z of
-    // this frame's particles sorted by cell (skipping those farther than the worst distance kept),
-    // and measures them in float in loops the compiler vectorises: the FLIP pour's encode is
-    // 1.4x as fast as through the half-size cells below, with the same pairs. The floats are
-    // exact: coordinates are below 2^24, a difference within the 3x3x3 is below 4096 and its
-    // square below 2^24, and a sum that can be within the reach (below 2^23) has only exact partial
-    // sums (a larger one rounds to 2^24 or more).
-    std::int64_t c0[3], cdims[3];
-    double cells = 1;
-    for (int a = 0; a < 3; ++a) {
-      c0[a] = floordiv(lo[a], cell);
-      cdims[a] = floordiv(hi[a], cell) - c0[a] + 1;
-      cells *= double(cdims[a]);
-    }
-    if (cell < 2048 && cells <= most_cells) {
-      std::vector<std::uint32_t> start, order;
-      by_cell(
-          std::size_t(cells), n,
-          [&](std::uint32_t j) {
-            const std::int64_t* q = &at[std::size_t(j) * 6 + 3];
-            return std::size_t(((q[0] - c0[0]) * cdims[1] + (q[1] - c0[1])) * cdims[2] + (q[2] - c0[2]));
-          },
-          start, order);
-      std::vector<float> xs(n), ys(n), zs(n);
-      std::vector<std::int32_t> e(n);
-      for (std::uint32_t t = 0; t < n; ++t) {
-        const std::int64_t* q = &at[std::size_t(order[t]) * 6];
-        xs[t] = static_cast<float>(q[0]);
-        ys[t] = static_cast<float>(q[1]);
-        zs[t] = static_cast<float>(q[2]);
-      }
-      // The previous particles by home cell (outside the box: its nearest), so that searches one
-      // after another read the same cells.
-      const auto home_of = [&](std::uint32_t i, int a) {
-        return floordiv(static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]), cell) - c0[a];
+    std::vector<std::uint32_t> start, order;
+    std::vector<float> xs, ys, zs;
+    std::vector<std::int32_t> e;
+    std::vector<std::int64_t> sorted;
+    std::vector<Offset> offsets;
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_cells;
+    bool prepared = false;
+    // The searches of the previous particles `previous` (indices), into their slots.
+    const auto searches = [&](std::span<const std::uint32_t> previous) {
+      const auto searched = static_cast<std::uint32_t>(previous.size());
+      // Particles 0..count-1 by their cells (a counting sort, stable): `order` lists them, and cell
+      // c's are order[start[c]] to order[start[c + 1] - 1]. Each particle's cell is found once.
+      std::vector<std::size_t> cell_of_particle;
+      const auto by_cell = [&](std::size_t cells, std::uint32_t count, const auto& cell_of,
+                               std::vector<std::uint32_t>& start, std::vector<std::uint32_t>& order) {
+        start.assign(cells + 1, 0);
+        cell_of_particle.resize(count);
+        for (std::uint32_t j = 0; j < count; ++j) {
+          cell_of_particle[j] = cell_of(j);
+          ++start[cell_of_particle[j] + 1];
+        }
+        for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+        std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+        order.resize(count);
+        for (std::uint32_t j = 0; j < count; ++j) order[fill[cell_of_particle[j]]++] = j;
       };
-      std::vector<std::uint32_t> visit_start, visit;
-      by_cell(
-          std::size_t(cells), state_.count,
-          [&](std::uint32_t i) {
-            std::int64_t c[3];
-            for (int a = 0; a < 3; ++a) c[a] = std::clamp<std::int64_t>(home_of(i, a), 0, cdims[a] - 1);
-            return std::size_t((c[0] * cdims[1] + c[1]) * cdims[2] + c[2]);
-          },
-          visit_start, visit);
-      // The 3x3x3 as runs of cells along z (x and y offsets, first and last z offset): the home
-      // cell first, so that the 8 kept are near soon and few candidates after them are kept.
-      constexpr int kRuns[11][4] = {{0, 0, 0, 0},   {0, 0, -1, -1}, {0, 0, 1, 1},  {-1, 0, -1, 1},
-                                    {1, 0, -1, 1},  {0, -1, -1, 1}, {0, 1, -1, 1}, {-1, -1, -1, 1},
-                                    {-1, 1, -1, 1}, {1, -1, -1, 1}, {1, 1, -1, 1}};
-      for (const std::uint32_t i : visit) {
-        float p[3];
-        std::int64_t home[3], gap[3][3];  // gap[a][d + 1]: squared, to the cells d along axis a
-        for (int a = 0; a < 3; ++a) {
-          const std::int64_t q = static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]);
-          p[a] = static_cast<float>(q);
-          home[a] = home_of(i, a);
-          const std::int64_t into = q - (home[a] + c0[a]) * cell;  // 0..cell-1
-          gap[a][0] = (into + 1) * (into + 1);
-          gap[a][1] = 0;
-          gap[a][2] = (cell - into) * (cell - into);
-        }
-        // The kept candidates as distance << 32 | current index: one comparison orders them as
-        // (distance, index) does (distances within the reach are below 2^23).
-        std::uint64_t best[kCandidates];
-        int found = 0;
-        auto within = static_cast<std::int32_t>(reach);  // the reach, then the worst distance kept
-        for (const auto& run : kRuns) {
-          // Runs, and a run's end cells, farther from the particle than the worst distance kept
-          // cannot hold a closer candidate.
-          const std::int64_t x = home[0] + run[0], y = home[1] + run[1];
-          const std::int64_t row_gap = gap[0][run[0] + 1] + gap[1][run[1] + 1], limit = std::int64_t(within);
-          if (x < 0 || x >= cdims[0] || y < 0 || y >= cdims[1] || row_gap > limit) continue;
-          const int first = run[2] == -1 && row_gap + gap[2][0] > limit ? 0 : run[2];
-          const int last = run[3] == 1 && row_gap + gap[2][2] > limit ? 0 : run[3];
-          const std::int64_t z0 = std::max<std::int64_t>(home[2] + first, 0);
-          const std::int64_t z1 = std::min(home[2] + last, cdims[2] - 1);
-          if (first > last || z0 > z1) continue;
-          const std::size_t k = std::size_t((x * cdims[1] + y) * cdims[2] + z0);
-          const std::uint32_t t0 = start[k], t1 = start[k + std::size_t(z1 - z0) + 1];
-          for (std::uint32_t t = t0; t < t1; ++t) {
-            const float dx = xs[t] - p[0], dy = ys[t] - p[1], dz = zs[t] - p[2];
-            e[t] = static_cast<std::int32_t>(dx * dx + dy * dy + dz * dz);  // below 3 x 4096^2
-          }
-          for (std::uint32_t t = t0; t < t1; ++t) {
-            if (e[t] > within) continue;
-            keep_nearest(best, found, std::uint64_t(e[t]) << 32 | order[t]);
-            if (found == kCandidates) within = static_cast<std::int32_t>(best[kCandidates - 1] >> 32);
+      // Where the frame's box holds few enough cells of side `cell`, and `cell` is below 2048, each
+      // search reads exactly its candidates' cells, the 3x3x3 around its home, as runs along z of
+      // this frame's particles sorted by cell (skipping those farther than the worst distance kept),
+      // and measures them in float in loops the compiler vectorises: the FLIP pour's encode is
+      // 1.4x as fast as through the half-size cells below, with the same pairs. The floats are
+      // exact: coordinates are below 2^24, a difference within the 3x3x3 is below 4096 and its
+      // square below 2^24, and a sum that can be within the reach (below 2^23) has only exact partial
+      // sums (a larger one rounds to 2^24 or more).
+      std::int64_t c0[3], cdims[3];
+      double cells = 1;
+      for (int a = 0; a < 3; ++a) {
+        c0[a] = floordiv(lo[a], cell);
+        cdims[a] = floordiv(hi[a], cell) - c0[a] + 1;
+        cells *= double(cdims[a]);
+      }
+      if (cell < 2048 && cells <= most_cells) {
+        if (!prepared) {
+          by_cell(
+              std::size_t(cells), n,
+              [&](std::uint32_t j) {
+                const std::int64_t* q = &at[std::size_t(j) * 6 + 3];
+                return std::size_t(((q[0] - c0[0]) * cdims[1] + (q[1] - c0[1])) * cdims[2] + (q[2] - c0[2]));
+              },
+              start, order);
+          xs.resize(n), ys.resize(n), zs.resize(n), e.resize(n);
+          for (std::uint32_t t = 0; t < n; ++t) {
+            const std::int64_t* q = &at[std::size_t(order[t]) * 6];
+            xs[t] = static_cast<float>(q[0]);
+            ys[t] = static_cast<float>(q[1]);
+            zs[t] = static_cast<float>(q[2]);
           }
         }
-        for (int b = 0; b < found; ++b) {
-          slots[std::size_t(i) * kCandidates + std::size_t(b)] =
-              Pair{std::int64_t(best[b] >> 32), i, static_cast<std::uint32_t>(best[b])};
-        }
-        kept[i] = static_cast<std::uint8_t>(found);
-      }
-    } else {
-      // Otherwise (sparse frames, or grid steps much finer than the spacing) a dense grid of cells
-      // of half the candidates' side (a liquid fills a small part of its box, so a side-`cell`
-      // cell holds about ten particles), or of their side, visited nearest first until the 8 kept
-      // are closer than any cell left; a cell's particles are one range found by indexing.
-      std::int64_t side = std::max<std::int64_t>(1, cell / 2), g0[3], dims[3];
-      double total = 1;
-      for (int pass = 0; pass < 2; ++pass) {
-        total = 1;
-        for (int a = 0; a < 3; ++a) {
-          g0[a] = floordiv(lo[a], side);
-          dims[a] = floordiv(hi[a], side) - g0[a] + 1;
-          total *= double(dims[a]);
-        }
-        if (total <= most_cells || side == cell) break;
-        side = cell;
-      }
-      if (total <= most_cells) {
-        const auto index = [&](const std::int64_t* q) {
-          return std::size_t(((floordiv(q[0], side) - g0[0]) * dims[1] + (floordiv(q[1], side) - g0[1])) * dims[2] +
-                             (floordiv(q[2], side) - g0[2]));
+        // The previous particles by home cell (outside the box: its nearest), so that searches one
+        // after another read the same cells (a sample is searched in its own order).
+        const auto home_of = [&](std::uint32_t i, int a) {
+          return floordiv(from[std::size_t(i) * 3 + a], cell) - c0[a];
         };
-        // This frame's particles in cell order, their positions and cells copied beside them.
-        std::vector<std::uint32_t> start, order;
-        by_cell(
-            std::size_t(total), n, [&](std::uint32_t j) { return index(&at[std::size_t(j) * 6]); }, start, order);
-        std::vector<std::int64_t> sorted(std::size_t(n) * 6);
-        for (std::uint32_t t = 0; t < n; ++t)
-          std::copy_n(&at[std::size_t(order[t]) * 6], 6, &sorted[std::size_t(t) * 6]);
-        // Cell offsets by the least squared distance a particle in one can be from a particle in the
-        // other (whole cells between them), up to the reach.
-        struct Offset {
-          std::int64_t bound;
-          int d[3];
-        };
-        std::vector<Offset> offsets;
-        const int far = static_cast<int>(std::sqrt(double(reach)) / double(side)) + 2;
-        for (int x = -far; x <= far; ++x)
-          for (int y = -far; y <= far; ++y)
-            for (int z = -far; z <= far; ++z) {
-              std::int64_t bound = 0;
-              for (int d : {x, y, z}) {
-                const std::int64_t gap = std::int64_t(std::max(0, std::abs(d) - 1)) * side;  // whole cells between
-                bound += gap * gap;
-              }
-              if (bound <= reach) offsets.push_back({bound, {x, y, z}});
-            }
-        std::stable_sort(offsets.begin(), offsets.end(),
-                         [](const Offset& u, const Offset& v) { return u.bound < v.bound; });
-        // The previous particles by cell (outside the box: its nearest cell), so that searches one
-        // after another visit the same cells.
         std::vector<std::uint32_t> visit_start, visit;
-        const auto home_cell = [&](std::uint32_t i) {
-          std::int64_t c[3];
+        if (searched == state_.count) {
+          by_cell(
+              std::size_t(cells), searched,
+              [&](std::uint32_t u) {
+                std::int64_t c[3];
+                for (int a = 0; a < 3; ++a) c[a] = std::clamp<std::int64_t>(home_of(previous[u], a), 0, cdims[a] - 1);
+                return std::size_t((c[0] * cdims[1] + c[1]) * cdims[2] + c[2]);
+              },
+              visit_start, visit);
+        } else {
+          visit.resize(searched);
+          std::iota(visit.begin(), visit.end(), 0u);
+        }
+        // The 3x3x3 as runs of cells along z (x and y offsets, first and last z offset): the home
+        // cell first, so that the 8 kept are near soon and few candidates after them are kept.
+        constexpr int kRuns[11][4] = {{0, 0, 0, 0},   {0, 0, -1, -1}, {0, 0, 1, 1},  {-1, 0, -1, 1},
+                                      {1, 0, -1, 1},  {0, -1, -1, 1}, {0, 1, -1, 1}, {-1, -1, -1, 1},
+                                      {-1, 1, -1, 1}, {1, -1, -1, 1}, {1, 1, -1, 1}};
+        for (const std::uint32_t u : visit) {
+          const std::uint32_t i = previous[u];
+          float p[3];
+          std::int64_t home[3], gap[3][3];  // gap[a][d + 1]: squared, to the cells d along axis a
           for (int a = 0; a < 3; ++a) {
-            const std::int64_t v = static_cast<std::int32_t>(state_.q[std::size_t(position_k_[a])][i]);
-            c[a] = std::clamp<std::int64_t>(floordiv(v, side) - g0[a], 0, dims[a] - 1);
+            const std::int64_t q = from[std::size_t(i) * 3 + a];
+            p[a] = static_cast<float>(q);
+            home[a] = home_of(i, a);
+            const std::int64_t into = q - (home[a] + c0[a]) * cell;  // 0..cell-1
+            gap[a][0] = (into + 1) * (into + 1);
+            gap[a][1] = 0;
+            gap[a][2] = (cell - into) * (cell - into);
           }
-          return static_cast<std::size_t>((c[0] * dims[1] + c[1]) * dims[2] + c[2]);
-        };
-        by_cell(std::size_t(total), state_.count, home_cell, visit_start, visit);
-        for (const std::uint32_t i : visit) {
-          search(i, [&](const std::int64_t* p, const std::int64_t*, const auto& consider, const auto& worst) {
-            const std::int64_t c[3] = {floordiv(p[0], side) - g0[0], floordiv(p[1], side) - g0[1],
-                                       floordiv(p[2], side) - g0[2]};
-            for (const Offset& o : offsets) {
-              if (o.bound > worst()) break;
-              const std::int64_t x = c[0] + o.d[0], y = c[1] + o.d[1], z = c[2] + o.d[2];
-              if (x < 0 || x >= dims[0] || y < 0 || y >= dims[1] || z < 0 || z >= dims[2]) continue;
-              const std::size_t k = std::size_t((x * dims[1] + y) * dims[2] + z);
-              for (std::uint32_t t = start[k]; t < start[k + 1]; ++t) consider(order[t], &sorted[std::size_t(t) * 6]);
+          // The kept candidates as distance << 32 | current index: one comparison orders them as
+          // (distance, index) does (distances within the reach are below 2^23).
+          std::uint64_t best[kCandidates];
+          int found = 0;
+          auto within = static_cast<std::int32_t>(reach);  // the reach, then the worst distance kept
+          for (const auto& run : kRuns) {
+            // Runs, and a run's end cells, farther from the particle than the worst distance kept
+            // cannot hold a closer candidate.
+            const std::int64_t x = home[0] + run[0], y = home[1] + run[1];
+            const std::int64_t row_gap = gap[0][run[0] + 1] + gap[1][run[1] + 1], limit = std::int64_t(within);
+            if (x < 0 || x >= cdims[0] || y < 0 || y >= cdims[1] || row_gap > limit) continue;
+            const int first = run[2] == -1 && row_gap + gap[2][0] > limit ? 0 : run[2];
+            const int last = run[3] == 1 && row_gap + gap[2][2] > limit ? 0 : run[3];
+            const std::int64_t z0 = std::max<std::int64_t>(home[2] + first, 0);
+            const std::int64_t z1 = std::min(home[2] + last, cdims[2] - 1);
+            if (first > last || z0 > z1) continue;
+            const std::size_t k = std::size_t((x * cdims[1] + y) * cdims[2] + z0);
+            const std::uint32_t t0 = start[k], t1 = start[k + std::size_t(z1 - z0) + 1];
+            for (std::uint32_t t = t0; t < t1; ++t) {
+              const float dx = xs[t] - p[0], dy = ys[t] - p[1], dz = zs[t] - p[2];
+              e[t] = static_cast<std::int32_t>(dx * dx + dy * dy + dz * dz);  // below 3 x 4096^2
             }
-          });
+            for (std::uint32_t t = t0; t < t1; ++t) {
+              if (e[t] > within) continue;
+              keep_nearest(best, found, std::uint64_t(e[t]) << 32 | order[t]);
+              if (found == kCandidates) within = static_cast<std::int32_t>(best[kCandidates - 1] >> 32);
+            }
+          }
+          for (int b = 0; b < found; ++b) {
+            slots[std::size_t(i) * kCandidates + std::size_t(b)] =
+                Pair{std::int64_t(best[b] >> 32), i, static_cast<std::uint32_t>(best[b])};
+          }
+          kept[i] = static_cast<std::uint8_t>(found);
         }
       } else {
-        // Otherwise this frame's particles sorted by cell: a cell's particles are one range, found
-        // by a binary search.
-        const auto key = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
-          return (std::uint64_t(x & 0x1fffff) << 42) | (std::uint64_t(y & 0x1fffff) << 21) |
-                 std::uint64_t(z & 0x1fffff);
-        };
-        std::vector<std::pair<std::uint64_t, std::uint32_t>> cells(n);
-        for (std::uint32_t j = 0; j < n; ++j) {
-          const std::int64_t* q = &at[std::size_t(j) * 6 + 3];
-          cells[j] = {key(q[0], q[1], q[2]), j};
+        // Otherwise (sparse frames, or grid steps much finer than the spacing) a dense grid of cells
+        // of half the candidates' side (a liquid fills a small part of its box, so a side-`cell`
+        // cell holds about ten particles), or of their side, visited nearest first until the 8 kept
+        // are closer than any cell left; a cell's particles are one range found by indexing.
+        std::int64_t side = std::max<std::int64_t>(1, cell / 2), g0[3], dims[3];
+        double total = 1;
+        for (int pass = 0; pass < 2; ++pass) {
+          total = 1;
+          for (int a = 0; a < 3; ++a) {
+            g0[a] = floordiv(lo[a], side);
+            dims[a] = floordiv(hi[a], side) - g0[a] + 1;
+            total *= double(dims[a]);
+          }
+          if (total <= most_cells || side == cell) break;
+          side = cell;
         }
-        std::sort(cells.begin(), cells.end());
-        for (std::uint32_t i = 0; i < state_.count; ++i) {
-          search(i, [&](const std::int64_t*, const std::int64_t* home, const auto& consider, const auto&) {
-            for (std::int64_t dx = -1; dx <= 1; ++dx)
-              for (std::int64_t dy = -1; dy <= 1; ++dy)
-                for (std::int64_t dz = -1; dz <= 1; ++dz) {
-                  const std::uint64_t k = key(home[0] + dx, home[1] + dy, home[2] + dz);
-                  auto it = std::lower_bound(cells.begin(), cells.end(), std::pair{k, std::uint32_t{0}});
-                  for (; it != cells.end() && it->first == k; ++it)
-                    consider(it->second, &at[std::size_t(it->second) * 6]);
+        if (total <= most_cells) {
+          const auto index = [&](const std::int64_t* q) {
+            return std::size_t(((floordiv(q[0], side) - g0[0]) * dims[1] + (floordiv(q[1], side) - g0[1])) * dims[2] +
+                               (floordiv(q[2], side) - g0[2]));
+          };
+          if (!prepared) {
+            // This frame's particles in cell order, their positions and cells copied beside them.
+            by_cell(
+                std::size_t(total), n, [&](std::uint32_t j) { return index(&at[std::size_t(j) * 6]); }, start, order);
+            sorted.resize(std::size_t(n) * 6);
+            for (std::uint32_t t = 0; t < n; ++t)
+              std::copy_n(&at[std::size_t(order[t]) * 6], 6, &sorted[std::size_t(t) * 6]);
+            // Cell offsets by the least squared distance a particle in one can be from a particle in
+            // the other (whole cells between them), up to the reach.
+            const int far = static_cast<int>(std::sqrt(double(reach)) / double(side)) + 2;
+            for (int x = -far; x <= far; ++x)
+              for (int y = -far; y <= far; ++y)
+                for (int z = -far; z <= far; ++z) {
+                  std::int64_t bound = 0;
+                  for (int d : {x, y, z}) {
+                    const std::int64_t gap = std::int64_t(std::max(0, std::abs(d) - 1)) * side;  // cells between
+                    bound += gap * gap;
+                  }
+                  if (bound <= reach) offsets.push_back({bound, {x, y, z}});
                 }
-          });
+            std::stable_sort(offsets.begin(), offsets.end(),
+                             [](const Offset& u, const Offset& v) { return u.bound < v.bound; });
+          }
+          // The previous particles by cell (outside the box: its nearest cell), so that searches one
+          // after another visit the same cells.
+          std::vector<std::uint32_t> visit_start, visit;
+          const auto home_cell = [&](std::uint32_t u) {
+            std::int64_t c[3];
+            for (int a = 0; a < 3; ++a) {
+              const std::int64_t v = from[std::size_t(previous[u]) * 3 + a];
+              c[a] = std::clamp<std::int64_t>(floordiv(v, side) - g0[a], 0, dims[a] - 1);
+            }
+            return static_cast<std::size_t>((c[0] * dims[1] + c[1]) * dims[2] + c[2]);
+          };
+          if (searched == state_.count) {
+            by_cell(std::size_t(total), searched, home_cell, visit_start, visit);
+          } else {
+            visit.resize(searched);
+            std::iota(visit.begin(), visit.end(), 0u);
+          }
+          for (const std::uint32_t u : visit) {
+            search(previous[u],
+                   [&](const std::int64_t* p, const std::int64_t*, const auto& consider, const auto& worst) {
+                     const std::int64_t c[3] = {floordiv(p[0], side) - g0[0], floordiv(p[1], side) - g0[1],
+                                                floordiv(p[2], side) - g0[2]};
+                     for (const Offset& o : offsets) {
+                       if (o.bound > worst()) break;
+                       const std::int64_t x = c[0] + o.d[0], y = c[1] + o.d[1], z = c[2] + o.d[2];
+                       if (x < 0 || x >= dims[0] || y < 0 || y >= dims[1] || z < 0 || z >= dims[2]) continue;
+                       const std::size_t k = std::size_t((x * dims[1] + y) * dims[2] + z);
+                       for (std::uint32_t t = start[k]; t < start[k + 1]; ++t)
+                         consider(order[t], &sorted[std::size_t(t) * 6]);
+                     }
+                   });
+          }
+        } else {
+          // Otherwise this frame's particles sorted by cell: a cell's particles are one range, found
+          // by a binary search.
+          const auto key = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+            return (std::uint64_t(x & 0x1fffff) << 42) | (std::uint64_t(y & 0x1fffff) << 21) |
+                   std::uint64_t(z & 0x1fffff);
+          };
+          if (!prepared) {
+            sorted_cells.resize(n);
+            for (std::uint32_t j = 0; j < n; ++j) {
+              const std::int64_t* q = &at[std::size_t(j) * 6 + 3];
+              sorted_cells[j] = {key(q[0], q[1], q[2]), j};
+            }
+            std::sort(sorted_cells.begin(), sorted_cells.end());
+          }
+          for (const std::uint32_t i : previous) {
+            search(i, [&](const std::int64_t*, const std::int64_t* home, const auto& consider, const auto&) {
+              for (std::int64_t dx = -1; dx <= 1; ++dx)
+                for (std::int64_t dy = -1; dy <= 1; ++dy)
+                  for (std::int64_t dz = -1; dz <= 1; ++dz) {
+                    const std::uint64_t k = key(home[0] + dx, home[1] + dy, home[2] + dz);
+                    auto it =
+                        std::lower_bound(sorted_cells.begin(), sorted_cells.end(), std::pair{k, std::uint32_t{0}});
+                    for (; it != sorted_cells.end() && it->first == k; ++it)
+                      consider(it->second, &at[std::size_t(it->second) * 6]);
+                  }
+            });
+          }
+        }
+      }
+      prepared = true;
+    };
+    // The previous particles `previous` from where they were, or moved on by their stored velocity
+    // over a frame.
+    const auto place = [&](std::span<const std::uint32_t> previous, bool moved) {
+      for (const std::uint32_t i : previous)
+        for (int a = 0; a < 3; ++a) from[std::size_t(i) * 3 + a] = position_of(i, a, moved);
+    };
+    std::vector<std::uint32_t> all(state_.count);
+    std::iota(all.begin(), all.end(), 0u);
+    place(all, false);
+    searches(all);
+    // A cache without ids whose particles persist (a particle system without its ids) moves them
+    // further than their spacing: the nearest particle is another one, and the clip costs about
+    // 4x what it does with ids. Moved on by their stored velocities they are found again; a FLIP
+    // liquid's are not (its solver re-samples them: moved, they land no nearer). So on a sample of
+    // up to kMotionSample previous particles, the nearest candidates from both places are
+    // compared, and the frame is matched from where they land nearer by more than half (in the
+    // sum of squared distances).
+    if (velocity_k_[0] >= 0 && state_.count > 0) {
+      constexpr std::uint32_t kMotionSample = 256;
+      const std::uint32_t every = (state_.count + kMotionSample - 1) / kMotionSample;
+      std::vector<std::uint32_t> sample;
+      for (std::uint32_t i = every / 2; i < state_.count; i += every) sample.push_back(i);
+      const auto cost = [&] {
+        std::int64_t sum = 0;
+        for (const std::uint32_t i : sample)
+          sum += kept[i] != 0 ? slots[std::size_t(i) * kCandidates].distance : reach + 1;
+        return sum;
+      };
+      const std::int64_t still = cost();
+      std::vector<Pair> saved(sample.size() * kCandidates);
+      std::vector<std::uint8_t> saved_kept(sample.size());
+      for (std::size_t u = 0; u < sample.size(); ++u) {
+        std::copy_n(&slots[std::size_t(sample[u]) * kCandidates], kCandidates, &saved[u * kCandidates]);
+        saved_kept[u] = kept[sample[u]];
+      }
+      place(sample, true);
+      searches(sample);
+      if (2 * cost() < still) {
+        place(all, true);
+        searches(all);
+      } else {
+        for (std::size_t u = 0; u < sample.size(); ++u) {
+          std::copy_n(&saved[u * kCandidates], kCandidates, &slots[std::size_t(sample[u]) * kCandidates]);
+          kept[sample[u]] = saved_kept[u];
         }
       }
     }
@@ -1030,6 +1129,7 @@ class GroupEncoder {
   WordPlan plan_;
   std::uint32_t record_size_ = 0;
   int position_k_[3] = {-1, -1, -1};
+  int velocity_k_[3] = {-1, -1, -1};  // a stored velocity's coded words, for frames matched by position
   EncoderState state_;
   std::vector<std::vector<std::uint32_t>> source_;
   std::vector<std::vector<std::uint32_t>> raw_;    // per Relative word and source particle: the float's bits
