@@ -460,9 +460,10 @@ TEST(Playback, HalfwayFramesOfTheSimulations) {
   // between frames); it stays within 1% of the diagonal.
   const HalfwayError flip = halfway(dir, "blender_flip_pour_small", false);
   EXPECT_LT(flip.mean, 0.01 * flip.diagonal);
-  // The particle codec matches particles without ids across frames (by position) and
-  // the player blends the pairs it found. The sparks cooked without their ids show it (sparse
-  // enough for the nearest-real-particle measure to see it): far closer than the nearest frame.
+  // The sparks with their ids left out of the records (the cook still orders the frames by the
+  // source's ids, and the player blends the codec's pairs), measured by the nearest real particle
+  // as the FLIP pour is: far closer than the nearest frame. (A cache with no ids at all:
+  // Playback.PersistingParticlesWithoutIdsAreMatchedAlongTheirVelocities.)
   const HalfwayError anonymous = halfway(dir, "blender_sparks", false, format::FrameCodec::Particle);
   EXPECT_LT(anonymous.mean, anonymous.nearest_mean / 3);
   // On the FLIP liquid every point of the volume lies within about half a particle spacing of
