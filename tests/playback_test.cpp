@@ -215,14 +215,19 @@ struct Particle {
   float scale;
 };
 
-// Plays the clip at `hz` and returns, per host frame, every particle by id.
-std::vector<std::map<std::uint64_t, Particle>> play(const fs::path& file, playback::Interpolation mode, double hz) {
+// A player of one clip whose stream decodes in the host thread (blocking), not looping.
+std::unique_ptr<playback::Player> open_blocking(const fs::path& file, playback::Interpolation mode) {
   playback::PlayerOptions options;
   options.stream.blocking = true;
   options.interpolation = mode;
   options.loop = false;
   const fs::path files[] = {file};
-  const auto player = playback::Player::open(files, std::move(options));
+  return playback::Player::open(files, std::move(options));
+}
+
+// Plays the clip at `hz` and returns, per host frame, every particle by id.
+std::vector<std::map<std::uint64_t, Particle>> play(const fs::path& file, playback::Interpolation mode, double hz) {
+  const auto player = open_blocking(file, mode);
   const format::Metadata& m = player->clip(0).metadata();
   const format::Attribute* id = m.find("id");
   player->play();
@@ -483,12 +488,7 @@ TEST(Playback, HalfwayFramesOfTheSimulations) {
 std::pair<std::size_t, std::size_t> curved_and_all(const fs::path& clip) {
   std::vector<std::vector<float>> played[2];
   for (const auto mode : {playback::Interpolation::Hermite, playback::Interpolation::Linear}) {
-    playback::PlayerOptions options;
-    options.stream.blocking = true;
-    options.interpolation = mode;
-    options.loop = false;
-    const fs::path files[] = {clip};
-    const auto player = playback::Player::open(files, std::move(options));
+    const auto player = open_blocking(clip, mode);
     const format::Metadata& m = player->clip(0).metadata();
     EXPECT_NE(m.find("velocity"), nullptr) << clip;
     for (std::uint64_t f = 0; f + 1 < m.frame_count(); ++f) {
