@@ -506,7 +506,7 @@ class GroupEncoder {
         const float *const px = xs.data(), *const py = ys.data(), *const pz = zs.data();
         std::int32_t* const pe = e.data();
         const std::uint32_t *const pstart = start.data(), *const porder = order.data();
-        const std::uint32_t *const wx = was[0], *const wy = was[1], *const wz = was[2];
+        const std::uint32_t* const where[3] = {was[0], was[1], was[2]};
         const std::int32_t* const shift = moved;
         Pair* const pslots = slots.data();
         std::uint8_t* const pkept = kept.data();
@@ -516,9 +516,7 @@ class GroupEncoder {
           float p[3];
           std::int64_t home[3], gap[3][3];  // gap[a][d + 1]: squared, to the cells d along axis a
           for (int a = 0; a < 3; ++a) {
-            const std::int64_t q = static_cast<std::int32_t>((a == 0   ? wx
-                                                              : a == 1 ? wy
-                                                                       : wz)[i]) +
+            const std::int64_t q = static_cast<std::int32_t>(where[a][i]) +
                                    (shift == nullptr ? 0 : shift[std::size_t(i) * 3 + std::size_t(a)]);
             p[a] = static_cast<float>(q);
             home[a] = floordiv(q, side) - c0[a];
