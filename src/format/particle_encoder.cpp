@@ -351,6 +351,31 @@ class GroupEncoder {
     return static_cast<std::int32_t>(std::llround(std::clamp(steps, -kFar, kFar)));
   }
 
+  // A candidate pair of match_by_position(): squared distance, previous and current index.
+  struct Pair {
+    std::int64_t distance;
+    std::uint32_t prev, cur;
+  };
+  static constexpr int kCandidates = 8;  // kept for each previous particle
+  struct Offset {                        // a cell offset, and the least squared distance across it
+    std::int64_t bound;
+    int d[3];
+  };
+  // match_by_position()'s working memory, kept from frame to frame: made afresh, its larger arrays
+  // were pages the kernel mapped and cleared for every frame.
+  struct MatchScratch {
+    std::vector<std::int64_t> at, sorted;
+    std::vector<Pair> slots, saved, pairs;
+    std::vector<std::uint8_t> kept, saved_kept, prev_taken;
+    std::vector<std::int32_t> steps, e;
+    std::vector<std::uint32_t> start, order, fill, visit_start, visit, all, sample, by_distance;
+    std::vector<float> xs, ys, zs;
+    std::vector<Offset> offsets;
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_cells;
+    std::vector<std::size_t> cell_of_particle;
+    std::vector<std::uint64_t> nearest_prev, items, scratch;
+  };
+
   // Without ids: previous and current particles are paired closest first, within about one
   // particle spacing. Measured on the Mantaflow FLIP fixture, pairing plain positions beats
   // pairing positions moved on by the last step (2.29 against 2.41 bytes per particle) or
@@ -368,7 +393,9 @@ class GroupEncoder {
     const std::int64_t cell = std::max<std::int64_t>(2, std::llround(std::cbrt(volume / n)));
     const auto floordiv = [](std::int64_t a, std::int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); };
     // Each current particle's position and cell (of side `cell`), six numbers together.
-    std::vector<std::int64_t> at(std::size_t(n) * 6);
+    MatchScratch& m = match_;
+    std::vector<std::int64_t>& at = m.at;
+    at.resize(std::size_t(n) * 6);
     for (std::uint32_t j = 0; j < n; ++j) {
       for (int a = 0; a < 3; ++a) {
         at[std::size_t(j) * 6 + a] = static_cast<std::int32_t>(source_[std::size_t(position_k_[a])][j]);
@@ -378,23 +405,20 @@ class GroupEncoder {
     // A particle's candidates are the current particles in the 3x3x3 cells (of side `cell`) around
     // it, within `reach`; of those, its 8 nearest (ties by index) are kept. The result depends on
     // nothing else, so the search may visit them in any order and stop early.
-    struct Pair {
-      std::int64_t distance;
-      std::uint32_t prev, cur;
-    };
     // Each previous particle's kept candidates in its own slots, so that the searches may run in
     // any order and the pairs still come out in previous-index order.
-    constexpr int kCandidates = 8;
-    std::vector<Pair> slots(std::size_t(state_.count) * kCandidates);
-    std::vector<std::uint8_t> kept(state_.count, 0);
+    std::vector<Pair>& slots = m.slots;
+    std::vector<std::uint8_t>& kept = m.kept;
+    slots.resize(std::size_t(state_.count) * kCandidates);
+    kept.assign(state_.count, 0);
     const std::int64_t reach = cell * cell * 2;  // squared: about 1.4 spacings
     // Where each previous particle is searched from: where it was, or moved on by its stored
     // velocity (below), 3 numbers a particle.
     const std::uint32_t* const was[3] = {state_.q[std::size_t(position_k_[0])].data(),
                                          state_.q[std::size_t(position_k_[1])].data(),
                                          state_.q[std::size_t(position_k_[2])].data()};
-    std::vector<std::int32_t> steps;      // 3 a previous particle: its velocity's step (below)
-    const std::int32_t* moved = nullptr;  // steps.data() while searching from the moved places
+    std::vector<std::int32_t>& steps = m.steps;  // 3 a previous particle: its velocity's step (below)
+    const std::int32_t* moved = nullptr;         // steps.data() while searching from the moved places
     const auto from = [&](std::uint32_t i, int a) {
       const std::int64_t q = static_cast<std::int32_t>(was[a][i]);
       return moved == nullptr ? q : q + moved[std::size_t(i) * 3 + std::size_t(a)];
@@ -425,23 +449,20 @@ class GroupEncoder {
     const double most_cells = 16.0 * n + 4096.0;
     // This frame's particles by cell, as the search below reads them: made by the first
     // searches() and kept for the next.
-    struct Offset {
-      std::int64_t bound;
-      int d[3];
-    };
-    std::vector<std::uint32_t> start, order;
-    std::vector<float> xs, ys, zs;
-    std::vector<std::int32_t> e;
-    std::vector<std::int64_t> sorted;
-    std::vector<Offset> offsets;
-    std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_cells;
+    std::vector<std::uint32_t>&start = m.start, &order = m.order;
+    std::vector<float>&xs = m.xs, &ys = m.ys, &zs = m.zs;
+    std::vector<std::int32_t>& e = m.e;
+    std::vector<std::int64_t>& sorted = m.sorted;
+    std::vector<Offset>& offsets = m.offsets;
+    std::vector<std::pair<std::uint64_t, std::uint32_t>>& sorted_cells = m.sorted_cells;
+    offsets.clear();
     bool prepared = false;
     // The searches of the previous particles `previous` (indices), into their slots.
     const auto searches = [&](std::span<const std::uint32_t> previous) {
       const auto searched = static_cast<std::uint32_t>(previous.size());
       // Particles 0..count-1 by their cells (a counting sort, stable): `order` lists them, and cell
       // c's are order[start[c]] to order[start[c + 1] - 1]. Each particle's cell is found once.
-      std::vector<std::size_t> cell_of_particle;
+      std::vector<std::size_t>& cell_of_particle = m.cell_of_particle;
       const auto by_cell = [&](std::size_t cells, std::uint32_t count, const auto& cell_of,
                                std::vector<std::uint32_t>& start, std::vector<std::uint32_t>& order) {
         start.assign(cells + 1, 0);
@@ -451,7 +472,8 @@ class GroupEncoder {
           ++start[cell_of_particle[j] + 1];
         }
         for (std::size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
-        std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+        std::vector<std::uint32_t>& fill = m.fill;
+        fill.assign(start.begin(), start.end() - 1);
         order.resize(count);
         for (std::uint32_t j = 0; j < count; ++j) order[fill[cell_of_particle[j]]++] = j;
       };
@@ -490,7 +512,7 @@ class GroupEncoder {
         // The previous particles by home cell (outside the box: its nearest), so that searches one
         // after another read the same cells (a sample is searched in its own order).
         const auto home_of = [&](std::uint32_t i, int a) { return floordiv(from(i, a), cell) - c0[a]; };
-        std::vector<std::uint32_t> visit_start, visit;
+        std::vector<std::uint32_t>&visit_start = m.visit_start, &visit = m.visit;
         if (searched == state_.count) {
           by_cell(
               std::size_t(cells), searched,
@@ -630,7 +652,7 @@ class GroupEncoder {
           }
           // The previous particles by cell (outside the box: its nearest cell), so that searches one
           // after another visit the same cells.
-          std::vector<std::uint32_t> visit_start, visit;
+          std::vector<std::uint32_t>&visit_start = m.visit_start, &visit = m.visit;
           const auto home_cell = [&](std::uint32_t u) {
             std::int64_t c[3];
             for (int a = 0; a < 3; ++a) {
@@ -698,7 +720,8 @@ class GroupEncoder {
       for (const std::uint32_t i : previous)
         for (int a = 0; a < 3; ++a) steps[std::size_t(i) * 3 + std::size_t(a)] = velocity_step(i, a);
     };
-    std::vector<std::uint32_t> all(state_.count);
+    std::vector<std::uint32_t>& all = m.all;
+    all.resize(state_.count);
     std::iota(all.begin(), all.end(), 0u);
     searches(all);  // from where they were
     // A cache without ids whose particles persist (a particle system without its ids) moves them
@@ -711,7 +734,8 @@ class GroupEncoder {
     if (velocity_k_[0] >= 0 && state_.count > 0) {
       constexpr std::uint32_t kMotionSample = 256;
       const std::uint32_t every = (state_.count + kMotionSample - 1) / kMotionSample;
-      std::vector<std::uint32_t> sample;
+      std::vector<std::uint32_t>& sample = m.sample;
+      sample.clear();
       for (std::uint32_t i = every / 2; i < state_.count; i += every) sample.push_back(i);
       const auto cost = [&] {
         std::int64_t sum = 0;
@@ -720,8 +744,10 @@ class GroupEncoder {
         return sum;
       };
       const std::int64_t still = cost();
-      std::vector<Pair> saved(sample.size() * kCandidates);
-      std::vector<std::uint8_t> saved_kept(sample.size());
+      std::vector<Pair>& saved = m.saved;
+      std::vector<std::uint8_t>& saved_kept = m.saved_kept;
+      saved.resize(sample.size() * kCandidates);
+      saved_kept.resize(sample.size());
       for (std::size_t u = 0; u < sample.size(); ++u) {
         std::copy_n(&slots[std::size_t(sample[u]) * kCandidates], kCandidates, &saved[u * kCandidates]);
         saved_kept[u] = kept[sample[u]];
@@ -745,9 +771,11 @@ class GroupEncoder {
     // previous index) makes the first pair, in that order, of either: it is taken, and every later
     // pair of either would be passed over. Only the others' pairs are sorted (on the FLIP pour two
     // thirds of the particles pair this way, and a sixth of the candidate pairs are left).
-    std::vector<std::uint8_t> prev_taken(state_.count, 0);
-    if (reach < (std::int64_t{1} << 32)) {                            // distance << 32 | index keys
-      std::vector<std::uint64_t> nearest_prev(n, ~std::uint64_t{0});  // per current particle
+    std::vector<std::uint8_t>& prev_taken = m.prev_taken;
+    prev_taken.assign(state_.count, 0);
+    if (reach < (std::int64_t{1} << 32)) {                        // distance << 32 | index keys
+      std::vector<std::uint64_t>& nearest_prev = m.nearest_prev;  // per current particle
+      nearest_prev.assign(n, ~std::uint64_t{0});
       for (std::uint32_t i = 0; i < state_.count; ++i) {
         for (std::uint32_t b = 0; b < kept[i]; ++b) {
           const Pair& pair = slots[std::size_t(i) * kCandidates + b];
@@ -765,8 +793,8 @@ class GroupEncoder {
     // The rest: the pairs were made in previous-index order, each particle's by (distance, current
     // index), so a stable sort by distance is that order. Every distance is within the reach, so
     // the depth sorter's radix sort does it (a comparison sort here was about 15 % of a FLIP cook).
-    std::vector<Pair> pairs;
-    pairs.reserve(std::size_t(state_.count) * 2);
+    std::vector<Pair>& pairs = m.pairs;
+    pairs.clear();
     for (std::uint32_t i = 0; i < state_.count; ++i) {
       if (prev_taken[i]) continue;
       for (std::uint32_t b = 0; b < kept[i]; ++b) {
@@ -774,9 +802,12 @@ class GroupEncoder {
         if (match[pair.cur] < 0) pairs.push_back(pair);
       }
     }
-    std::vector<std::uint32_t> by_distance(pairs.size());
+    std::vector<std::uint32_t>& by_distance = m.by_distance;
+    by_distance.resize(pairs.size());
     if (reach < (std::int64_t{1} << 32) && pairs.size() < (std::size_t{1} << 32)) {
-      std::vector<std::uint64_t> items(pairs.size()), scratch(pairs.size());
+      std::vector<std::uint64_t>&items = m.items, &scratch = m.scratch;
+      items.resize(pairs.size());
+      scratch.resize(pairs.size());
       for (std::size_t t = 0; t < pairs.size(); ++t) items[t] = std::uint64_t(pairs[t].distance) << 32 | t;
       const auto radix = reach < (std::int64_t{1} << 16) ? sort::radix_sort_pairs16 : sort::radix_sort_pairs;
       radix(items.data(), scratch.data(), items.size(), by_distance.data());
@@ -1178,6 +1209,7 @@ class GroupEncoder {
   std::span<const std::uint64_t> ids_in_;
   ZSTD_CCtx* zstd_ = nullptr;
   std::vector<std::uint8_t> nibbles_;  // per coded word: its survivors' residuals are packed as nibbles
+  MatchScratch match_;                 // per coded word: its survivors' residuals are packed as nibbles
 };
 
 }  // namespace
