@@ -1,6 +1,7 @@
 #include "base/output_file.hpp"
 
 #include <fcntl.h>
+#include <pthread.h>
 #include <signal.h>
 #include <sys/file.h>
 #include <sys/random.h>
@@ -188,14 +189,22 @@ OutputFile OutputFile::create(const std::filesystem::path& path, std::span<const
   }
   const std::filesystem::path dir = path.parent_path();
   remove_stale_temporaries(dir);
+  // SIGINT, SIGTERM and SIGHUP wait while the temporary is made and registered, so that the
+  // handler knows of every temporary a signal could leave behind (one arriving in between had
+  // ended the process with the new file unknown to it).
+  sigset_t ending, before;
+  sigemptyset(&ending);
+  for (const int s : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&ending, s);
+  ::pthread_sigmask(SIG_BLOCK, &ending, &before);
   out.fd_ = create_locked_temporary(path, out.temp_);
+  const int err = errno;
+  if (out.fd_ >= 0) out.slot_ = register_temporary(out.temp_.string());
+  ::pthread_sigmask(SIG_SETMASK, &before, nullptr);
   if (out.fd_ < 0) {
-    const int err = errno;
     const std::string folder = dir.empty() ? std::string(".") : dir.string();
     out.temp_.clear();
     throw Error(fmt::format("{}: cannot create a temporary in {}: {}", name, folder, std::strerror(err)));
   }
-  out.slot_ = register_temporary(out.temp_.string());
   return out;
 }
 
