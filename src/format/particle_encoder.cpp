@@ -171,9 +171,8 @@ class GroupEncoder {
     // the FLIP pour 0.1 % smaller in the same time, and the demo fountain's 300 frames 15 % faster
     // for 0.6 % more bytes (its first 120 0.05 % smaller; its large bodies, each a zstd frame of
     // its own, gain from 5: 6 for the others only made it 0.1 % smaller than before, at the speed
-    // before). At levels 3 and 19
-    // the sparks were 2.1 % and 1.0 % smaller. Lossless bodies hold float bits, where 6 made the
-    // sparks 1.0 % larger.
+    // before). At levels 3 and 19 the sparks were 2.1 % and 1.0 % smaller. Lossless bodies hold
+    // float bits, where 6 made the sparks 1.0 % larger.
     if (!info.lossless) ZSTD_CCtx_setParameter(zstd_, ZSTD_c_minMatch, std::max<int>(int(p.minMatch), kLossyMinMatch));
   }
   ~GroupEncoder() { ZSTD_freeCCtx(zstd_); }
