@@ -209,7 +209,10 @@ for sig in INT TERM HUP; do
   runs=$((runs + 1))
 done
 
-leftovers=$(find "$root" "$PWD" -maxdepth 3 -name '.*.partial-*' 2>/dev/null)
+# Every run's working directory and output is under $root, and it reads $data: a temporary can only
+# be there. (The test's own directory is not searched: ctest runs other tests beside this one, and
+# their cooks' temporaries there are not ours. It had been, and one in flight failed this test.)
+leftovers=$(find "$root" "$data" -maxdepth 4 -name '.*.partial-*' 2>/dev/null)
 if [ -n "$leftovers" ]; then
   echo "FAIL temporaries left behind:"; echo "$leftovers" | sed 's/^/    /'
   failures=$((failures + 1))
