@@ -129,15 +129,16 @@ TEST(GpuInterpolation, EqualsTheCpuPathWithin2Ulps) {
           const double dt = 1.0 / 24;
           playback::FrameBlender cpu(c.meta);
           std::vector<std::byte> expected((na + nb) * c.meta.record_size);
-          const std::uint64_t n = cpu.blend(a, na, b, nb, matched ? &matching : nullptr, t, dt, mode, expected.data());
+          const bool along_curves = mode == playback::Interpolation::Hermite && curves;
+          const std::uint64_t n =
+              cpu.blend(a, na, b, nb, matched ? &matching : nullptr, t, dt, along_curves, expected.data());
           expected.resize(n * c.meta.record_size);
           std::vector<render::ParticlePair> pairs(na + nb);
           bool nearer = false;
           pairs.resize(playback::pair_table(na, nb, matched ? &matching : nullptr, t, pairs, nearer));
           ASSERT_EQ(pairs.size(), n);
           ASSERT_EQ(nearer, !matched);
-          const std::vector<std::byte> got =
-              gpu.run_host(a, b, pairs, t, dt, mode == playback::Interpolation::Hermite && curves, nearer);
+          const std::vector<std::byte> got = gpu.run_host(a, b, pairs, t, dt, along_curves, nearer);
           ASSERT_EQ(got.size(), expected.size());
           const std::size_t words = c.meta.record_size / 4;
           for (std::size_t i = 0; i < n; ++i) {

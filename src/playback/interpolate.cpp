@@ -176,16 +176,14 @@ bool velocities_describe_matching(std::span<const std::byte> a, std::span<const 
 
 std::uint64_t FrameBlender::blend(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b,
                                   std::uint64_t nb, const std::span<const format::MatchRun>* matching, double t,
-                                  double dt, Interpolation mode, std::byte* out) {
+                                  double dt, bool curves, std::byte* out) {
   if (matching == nullptr) return nearer_advected(a, na, b, nb, t, dt, out);
   // The runs must cover both frames exactly (the stream's are; a caller's might not be).
   std::uint64_t covers_a = 0, covers_b = 0;
   for (const format::MatchRun& r : *matching)
     covers_a += std::uint64_t(r.keep) + r.drop, covers_b += std::uint64_t(r.keep) + r.insert;
   if (covers_a != na || covers_b != nb) return nearer_advected(a, na, b, nb, t, dt, out);
-  set_fraction(t, dt,
-               mode == Interpolation::Hermite && velocity_ >= 0 &&
-                   velocities_describe_matching(a, b, *matching, stride_, velocity_, dt));
+  set_fraction(t, dt, curves && velocity_ >= 0);
   const std::size_t stride = stride_;
   const std::byte* pa = a.data();
   const std::byte* pb = b.data();

@@ -69,16 +69,17 @@ class FrameBlender {
   // The particles at `t` (0..1) of the way from frame `a` (na records) to frame `b` (nb records),
   // `dt` seconds apart, written to `out` (room for na + nb records). Returns how many.
   // - With `matching` (the runs pairing b's particles with a's, codec.hpp): a particle in both
-  //   moves along the cubic Hermite curve of its positions and velocities (`mode` Hermite,
-  //   velocities present and describing the matching: velocities_describe_matching()) and its
-  //   velocity becomes the curve's derivative, or it moves along the straight line; other floats
+  //   moves along the cubic Hermite curve of its positions and velocities (`curves`, the caller's
+  //   decision for the pair of frames, made once: Interpolation::Hermite and
+  //   velocities_describe_matching(); ignored without velocities) and its velocity becomes the
+  //   curve's derivative, or it moves along the straight line; other floats
   //   and colours blend linearly, ids and other integers are a's. One only in `a` dies: it goes on
   //   along its velocity and shrinks to nothing by `b`. One only in `b` is born: it comes in along
   //   its velocity from where it would have been, growing from nothing.
   // - Without (or with runs that do not cover both frames): the nearer frame, moved along its
   //   velocities to `t` when the clip has velocities, as it is otherwise.
   std::uint64_t blend(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b, std::uint64_t nb,
-                      const std::span<const format::MatchRun>* matching, double t, double dt, Interpolation mode,
+                      const std::span<const format::MatchRun>* matching, double t, double dt, bool curves,
                       std::byte* out);
 
  private:

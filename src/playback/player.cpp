@@ -34,7 +34,10 @@ struct Player::Clip {
   std::uint64_t pairs_a = ~0ull, pairs_b = ~0ull;
   int pairs_side = -1;
   std::uint64_t pairs_count = 0;
-  bool pairs_hermite = false;  // the pair's positions along curves (velocities_describe_matching())
+  // Whether the pair of cached frames curves_a, curves_b blends positions along curves: decided
+  // once a pair, on either path (curves()).
+  std::uint64_t curves_a = ~0ull, curves_b = ~0ull;
+  bool curves_ab = false;
   // The table of the pair after this one (b and the frame after it), made ahead on the table
   // thread once that frame is decoded and matched: the renderer can move it to the GPU before the
   // playhead gets there.
@@ -52,6 +55,20 @@ struct Player::Clip {
     }
   };
   std::unique_ptr<TableJob> job;
+  // Whether `f` to `next` moves along the curves through the velocities: Hermite interpolation,
+  // the frames matched, and the velocities describing the matching (velocities_describe_matching(),
+  // a sample of up to kMotionSample pairs), asked once a pair of cached frames.
+  bool curves(Interpolation mode, const stream::FrameView& f, const stream::FrameView& next, bool matched,
+              std::uint32_t record_size) {
+    if (curves_a != f.frame || curves_b != next.frame) {
+      curves_ab = matched && mode == Interpolation::Hermite &&
+                  velocities_describe_matching(f.first, next.first, next.matching, record_size, velocity_offset,
+                                               next.time - f.time);
+      curves_a = f.frame;
+      curves_b = next.frame;
+    }
+    return curves_ab;
+  }
   std::unique_ptr<std::atomic<std::uint32_t>> lent;  // FramePair::lent: 1 while a renderer reads ahead
   // Waits until the table thread and the renderer are done with what the stream lent them (the
   // frame ahead's records and matching): called before the stream moves, which may release them.
@@ -257,9 +274,10 @@ const FrameStats& Player::advance(double dt, const render::Mat4& view, sort::Sor
         // The stream matched the next frame's particles to this one's (by the codec or by id).
         const bool matched = next.matched && next.frame == f.frame + 1;
         if (!matched) ++stats_.unmatched_clips;
+        const bool curves = c.curves(interpolation_, f, next, matched, m.record_size);
         const std::uint64_t n =
             c.blender->blend(b.first, f.count, next.first, next.count, matched ? &next.matching : nullptr,
-                             c.stream->fraction(), next.time - f.time, interpolation_, c.blended.data());
+                             c.stream->fraction(), next.time - f.time, curves, c.blended.data());
         b.first = std::span<const std::byte>(c.blended).first(n * m.record_size);
         b.count = n;
         const auto t2 = Clock::now();
@@ -338,10 +356,6 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
       p.pairs_version = ++c.versions;
       stats_.pair_table_ms += ms(t0, Clock::now());
     }
-    // Along the curves through the velocities only where they describe the matching (once a pair).
-    c.pairs_hermite = matched && interpolation_ == Interpolation::Hermite &&
-                      velocities_describe_matching(f.first, next.first, next.matching, p.record_size, c.velocity_offset,
-                                                   next.time - f.time);
     c.ahead_a = c.ahead_b = ~0ull;
     c.pairs_a = f.frame;
     c.pairs_b = next.frame;
@@ -354,7 +368,7 @@ std::uint64_t Player::gpu_pair(Clip& c, const stream::FrameView& f) {
   p.t = t;
   p.dt = next.time - f.time;
   p.nearer = !matched;
-  p.hermite = c.pairs_hermite;
+  p.hermite = c.curves(interpolation_, f, next, matched, p.record_size);
   // The frame after `next`, once decoded, and (matched) the table from next to it, made on the
   // table thread and handed out from the host frame after it is done.
   const stream::FrameView after = c.stream->frame_after_next();
