@@ -970,6 +970,9 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   for (const auto& c : j["codecs"]) {
     EXPECT_GT(c["decode_gb_s"].get<double>(), 0.0) << c.dump();
     EXPECT_GT(c["encode_mb_s"].get<double>(), 0.0) << c.dump();
+    // Encodes are timed as the median of up to --repetitions runs (fewer only past 2 s of CPU,
+    // which 4 frames of the sparks are far from).
+    EXPECT_EQ(c["encode_runs"].get<int>(), 3) << c.dump();
   }
   EXPECT_GT(j["ours_decode_vs_zstd"].get<double>(), 0.0);
   EXPECT_GT(j["ours_decode_vs_meshopt"].get<double>(), 0.0);
@@ -980,6 +983,7 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   const auto k = nlohmann::json::parse(alone.output.substr(alone.output.find('{')));
   EXPECT_EQ(k["ours_decode_vs_zstd"].get<double>(), 0.0);
   EXPECT_EQ(k["ours_decode_vs_meshopt"].get<double>(), 0.0);
+  EXPECT_EQ(k["codecs"][0]["encode_runs"].get<int>(), 1);
 }
 
 // The registry: every frame codec has both halves under one name, and a clip planned and encoded

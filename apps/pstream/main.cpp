@@ -359,7 +359,8 @@ int main(int argc, char** argv) {
                    "The particle codec's zstd level (default 16 with ids, 12 without: its entropy stage's trade-off)")
       ->check(CLI::Range(1, 22));
   bench_codec_cmd
-      ->add_option("--repetitions", bench_codec_opts.repetitions, "Decode runs of every codec; medians are reported")
+      ->add_option("--repetitions", bench_codec_opts.repetitions,
+                   "Decode runs of every codec, and encode runs up to 2 s of CPU a codec; medians are reported")
       ->capture_default_str()
       ->check(CLI::Range(1, 100));
   bench_codec_cmd->add_flag("--json", bench_codec_opts.json, "Print the results as JSON");
