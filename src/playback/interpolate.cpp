@@ -67,12 +67,10 @@ FrameBlender::FrameBlender(const format::Metadata& m) : stride_(m.record_size) {
   const std::vector<render::RecordLane> lanes = record_lanes(m);
   kind_.resize(words);
   for (std::size_t w = 0; w < words; ++w) kind_[w] = std::uint8_t(lanes[w]);
+  velocity_ = velocity_offset(m);
   for (const format::Attribute& a : m.layout) {
-    if (a.name == "velocity" && a.type == format::AttributeType::Float32 && a.components == 3) {
-      velocity_ = std::int32_t(a.offset);
-    } else if (a.name == "color" && a.type == format::AttributeType::Unorm8 && a.components == 4) {
+    if (a.name == "color" && a.type == format::AttributeType::Unorm8 && a.components == 4)
       color_ = std::int32_t(a.offset);
-    }
   }
   plan_.words = words;
   plan_.shift = velocity_ >= 0 ? std::size_t(velocity_) / 4 : 0;
@@ -139,6 +137,11 @@ std::uint64_t FrameBlender::nearer_advected(std::span<const std::byte> a, std::u
     for (std::uint64_t i = 0; i < n; ++i) advect(out + i * stride_, first ? t * dt : -(1.0 - t) * dt, 1.0f);
   }
   return n;
+}
+
+std::int32_t velocity_offset(const format::Metadata& meta) {
+  const format::Attribute* v = meta.find("velocity");
+  return v != nullptr && v->type == format::AttributeType::Float32 && v->components == 3 ? std::int32_t(v->offset) : -1;
 }
 
 bool velocities_describe_matching(std::span<const std::byte> a, std::span<const std::byte> b,

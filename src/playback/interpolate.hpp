@@ -56,6 +56,9 @@ std::uint64_t pair_table(std::uint64_t na, std::uint64_t nb, const std::span<con
 // forward along the flow and back by up to a tenth of a frame's motion (5-7 mm on the FLIP
 // fixture): such pairs of frames are blended along straight lines (docs/playback.md).
 inline constexpr std::uint64_t kMotionSample = 256;
+// The record offset of a clip's velocity (three float32 named "velocity"), the one interpolation,
+// speed colours and motion blur read; -1 when it has none.
+std::int32_t velocity_offset(const format::Metadata& meta);
 bool velocities_describe_matching(std::span<const std::byte> a, std::span<const std::byte> b,
                                   std::span<const format::MatchRun> matching, std::uint32_t stride,
                                   std::int32_t velocity_offset, double dt);

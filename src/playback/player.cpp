@@ -135,9 +135,7 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     const format::Metadata& m = c.stream->metadata();
     const std::uint64_t most = options.interpolation != Interpolation::None ? 2 * m.max_count : m.max_count;
     if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
-    const format::Attribute* v = m.find("velocity");
-    if (v && v->type == format::AttributeType::Float32 && v->components == 3)
-      c.velocity_offset = std::int32_t(v->offset);
+    c.velocity_offset = velocity_offset(m);
     if (options.path == PlaybackPath::Cpu) {
       c.sorter = std::make_unique<sort::DepthSorter>(most, options.sorter);
       if (options.interpolation != Interpolation::None) {

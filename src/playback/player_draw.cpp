@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 
 #include "particlestream/playback.hpp"
+#include "playback/interpolate.hpp"
 
 namespace pstream::playback {
 
@@ -78,8 +79,7 @@ void Player::check_style(const DrawStyle& style) const {
                       : style.sprites.shutter > 0.0f                     ? "motion blur (a shutter)"
                                                                          : nullptr;
   for (std::size_t i = 0; i < clip_count() && needs != nullptr; ++i) {
-    const format::Attribute* v = clip(i).metadata().find("velocity");
-    if (v == nullptr || v->type != format::AttributeType::Float32 || v->components != 3) {
+    if (velocity_offset(clip(i).metadata()) < 0) {
       throw OptionError("velocity",
                         fmt::format("{}: {} needs velocities, and the clip has none: cook it again with `--attributes "
                                     "velocity` (without `--no-velocity`; the source must have velocities)",

@@ -85,6 +85,10 @@ struct Player {
   std::vector<std::uint32_t> order;
   std::vector<std::byte> instances;     // what the page draws: 20 bytes a particle, back to front
   std::int32_t scale = -1, color = -1;  // record offsets, or -1
+  // Whether the frames curves_from and curves_from + 1 blend along curves through the velocities
+  // (playback::velocities_describe_matching()): decided once a pair, as the native player does.
+  std::uint64_t curves_from = UINT64_MAX;
+  bool curves = false;
 };
 
 std::unique_ptr<Player> g = std::make_unique<Player>();
@@ -256,9 +260,15 @@ EMSCRIPTEN_KEEPALIVE int pw_show(double time) {
       const Slot& sa = *slot_of(a);
       const Slot& sb = *slot_of(a + 1);
       const std::span<const format::MatchRun> runs(sb.matching.data(), sb.runs == format::kNoMatching ? 0 : sb.runs);
+      const double dt = m.frames[a + 1].time - m.frames[a].time;
+      if (g->curves_from != a) {
+        g->curves = sb.runs != format::kNoMatching &&
+                    playback::velocities_describe_matching(sa.records, sb.records, runs, m.record_size,
+                                                           playback::velocity_offset(m), dt);
+        g->curves_from = a;
+      }
       g->count = g->blender->blend(sa.records, m.frames[a].count, sb.records, m.frames[a + 1].count,
-                                   sb.runs == format::kNoMatching ? nullptr : &runs, fraction,
-                                   m.frames[a + 1].time - m.frames[a].time, playback::Interpolation::Hermite,
+                                   sb.runs == format::kNoMatching ? nullptr : &runs, fraction, dt, g->curves,
                                    g->blended.data());
       g->records = g->blended.data();
     } else {
