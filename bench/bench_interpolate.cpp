@@ -18,7 +18,6 @@ namespace {
 using namespace pstream;
 
 constexpr std::uint64_t kCount = 1 << 20;
-constexpr std::int32_t kVelocityOffset = 16;  // after [x y z scale]
 
 format::Metadata layout(bool ids) {
   format::Metadata m;
@@ -57,8 +56,9 @@ void run(benchmark::State& state, bool ids, std::uint64_t churn, playback::Inter
   const std::size_t n = format::match_by_id(m, a, kCount, b, kCount, runs);
   const std::span<const format::MatchRun> matching(runs.data(), n == format::kNoMatching ? 0 : n);
   // Curves or lines: the player decides once a pair of cached frames, as here.
-  const bool curves = mode == playback::Interpolation::Hermite && n != format::kNoMatching &&
-                      playback::velocities_describe_matching(a, b, matching, m.record_size, kVelocityOffset, 1 / 24.0);
+  const bool curves =
+      mode == playback::Interpolation::Hermite && n != format::kNoMatching &&
+      playback::velocities_describe_matching(a, b, matching, m.record_size, playback::velocity_offset(m), 1 / 24.0);
   double t = 0.2;
   for (auto _ : state) {
     benchmark::DoNotOptimize(blender.blend(a, kCount, b, kCount, n == format::kNoMatching ? nullptr : &matching, t,

@@ -75,10 +75,10 @@ class FrameBlender {
   //   moves along the cubic Hermite curve of its positions and velocities (`curves`, the caller's
   //   decision for the pair of frames, made once: Interpolation::Hermite and
   //   velocities_describe_matching(); ignored without velocities) and its velocity becomes the
-  //   curve's derivative, or it moves along the straight line; other floats
-  //   and colours blend linearly, ids and other integers are a's. One only in `a` dies: it goes on
-  //   along its velocity and shrinks to nothing by `b`. One only in `b` is born: it comes in along
-  //   its velocity from where it would have been, growing from nothing.
+  //   curve's derivative, or it moves along the straight line; other floats and colours blend
+  //   linearly, ids and other integers are a's. One only in `a` dies: it goes on along its
+  //   velocity and shrinks to nothing by `b`. One only in `b` is born: it comes in along its
+  //   velocity from where it would have been, growing from nothing.
   // - Without (or with runs that do not cover both frames): the nearer frame, moved along its
   //   velocities to `t` when the clip has velocities, as it is otherwise.
   std::uint64_t blend(std::span<const std::byte> a, std::uint64_t na, std::span<const std::byte> b, std::uint64_t nb,
