@@ -1211,7 +1211,7 @@ class GroupEncoder {
   std::span<const std::uint64_t> ids_in_;
   ZSTD_CCtx* zstd_ = nullptr;
   std::vector<std::uint8_t> nibbles_;  // per coded word: its survivors' residuals are packed as nibbles
-  MatchScratch match_;                 // per coded word: its survivors' residuals are packed as nibbles
+  MatchScratch match_;                 // match_by_position()'s working memory, kept from frame to frame
 };
 
 }  // namespace

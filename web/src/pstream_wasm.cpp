@@ -83,8 +83,8 @@ struct Player {
   std::vector<float> depths;  // the draw order's buffers, allocated at open
   std::vector<std::uint64_t> pairs, scratch;
   std::vector<std::uint32_t> order;
-  std::vector<std::byte> instances;     // what the page draws: 20 bytes a particle, back to front
-  std::int32_t scale = -1, color = -1;  // record offsets, or -1
+  std::vector<std::byte> instances;                    // what the page draws: 20 bytes a particle, back to front
+  std::int32_t scale = -1, color = -1, velocity = -1;  // record offsets, or -1
   // Whether the frames curves_from and curves_from + 1 blend along curves through the velocities
   // (playback::velocities_describe_matching()): decided once a pair, as the native player does.
   std::uint64_t curves_from = UINT64_MAX;
@@ -207,6 +207,7 @@ EMSCRIPTEN_KEEPALIVE int pw_open(double size, const char* name) {
     if (const format::Attribute* a = m.find("color");
         a && a->type == format::AttributeType::Unorm8 && a->components == 4)
       g->color = static_cast<std::int32_t>(a->offset);
+    g->velocity = playback::velocity_offset(m);
     g->metadata_json = describe(m);
   });
 }
@@ -262,9 +263,8 @@ EMSCRIPTEN_KEEPALIVE int pw_show(double time) {
       const std::span<const format::MatchRun> runs(sb.matching.data(), sb.runs == format::kNoMatching ? 0 : sb.runs);
       const double dt = m.frames[a + 1].time - m.frames[a].time;
       if (g->curves_from != a) {
-        g->curves = sb.runs != format::kNoMatching &&
-                    playback::velocities_describe_matching(sa.records, sb.records, runs, m.record_size,
-                                                           playback::velocity_offset(m), dt);
+        g->curves = sb.runs != format::kNoMatching && playback::velocities_describe_matching(
+                                                          sa.records, sb.records, runs, m.record_size, g->velocity, dt);
         g->curves_from = a;
       }
       g->count = g->blender->blend(sa.records, m.frames[a].count, sb.records, m.frames[a + 1].count,
