@@ -478,16 +478,17 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
   }
 }
 
-// Version 5's nibbles: any values written as nibbles and escape planes read back as the values the
-// survivors' prediction adds (unzigzagged, plus their block's bias), whatever their count (odd,
-// under one 16-nibble step, many steps, several blocks of 1024) and the width of their escapes
-// (none, up to 15 + 240 in one plane, past it, two to four bytes); byte planes too.
+// Version 5's nibbles: any values written as nibbles and escape planes predict survivors as the
+// values they hold (unzigzagged, plus their block's bias), whatever their count (odd, under one
+// 8-value step, many steps, several blocks of 1024), the runs they are read in (short, long, odd
+// starts) and the width of their escapes (none, up to 15 + 240 in one plane, past it, two to four
+// bytes); byte planes too, with either predictor.
 TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
   namespace pc = format::particle;
   std::uint32_t seed = 12345;
   const auto next = [&] { return seed = seed * 1664525u + 1013904223u; };
   const std::uint32_t largest[] = {0, 14, 15, 255, 256, 270, 271, 65535, 65550, 0xffffff, 0xffffffffu};
-  for (const std::uint32_t n : {0u, 1u, 2u, 15u, 16u, 17u, 33u, 1000u, 2500u}) {
+  for (const std::uint32_t n : {0u, 1u, 2u, 7u, 15u, 16u, 17u, 33u, 1000u, 2500u}) {
     for (const std::uint32_t top : largest) {
       std::vector<std::uint32_t> values(n);
       for (std::uint32_t t = 0; t < n; ++t) values[t] = next() % 15;  // mostly nibbles
@@ -504,27 +505,36 @@ TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
       ASSERT_EQ(pc::count_escapes(bytes, n), escapes);
       std::vector<std::uint32_t> bias((n + pc::kBlock - 1) / pc::kBlock);
       for (std::uint32_t& b : bias) b = next();
-      // Block by block, as the decoder makes them.
-      const auto read_back = [&](const std::byte* keep, std::uint8_t packing, unsigned bytes,
-                                 const std::byte* escape_planes, std::uint32_t escape_count) {
-        std::vector<std::uint32_t> out(n);
-        pc::SurvivorResiduals residuals(keep, n, packing, bytes, escape_planes, escape_count, bias.data());
-        for (std::uint32_t b = 0; b * pc::kBlock < n; ++b)
-          EXPECT_EQ(residuals.fill(b, out.data() + std::size_t(b) * pc::kBlock),
-                    std::min(n - b * pc::kBlock, pc::kBlock));
-        return out;
+      std::vector<std::uint32_t> q1(n + pc::kRunPad), d1(n + pc::kRunPad);
+      for (std::uint32_t t = 0; t < n; ++t) q1[t] = next(), d1[t] = next();
+      // In runs of 1 to 40 survivors, split at the blocks' borders, as the decoder reads them.
+      const auto check = [&](std::vector<std::byte> residuals, std::uint8_t packing, unsigned width_or_bytes,
+                             std::size_t escape_planes_at, std::uint32_t escape_count) {
+        residuals.resize(residuals.size() + pc::kReadPad, std::byte{0xAB});  // what a run may read past
+        for (const std::uint32_t linear : {0u, ~0u}) {
+          std::vector<std::uint32_t> q0(n + pc::kRunPad), d0(n + pc::kRunPad);
+          pc::SurvivorRuns survivors(residuals.data(), n, packing, width_or_bytes, residuals.data() + escape_planes_at,
+                                     escape_count, bias.data());
+          survivors.visit([&](auto& runs) {
+            for (std::uint32_t at = 0; at < n;) {
+              const std::uint32_t len = std::min({1 + next() % 40, n - at, pc::kBlock - (at & (pc::kBlock - 1))});
+              runs.run(at, len, q0.data() + at, d0.data() + at, q1.data() + at, d1.data() + at, linear);
+              at += len;
+            }
+          });
+          for (std::uint32_t t = 0; t < n; ++t) {
+            const std::uint32_t step = (d1[t] & linear) + pc::unzigzag(values[t]) + bias[t >> pc::kBlockShift];
+            ASSERT_EQ(d0[t], step) << t << " linear " << linear;
+            ASSERT_EQ(q0[t], q1[t] + step) << t << " linear " << linear;
+          }
+        }
       };
-      std::vector<std::uint32_t> out =
-          read_back(packed.data(), pc::kNibbles, width, packed.data() + (n + 1) / 2, escapes);
-      for (std::uint32_t t = 0; t < n; ++t)
-        ASSERT_EQ(out[t], pc::unzigzag(values[t]) + bias[t >> pc::kBlockShift]) << t;
+      check(packed, pc::kNibbles, width, (n + 1) / 2, escapes);
       // The same values as byte planes.
       std::vector<std::byte> planes;
       const unsigned plane_bytes = pc::bytes_for(n == 0 ? 0u : *std::max_element(values.begin(), values.end()));
       pc::write_planes(planes, values, plane_bytes);
-      out = read_back(planes.data(), pc::kBytePlanes, plane_bytes, nullptr, 0);
-      for (std::uint32_t t = 0; t < n; ++t)
-        ASSERT_EQ(out[t], pc::unzigzag(values[t]) + bias[t >> pc::kBlockShift]) << t;
+      check(planes, pc::kBytePlanes, plane_bytes, 0, 0);
     }
   }
 }

@@ -77,27 +77,10 @@ inline T plane_value(const std::uint8_t* planes, std::size_t stride, std::size_t
   return v;
 }
 
-// Survivors of one run: q = q1 + (d1 if linear) + r, and the step taken (r: the residual with its
-// block's bias, SurvivorResiduals). Eight at a time, the last eight whole: it reads and writes up
-// to 7 values past the run (kRunPad), which the next run or new particle overwrites; the runs
-// between births and deaths are short (33 survivors on the sparks, 15 on the FLIP pour), and the
-// compiler's 16-wide loop spent 43 % of its time in a scalar tail for each.
+// SurvivorRuns writes up to 7 values past a run (the state buffers carry this padding), and reads
+// up to kReadPad bytes past a word's survivors' residuals (the body's buffer carries that).
 constexpr std::uint32_t kRunPad = 7;
-inline void keep_run(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
-                     const std::uint32_t* __restrict d1, const std::uint32_t* __restrict r, std::uint32_t n,
-                     std::uint32_t linear_mask) {
-  using V = std::uint32_t __attribute__((vector_size(32)));
-  for (std::uint32_t t = 0; t < n; t += 8) {
-    V q, d, e;
-    std::memcpy(&q, q1 + t, 32);
-    std::memcpy(&d, d1 + t, 32);
-    std::memcpy(&e, r + t, 32);
-    const V step = (d & linear_mask) + e;
-    q += step;
-    std::memcpy(q0 + t, &q, 32);
-    std::memcpy(d0 + t, &step, 32);
-  }
-}
+constexpr std::size_t kReadPad = 16;
 
 // The coded words of a layout (quantised or exact), where the id's two words are, and the derived
 // words with the coded word (index into `coded`) each is derived from.
@@ -290,15 +273,19 @@ inline void read_values(const std::byte* planes, std::size_t n, unsigned bytes, 
   for (std::size_t t = 0; t < n; ++t) out[t] = unzigzag(out[t]);
 }
 
-// The survivors' residuals as the prediction adds them: each unzigzagged plus the bias of its block
-// of 1024, from `bytes` byte planes of n values or (packing kNibbles) from n nibbles and their
-// `escapes` escape values, `bytes` byte planes after them. Made one block at a time, in order,
-// so that they stay in cache between here and keep_run() (the demo fountain's frames hold up to
-// 250,000 particles; the whole frame's residuals in one pass decoded it 7 % slower).
-class SurvivorResiduals {
+// The survivors of one word, predicted a run at a time straight from their residuals: survivor
+// `at` of the frame's survivors (in order) is q = q1 + (d1 if linear) + r, and its step d = q - q1,
+// where r is its residual unzigzagged plus the bias of its block of 1024. The residuals are `bytes`
+// byte planes of n values or (packing kNibbles) n nibbles and their `escapes` escape values, `bytes`
+// byte planes after them. Eight survivors at a time, the last eight whole: a run writes up to 7
+// values past its end (kRunPad), which the next run or new particle overwrites, and reads up to
+// kReadPad bytes past the residuals. The runs between births and deaths are short (33 survivors on
+// the sparks, 15 on the FLIP pour): a scalar tail for each had taken 43 % of the loop, and the
+// residuals made in a pass of their own, a block at a time, a third of its time.
+class SurvivorRuns {
  public:
-  SurvivorResiduals(const std::byte* keep, std::uint32_t n, std::uint8_t packing, unsigned bytes,
-                    const std::byte* escape_planes, std::uint32_t escapes, const std::uint32_t* bias)
+  SurvivorRuns(const std::byte* keep, std::uint32_t n, std::uint8_t packing, unsigned bytes,
+               const std::byte* escape_planes, std::uint32_t escapes, const std::uint32_t* bias)
       : keep_(reinterpret_cast<const std::uint8_t*>(keep)),
         escape_planes_(reinterpret_cast<const std::uint8_t*>(escape_planes)),
         bias_(bias),
@@ -309,53 +296,133 @@ class SurvivorResiduals {
     if (nibbles_ && escapes_ != 0 && bytes_ != 0) scan_ = EscapeScan(keep_, n_);  // an escape of 0 is 15 itself
   }
 
-  // Block `block`'s values (the blocks in order) into out[0..kBlock); returns how many.
-  std::uint32_t fill(std::uint32_t block, std::uint32_t* out) {
-    const std::uint32_t b0 = block << kBlockShift, len = std::min(n_ - b0, kBlock), add = bias_[block];
-    if (!nibbles_) {
-      switch (bytes_) {
-        case 0: std::fill_n(out, len, unzigzag(0) + add); break;
-        case 1: from_planes<1>(keep_ + b0, n_, len, add, out); break;
-        case 2: from_planes<2>(keep_ + b0, n_, len, add, out); break;
-        case 3: from_planes<3>(keep_ + b0, n_, len, add, out); break;
-        default: from_planes<4>(keep_ + b0, n_, len, add, out); break;
-      }
-      return len;
+  // Calls f with a reader whose run(at, len, q0, d0, q1, d1, linear_mask) predicts survivors
+  // [at, at + len), all in one block, the runs in order; one instance of f for each packing.
+  template <class F>
+  void visit(F&& f) {
+    if (nibbles_) {
+      Reader<kNibbleKind> r{this};
+      f(r);
+      return;
     }
-    from_nibbles(keep_ + b0 / 2, len, add, out);  // blocks start on a byte: kBlock is even
-    const auto patch = [&]<unsigned Bytes>() {
-      EscapeScan scan = scan_;  // locals: stores through `out` might alias members
-      std::uint32_t e = e_;
-      for (; scan.next() < b0 + len; scan.pop(), ++e)
-        out[scan.next() - b0] = unzigzag(kNibbleEscape + plane_value(escape_planes_, escapes_, e, Bytes)) + add;
-      scan_ = scan;
-      e_ = e;
-    };
     switch (bytes_) {
-      case 0: break;
-      case 1: patch.template operator()<1>(); break;
-      case 2: patch.template operator()<2>(); break;
-      case 3: patch.template operator()<3>(); break;
-      default: patch.template operator()<4>(); break;
+      case 0: {
+        Reader<0> r{this};
+        f(r);
+        break;
+      }
+      case 1: {
+        Reader<1> r{this};
+        f(r);
+        break;
+      }
+      case 2: {
+        Reader<2> r{this};
+        f(r);
+        break;
+      }
+      case 3: {
+        Reader<3> r{this};
+        f(r);
+        break;
+      }
+      default: {
+        Reader<4> r{this};
+        f(r);
+        break;
+      }
     }
-    return len;
   }
 
  private:
-  // Vector loops, on pointers that do not alias (a store through `out` could otherwise change the
-  // bytes, as far as the compiler knows, and it left the loops scalar).
-  template <unsigned Bytes>
-  static void from_planes(const std::uint8_t* __restrict planes, std::size_t stride, std::uint32_t len,
-                          std::uint32_t add, std::uint32_t* __restrict out) {
-    for (std::uint32_t t = 0; t < len; ++t) out[t] = unzigzag(plane_value(planes, stride, t, Bytes)) + add;
+  // 16-byte vectors throughout: x86-64's baseline (SSE2) and WebAssembly's SIMD128 have them, and a
+  // wider type left the widening to scalar stores and a reload.
+  using V = std::uint32_t __attribute__((vector_size(16)));
+  using U16 = std::uint16_t __attribute__((vector_size(16)));
+  using U8 = std::uint8_t __attribute__((vector_size(16)));
+  using U64 = std::uint64_t __attribute__((vector_size(16)));
+  static constexpr int kNibbleKind = -1;
+
+  // Eight bytes, the first lowest, widened to two vectors of four values.
+  static void widen(U8 b, V& lo, V& hi) {
+    const U8 zero8 = {};
+    const U16 zero16 = {};
+    const auto w = reinterpret_cast<U16>(
+        __builtin_shufflevector(b, zero8, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23));
+    lo = reinterpret_cast<V>(__builtin_shufflevector(w, zero16, 0, 8, 1, 9, 2, 10, 3, 11));
+    hi = reinterpret_cast<V>(__builtin_shufflevector(w, zero16, 4, 12, 5, 13, 6, 14, 7, 15));
   }
-  static void from_nibbles(const std::uint8_t* __restrict p, std::uint32_t len, std::uint32_t add,
-                           std::uint32_t* __restrict out) {
-    for (std::uint32_t t = 0; t < len / 2; ++t) {
-      out[2 * t] = unzigzag(p[t] & 15u) + add;
-      out[2 * t + 1] = unzigzag(std::uint32_t(p[t] >> 4)) + add;
+  static U8 bytes8(std::uint64_t x) {
+    const U64 v = {x, 0};
+    return reinterpret_cast<U8>(v);
+  }
+  // Eight nibbles from nibble `at` on, a nibble a byte: the low and high halves of four bytes,
+  // interleaved.
+  static U8 nibbles8(const std::uint8_t* packed, std::uint32_t at) {
+    std::uint64_t x;
+    std::memcpy(&x, packed + at / 2, 8);
+    const U8 b = bytes8(x >> (4 * (at & 1)));
+    return __builtin_shufflevector(b & 15, b >> 4, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+  }
+  static std::uint64_t load8(const std::uint8_t* p) {
+    std::uint64_t x;
+    std::memcpy(&x, p, 8);
+    return x;
+  }
+  static void predict(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
+                      const std::uint32_t* __restrict d1, V u, std::uint32_t add, std::uint32_t linear) {
+    const V r = ((u >> 1) ^ (0u - (u & 1u))) + add;
+    V q, d;
+    std::memcpy(&q, q1, 16);
+    std::memcpy(&d, d1, 16);
+    const V step = (d & linear) + r;
+    q += step;
+    std::memcpy(q0, &q, 16);
+    std::memcpy(d0, &step, 16);
+  }
+
+  template <int Kind>
+  struct Reader {
+    SurvivorRuns* s;
+    void run(std::uint32_t at, std::uint32_t len, std::uint32_t* __restrict q0, std::uint32_t* __restrict d0,
+             const std::uint32_t* __restrict q1, const std::uint32_t* __restrict d1, std::uint32_t linear) {
+      const std::uint8_t* __restrict keep = s->keep_;
+      const std::size_t n = s->n_;
+      const std::uint32_t add = s->bias_[at >> kBlockShift];
+      for (std::uint32_t t = 0; t < len; t += 8) {
+        V lo{}, hi{};
+        if constexpr (Kind == kNibbleKind) {
+          widen(nibbles8(keep, at + t), lo, hi);
+        } else {
+          for (int b = 0; b < Kind; ++b) {
+            V l, h;
+            widen(bytes8(load8(keep + b * n + at + t)), l, h);
+            lo |= l << (8 * b);
+            hi |= h << (8 * b);
+          }
+        }
+        predict(q0 + t, d0 + t, q1 + t, d1 + t, lo, add, linear);
+        predict(q0 + t + 4, d0 + t + 4, q1 + t + 4, d1 + t + 4, hi, add, linear);
+      }
+      if constexpr (Kind == kNibbleKind) {
+        if (s->scan_.next() < at + len) s->patch(at, len, q0, d0);
+      }
     }
-    if (len & 1) out[len - 1] = unzigzag(p[len / 2] & 15u) + add;
+  };
+
+  // The escapes among survivors [at, at + len): each was predicted with 15, and takes the
+  // difference its excess makes to the residual.
+  void patch(std::uint32_t at, std::uint32_t len, std::uint32_t* q0, std::uint32_t* d0) {
+    EscapeScan scan = scan_;  // locals: stores through q0 and d0 might alias members
+    std::uint32_t e = e_;
+    for (; scan.next() < at + len; scan.pop(), ++e) {
+      const std::uint32_t x = kNibbleEscape + plane_value(escape_planes_, escapes_, e, bytes_);
+      const std::uint32_t delta = unzigzag(x) - unzigzag(kNibbleEscape), t = scan.next() - at;
+      q0[t] += delta;
+      d0[t] += delta;
+    }
+    scan_ = scan;
+    e_ = e;
   }
 
   const std::uint8_t *keep_, *escape_planes_;

@@ -26,33 +26,31 @@ int stream_window_log(const Metadata& meta) { return meta.version >= kFirstStrea
 // particle_unit_state_bytes() counts before one is made (a unit's state_bytes() counts what it
 // did allocate; the codec tests check that the two agree).
 struct StateSizes {
-  std::uint64_t words = 0;       // q_ and d_, each in two states: every coded word of every particle
-  std::uint64_t ids = 0;         // ids_, in two states
-  std::uint64_t particles = 0;   // residual_: new particles' values and steps
-  std::uint64_t steps = 0;       // steps_ (bytes), in two states
-  std::uint64_t derived = 0;     // derived_: every derived word of every particle
-  std::uint64_t blocks = 0;      // bias_: one per block of survivors
-  std::uint64_t tile = 0;        // tile_
-  std::uint64_t keep_block = 0;  // keep_block_: one block of survivors' residuals
-  std::uint64_t body = 0;        // body_ (bytes)
-  int window_log = 0;            // the zstd stream's
+  std::uint64_t words = 0;      // q_ and d_, each in two states: every coded word of every particle
+  std::uint64_t ids = 0;        // ids_, in two states
+  std::uint64_t particles = 0;  // residual_: new particles' values and steps
+  std::uint64_t steps = 0;      // steps_ (bytes), in two states
+  std::uint64_t derived = 0;    // derived_: every derived word of every particle
+  std::uint64_t blocks = 0;     // bias_: one per block of survivors
+  std::uint64_t tile = 0;       // tile_
+  std::uint64_t body = 0;       // body_ (bytes)
+  int window_log = 0;           // the zstd stream's
 
   StateSizes(const Metadata& meta, const WordPlan& plan) {
     const std::uint64_t n = meta.max_count;
     const bool has_ids = plan.id_word >= 0;
-    words = plan.coded.size() * n + kRunPad;  // keep_run() reads and writes past a run
+    words = plan.coded.size() * n + kRunPad;  // SurvivorRuns reads and writes past a run
     ids = has_ids ? n : 0;
     particles = 2 * n;
     steps = plan.derived.empty() ? 0 : n;
     derived = plan.derived.size() * n;
     blocks = (n + kBlock - 1) >> kBlockShift;
     tile = std::uint64_t(plan.words) * kTile;
-    keep_block = kBlock + kRunPad;
-    body = body_capacity(n, plan.coded.size(), has_ids);
+    body = body_capacity(n, plan.coded.size(), has_ids) + kReadPad;
     window_log = stream_window_log(meta);
   }
   std::uint64_t bytes() const {
-    return 2 * (2 * words * 4 + ids * 8 + steps) + (particles + derived + blocks + tile + keep_block) * 4 + body +
+    return 2 * (2 * words * 4 + ids * 8 + steps) + (particles + derived + blocks + tile) * 4 + body +
            EntropyDecoder::stream_bytes(window_log);
   }
 };
@@ -72,15 +70,13 @@ class ParticleUnit final : public FrameUnit {
     derived_.assign(sizes.derived, 0);
     bias_.assign(sizes.blocks, 0);
     tile_.assign(sizes.tile, 0);
-    keep_block_.assign(sizes.keep_block, 0);
     words_.resize(plan_.coded.size());
     body_.resize(sizes.body);
   }
 
   void reset() override { count_[cur_ ^ 1] = 0; }
   std::uint64_t state_bytes() const override {
-    std::uint64_t bytes = body_.size() +
-                          (residual_.size() + bias_.size() + tile_.size() + derived_.size() + keep_block_.size()) * 4 +
+    std::uint64_t bytes = body_.size() + (residual_.size() + bias_.size() + tile_.size() + derived_.size()) * 4 +
                           EntropyDecoder::stream_bytes(stream_window_log(meta_));
     for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8 + steps_[b].size();
     return bytes;
@@ -116,46 +112,41 @@ class ParticleUnit final : public FrameUnit {
       read_planes(w.bias, blocks, w.bias_bytes, bias_.data());
       for (std::uint32_t acc = 0, x = 0; x < blocks; ++x) bias_[x] = acc += unzigzag(bias_[x]);
       // The new particles' values and first steps, each in one vector pass into the residual
-      // buffer; then the runs of survivors (split at block borders, each block's residuals made
-      // when the first run reaches it) and new particles in the frame's order.
+      // buffer; then the runs of survivors (straight from their residuals) and new particles in
+      // the frame's order.
       std::uint32_t* fresh = residual_.data();
       std::uint32_t* motion = fresh + b.new_count;
       read_values(w.fresh, b.new_count, w.new_bytes, fresh);
       if (w.motion_bytes != 0) read_values(w.motion, b.new_count, w.motion_bytes, motion);
-      SurvivorResiduals residuals(w.keep, b.keep_total, w.keep_packing, w.keep_bytes, w.keep_escape_planes,
-                                  w.keep_escapes, bias_.data());
-      std::uint32_t* block_values = keep_block_.data();
-      std::uint32_t filled = ~0u;  // the block in keep_block_
+      SurvivorRuns survivors(w.keep, b.keep_total, w.keep_packing, w.keep_bytes, w.keep_escape_planes, w.keep_escapes,
+                             bias_.data());
       const std::uint32_t linear = w.predictor == kLinear ? ~0u : 0u;
-      std::uint32_t i = 0, j = 0, kt = 0, nt = 0, step = 0;
-      for (std::uint32_t o = 0; o < b.op_count; ++o) {
-        const Op op = op_at(b, o);
-        for (std::uint32_t t = 0; t < op.keep;) {
-          const std::uint32_t block = (kt + t) >> kBlockShift, at = (kt + t) & (kBlock - 1);
-          const std::uint32_t len = std::min(op.keep - t, kBlock - at);
-          if (block != filled) {
-            residuals.fill(block, block_values);
-            filled = block;
+      survivors.visit([&](auto& runs) {
+        std::uint32_t i = 0, j = 0, kt = 0, nt = 0, step = 0;
+        for (std::uint32_t o = 0; o < b.op_count; ++o) {
+          const Op op = op_at(b, o);
+          for (std::uint32_t t = 0; t < op.keep;) {  // split at the blocks' borders (each has its bias)
+            const std::uint32_t len = std::min(op.keep - t, kBlock - ((kt + t) & (kBlock - 1)));
+            runs.run(kt + t, len, q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, linear);
+            t += len;
           }
-          keep_run(q0 + j + t, d0 + j + t, q1 + i + t, d1 + i + t, block_values + at, len, linear);
-          t += len;
+          i += op.keep + op.drop;
+          j += op.keep;
+          kt += op.keep;
+          if (op.insert == 0) continue;
+          // A new particle: the particle before it in the frame plus its value; its first step
+          // (version 3), else 0.
+          std::uint32_t before = j == 0 ? 0u : q0[j - 1];
+          for (std::uint32_t t = 0; t < op.insert; ++t) q0[j + t] = before += fresh[nt + t];
+          if (w.motion_bytes != 0) {
+            for (std::uint32_t t = 0; t < op.insert; ++t) d0[j + t] = step += motion[nt + t];
+          } else {
+            std::fill_n(d0 + j, op.insert, step);
+          }
+          j += op.insert;
+          nt += op.insert;
         }
-        i += op.keep + op.drop;
-        j += op.keep;
-        kt += op.keep;
-        if (op.insert == 0) continue;
-        // A new particle: the particle before it in the frame plus its value; its first step
-        // (version 3), else 0.
-        std::uint32_t before = j == 0 ? 0u : q0[j - 1];
-        for (std::uint32_t t = 0; t < op.insert; ++t) q0[j + t] = before += fresh[nt + t];
-        if (w.motion_bytes != 0) {
-          for (std::uint32_t t = 0; t < op.insert; ++t) d0[j + t] = step += motion[nt + t];
-        } else {
-          std::fill_n(d0 + j, op.insert, step);
-        }
-        j += op.insert;
-        nt += op.insert;
-      }
+      });
     }
     if (plan_.id_word >= 0) decode_ids(b, prev);
     if (!plan_.derived.empty()) derive(b, prev);
@@ -200,13 +191,14 @@ class ParticleUnit final : public FrameUnit {
     if (packet.size() >= 4) std::memcpy(&magic, packet.data(), 4);
     if (meta_.version >= kFirstStreamedVersion && keyframe && magic != kZstdMagic)
       fail(frame, "a keyframe's packet must start a zstd frame", 0);
+    const std::span<std::byte> body = std::span(body_).first(body_.size() - kReadPad);  // SurvivorRuns reads past
     const std::size_t size = meta_.version >= kFirstStreamedVersion
-                                 ? entropy_.zstd_stream(body_, packet, magic == kZstdMagic, why)
-                                 : entropy_.zstd(body_, packet, why);
+                                 ? entropy_.zstd_stream(body, packet, magic == kZstdMagic, why)
+                                 : entropy_.zstd(body, packet, why);
     if (size == EntropyDecoder::kFailed) {
       fail(frame,
            fmt::format("the zstd data does not decode within {} bytes, the most {} particles need: {} (corrupted)",
-                       body_.size(), meta_.max_count, why),
+                       body.size(), meta_.max_count, why),
            0);
     }
     if (size < kBodyHeader)
@@ -490,7 +482,7 @@ class ParticleUnit final : public FrameUnit {
   std::string_view name_;
   WordPlan plan_;
   EntropyDecoder entropy_;
-  std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_, keep_block_;
+  std::vector<std::uint32_t> q_[2], d_[2], residual_, bias_, tile_;
   std::vector<std::uint64_t> ids_[2];
   std::vector<std::uint8_t> steps_[2];  // per particle: grid steps known (0, 1, 2 = two or more)
   std::vector<std::uint32_t> derived_;  // per derived word and particle: the value's bits
