@@ -480,15 +480,16 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
 
 // Version 5's nibbles: any values written as nibbles and escape planes predict survivors as the
 // values they hold (unzigzagged, plus their block's bias), whatever their count (odd, under one
-// 8-value step, many steps, several blocks of 1024), the runs they are read in (short, long, odd
-// starts) and the width of their escapes (none, up to 15 + 240 in one plane, past it, two to four
-// bytes); byte planes too, with either predictor.
+// 8-value step, many steps, several blocks of 1024, more than the escape count's 127 steps of 16
+// bytes), the runs they are read in (short, long, odd starts) and the width of their escapes
+// (none, up to 15 + 240 in one plane, past it, two to four bytes); byte planes too, with either
+// predictor.
 TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
   namespace pc = format::particle;
   std::uint32_t seed = 12345;
   const auto next = [&] { return seed = seed * 1664525u + 1013904223u; };
   const std::uint32_t largest[] = {0, 14, 15, 255, 256, 270, 271, 65535, 65550, 0xffffff, 0xffffffffu};
-  for (const std::uint32_t n : {0u, 1u, 2u, 7u, 15u, 16u, 17u, 33u, 1000u, 2500u}) {
+  for (const std::uint32_t n : {0u, 1u, 2u, 7u, 15u, 16u, 17u, 33u, 1000u, 2500u, 9001u}) {
     for (const std::uint32_t top : largest) {
       std::vector<std::uint32_t> values(n);
       for (std::uint32_t t = 0; t < n; ++t) values[t] = next() % 15;  // mostly nibbles

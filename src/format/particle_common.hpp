@@ -214,17 +214,26 @@ inline void write_nibbles(std::vector<std::byte>& out, std::span<const std::uint
 }
 // 64 bits of nibbles: one bit (the lowest of its nibble) for each escape nibble.
 inline std::uint64_t escape_bits(std::uint64_t x) { return x & (x >> 1) & (x >> 2) & (x >> 3) & 0x1111111111111111ull; }
-// The escapes among n nibbles (whose padding nibble, for odd n, is 0).
+// The escapes among n nibbles (whose padding nibble, for odd n, is 0): 16 bytes at a time, each
+// byte's escapes (0 to 2) summed in byte lanes for up to 127 steps, then the lanes added up.
 inline std::uint64_t count_escapes(const std::uint8_t* packed, std::uint32_t n) {
+  using U8 = std::uint8_t __attribute__((vector_size(16)));
+  using U64 = std::uint64_t __attribute__((vector_size(16)));
   const std::size_t bytes = (std::size_t(n) + 1) / 2;
   std::uint64_t count = 0;
   std::size_t b = 0;
-  for (; b + 8 <= bytes; b += 8) {
-    std::uint64_t x;
-    std::memcpy(&x, packed + b, 8);
-    // One bit a nibble: the nibbles' sum in each byte (at most 2), then the bytes' sum (at most 16).
-    const std::uint64_t bits = escape_bits(x), per_byte = (bits + (bits >> 4)) & 0x0F0F0F0F0F0F0F0Full;
-    count += (per_byte * 0x0101010101010101ull) >> 56;
+  while (b + 16 <= bytes) {
+    U8 sum = {};
+    for (int step = 0; step < 127 && b + 16 <= bytes; ++step, b += 16) {
+      U8 v;
+      std::memcpy(&v, packed + b, 16);
+      sum -= reinterpret_cast<U8>((v & 15) == 15) + reinterpret_cast<U8>((v >> 4) == 15);  // -1 where true
+    }
+    const U64 wide = reinterpret_cast<U64>(sum);
+    for (const std::uint64_t lanes : {wide[0], wide[1]}) {
+      const std::uint64_t pairs = (lanes & 0x00FF00FF00FF00FFull) + ((lanes >> 8) & 0x00FF00FF00FF00FFull);
+      count += (pairs * 0x0001000100010001ull) >> 48;
+    }
   }
   for (; b < bytes; ++b) count += std::uint64_t((packed[b] & 15) == 15) + std::uint64_t((packed[b] >> 4) == 15);
   return count;
@@ -300,38 +309,19 @@ class SurvivorRuns {
   // [at, at + len), all in one block, the runs in order; one instance of f for each packing.
   template <class F>
   void visit(F&& f) {
-    if (nibbles_) {
-      Reader<kNibbleKind> r{this};
-      f(r);
-      return;
-    }
-    switch (bytes_) {
-      case 0: {
-        Reader<0> r{this};
-        f(r);
-        break;
+    const auto with = [&]<bool Nibbles>() {
+      switch (bytes_) {
+        case 0: return call<Nibbles, 0>(f);
+        case 1: return call<Nibbles, 1>(f);
+        case 2: return call<Nibbles, 2>(f);
+        case 3: return call<Nibbles, 3>(f);
+        default: return call<Nibbles, 4>(f);
       }
-      case 1: {
-        Reader<1> r{this};
-        f(r);
-        break;
-      }
-      case 2: {
-        Reader<2> r{this};
-        f(r);
-        break;
-      }
-      case 3: {
-        Reader<3> r{this};
-        f(r);
-        break;
-      }
-      default: {
-        Reader<4> r{this};
-        f(r);
-        break;
-      }
-    }
+    };
+    if (nibbles_)
+      with.template operator()<true>();
+    else
+      with.template operator()<false>();
   }
 
  private:
@@ -341,7 +331,6 @@ class SurvivorRuns {
   using U16 = std::uint16_t __attribute__((vector_size(16)));
   using U8 = std::uint8_t __attribute__((vector_size(16)));
   using U64 = std::uint64_t __attribute__((vector_size(16)));
-  static constexpr int kNibbleKind = -1;
 
   // Eight bytes, the first lowest, widened to two vectors of four values.
   static void widen(U8 b, V& lo, V& hi) {
@@ -381,7 +370,8 @@ class SurvivorRuns {
     std::memcpy(d0, &step, 16);
   }
 
-  template <int Kind>
+  // Nibbles with escapes `Bytes` wide, or `Bytes` byte planes.
+  template <bool Nibbles, unsigned Bytes>
   struct Reader {
     SurvivorRuns* s;
     void run(std::uint32_t at, std::uint32_t len, std::uint32_t* __restrict q0, std::uint32_t* __restrict d0,
@@ -391,10 +381,10 @@ class SurvivorRuns {
       const std::uint32_t add = s->bias_[at >> kBlockShift];
       for (std::uint32_t t = 0; t < len; t += 8) {
         V lo{}, hi{};
-        if constexpr (Kind == kNibbleKind) {
+        if constexpr (Nibbles) {
           widen(nibbles8(keep, at + t), lo, hi);
         } else {
-          for (int b = 0; b < Kind; ++b) {
+          for (unsigned b = 0; b < Bytes; ++b) {
             V l, h;
             widen(bytes8(load8(keep + b * n + at + t)), l, h);
             lo |= l << (8 * b);
@@ -404,25 +394,32 @@ class SurvivorRuns {
         predict(q0 + t, d0 + t, q1 + t, d1 + t, lo, add, linear);
         predict(q0 + t + 4, d0 + t + 4, q1 + t + 4, d1 + t + 4, hi, add, linear);
       }
-      if constexpr (Kind == kNibbleKind) {
-        if (s->scan_.next() < at + len) s->patch(at, len, q0, d0);
+      if constexpr (Nibbles && Bytes != 0) {  // an escape of 0 is 15 itself
+        if (s->scan_.next() < at + len) s->template patch<Bytes>(at, len, q0, d0);
       }
     }
   };
 
   // The escapes among survivors [at, at + len): each was predicted with 15, and takes the
   // difference its excess makes to the residual.
+  template <unsigned Bytes>
   void patch(std::uint32_t at, std::uint32_t len, std::uint32_t* q0, std::uint32_t* d0) {
     EscapeScan scan = scan_;  // locals: stores through q0 and d0 might alias members
     std::uint32_t e = e_;
     for (; scan.next() < at + len; scan.pop(), ++e) {
-      const std::uint32_t x = kNibbleEscape + plane_value(escape_planes_, escapes_, e, bytes_);
+      const std::uint32_t x = kNibbleEscape + plane_value(escape_planes_, escapes_, e, Bytes);
       const std::uint32_t delta = unzigzag(x) - unzigzag(kNibbleEscape), t = scan.next() - at;
       q0[t] += delta;
       d0[t] += delta;
     }
     scan_ = scan;
     e_ = e;
+  }
+
+  template <bool Nibbles, unsigned Bytes, class F>
+  void call(F& f) {
+    Reader<Nibbles, Bytes> r{this};
+    f(r);
   }
 
   const std::uint8_t *keep_, *escape_planes_;
