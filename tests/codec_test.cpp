@@ -540,6 +540,20 @@ TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
   }
 }
 
+// The derived velocity's step states of a run of survivors, 16 at a time: each particle's is
+// after_step() of its state before, whatever the run's length (the last 16 are made whole).
+TEST(ParticleCodec, StepStatesOfARunAreEachAfterStep) {
+  namespace pc = format::particle;
+  std::uint32_t seed = 99;
+  const auto next = [&] { return seed = seed * 1664525u + 1013904223u; };
+  for (const std::uint32_t n : {0u, 1u, 15u, 16u, 17u, 33u, 200u}) {
+    std::vector<std::uint8_t> before(n + pc::kStepPad), out(n + pc::kStepPad, 0xEE);
+    for (std::uint32_t t = 0; t < n; ++t) before[t] = static_cast<std::uint8_t>(next() % 5);  // kNoStep..kAfterSeed
+    pc::after_steps(out.data(), before.data(), n);
+    for (std::uint32_t t = 0; t < n; ++t) ASSERT_EQ(out[t], pc::after_step(before[t])) << n << " " << t;
+  }
+}
+
 TEST(ParticleCodec, VersionOneFilesStillRead) {
   // Cooked by the version 1 writer (before the particle codec), kept as it was.
   const auto r = format::Reader::open(test::data_path("pstream_v1/points_varying_lz4.pstream"));

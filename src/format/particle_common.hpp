@@ -121,6 +121,23 @@ enum StepState : std::uint8_t {
 inline std::uint8_t after_step(std::uint8_t s) {
   return s == kNoStep ? kOneStep : s == kSeeded ? kAfterSeed : kTwoSteps;
 }
+// after_step() of n particles, 16 at a time, the last 16 whole: it reads and writes up to
+// kStepPad bytes past the run (the state buffers carry them), which the next run or new particle
+// overwrites. The runs between births and deaths are short, and a byte at a time this had taken
+// 4 % of the default cook's decode on the sparks.
+constexpr std::uint32_t kStepPad = 15;
+inline void after_steps(std::uint8_t* __restrict out, const std::uint8_t* __restrict before, std::uint32_t n) {
+  using B = std::uint8_t __attribute__((vector_size(16)));
+  for (std::uint32_t t = 0; t < n; t += 16) {
+    B s;
+    std::memcpy(&s, before + t, 16);
+    const B none = reinterpret_cast<B>(s == std::uint8_t{kNoStep});
+    const B seeded = reinterpret_cast<B>(s == std::uint8_t{kSeeded});
+    const B next = std::uint8_t{kTwoSteps} - (none & std::uint8_t{kTwoSteps - kOneStep}) +
+                   (seeded & std::uint8_t{kAfterSeed - kTwoSteps});
+    std::memcpy(out + t, &next, 16);
+  }
+}
 inline bool has_step(std::uint8_t s) { return s == kOneStep || s == kTwoSteps || s == kAfterSeed; }
 // The derived value: twice the velocity in grid steps per frame, times the word's step (the
 // position step × fps / 2).

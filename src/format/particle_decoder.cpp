@@ -42,7 +42,7 @@ struct StateSizes {
     words = plan.coded.size() * n + kRunPad;  // SurvivorRuns reads and writes past a run
     ids = has_ids ? n : 0;
     particles = 2 * n;
-    steps = plan.derived.empty() ? 0 : n;
+    steps = plan.derived.empty() ? 0 : n + kStepPad;  // after_steps() reads and writes past a run
     derived = plan.derived.size() * n;
     blocks = (n + kBlock - 1) >> kBlockShift;
     tile = std::uint64_t(plan.words) * kTile;
@@ -371,7 +371,7 @@ class ParticleUnit final : public FrameUnit {
     } else {
       for (std::uint32_t o = 0, i = 0, j = 0; o < b.op_count; ++o) {
         const Op op = op_at(b, o);
-        for (std::uint32_t t = 0; t < op.keep; ++t) steps[j + t] = after_step(before[i + t]);
+        after_steps(steps + j, before + i, op.keep);
         i += op.keep + op.drop;
         j += op.keep;
         // A new particle's state (0 or 3) leaves its step before unused.
