@@ -730,12 +730,13 @@ class GroupEncoder {
     // further than their spacing: the nearest particle is another one, and the clip costs about
     // 4x what it does with ids. Moved on by their stored velocities they are found again; a FLIP
     // liquid's are not (its solver re-samples them: moved, they land no nearer). So on a sample of
-    // up to kMotionSample previous particles, the nearest candidates from both places are
+    // up to kVelocitySample previous particles, the nearest candidates from both places are
     // compared, and the frame is matched from where they land nearer by more than half (in the
     // sum of squared distances).
     if (velocity_k_[0] >= 0 && state_.count > 0) {
-      constexpr std::uint32_t kMotionSample = 256;
-      const std::uint32_t every = (state_.count + kMotionSample - 1) / kMotionSample;
+      // The encoder's own sample (playback's kMotionSample is another test, of a decoded pair).
+      constexpr std::uint32_t kVelocitySample = 256;
+      const std::uint32_t every = (state_.count + kVelocitySample - 1) / kVelocitySample;
       std::vector<std::uint32_t>& sample = m.sample;
       sample.clear();
       for (std::uint32_t i = every / 2; i < state_.count; i += every) sample.push_back(i);
