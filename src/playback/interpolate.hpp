@@ -63,6 +63,27 @@ bool velocities_describe_matching(std::span<const std::byte> a, std::span<const 
                                   std::span<const format::MatchRun> matching, std::uint32_t stride,
                                   std::int32_t velocity_offset, double dt);
 
+// A pair of cached frames' answer to whether they blend along curves (Hermite through the
+// velocities, where velocities_describe_matching() holds), asked every host frame and worked out
+// once a pair: the player keeps one a clip, for its CPU and GPU paths, and the browser player one.
+class PairCurves {
+ public:
+  // For the pair of frames numbered a and b: `decide()`'s answer, asked only for a new pair.
+  template <class Decide>
+  bool operator()(std::uint64_t a, std::uint64_t b, Decide&& decide) {
+    if (a != a_ || b != b_) {
+      curves_ = decide();
+      a_ = a;
+      b_ = b;
+    }
+    return curves_;
+  }
+
+ private:
+  std::uint64_t a_ = ~0ull, b_ = ~0ull;
+  bool curves_ = false;
+};
+
 // Interpolates a clip's frames: built once when the clip opens (every table allocated then), used
 // every host frame between two cached frames with no allocation.
 class FrameBlender {

@@ -34,10 +34,7 @@ struct Player::Clip {
   std::uint64_t pairs_a = ~0ull, pairs_b = ~0ull;
   int pairs_side = -1;
   std::uint64_t pairs_count = 0;
-  // Whether the pair of cached frames curves_a, curves_b blends positions along curves: decided
-  // once a pair, on either path (curves()).
-  std::uint64_t curves_a = ~0ull, curves_b = ~0ull;
-  bool curves_ab = false;
+  PairCurves pair_curves;  // whether the pair of cached frames blends along curves (curves())
   // The table of the pair after this one (b and the frame after it), made ahead on the table
   // thread once that frame is decoded and matched: the renderer can move it to the GPU before the
   // playhead gets there.
@@ -60,14 +57,10 @@ struct Player::Clip {
   // a sample of up to kMotionSample pairs), asked once a pair of cached frames.
   bool curves(Interpolation mode, const stream::FrameView& f, const stream::FrameView& next, bool matched,
               std::uint32_t record_size) {
-    if (curves_a != f.frame || curves_b != next.frame) {
-      curves_ab = matched && mode == Interpolation::Hermite &&
-                  velocities_describe_matching(f.first, next.first, next.matching, record_size, velocity_offset,
-                                               next.time - f.time);
-      curves_a = f.frame;
-      curves_b = next.frame;
-    }
-    return curves_ab;
+    return matched && mode == Interpolation::Hermite && pair_curves(f.frame, next.frame, [&] {
+             return velocities_describe_matching(f.first, next.first, next.matching, record_size, velocity_offset,
+                                                 next.time - f.time);
+           });
   }
   std::unique_ptr<std::atomic<std::uint32_t>> lent;  // FramePair::lent: 1 while a renderer reads ahead
   // Waits until the table thread and the renderer are done with what the stream lent them (the

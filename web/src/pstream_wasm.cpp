@@ -85,10 +85,7 @@ struct Player {
   std::vector<std::uint32_t> order;
   std::vector<std::byte> instances;                    // what the page draws: 20 bytes a particle, back to front
   std::int32_t scale = -1, color = -1, velocity = -1;  // record offsets, or -1
-  // Whether the frames curves_from and curves_from + 1 blend along curves through the velocities
-  // (playback::velocities_describe_matching()): decided once a pair, as the native player does.
-  std::uint64_t curves_from = UINT64_MAX;
-  bool curves = false;
+  playback::PairCurves curves;  // whether a pair of frames blends along curves, decided once a pair
 };
 
 std::unique_ptr<Player> g = std::make_unique<Player>();
@@ -262,14 +259,12 @@ EMSCRIPTEN_KEEPALIVE int pw_show(double time) {
       const Slot& sb = *slot_of(a + 1);
       const std::span<const format::MatchRun> runs(sb.matching.data(), sb.runs == format::kNoMatching ? 0 : sb.runs);
       const double dt = m.frames[a + 1].time - m.frames[a].time;
-      if (g->curves_from != a) {
-        g->curves = sb.runs != format::kNoMatching && playback::velocities_describe_matching(
-                                                          sa.records, sb.records, runs, m.record_size, g->velocity, dt);
-        g->curves_from = a;
-      }
-      g->count = g->blender->blend(sa.records, m.frames[a].count, sb.records, m.frames[a + 1].count,
-                                   sb.runs == format::kNoMatching ? nullptr : &runs, fraction, dt, g->curves,
-                                   g->blended.data());
+      const bool curves = sb.runs != format::kNoMatching && g->curves(a, a + 1, [&] {
+        return playback::velocities_describe_matching(sa.records, sb.records, runs, m.record_size, g->velocity, dt);
+      });
+      g->count =
+          g->blender->blend(sa.records, m.frames[a].count, sb.records, m.frames[a + 1].count,
+                            sb.runs == format::kNoMatching ? nullptr : &runs, fraction, dt, curves, g->blended.data());
       g->records = g->blended.data();
     } else {
       decode(a);
