@@ -362,22 +362,20 @@ class SurvivorRuns {
     const U64 v = {x, 0};
     return reinterpret_cast<U8>(v);
   }
-  // Eight nibbles from nibble `at` on, a nibble a byte: the low and high halves of four bytes,
-  // interleaved.
-  static U8 nibbles8(const std::uint8_t* packed, std::uint32_t at) {
-    std::uint64_t x;
-    std::memcpy(&x, packed + at / 2, 8);
-    const U8 b = bytes8(x >> (4 * (at & 1)));
-    return __builtin_shufflevector(b & 15, b >> 4, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
-  }
   static std::uint64_t load8(const std::uint8_t* p) {
     std::uint64_t x;
     std::memcpy(&x, p, 8);
     return x;
   }
+  // Eight nibbles from nibble `at` on, a nibble a byte: the low and high halves of four bytes,
+  // interleaved.
+  static U8 nibbles8(const std::uint8_t* packed, std::uint32_t at) {
+    const U8 b = bytes8(load8(packed + at / 2) >> (4 * (at & 1)));
+    return __builtin_shufflevector(b & 15, b >> 4, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+  }
   static void predict(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
                       const std::uint32_t* __restrict d1, V u, std::uint32_t add, std::uint32_t linear) {
-    const V r = ((u >> 1) ^ (0u - (u & 1u))) + add;
+    const V r = ((u >> 1) ^ (0u - (u & 1u))) + add;  // unzigzag(), lane by lane
     V q, d;
     std::memcpy(&q, q1, 16);
     std::memcpy(&d, d1, 16);
