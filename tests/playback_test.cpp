@@ -1095,6 +1095,62 @@ namespace {
 // Camera::framing in a region of the image (the viewer's, beside its panel): every corner of the
 // box lands inside the region, the box fills it as closely as the plain framing fills the whole
 // image, and the target is the region's centre.
+// A clip's colour is four unorm8 named "color" (RGBA) wherever it is read: the batches, both
+// blends and the browser player ask playback::color_offset(). A "color" of another type is an
+// attribute like any other, and the clip draws in its stream's colour rather than as bytes.
+TEST(Playback, OnlyAnRgba8ColorIsHandedOutAsTheColour) {
+  const fs::path dir = test::fresh_dir();
+  const auto clip = [&](const std::string& name, format::AttributeType type, std::uint32_t components) {
+    format::Metadata meta;
+    meta.fps = 24;
+    meta.chunk_size = format::kMinChunkSize;
+    meta.layout = format::default_layout();
+    meta.record_size = format::append_attribute(meta.layout, "color", type, components);
+    const fs::path path = dir / (name + ".pstream");
+    format::Writer writer(path, meta);
+    std::vector<std::byte> stream;
+    for (int f = 0; f < 3; ++f) {
+      writer.append_frame(2, f / 24.0, {0, 0, 0, 1, 1, 1});
+      for (int i = 0; i < 2; ++i) {
+        std::vector<std::byte> r(meta.record_size, std::byte{0x40});
+        const float p[4] = {0.5f * float(i), 0.1f * float(f), 0.0f, 0.25f};
+        std::memcpy(r.data(), p, 16);
+        stream.insert(stream.end(), r.begin(), r.end());
+      }
+    }
+    writer.append_chunk(stream, format::Codec::Raw, 0, format::checksum(stream));
+    writer.commit();
+    return path;
+  };
+  const fs::path rgba8 = clip("rgba8", format::AttributeType::Unorm8, 4);
+  const fs::path rgb32f = clip("rgb32f", format::AttributeType::Float32, 3);
+  EXPECT_EQ(playback::color_offset(format::Reader::open(rgba8).metadata()), 16);
+  EXPECT_EQ(playback::color_offset(format::Reader::open(rgb32f).metadata()), -1);
+  EXPECT_EQ(playback::velocity_offset(format::Reader::open(rgb32f).metadata()), -1);
+  for (const auto interpolation : {playback::Interpolation::None, playback::Interpolation::Linear}) {
+    for (const auto& [file, expected] : {std::pair{rgba8, 16}, std::pair{rgb32f, -1}}) {
+      playback::PlayerOptions options;
+      options.stream.blocking = true;
+      options.interpolation = interpolation;
+      options.loop = false;
+      const fs::path files[] = {file};
+      const auto player = playback::Player::open(files, std::move(options));
+      player->play();
+      for (int k = 0; k < 4; ++k) {
+        player->advance(k == 0 ? 0.0 : 0.5 / 24, render::identity(), sort::SortMode::None);
+        player->check();
+        ASSERT_EQ(player->batches().size(), 1u) << file << " step " << k;
+        const render::ParticleBatch& b = player->batches()[0];
+        EXPECT_EQ(b.color_offset, expected) << file << " step " << k;
+        ASSERT_EQ(b.count, 2u);
+        // The colour bytes (either type) come through the blend as written.
+        const std::byte* r = b.first.data() + b.record_size;
+        EXPECT_EQ(r[16], std::byte{0x40}) << file << " step " << k;
+      }
+    }
+  }
+}
+
 TEST(Camera, FramingInARegionKeepsTheBoxInsideIt) {
   using namespace pstream::render;
   const Vec3 lo{-1.0f, 0.0f, -2.0f}, hi{1.5f, 3.0f, 2.0f};

@@ -68,10 +68,7 @@ FrameBlender::FrameBlender(const format::Metadata& m) : stride_(m.record_size) {
   kind_.resize(words);
   for (std::size_t w = 0; w < words; ++w) kind_[w] = std::uint8_t(lanes[w]);
   velocity_ = velocity_offset(m);
-  for (const format::Attribute& a : m.layout) {
-    if (a.name == "color" && a.type == format::AttributeType::Unorm8 && a.components == 4)
-      color_ = std::int32_t(a.offset);
-  }
+  color_ = color_offset(m);
   plan_.words = words;
   plan_.shift = velocity_ >= 0 ? std::size_t(velocity_) / 4 : 0;
   plan_.period = words * LanePlan::kMaxVectorLanes;
@@ -142,6 +139,11 @@ std::uint64_t FrameBlender::nearer_advected(std::span<const std::byte> a, std::u
 std::int32_t velocity_offset(const format::Metadata& meta) {
   const format::Attribute* v = meta.find("velocity");
   return v != nullptr && v->type == format::AttributeType::Float32 && v->components == 3 ? std::int32_t(v->offset) : -1;
+}
+
+std::int32_t color_offset(const format::Metadata& meta) {
+  const format::Attribute* c = meta.find("color");
+  return c != nullptr && c->type == format::AttributeType::Unorm8 && c->components == 4 ? std::int32_t(c->offset) : -1;
 }
 
 bool velocities_describe_matching(std::span<const std::byte> a, std::span<const std::byte> b,

@@ -59,6 +59,10 @@ inline constexpr std::uint64_t kMotionSample = 256;
 // The record offset of a clip's velocity (three float32 named "velocity"), the one interpolation,
 // speed colours and motion blur read; -1 when it has none.
 std::int32_t velocity_offset(const format::Metadata& meta);
+// The record offset of a clip's colour (four unorm8 named "color", RGBA), the one the renderers,
+// the blends and the C API's batches read; -1 when it has none (another type of "color" is an
+// attribute like any other: the clip draws in its stream's colour).
+std::int32_t color_offset(const format::Metadata& meta);
 bool velocities_describe_matching(std::span<const std::byte> a, std::span<const std::byte> b,
                                   std::span<const format::MatchRun> matching, std::uint32_t stride,
                                   std::int32_t velocity_offset, double dt);

@@ -127,7 +127,7 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     c.stream = stream::ParticleStream::open(file, std::move(o));
     const format::Metadata& m = c.stream->metadata();
     const std::uint64_t most = options.interpolation != Interpolation::None ? 2 * m.max_count : m.max_count;
-    if (const format::Attribute* color = m.find("color")) c.color_offset = std::int32_t(color->offset);
+    c.color_offset = color_offset(m);
     c.velocity_offset = velocity_offset(m);
     if (options.path == PlaybackPath::Cpu) {
       c.sorter = std::make_unique<sort::DepthSorter>(most, options.sorter);
@@ -149,10 +149,7 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
       fp.max_count = m.max_count;
       fp.lanes = c.lanes;
       fp.velocity_offset = c.velocity_offset;
-      const format::Attribute* color = m.find("color");
-      fp.color_offset = color && color->type == format::AttributeType::Unorm8 && color->components == 4
-                            ? std::int32_t(color->offset)
-                            : -1;
+      fp.color_offset = c.color_offset;
       fp.lent = c.lent.get();
     }
     c.stream->set_loop(options.loop);

@@ -201,9 +201,7 @@ EMSCRIPTEN_KEEPALIVE int pw_open(double size, const char* name) {
     g->instances.resize(most * kInstanceBytes);
     if (const format::Attribute* a = m.find("scale"); a && a->type == format::AttributeType::Float32)
       g->scale = static_cast<std::int32_t>(a->offset);
-    if (const format::Attribute* a = m.find("color");
-        a && a->type == format::AttributeType::Unorm8 && a->components == 4)
-      g->color = static_cast<std::int32_t>(a->offset);
+    g->color = playback::color_offset(m);
     g->velocity = playback::velocity_offset(m);
     g->metadata_json = describe(m);
   });
