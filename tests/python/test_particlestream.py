@@ -448,3 +448,23 @@ def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
     bad = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_sparks.abc"), "--frames", "999"],
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "blender_sparks.abc: frame 999" in bad.stderr
+
+
+def test_halfway_tangents_ranks_stored_central_backward_and_straight_lines():
+    # bench/halfway_tangents.py (docs/compression.md, "Backward, not central, differences"): on the
+    # sparks taken every other frame, Hermite through the stored velocities puts the left-out frames
+    # back closest, then central differences, then the backward ones the decoder derives, then lines.
+    import subprocess
+    import sys
+    script = pathlib.Path(__file__).parents[2] / "bench" / "halfway_tangents.py"
+    out = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_sparks.abc"), "--json"],
+                         capture_output=True, text=True, check=True)
+    report = json.loads(out.stdout)
+    assert report["compared"] > 50000
+    rms = report["rms"]
+    assert 0 < rms["stored"] < rms["central"] < rms["backward"] < rms["linear"]
+    assert rms["backward"] < 0.8 * rms["linear"]
+    # A clip without ids has nothing to pair by: refused, with the file named.
+    bad = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_flip_pour_small.abc")],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "blender_flip_pour_small.abc" in bad.stderr and "no ids" in bad.stderr
