@@ -7,7 +7,9 @@ This script measures, on a few frames of one points object:
 
 - how far each particle's nearest previous particle is, with the previous frame as it is and moved on
   along its stored velocity by 0.5 and 1 frame (a particle that persists lands on itself when moved
-  by its velocity: the distance falls towards the position bound; a re-sampled one does not);
+  by its velocity: the distance falls towards the position bound; a re-sampled one does not), and
+  by the fraction of a frame, from -0.5 to 1.5, that brings them nearest (a velocity in other units
+  or at another time than the position would show as a fraction other than 1);
 - the particle spacing (each particle's nearest neighbour in its own frame) and the step along the
   velocity in one frame;
 - the share of particles with a previous particle at exactly their position (particles at rest);
@@ -27,6 +29,9 @@ import sys
 import numpy as np
 
 import particlestream as ps
+
+
+FRACTIONS = (-0.5, -0.25, 0.0, 0.1, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
 
 
 def nearest(points, queries):
@@ -99,6 +104,11 @@ def main():
             row["nearest_moved_half_step"] = float(np.median(nearest(prev + 0.5 * vel * dt, cur[pick])))
             row["nearest_moved_one_step"] = float(np.median(nearest(prev + vel * dt, cur[pick])))
             row["velocity_step"] = float(np.median(np.linalg.norm(vel, axis=1)) * dt)
+            # Any fraction of a frame's velocity (velocities in other units or at another time would
+            # show as a fraction other than 1): the one that brings the particles nearest.
+            moved = {k: float(np.median(nearest(prev + k * vel * dt, cur[pick]))) for k in FRACTIONS}
+            best = min(moved, key=moved.get)
+            row["best_fraction"], row["nearest_moved_best"] = best, moved[best]
         row["at_rest"] = float(np.mean(nearest(prev, cur[pick]) == 0))
         gap = float(np.median(spacing(cur, pick[:min(1000, len(pick))])))
         row["spacing"] = gap
@@ -110,12 +120,13 @@ def main():
         return
     print(f"{args.file} ({name}): grid step {step:.3g} (bound {args.error:g} of the diagonal), medians")
     print(f"{'frame':>5} {'particles':>9} {'spacing':>8} {'v*dt':>8} {'nearest':>8} {'moved ½':>8} {'moved 1':>8} "
-          f"{'at rest':>7} {'set bits':>8} {'set B/p':>7}")
+          f"{'best k':>6} {'moved k':>8} {'at rest':>7} {'set bits':>8} {'set B/p':>7}")
     for r in rows:
         cells = [r.get(k) for k in ("spacing", "velocity_step", "nearest_previous", "nearest_moved_half_step",
                                     "nearest_moved_one_step")]
         text = " ".join(f"{c:8.4f}" if c is not None else f"{'-':>8}" for c in cells)
-        print(f"{r['frame']:>5} {r['particles']:>9} {text} {100 * r['at_rest']:6.1f}% "
+        k = f"{r['best_fraction']:6.2f} {r['nearest_moved_best']:8.4f}" if "best_fraction" in r else f"{'-':>6} {'-':>8}"
+        print(f"{r['frame']:>5} {r['particles']:>9} {text} {k} {100 * r['at_rest']:6.1f}% "
               f"{r['set_bits_per_particle']:8.2f} {r['set_bits_per_particle'] / 8:7.3f}")
 
 if __name__ == "__main__":

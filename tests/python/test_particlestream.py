@@ -441,6 +441,10 @@ def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
     assert sparks["nearest_moved_one_step"] < 0.3 * sparks["nearest_previous"]
     assert flip["nearest_moved_one_step"] > 0.9 * flip["nearest_previous"]
     assert flip["nearest_previous"] < flip["spacing"] < flip["velocity_step"]
+    # No fraction of a frame's velocity brings the liquid's particles nearer (velocities in other
+    # units would): the sparks' is 1, the liquid's none.
+    assert sparks["best_fraction"] == 1.0 and sparks["nearest_moved_best"] == sparks["nearest_moved_one_step"]
+    assert flip["nearest_moved_best"] > 0.95 * flip["nearest_previous"]
     # A fresh set of points at the default bound: about 17-19 bits a particle on both.
     for row in (sparks, flip):
         assert 15 < row["set_bits_per_particle"] < 21
