@@ -99,17 +99,20 @@ def main():
         dt = archive.time(name, t) - archive.time(name, t - 1)
         pick = rng.choice(len(cur), size=min(args.sample, len(cur)), replace=False)
         row = {"frame": t, "particles": len(cur)}
-        row["nearest_previous"] = float(np.median(nearest(prev, cur[pick])))
+        unmoved = nearest(prev, cur[pick])
+        row["nearest_previous"] = float(np.median(unmoved))
         if len(vel) == len(prev):
-            row["nearest_moved_half_step"] = float(np.median(nearest(prev + 0.5 * vel * dt, cur[pick])))
-            row["nearest_moved_one_step"] = float(np.median(nearest(prev + vel * dt, cur[pick])))
+            # Moved on by fractions of a frame's velocity (0.5 and 1 among them): a particle that
+            # persists lands on itself at 1; velocities in other units or at another time than the
+            # positions would show as another fraction. The one that brings the particles nearest.
+            moved = {k: row["nearest_previous"] if k == 0 else float(np.median(nearest(prev + k * vel * dt, cur[pick])))
+                     for k in FRACTIONS}
+            row["nearest_moved_half_step"] = moved[0.5]
+            row["nearest_moved_one_step"] = moved[1.0]
             row["velocity_step"] = float(np.median(np.linalg.norm(vel, axis=1)) * dt)
-            # Any fraction of a frame's velocity (velocities in other units or at another time would
-            # show as a fraction other than 1): the one that brings the particles nearest.
-            moved = {k: float(np.median(nearest(prev + k * vel * dt, cur[pick]))) for k in FRACTIONS}
             best = min(moved, key=moved.get)
             row["best_fraction"], row["nearest_moved_best"] = best, moved[best]
-        row["at_rest"] = float(np.mean(nearest(prev, cur[pick]) == 0))
+        row["at_rest"] = float(np.mean(unmoved == 0))
         gap = float(np.median(spacing(cur, pick[:min(1000, len(pick))])))
         row["spacing"] = gap
         row["set_bits_per_particle"] = set_bits(cur, 1.5 * gap, step)
