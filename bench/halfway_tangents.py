@@ -12,6 +12,9 @@ as the cubic Hermite curve halfway between its two neighbours, with the tangents
 - the central difference, (p[f+2] - p[f-2]) / 2: Hermite through these is Catmull-Rom, and needs the
   frame after, which a decoder that hands each frame out as it decodes it does not have; backward
   where a particle is born or dies;
+- the central difference at the curve's start only, the backward one at its end: what a player holding
+  just the two frames could compute (the start's central difference follows from the end's backward
+  one and the two positions), the parabola through f-2, f and f+2;
 - none: the straight line.
 
 Only particles present (by id) in both neighbours and the left-out frame count, and positions are the
@@ -72,7 +75,7 @@ def main():
             return (p[c + 2][i] - p[c - 2][i]) / 2
         return backward(c, i)
 
-    squared = {"stored": [], "backward": [], "central": [], "linear": []}
+    squared = {"stored": [], "backward": [], "central": [], "central_start": [], "linear": []}
     for a in range(0, samples - 2, 2):
         b, mid = a + 2, a + 1
         for i, pa in positions[a].items():
@@ -84,6 +87,7 @@ def main():
                 "stored": (velocities[a][i] * dt, velocities[b][i] * dt),
                 "backward": (backward(a, i), backward(b, i)),
                 "central": (central(a, i), central(b, i)),
+                "central_start": (central(a, i), backward(b, i)),
             }
             for k, (m0, m1) in tangents.items():
                 squared[k].append(np.sum((hermite(pa, pb, m0, m1, 0.5) - truth) ** 2))
@@ -93,7 +97,7 @@ def main():
         return
     print(f"{args.file} ({name}): {len(squared['linear'])} particles at left-out frames")
     for k, v in rms.items():
-        print(f"  {k:9s} RMS {v:.5f}")
+        print(f"  {k:13s} RMS {v:.5f}")
 
 
 if __name__ == "__main__":
