@@ -445,8 +445,8 @@ def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
     # units would): the sparks' is 1, the liquid's none.
     assert sparks["best_fraction"] == 1.0 and sparks["nearest_moved_best"] == sparks["nearest_moved_one_step"]
     assert flip["nearest_moved_best"] > 0.95 * flip["nearest_previous"]
-    # Nor does gravity's half step: a spark moved along its parabola lands on itself (Blender's
-    # integrator is ballistic between frames), a FLIP particle no nearer than unmoved.
+    # Nor does gravity's half step: a spark moved along one frame's parabola lands on itself (0.0001
+    # mm), a FLIP particle no nearer than unmoved.
     assert sparks["nearest_moved_ballistic"] < 0.01 * sparks["nearest_moved_one_step"]
     assert flip["nearest_moved_ballistic"] > 0.9 * flip["nearest_previous"]
     # A fresh set of points at the default bound: about 17-19 bits a particle on both.
