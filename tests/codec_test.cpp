@@ -693,6 +693,92 @@ TEST(ParticleCodec, ScalesSpanning100xKeepTheirRelativeBound) {
   std::printf("scales spanning 100x: worst relative error %.4f%% (bound 1%%)\n", 100 * worst);
 }
 
+// A stored velocity is quantised within 4 × the position bound × fps where that is finer than its
+// range's fraction: the Hermite curve between two frames weights its tangents (velocity × the
+// frame's time h) by t(1 - t)² and t²(1 - t), which sum to at most 1/4, so the velocities' errors
+// move it by at most the position bound. Fast particles in a small box, where this rule binds:
+// every curve between frames, drawn through the decoded positions, stays within the position
+// bound of the same curve through the source's velocities, and within twice it of the source's.
+TEST(ParticleCodec, AStoredVelocityMovesTheCurvesBetweenFramesByAtMostThePositionBound) {
+  constexpr std::uint32_t kCount = 2000, kFrames = 5;
+  constexpr double kFps = 24.0;
+  std::vector<format::Attribute> layout = format::default_layout();
+  format::append_attribute(layout, "velocity", format::AttributeType::Float32, 3);
+  format::append_attribute(layout, "id", format::AttributeType::Uint64, 1);
+  const std::uint32_t rs = format::record_size_of(layout);
+  ASSERT_EQ(rs, 36u);
+  std::vector<std::vector<std::byte>> records(kFrames, std::vector<std::byte>(std::size_t(kCount) * rs));
+  std::vector<std::vector<std::uint64_t>> ids(kFrames, std::vector<std::uint64_t>(kCount));
+  format::ClipStats stats(layout);
+  for (std::uint32_t f = 0; f < kFrames; ++f) {
+    for (std::uint32_t i = 0; i < kCount; ++i) {
+      const double t = f / kFps;
+      const float r[7] = {float(0.5 * std::sin(i * 0.37) + 0.3 * t), float(0.5 * std::cos(i * 0.11) - 0.2 * t),
+                          float(0.5 * std::sin(i * 0.73 + 1)),       0.01f,
+                          float(40 * std::sin(i * 0.29 + f)),        float(40 * std::cos(i * 0.53 - f)),
+                          float(40 * std::sin(i * 0.91 + 2 * f))};
+      std::memcpy(records[f].data() + std::size_t(i) * rs, r, sizeof r);
+      const std::uint64_t id = i;
+      std::memcpy(records[f].data() + std::size_t(i) * rs + 28, &id, 8);
+      ids[f][i] = id;
+    }
+    stats.add(records[f], kCount);
+  }
+  format::ParticleCodecOptions options;
+  options.derive_velocity = false;
+  const format::CodecInfo info = format::plan_particle_codec(layout, stats, kFps, true, options);
+  const double e = info.error;
+  ASSERT_GT(e, 0.0);
+  for (std::uint32_t w = 4; w < 7; ++w) {
+    ASSERT_EQ(info.words[w].coding, format::WordCoding::Quantized) << "word " << w;
+    // 4 e fps binds here (1e-3 of an 80 m/s range is 0.08 m/s); not the stricter e fps.
+    EXPECT_LE(double(info.words[w].error), 4 * e * kFps * (1 + 1e-6)) << "word " << w;
+    EXPECT_GT(double(info.words[w].error), 2 * e * kFps) << "word " << w;
+  }
+  std::vector<format::SourceFrame> frames;
+  for (std::uint32_t f = 0; f < kFrames; ++f) frames.push_back({records[f], ids[f], kCount});
+  const auto encoded = format::encode_group(info, frames, {}, 0);
+  const format::Metadata meta = metadata_for(layout, info, encoded);
+  format::FrameDecoder decoder(meta, "fast");
+  std::vector<std::vector<std::byte>> decoded(kFrames, std::vector<std::byte>(std::size_t(kCount) * rs));
+  for (std::uint32_t f = 0; f < kFrames; ++f) decoder.decode(f, encoded[f].packet, decoded[f]);
+  const auto value = [&](const std::vector<std::byte>& frame, std::uint32_t i, int word) {
+    float v;
+    std::memcpy(&v, frame.data() + std::size_t(i) * rs + 4 * std::size_t(word), 4);
+    return double(v);
+  };
+  const double h = 1.0 / kFps;
+  double worst_velocity = 0, worst_source = 0, worst_velocity_error = 0;
+  for (std::uint32_t f = 0; f + 1 < kFrames; ++f) {
+    for (std::uint32_t i = 0; i < kCount; ++i) {
+      for (int a = 0; a < 3; ++a) {
+        const double p0 = value(decoded[f], i, a), p1 = value(decoded[f + 1], i, a);
+        const double m0 = h * value(decoded[f], i, 4 + a), m1 = h * value(decoded[f + 1], i, 4 + a);
+        const double s0 = value(records[f], i, a), s1 = value(records[f + 1], i, a);
+        const double n0 = h * value(records[f], i, 4 + a), n1 = h * value(records[f + 1], i, 4 + a);
+        worst_velocity_error = std::max(worst_velocity_error, std::abs(m0 - n0) / h);
+        for (int k = 1; k < 8; ++k) {
+          const double t = k / 8.0;
+          const auto curve = [t](double q0, double q1, double t0, double t1) {
+            return (2 * t * t * t - 3 * t * t + 1) * q0 + (t * t * t - 2 * t * t + t) * t0 +
+                   (-2 * t * t * t + 3 * t * t) * q1 + (t * t * t - t * t) * t1;
+          };
+          const double ours = curve(p0, p1, m0, m1);
+          worst_velocity = std::max(worst_velocity, std::abs(ours - curve(p0, p1, n0, n1)));
+          worst_source = std::max(worst_source, std::abs(ours - curve(s0, s1, n0, n1)));
+        }
+      }
+    }
+  }
+  EXPECT_LE(worst_velocity, e * (1 + 1e-6));
+  EXPECT_LE(worst_source, 2 * e * (1 + 1e-6));
+  EXPECT_GT(worst_velocity_error, e * kFps);  // the velocity is coarser than the old e × fps rule
+  std::printf(
+      "fast particles: velocity error up to %.4g m/s (4 e fps = %.4g), curves moved %.3g e by it, %.3g e from "
+      "the source's\n",
+      worst_velocity_error, 4 * e * kFps, worst_velocity / e, worst_source / e);
+}
+
 // A Relative word is coded in the loop: of the codes within the bound (the plan's grid is two bits
 // finer than the bound needs, so about five), the encoder takes the one its prediction gives.
 // Sizes that shrink over each particle's life, as a fountain's do, then cost far less than on the

@@ -42,8 +42,8 @@ struct ParticleCodecOptions {
   bool error_relative = true;
   // Velocity and other float attributes: within this fraction of their own range (per
   // component); 1e-3 keeps a speed ramp's 256 colours and a streak's length. A velocity is also
-  // kept within the position bound × fps, so that it moves a Hermite curve between frames by no
-  // more than the position bound.
+  // kept within 4 × the position bound × fps, so that it moves a Hermite curve between frames by
+  // no more than the position bound (the tangents' weights sum to at most 1/4).
   double attribute_error = 1e-3;
   // Scale (the particle's radius): within this fraction of each particle's own scale, whatever
   // the clip's extent (a relative grid: WordCoding::Relative).

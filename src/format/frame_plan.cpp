@@ -193,9 +193,10 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
       for (std::uint32_t c = 0; c < at.components; ++c) {
         const double lo = stats.min()[component + c], hi = stats.max()[component + c];
         double e = error > 0 ? error : fraction * (hi - lo);
-        // A velocity never moves a position by more than the position bound over a frame (the
-        // Hermite curves between frames follow it).
-        if (at.name == "velocity" && fps > 0 && position_error > 0) e = std::min(e, position_error * fps);
+        // A velocity never moves the Hermite curve between two frames by more than the position
+        // bound: the curve's tangents are the velocities times the frame's time h, and their basis
+        // weights sum to t(1 - t), at most 1/4, so errors within 4 e / h move it by at most e.
+        if (at.name == "velocity" && fps > 0 && position_error > 0) e = std::min(e, 4.0 * position_error * fps);
         WordCodingEntry& entry = info.words[first + c];
         if (!make_grid(lo, hi, e, entry)) {
           if (at.name == "position") {
@@ -217,7 +218,8 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
       velocity->components == 3 && fps > 0.0 && std::isfinite(fps)) {
     const std::uint32_t first = velocity->offset / 4;
     bool quantized = true;
-    for (std::uint32_t c = 0; c < 3; ++c) quantized = quantized && info.words[first + c].coding == WordCoding::Quantized;
+    for (std::uint32_t c = 0; c < 3; ++c)
+      quantized = quantized && info.words[first + c].coding == WordCoding::Quantized;
     if (quantized) {
       info.velocity_word = static_cast<std::int32_t>(first);
       info.frame_seconds = 1.0 / fps;
