@@ -111,18 +111,19 @@ def main():
         dt = archive.time(name, t) - archive.time(name, t - 1)
         pick = rng.choice(len(cur), size=min(args.sample, len(cur)), replace=False)
         row = {"frame": t, "particles": len(cur)}
-        unmoved = nearest(prev, cur[pick])
+        queries = cur[pick]
+        unmoved = nearest(prev, queries)
         row["nearest_previous"] = float(np.median(unmoved))
         if len(vel) == len(prev):
             # Moved on by fractions of a frame's velocity (0.5 and 1 among them): a particle that
             # persists lands on itself at 1; velocities in other units or at another time than the
             # positions would show as another fraction. The one that brings the particles nearest.
-            moved = {k: row["nearest_previous"] if k == 0 else float(np.median(nearest(prev + k * vel * dt, cur[pick])))
+            moved = {k: row["nearest_previous"] if k == 0 else float(np.median(nearest(prev + k * vel * dt, queries)))
                      for k in FRACTIONS}
             row["nearest_moved_half_step"] = moved[0.5]
             row["nearest_moved_one_step"] = moved[1.0]
-            row["nearest_moved_ballistic"] = float(np.median(nearest(prev + vel * dt + 0.5 * gravity * dt * dt,
-                                                                      cur[pick])))
+            ballistic = prev + vel * dt + 0.5 * gravity * dt * dt
+            row["nearest_moved_ballistic"] = float(np.median(nearest(ballistic, queries)))
             row["velocity_step"] = float(np.median(np.linalg.norm(vel, axis=1)) * dt)
             best = min(moved, key=moved.get)
             row["best_fraction"], row["nearest_moved_best"] = best, moved[best]

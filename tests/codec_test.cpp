@@ -748,6 +748,11 @@ TEST(ParticleCodec, AStoredVelocityMovesTheCurvesBetweenFramesByAtMostThePositio
     return double(v);
   };
   const double h = 1.0 / kFps;
+  // The cubic Hermite curve at t through positions q0, q1 with tangents t0, t1 (in double).
+  const auto curve = [](double t, double q0, double q1, double t0, double t1) {
+    return (2 * t * t * t - 3 * t * t + 1) * q0 + (t * t * t - 2 * t * t + t) * t0 + (-2 * t * t * t + 3 * t * t) * q1 +
+           (t * t * t - t * t) * t1;
+  };
   double worst_velocity = 0, worst_source = 0, worst_velocity_error = 0;
   for (std::uint32_t f = 0; f + 1 < kFrames; ++f) {
     for (std::uint32_t i = 0; i < kCount; ++i) {
@@ -758,14 +763,9 @@ TEST(ParticleCodec, AStoredVelocityMovesTheCurvesBetweenFramesByAtMostThePositio
         const double n0 = h * value(records[f], i, 4 + a), n1 = h * value(records[f + 1], i, 4 + a);
         worst_velocity_error = std::max(worst_velocity_error, std::abs(m0 - n0) / h);
         for (int k = 1; k < 8; ++k) {
-          const double t = k / 8.0;
-          const auto curve = [t](double q0, double q1, double t0, double t1) {
-            return (2 * t * t * t - 3 * t * t + 1) * q0 + (t * t * t - 2 * t * t + t) * t0 +
-                   (-2 * t * t * t + 3 * t * t) * q1 + (t * t * t - t * t) * t1;
-          };
-          const double ours = curve(p0, p1, m0, m1);
-          worst_velocity = std::max(worst_velocity, std::abs(ours - curve(p0, p1, n0, n1)));
-          worst_source = std::max(worst_source, std::abs(ours - curve(s0, s1, n0, n1)));
+          const double t = k / 8.0, ours = curve(t, p0, p1, m0, m1);
+          worst_velocity = std::max(worst_velocity, std::abs(ours - curve(t, p0, p1, n0, n1)));
+          worst_source = std::max(worst_source, std::abs(ours - curve(t, s0, s1, n0, n1)));
         }
       }
     }

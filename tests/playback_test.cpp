@@ -1092,9 +1092,6 @@ TEST(DerivedVelocity, TheDefaultCookDerivesWithIdsAndStoresWithout) {
 
 namespace {
 
-// Camera::framing in a region of the image (the viewer's, beside its panel): every corner of the
-// box lands inside the region, the box fills it as closely as the plain framing fills the whole
-// image, and the target is the region's centre.
 // A clip's colour is four unorm8 named "color" (RGBA) wherever it is read: the batches, both
 // blends and the browser player ask playback::color_offset(). A "color" of another type is an
 // attribute like any other, and the clip draws in its stream's colour rather than as bytes.
@@ -1151,6 +1148,9 @@ TEST(Playback, OnlyAnRgba8ColorIsHandedOutAsTheColour) {
   }
 }
 
+// Camera::framing in a region of the image (the viewer's, beside its panel): every corner of the
+// box lands inside the region, the box fills it as closely as the plain framing fills the whole
+// image, and the target is the region's centre.
 TEST(Camera, FramingInARegionKeepsTheBoxInsideIt) {
   using namespace pstream::render;
   const Vec3 lo{-1.0f, 0.0f, -2.0f}, hi{1.5f, 3.0f, 2.0f};
