@@ -25,7 +25,6 @@ constexpr std::uint32_t kBlockShift = 10;           // survivors share a bias pe
 constexpr std::uint32_t kBlock = 1u << kBlockShift;
 constexpr std::size_t kIdHeader = 4;
 constexpr std::size_t kOpSize = 12;
-constexpr std::uint32_t kTile = 256;  // particles written out at a time
 // Version 4: a packet that begins with zstd's frame magic number starts a zstd frame (every
 // keyframe's does); any other continues the frame of the packet before. Windows are at most 2^20
 // bytes (the decoder's fixed buffer); each packet ends at a block boundary.
