@@ -86,11 +86,13 @@ V column4(const Column& c, std::uint32_t t) {
   } else if constexpr (K == Column::kShift) {
     std::memcpy(&q, c.values + t, 16);
     return q << c.bits;  // relative_decode(), lane by lane
+  } else if constexpr (K == Column::kConstant) {
+    return V{} + c.bits;
   } else {
     switch (c.kind) {
       case Column::kDequantize: return column4<Column::kDequantize>(c, t);
       case Column::kShift: return column4<Column::kShift>(c, t);
-      case Column::kConstant: return V{} + c.bits;
+      case Column::kConstant: return column4<Column::kConstant>(c, t);
       case Column::kIdLow:
       case Column::kIdHigh: {
         V lo, hi;
@@ -132,12 +134,12 @@ void write_group(const Column* columns, std::byte* record, std::size_t rs, std::
   }
 }
 template <std::size_t... M>
-constexpr auto coded_groups(std::index_sequence<M...>) {
-  return std::array{&write_group<int(M & 1), int(M >> 1 & 1), int(M >> 2 & 1), int(M >> 3 & 1)>...};
+constexpr auto known_groups(std::index_sequence<M...>) {
+  return std::array{&write_group<int(M % 3), int(M / 3 % 3), int(M / 9 % 3), int(M / 27)>...};
 }
-// write_group for the 16 mixes of dequantised and shifted columns, bit x of the index set where
-// column x shifts.
-constexpr auto kCodedGroups = coded_groups(std::make_index_sequence<16>{});
+// write_group for the 81 mixes of dequantised, shifted and constant columns: column x's kind is
+// digit x of the index in base 3.
+constexpr auto kKnownGroups = known_groups(std::make_index_sequence<81>{});
 
 class ParticleUnit final : public FrameUnit {
  public:
@@ -512,12 +514,13 @@ class ParticleUnit final : public FrameUnit {
   // word's four values made in a vector register, then a 4×4 transpose into the four records.
   // Through a tile (each word's column of 256 particles made in a loop of its own, then transposed
   // from there) the sparks decoded about 6 % slower; with each column's kind read at run time in
-  // the loop, about 4 %.
+  // the loop, about 4 % (the FLIP pour, whose sizes are constant, 5 %), so the groups of the usual
+  // kinds have loops of their own.
   void write_records(std::uint32_t count, std::span<std::byte> out) {
     const std::size_t rs = meta_.record_size;
     const std::uint32_t words = plan_.words;  // four or more (a record is 16 bytes or more)
     const std::uint32_t quads = count / 4;
-    static_assert(Column::kDequantize == 0 && Column::kShift == 1);
+    static_assert(Column::kDequantize == 0 && Column::kShift == 1 && Column::kConstant == 2);
     if (count == 0) return;  // an empty frame's output may be no memory at all
     set_columns();
     // Groups of four words, the last one overlapping the one before when the words are not a
@@ -526,12 +529,12 @@ class ParticleUnit final : public FrameUnit {
       const std::uint32_t w = std::min(w0, words - 4);
       const Column* c = columns_.data() + w;
       unsigned mix = 0;
-      bool coded = true;
-      for (unsigned x = 0; x < 4; ++x) {
-        coded = coded && c[x].kind <= Column::kShift;
-        mix |= unsigned(c[x].kind == Column::kShift) << x;
+      bool known = true;
+      for (unsigned x = 0, digit = 1; x < 4; ++x, digit *= 3) {
+        known = known && c[x].kind <= Column::kConstant;
+        mix += c[x].kind * digit;
       }
-      (coded ? kCodedGroups[mix] : &write_group<kAny, kAny, kAny, kAny>)(c, out.data() + 4 * w, rs, quads);
+      (known ? kKnownGroups[mix] : &write_group<kAny, kAny, kAny, kAny>)(c, out.data() + 4 * w, rs, quads);
     }
     for (std::uint32_t t = 4 * quads; t < count; ++t) {
       for (std::uint32_t x = 0; x < words; ++x) {
