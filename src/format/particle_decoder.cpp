@@ -487,7 +487,8 @@ class ParticleUnit final : public FrameUnit {
     }
   }
 
-  // This frame's columns.
+  // This frame's columns. Coded and derived words are met in record order, the order of
+  // plan_.coded and plan_.derived (WordPlan), which is how q_ and derived_ hold them.
   void set_columns() {
     const std::uint64_t n = meta_.max_count;
     std::size_t k = 0, x = 0;
