@@ -86,7 +86,7 @@ void BM_DecodeCookedClip(benchmark::State& state) {
     benchmark::ClobberMemory();
   }
   state.SetBytesProcessed(state.iterations() * c.decoded_bytes);
-  state.SetLabel(kClips[state.range(0)].label);
+  state.SetLabel(std::string(kClips[state.range(0)].label) + ", " + std::string(format::particle_decoder_simd()));
 }
 
 void BM_MemcpyDecodedBytes(benchmark::State& state) {

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <map>
@@ -123,6 +124,36 @@ TEST(ParticleCodec, EveryDecodedValueIsWithinItsBoundOnEveryFixture) {
       EXPECT_NEAR(meta.codec.error, 1e-4 * diagonal, 2e-6 * diagonal);
       EXPECT_GT(quantized, 0u);
     }
+  }
+}
+
+// The decoder runs with AVX2 where the processor has it (eight values a vector), else with SSE2
+// (four): both give the same bits for every frame of every fixture, in its default cook (ids,
+// derived velocity, colour) and as [x y z scale] records. PSTREAM_SIMD=baseline picks SSE2 for
+// the units made while it is set.
+TEST(ParticleCodec, AVX2AndBaselineDecodeTheSameBits) {
+  if (format::particle_decoder_simd() != "AVX2") GTEST_SKIP() << "this processor has no AVX2";
+  const fs::path dir = test::fresh_dir();
+  int n = 0;
+  for (const Fixture& fx : fixtures()) {
+    SCOPED_TRACE(fx.file);
+    const fs::path clip = cook_with(dir, fx, "clip" + std::to_string(n++), format::FrameCodec::Particle);
+    const auto frames = [&](bool baseline) {
+      if (baseline) ::setenv("PSTREAM_SIMD", "baseline", 1);
+      const auto r = format::Reader::open(clip);
+      EXPECT_EQ(format::particle_decoder_simd(), baseline ? "SSE2" : "AVX2");
+      const auto& m = r.metadata();
+      std::vector<std::byte> all, frame(m.max_count * m.record_size);
+      for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+        r.read_frame(f, frame);
+        all.insert(all.end(), frame.begin(), frame.begin() + std::ptrdiff_t(m.frames[f].count * m.record_size));
+      }
+      ::unsetenv("PSTREAM_SIMD");
+      return all;
+    };
+    const std::vector<std::byte> avx2 = frames(false), baseline = frames(true);
+    EXPECT_GT(avx2.size(), 0u);
+    EXPECT_TRUE(avx2 == baseline);
   }
 }
 
@@ -478,6 +509,37 @@ TEST(ParticleCodec, CorruptBodiesGiveClearErrors) {
   }
 }
 
+// Survivors [0, n) read in random runs of 1 to 40, split at the blocks' borders, as the decoder
+// reads them: with four lanes a vector, and with eight compiled for AVX2 (as the decoder does).
+struct RunsCase {
+  std::uint32_t n, seed, linear;
+  std::uint32_t *q0, *d0;
+  const std::uint32_t *q1, *d1;
+};
+template <unsigned Lanes>
+[[gnu::always_inline]] inline void read_runs(format::particle::SurvivorRuns& survivors, const RunsCase& c) {
+  namespace pc = format::particle;
+  std::uint32_t seed = c.seed;
+  survivors.visit<Lanes>([&](auto& runs) __attribute__((always_inline)) {
+    for (std::uint32_t at = 0; at < c.n;) {
+      seed = seed * 1664525u + 1013904223u;
+      const std::uint32_t len = std::min({1 + (seed >> 8) % 40, c.n - at, pc::kBlock - (at & (pc::kBlock - 1))});
+      runs.run(at, len, c.q0 + at, c.d0 + at, c.q1 + at, c.d1 + at, c.linear);
+      at += len;
+    }
+  });
+}
+void read_runs_baseline(format::particle::SurvivorRuns& survivors, const RunsCase& c) { read_runs<4>(survivors, c); }
+#if defined(__x86_64__)
+[[gnu::target("avx2")]] void read_runs_avx2(format::particle::SurvivorRuns& survivors, const RunsCase& c) {
+  read_runs<8>(survivors, c);
+}
+bool have_avx2() { return __builtin_cpu_supports("avx2"); }
+#else
+void read_runs_avx2(format::particle::SurvivorRuns&, const RunsCase&) {}
+bool have_avx2() { return false; }
+#endif
+
 // Version 5's nibbles: any values written as nibbles and escape planes predict survivors as the
 // values they hold (unzigzagged, plus their block's bias), whatever their count (odd, under one
 // 8-value step, many steps, several blocks of 1024, more than the escape count's 127 steps of 16
@@ -514,19 +576,21 @@ TEST(ParticleCodec, NibblesAndTheirEscapesReadBackAsTheirValues) {
         residuals.resize(residuals.size() + pc::kReadPad, std::byte{0xAB});  // what a run may read past
         for (const std::uint32_t linear : {0u, ~0u}) {
           std::vector<std::uint32_t> q0(n + pc::kRunPad), d0(n + pc::kRunPad);
-          pc::SurvivorRuns survivors(residuals.data(), n, packing, width_or_bytes, residuals.data() + escape_planes_at,
-                                     escape_count, bias.data());
-          survivors.visit([&](auto& runs) {
-            for (std::uint32_t at = 0; at < n;) {
-              const std::uint32_t len = std::min({1 + next() % 40, n - at, pc::kBlock - (at & (pc::kBlock - 1))});
-              runs.run(at, len, q0.data() + at, d0.data() + at, q1.data() + at, d1.data() + at, linear);
-              at += len;
+          // The same random runs for four lanes a vector and (where the processor has AVX2) eight.
+          const std::uint32_t runs_seed = next();
+          for (const unsigned lanes : {4u, 8u}) {
+            if (lanes == 8 && !have_avx2()) continue;
+            std::fill(q0.begin(), q0.end(), 0u);
+            std::fill(d0.begin(), d0.end(), 0u);
+            pc::SurvivorRuns survivors(residuals.data(), n, packing, width_or_bytes,
+                                       residuals.data() + escape_planes_at, escape_count, bias.data());
+            (lanes == 4 ? read_runs_baseline : read_runs_avx2)(
+                survivors, {n, runs_seed, linear, q0.data(), d0.data(), q1.data(), d1.data()});
+            for (std::uint32_t t = 0; t < n; ++t) {
+              const std::uint32_t step = (d1[t] & linear) + pc::unzigzag(values[t]) + bias[t >> pc::kBlockShift];
+              ASSERT_EQ(d0[t], step) << t << " linear " << linear << " lanes " << lanes;
+              ASSERT_EQ(q0[t], q1[t] + step) << t << " linear " << linear << " lanes " << lanes;
             }
-          });
-          for (std::uint32_t t = 0; t < n; ++t) {
-            const std::uint32_t step = (d1[t] & linear) + pc::unzigzag(values[t]) + bias[t >> pc::kBlockShift];
-            ASSERT_EQ(d0[t], step) << t << " linear " << linear;
-            ASSERT_EQ(q0[t], q1[t] + step) << t << " linear " << linear;
           }
         }
       };

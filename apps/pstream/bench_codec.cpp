@@ -560,6 +560,7 @@ int bench_codec(const BenchCodecOptions& o) {
                                 {"keyframe_interval", lossy.keyframe_interval},
                                 {"repetitions", o.repetitions},
                                 {"clock", "thread CPU time"},
+                                {"ours_decoder_simd", std::string(format::particle_decoder_simd())},
                                 {"ours_decode_vs_zstd", vs_zstd},
                                 {"ours_decode_vs_meshopt", vs_meshopt},
                                 {"codecs", results}};
@@ -574,8 +575,9 @@ int bench_codec(const BenchCodecOptions& o) {
   }
   fmt::print(
       "{}: {} frames, {} particles ({} ids), [x y z scale] records; error bound {:.3g} (1e-4 of the diagonal), "
-      "keyframe every {}\n\n",
-      o.file, frames.size(), particles, ids ? "with" : "without", lossy.error, lossy.keyframe_interval);
+      "keyframe every {}; our decoder runs with {}\n\n",
+      o.file, frames.size(), particles, ids ? "with" : "without", lossy.error, lossy.keyframe_interval,
+      format::particle_decoder_simd());
   fmt::print("{:<26} {:>9} {:>7} {:>11} {:>11} {:>9} {:>9} {:>9}\n", "codec", "B/p/frame", "ratio", "max err xyz",
              "max err s", "enc MB/s", "dec GB/s", "/memcpy");
   for (const auto& r : results) {

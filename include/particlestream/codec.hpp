@@ -175,6 +175,12 @@ struct FrameCodecDecoding {
 std::span<const FrameCodecDecoding> frame_codec_decoders();
 const FrameCodecDecoding* find_frame_codec(FrameCodec id);  // null: no codec has that id
 
+// The vector instructions the particle codec's decoder runs with in this process: "AVX2" where an
+// x86-64 processor has them (8 values a vector), else "SSE2" (x86-64's baseline, 4 a vector), or
+// "SIMD128" in the browser build; the same bits either way. PSTREAM_SIMD=baseline in the
+// environment keeps an AVX2 machine on SSE2 (the tests compare the two). Benchmarks print it.
+std::string_view particle_decoder_simd();
+
 struct FrameCodecEncoding {
   FrameCodec id;
   std::string_view name;

@@ -11,6 +11,7 @@
 #include <limits>
 #include <numeric>
 #include <tuple>
+#include <type_traits>
 
 #include <fmt/format.h>
 
@@ -323,15 +324,18 @@ class SurvivorRuns {
 
   // Calls f with a reader whose run(at, len, q0, d0, q1, d1, linear_mask) predicts survivors
   // [at, at + len), all in one block, the runs in order; one instance of f for each packing.
-  template <class F>
-  void visit(F&& f) {
-    const auto with = [&]<bool Nibbles>() {
+  // `Lanes` is the vector width in 32-bit values: 4 (16-byte vectors: x86-64's baseline SSE2,
+  // WebAssembly's SIMD128) or 8 (32-byte, for a caller built for AVX2). Everything here inlines
+  // into that caller, so the 8-lane code is only ever compiled for it.
+  template <unsigned Lanes, class F>
+  [[gnu::always_inline]] void visit(F&& f) {
+    const auto with = [&]<bool Nibbles>() __attribute__((always_inline)) {
       switch (bytes_) {
-        case 0: return call<Nibbles, 0>(f);
-        case 1: return call<Nibbles, 1>(f);
-        case 2: return call<Nibbles, 2>(f);
-        case 3: return call<Nibbles, 3>(f);
-        default: return call<Nibbles, 4>(f);
+        case 0: return call<Lanes, Nibbles, 0>(f);
+        case 1: return call<Lanes, Nibbles, 1>(f);
+        case 2: return call<Lanes, Nibbles, 2>(f);
+        case 3: return call<Lanes, Nibbles, 3>(f);
+        default: return call<Lanes, Nibbles, 4>(f);
       }
     };
     if (nibbles_)
@@ -341,15 +345,17 @@ class SurvivorRuns {
   }
 
  private:
-  // 16-byte vectors throughout: x86-64's baseline (SSE2) and WebAssembly's SIMD128 have them, and a
-  // wider type left the widening to scalar stores and a reload.
+  // 16-byte vectors for four lanes: with a wider type where the target has none, the widening
+  // became scalar stores and a reload.
   using V = std::uint32_t __attribute__((vector_size(16)));
+  using V8 = std::uint32_t __attribute__((vector_size(32)));
   using U16 = std::uint16_t __attribute__((vector_size(16)));
   using U8 = std::uint8_t __attribute__((vector_size(16)));
+  using B8 = std::uint8_t __attribute__((vector_size(8)));
   using U64 = std::uint64_t __attribute__((vector_size(16)));
 
   // Eight bytes, the first lowest, widened to two vectors of four values.
-  static void widen(U8 b, V& lo, V& hi) {
+  [[gnu::always_inline]] static void widen(U8 b, V& lo, V& hi) {
     const U8 zero8 = {};
     const U16 zero16 = {};
     const auto w = reinterpret_cast<U16>(
@@ -357,56 +363,78 @@ class SurvivorRuns {
     lo = reinterpret_cast<V>(__builtin_shufflevector(w, zero16, 0, 8, 1, 9, 2, 10, 3, 11));
     hi = reinterpret_cast<V>(__builtin_shufflevector(w, zero16, 4, 12, 5, 13, 6, 14, 7, 15));
   }
-  static U8 bytes8(std::uint64_t x) {
+  // The same as one vector of eight (GCC made a conversion of eight bytes into scalar moves).
+  [[gnu::always_inline]] static void widen(U8 b, V8& all) {
+    V lo, hi;
+    widen(b, lo, hi);
+    all = __builtin_shufflevector(lo, hi, 0, 1, 2, 3, 4, 5, 6, 7);
+  }
+  [[gnu::always_inline]] static U8 bytes8(std::uint64_t x) {
     const U64 v = {x, 0};
     return reinterpret_cast<U8>(v);
   }
-  static std::uint64_t load8(const std::uint8_t* p) {
+  [[gnu::always_inline]] static std::uint64_t load8(const std::uint8_t* p) {
     std::uint64_t x;
     std::memcpy(&x, p, 8);
     return x;
   }
   // Eight nibbles from nibble `at` on, a nibble a byte: the low and high halves of four bytes,
   // interleaved.
-  static U8 nibbles8(const std::uint8_t* packed, std::uint32_t at) {
+  [[gnu::always_inline]] static U8 nibbles8(const std::uint8_t* packed, std::uint32_t at) {
     const U8 b = bytes8(load8(packed + at / 2) >> (4 * (at & 1)));
     return __builtin_shufflevector(b & 15, b >> 4, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
   }
-  static void predict(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
-                      const std::uint32_t* __restrict d1, V u, std::uint32_t add, std::uint32_t linear) {
-    const V r = ((u >> 1) ^ (0u - (u & 1u))) + add;  // unzigzag(), lane by lane
-    V q, d;
-    std::memcpy(&q, q1, 16);
-    std::memcpy(&d, d1, 16);
-    const V step = (d & linear) + r;
+  // Survivors t to t + Lanes - 1 of a run from their residuals u (zigzagged, before the bias).
+  template <class W>
+  [[gnu::always_inline]] static void predict(std::uint32_t* __restrict q0, std::uint32_t* __restrict d0,
+                                             const std::uint32_t* __restrict q1, const std::uint32_t* __restrict d1,
+                                             const W& u, std::uint32_t add, std::uint32_t linear) {
+    const W r = ((u >> 1) ^ (0u - (u & 1u))) + add;  // unzigzag(), lane by lane
+    W q, d;
+    std::memcpy(&q, q1, sizeof(W));
+    std::memcpy(&d, d1, sizeof(W));
+    const W step = (d & linear) + r;
     q += step;
-    std::memcpy(q0, &q, 16);
-    std::memcpy(d0, &step, 16);
+    std::memcpy(q0, &q, sizeof(W));
+    std::memcpy(d0, &step, sizeof(W));
   }
 
-  // Nibbles with escapes `Bytes` wide, or `Bytes` byte planes.
-  template <bool Nibbles, unsigned Bytes>
+  // Nibbles with escapes `Bytes` wide, or `Bytes` byte planes, `Lanes` survivors a vector.
+  template <unsigned Lanes, bool Nibbles, unsigned Bytes>
   struct Reader {
     SurvivorRuns* s;
-    void run(std::uint32_t at, std::uint32_t len, std::uint32_t* __restrict q0, std::uint32_t* __restrict d0,
-             const std::uint32_t* __restrict q1, const std::uint32_t* __restrict d1, std::uint32_t linear) {
+    [[gnu::always_inline]] void run(std::uint32_t at, std::uint32_t len, std::uint32_t* __restrict q0,
+                                    std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
+                                    const std::uint32_t* __restrict d1, std::uint32_t linear) {
+      static_assert(Lanes == 4 || Lanes == 8);
+      using W = std::conditional_t<Lanes == 4, V, V8>;
       const std::uint8_t* __restrict keep = s->keep_;
       const std::size_t n = s->n_;
       const std::uint32_t add = s->bias_[at >> kBlockShift];
       for (std::uint32_t t = 0; t < len; t += 8) {
-        V lo{}, hi{};
+        W lo{};
+        [[maybe_unused]] W hi{};
         if constexpr (Nibbles) {
-          widen(nibbles8(keep, at + t), lo, hi);
+          if constexpr (Lanes == 4) {
+            widen(nibbles8(keep, at + t), lo, hi);
+          } else {
+            widen(nibbles8(keep, at + t), lo);
+          }
         } else {
           for (unsigned b = 0; b < Bytes; ++b) {
-            V l, h;
-            widen(bytes8(load8(keep + b * n + at + t)), l, h);
+            W l{};
+            [[maybe_unused]] W h{};
+            if constexpr (Lanes == 4) {
+              widen(bytes8(load8(keep + b * n + at + t)), l, h);
+            } else {
+              widen(bytes8(load8(keep + b * n + at + t)), l);
+            }
             lo |= l << (8 * b);
-            hi |= h << (8 * b);
+            if constexpr (Lanes == 4) hi |= h << (8 * b);
           }
         }
         predict(q0 + t, d0 + t, q1 + t, d1 + t, lo, add, linear);
-        predict(q0 + t + 4, d0 + t + 4, q1 + t + 4, d1 + t + 4, hi, add, linear);
+        if constexpr (Lanes == 4) predict(q0 + t + 4, d0 + t + 4, q1 + t + 4, d1 + t + 4, hi, add, linear);
       }
       if constexpr (Nibbles && Bytes != 0) {  // an escape of 0 is 15 itself
         if (s->scan_.next() < at + len) s->template patch<Bytes>(at, len, q0, d0);
@@ -430,9 +458,9 @@ class SurvivorRuns {
     e_ = e;
   }
 
-  template <bool Nibbles, unsigned Bytes, class F>
-  void call(F& f) {
-    Reader<Nibbles, Bytes> r{this};
+  template <unsigned Lanes, bool Nibbles, unsigned Bytes, class F>
+  [[gnu::always_inline]] void call(F& f) {
+    Reader<Lanes, Nibbles, Bytes> r{this};
     f(r);
   }
 
