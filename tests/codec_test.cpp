@@ -520,14 +520,13 @@ template <unsigned Lanes>
 [[gnu::always_inline]] inline void read_runs(format::particle::SurvivorRuns& survivors, const RunsCase& c) {
   namespace pc = format::particle;
   std::uint32_t seed = c.seed;
-  survivors.visit<Lanes>([&](auto& runs) __attribute__((always_inline)) {
-    for (std::uint32_t at = 0; at < c.n;) {
-      seed = seed * 1664525u + 1013904223u;
-      const std::uint32_t len = std::min({1 + (seed >> 8) % 40, c.n - at, pc::kBlock - (at & (pc::kBlock - 1))});
-      runs.run(at, len, c.q0 + at, c.d0 + at, c.q1 + at, c.d1 + at, c.linear);
-      at += len;
-    }
-  });
+  const unsigned kind = survivors.kind();
+  for (std::uint32_t at = 0; at < c.n;) {
+    seed = seed * 1664525u + 1013904223u;
+    const std::uint32_t len = std::min({1 + (seed >> 8) % 40, c.n - at, pc::kBlock - (at & (pc::kBlock - 1))});
+    survivors.run<Lanes>(kind, at, len, c.q0 + at, c.d0 + at, c.q1 + at, c.d1 + at, c.linear);
+    at += len;
+  }
 }
 void read_runs_baseline(format::particle::SurvivorRuns& survivors, const RunsCase& c) { read_runs<4>(survivors, c); }
 #if defined(__x86_64__)

@@ -322,26 +322,33 @@ class SurvivorRuns {
     if (nibbles_ && escapes_ != 0 && bytes_ != 0) scan_ = EscapeScan(keep_, n_);  // an escape of 0 is 15 itself
   }
 
-  // Calls f with a reader whose run(at, len, q0, d0, q1, d1, linear_mask) predicts survivors
-  // [at, at + len), all in one block, the runs in order; one instance of f for each packing.
-  // `Lanes` is the vector width in 32-bit values: 4 (16-byte vectors: x86-64's baseline SSE2,
-  // WebAssembly's SIMD128) or 8 (32-byte, for a caller built for AVX2). Everything here inlines
-  // into that caller, so the 8-lane code is only ever compiled for it.
-  template <unsigned Lanes, class F>
-  [[gnu::always_inline]] void visit(F&& f) {
-    const auto with = [&]<bool Nibbles>() __attribute__((always_inline)) {
-      switch (bytes_) {
-        case 0: return call<Lanes, Nibbles, 0>(f);
-        case 1: return call<Lanes, Nibbles, 1>(f);
-        case 2: return call<Lanes, Nibbles, 2>(f);
-        case 3: return call<Lanes, Nibbles, 3>(f);
-        default: return call<Lanes, Nibbles, 4>(f);
-      }
-    };
-    if (nibbles_)
-      with.template operator()<true>();
-    else
-      with.template operator()<false>();
+  SurvivorRuns() = default;
+
+  // Which reader the residuals need: 0-4 for byte planes of that many bytes, 5-9 for nibbles with
+  // escapes of kind - 5 bytes.
+  unsigned kind() const { return (nibbles_ ? 5u : 0u) + std::min(bytes_, 4u); }
+
+  // Predicts survivors [at, at + len), all in one block, the runs in order: q0/d0 from q1/d1 with
+  // the steps masked by `linear` (0 or ~0). `kind` is kind(); `Lanes` the vector width in 32-bit
+  // values, 4 (16-byte vectors: x86-64's baseline SSE2, WebAssembly's SIMD128) or 8 (32-byte,
+  // for a caller built for AVX2). Everything here inlines into the caller, so the 8-lane code is
+  // only ever compiled for one built for AVX2.
+  template <unsigned Lanes>
+  [[gnu::always_inline]] void run(unsigned kind, std::uint32_t at, std::uint32_t len, std::uint32_t* q0,
+                                  std::uint32_t* d0, const std::uint32_t* q1, const std::uint32_t* d1,
+                                  std::uint32_t linear) {
+    switch (kind) {
+      case 0: return Reader<Lanes, false, 0>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 1: return Reader<Lanes, false, 1>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 2: return Reader<Lanes, false, 2>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 3: return Reader<Lanes, false, 3>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 4: return Reader<Lanes, false, 4>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 5: return Reader<Lanes, true, 0>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 6: return Reader<Lanes, true, 1>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 7: return Reader<Lanes, true, 2>{this}.run(at, len, q0, d0, q1, d1, linear);
+      case 8: return Reader<Lanes, true, 3>{this}.run(at, len, q0, d0, q1, d1, linear);
+      default: return Reader<Lanes, true, 4>{this}.run(at, len, q0, d0, q1, d1, linear);
+    }
   }
 
  private:
@@ -458,17 +465,11 @@ class SurvivorRuns {
     e_ = e;
   }
 
-  template <unsigned Lanes, bool Nibbles, unsigned Bytes, class F>
-  [[gnu::always_inline]] void call(F& f) {
-    Reader<Lanes, Nibbles, Bytes> r{this};
-    f(r);
-  }
-
-  const std::uint8_t *keep_, *escape_planes_;
-  const std::uint32_t* bias_;
-  std::uint32_t n_, escapes_, e_ = 0;
-  unsigned bytes_;
-  bool nibbles_;
+  const std::uint8_t *keep_ = nullptr, *escape_planes_ = nullptr;
+  const std::uint32_t* bias_ = nullptr;
+  std::uint32_t n_ = 0, escapes_ = 0, e_ = 0;
+  unsigned bytes_ = 0;
+  bool nibbles_ = false;
   EscapeScan scan_;
 };
 
