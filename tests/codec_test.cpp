@@ -1132,6 +1132,8 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
   EXPECT_EQ(j["clock"], "thread CPU time");
   EXPECT_EQ(j["repetitions"], 3);
+  // Which instructions our decoder ran with (this process's choice: the CLI's is the same).
+  EXPECT_EQ(j["ours_decoder_simd"], std::string(format::particle_decoder_simd()));
   ASSERT_EQ(j["codecs"].size(), 3u);
   std::map<std::string, nlohmann::json> by_name;
   for (const auto& c : j["codecs"]) by_name[c["codec"].get<std::string>()] = c;
