@@ -165,9 +165,9 @@ constexpr std::uint32_t kSmallStep = 1u << 27;
 
 // The derived values of n particles: out[t] from their steps d0[t] (this frame), d1[t] (the one
 // before) and state[t].
-inline void derive_run(std::uint32_t* __restrict out, const std::uint32_t* __restrict d0,
-                       const std::uint32_t* __restrict d1, const std::uint8_t* __restrict state, std::uint32_t n,
-                       float step) {
+[[gnu::always_inline]] inline void derive_run(std::uint32_t* __restrict out, const std::uint32_t* __restrict d0,
+                                              const std::uint32_t* __restrict d1, const std::uint8_t* __restrict state,
+                                              std::uint32_t n, float step) {
   std::uint32_t large = 0;
   for (std::uint32_t t = 0; t < n; ++t) large |= ((d0[t] + kSmallStep) | (d1[t] + kSmallStep)) & ~(2 * kSmallStep - 1);
   if (large == 0) {
