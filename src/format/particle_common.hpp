@@ -358,7 +358,6 @@ class SurvivorRuns {
   using V8 = std::uint32_t __attribute__((vector_size(32)));
   using U16 = std::uint16_t __attribute__((vector_size(16)));
   using U8 = std::uint8_t __attribute__((vector_size(16)));
-  using B8 = std::uint8_t __attribute__((vector_size(8)));
   using U64 = std::uint64_t __attribute__((vector_size(16)));
 
   // Eight bytes, the first lowest, widened to two vectors of four values.

@@ -329,6 +329,7 @@ class ParticleUnit final : public FrameUnit {
     columns_.resize(plan_.words);
     words_.resize(plan_.coded.size());
     body_.resize(sizes.body);
+    choose_groups();
   }
 
   void reset() override { count_[cur_ ^ 1] = 0; }
@@ -666,6 +667,34 @@ class ParticleUnit final : public FrameUnit {
     }
   }
 
+  // The first record word of group g: groups of four words, the last one overlapping the one
+  // before when the words are not a multiple of four (a record is 16 bytes or more).
+  std::uint32_t group_word(std::uint32_t g) const { return std::min(4 * g, plan_.words - 4); }
+
+  // Each group's loop, from its columns' kinds (the clip's codings, the same in every frame):
+  // one of its own for each mix of dequantised, shifted and constant columns, else the loop that
+  // reads the kinds at run time. Eight particles at a time with AVX2 when every group has a loop
+  // of its own.
+  void choose_groups() {
+    static_assert(Column::kDequantize == 0 && Column::kShift == 1 && Column::kConstant == 2);
+    set_columns();
+    std::vector<int> mixes;
+    for (std::uint32_t w0 = 0; w0 < plan_.words; w0 += 4) {
+      const std::uint32_t w = group_word(w0 / 4);
+      int mix = 0;
+      for (int x = 0, digit = 1; x < 4 && mix >= 0; ++x, digit *= 3)
+        mix = columns_[w + x].kind > Column::kConstant ? -1 : mix + columns_[w + x].kind * digit;
+      mixes.push_back(mix);
+    }
+    const bool all_known = std::find(mixes.begin(), mixes.end(), -1) == mixes.end();
+    record_lanes_ = avx2_ && all_known ? 8 : 4;
+    for (const int mix : mixes) {
+      groups_.push_back(mix < 0              ? &write_group<kAny, kAny, kAny, kAny>
+                        : record_lanes_ == 8 ? kKnownGroupsAvx2[mix]
+                                             : kKnownGroups[mix]);
+    }
+  }
+
   // Records are written four words of four particles at a time (eight with AVX2), straight from
   // the state: each word's values made in a vector register, then 4×4 transposes into the
   // records. Through a tile (each word's column of 256 particles made in a loop of its own, then
@@ -674,34 +703,15 @@ class ParticleUnit final : public FrameUnit {
   // of the usual kinds have loops of their own.
   void write_records(std::uint32_t count, std::span<std::byte> out) {
     const std::size_t rs = meta_.record_size;
-    const std::uint32_t words = plan_.words;  // four or more (a record is 16 bytes or more)
-    static_assert(Column::kDequantize == 0 && Column::kShift == 1 && Column::kConstant == 2);
     if (count == 0) return;  // an empty frame's output may be no memory at all
     set_columns();
-    // Groups of four words, the last one overlapping the one before when the words are not a
-    // multiple of four. Eight particles at a time when every group has a loop of its own.
-    const auto group_at = [&](std::uint32_t w0) { return std::min(w0, words - 4); };
-    const auto mix_of = [&](std::uint32_t w) {
-      unsigned mix = 0;
-      for (unsigned x = 0, digit = 1; x < 4; ++x, digit *= 3) {
-        if (columns_[w + x].kind > Column::kConstant) return -1;
-        mix += columns_[w + x].kind * digit;
-      }
-      return int(mix);
-    };
-    bool all_known = true;
-    for (std::uint32_t w0 = 0; w0 < words; w0 += 4) all_known = all_known && mix_of(group_at(w0)) >= 0;
-    const std::uint32_t lanes = avx2_ && all_known ? 8 : 4;
-    for (std::uint32_t w0 = 0; w0 < words; w0 += 4) {
-      const std::uint32_t w = group_at(w0);
-      const int mix = mix_of(w);
-      const WriteGroup group = mix < 0      ? &write_group<kAny, kAny, kAny, kAny>
-                               : lanes == 8 ? kKnownGroupsAvx2[mix]
-                                            : kKnownGroups[mix];
-      group(columns_.data() + w, out.data() + 4 * w, rs, count / lanes);
+    const std::uint32_t lanes = record_lanes_;
+    for (std::uint32_t g = 0; g < groups_.size(); ++g) {
+      const std::uint32_t w = group_word(g);
+      groups_[g](columns_.data() + w, out.data() + 4 * w, rs, count / lanes);
     }
     for (std::uint32_t t = count / lanes * lanes; t < count; ++t) {
-      for (std::uint32_t x = 0; x < words; ++x) {
+      for (std::uint32_t x = 0; x < plan_.words; ++x) {
         const std::uint32_t value = column1(columns_[x], t);
         std::memcpy(out.data() + std::size_t(t) * rs + 4 * x, &value, 4);
       }
@@ -725,6 +735,8 @@ class ParticleUnit final : public FrameUnit {
   PredictSurvivors predict_survivors_ = avx2_ ? predict_survivors_avx2 : predict_survivors_baseline;
   DeriveRun derive_run_ = avx2_ ? derive_run_avx2 : derive_run_baseline;
   std::vector<WordRuns> runs_;                  // one per coded word, set for each predicted frame
+  std::vector<WriteGroup> groups_;              // each group of four record words' loop (choose_groups)
+  std::uint32_t record_lanes_ = 4;              // particles a loop of groups_ makes at a time
   std::uint64_t stride_ = 0, bias_stride_ = 0;  // elements between words in q_ and d_, and in bias_
 };
 
