@@ -1145,6 +1145,7 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   EXPECT_EQ(by_name["zstd -3"]["max_error_position"].get<double>(), 0.0);  // lossless
   for (const auto& c : j["codecs"]) {
     EXPECT_GT(c["decode_gb_s"].get<double>(), 0.0) << c.dump();
+    EXPECT_GT(c["decode_first_pass_gb_s"].get<double>(), 0.0) << c.dump();
     EXPECT_GT(c["encode_mb_s"].get<double>(), 0.0) << c.dump();
     // Encodes are timed as the median of up to --repetitions runs (fewer only past 2 s of CPU,
     // which 4 frames of the sparks are far from).
@@ -1152,6 +1153,8 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   }
   EXPECT_GT(j["ours_decode_vs_zstd"].get<double>(), 0.0);
   EXPECT_GT(j["ours_decode_vs_meshopt"].get<double>(), 0.0);
+  EXPECT_GT(j["ours_first_pass_vs_zstd"].get<double>(), 0.0);
+  EXPECT_GT(j["ours_first_pass_vs_meshopt"].get<double>(), 0.0);
   // Without its peers in the run, no ratio to them.
   const auto alone =
       test::run_cli(fmt::format("bench codec {} --frames 2 --repetitions 1 --codec 'particle (ours)' --json", sparks));
@@ -1159,6 +1162,7 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   const auto k = nlohmann::json::parse(alone.output.substr(alone.output.find('{')));
   EXPECT_EQ(k["ours_decode_vs_zstd"].get<double>(), 0.0);
   EXPECT_EQ(k["ours_decode_vs_meshopt"].get<double>(), 0.0);
+  EXPECT_EQ(k["ours_first_pass_vs_meshopt"].get<double>(), 0.0);
   EXPECT_EQ(k["codecs"][0]["encode_runs"].get<int>(), 1);
 }
 

@@ -341,8 +341,9 @@ int main(int argc, char** argv) {
       "and Draco, on the same frames of [x y z scale] records at the same error bound: bytes per particle per\n"
       "frame, max error, encode MB/s and decode GB/s (one core, thread CPU time, medians) next to a memcpy of the\n"
       "decoded bytes. Each repetition decodes with every codec in turn, so ours is compared with zstd -3 and\n"
-      "meshoptimizer + zstd within repetitions; every codec's output is held at once (--codec and --frames keep\n"
-      "a large cache within memory).\n"
+      "meshoptimizer + zstd within repetitions. Each codec decodes the clip twice in a row: dec GB/s is the\n"
+      "second pass (its data in cache), '1st pass' the first (after the other codecs' work). Every codec's\n"
+      "output is held at once (--codec and --frames keep a large cache within memory).\n"
       "Examples:\n"
       "  pstream bench codec tests/data/sims/blender_sparks.abc\n"
       "  pstream bench codec out/demo/demo.abc --frames 60 --json");
