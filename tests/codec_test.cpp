@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <memory>
@@ -1164,6 +1166,65 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   EXPECT_EQ(k["ours_decode_vs_meshopt"].get<double>(), 0.0);
   EXPECT_EQ(k["ours_first_pass_vs_meshopt"].get<double>(), 0.0);
   EXPECT_EQ(k["codecs"][0]["encode_runs"].get<int>(), 1);
+}
+
+// `bench codec --svg`: one point per codec, placed by the JSON's figures on logarithmic axes, and
+// every label readable (no two labels' boxes overlap, nor a label and another codec's point).
+TEST(ParticleCodecCli, BenchCodecPlotPlacesEveryCodecAndItsLabelApart) {
+  const std::string sparks = test::data_path("sims/blender_sparks.abc");
+  const auto dir = test::fresh_dir();
+  const std::string svg = (dir / "plot.svg").string();
+  const auto r = test::run_cli(fmt::format("bench codec {} --frames 3 --repetitions 1 --json --svg {}", sparks, svg));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
+  std::ifstream in(svg);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_NE(text.find("</svg>"), std::string::npos);
+  const auto attr = [](const std::string& tag, const std::string& name) {
+    const auto at = tag.find(" " + name + "=\"");
+    return at == std::string::npos ? std::nan("") : std::stod(tag.substr(at + name.size() + 3));
+  };
+  struct Box {
+    double x0, y0, x1, y1;
+  };
+  std::vector<std::pair<double, double>> points;
+  std::map<std::string, Box> labels;
+  for (std::size_t at = 0; (at = text.find('<', at)) != std::string::npos; ++at) {
+    const std::size_t end = text.find('>', at);
+    const std::string tag = text.substr(at, end - at + 1);
+    if (tag.rfind("<circle", 0) == 0) points.emplace_back(attr(tag, "cx"), attr(tag, "cy"));
+    if (tag.rfind("<text", 0) == 0 && tag.find("text-anchor") == std::string::npos &&
+        tag.find("rotate") == std::string::npos) {
+      const std::string name = text.substr(end + 1, text.find('<', end) - end - 1);
+      const double x = attr(tag, "x"), y = attr(tag, "y");
+      labels[name] = {x, y - 11, x + 7.0 * double(name.size()), y + 2};
+    }
+  }
+  const auto& codecs = j["codecs"];
+  ASSERT_EQ(points.size(), codecs.size());
+  for (const auto& c : codecs) EXPECT_TRUE(labels.count(c["codec"].get<std::string>())) << c["codec"];
+  // Faster is further right and smaller further down, point for point.
+  for (std::size_t a = 0; a < codecs.size(); ++a) {
+    for (std::size_t b = 0; b < codecs.size(); ++b) {
+      if (codecs[a]["decode_gb_s"].get<double>() < codecs[b]["decode_gb_s"].get<double>()) {
+        EXPECT_LE(points[a].first, points[b].first) << codecs[a]["codec"] << " " << codecs[b]["codec"];
+      }
+      if (codecs[a]["bytes_per_particle"].get<double>() < codecs[b]["bytes_per_particle"].get<double>()) {
+        EXPECT_GE(points[a].second, points[b].second) << codecs[a]["codec"] << " " << codecs[b]["codec"];
+      }
+    }
+  }
+  const auto overlap = [](const Box& p, const Box& q) {
+    return p.x0 < q.x1 && q.x0 < p.x1 && p.y0 < q.y1 && q.y0 < p.y1;
+  };
+  for (auto a = labels.begin(); a != labels.end(); ++a) {
+    for (auto b = std::next(a); b != labels.end(); ++b) {
+      EXPECT_FALSE(overlap(a->second, b->second)) << a->first << " and " << b->first;
+    }
+    for (const auto& [x, y] : points) {
+      EXPECT_FALSE(overlap(a->second, {x - 4, y - 4, x + 4, y + 4})) << a->first << " covers a point";
+    }
+  }
 }
 
 // The registry: every frame codec has both halves under one name, and a clip planned and encoded

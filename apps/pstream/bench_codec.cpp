@@ -368,46 +368,100 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
 // Bytes per particle (log scale) against decode speed, one labelled point per codec.
 std::string svg_scatter(const nlohmann::ordered_json& results, const std::string& title) {
   const double W = 760, H = 440, L = 70, R = 30, T = 40, B = 50;
-  double xmax = 0, ymin = 1e300, ymax = 0;
+  double xmin = 1e300, xmax = 0, ymin = 1e300, ymax = 0;
+  // Speeds clamped to 1 MB/s .. 10 TB/s: a decode too quick for the clock to see is infinitely fast.
+  const auto speed = [](const nlohmann::ordered_json& r) {
+    const double v = r["decode_gb_s"].get<double>();
+    return std::isfinite(v) ? std::clamp(v, 1e-3, 1e4) : 1e4;
+  };
   for (const auto& r : results) {
-    xmax = std::max(xmax, r["decode_gb_s"].get<double>());
+    xmin = std::min(xmin, speed(r));
+    xmax = std::max(xmax, speed(r));
     ymin = std::min(ymin, r["bytes_per_particle"].get<double>());
     ymax = std::max(ymax, r["bytes_per_particle"].get<double>());
   }
-  xmax = std::ceil(std::min(xmax, 40.0) + 0.5);
+  // Both axes logarithmic: the codecs' speeds span 0.1 to tens of GB/s, and on a linear axis
+  // everything but raw and lz4 shared its first tenth.
+  const double lx0 = std::floor(std::log10(xmin)), lx1 = std::max(lx0 + 1, std::ceil(std::log10(xmax)));
   const double ly0 = std::floor(std::log10(ymin) * 2) / 2, ly1 = std::ceil(std::log10(ymax) * 2) / 2;
-  const auto px = [&](double x) { return L + std::min(x, xmax) / xmax * (W - L - R); };
+  const auto px = [&](double x) { return L + (std::log10(x) - lx0) / (lx1 - lx0) * (W - L - R); };
   const auto py = [&](double y) { return H - B - (std::log10(y) - ly0) / (ly1 - ly0) * (H - T - B); };
   std::string s = fmt::format(
       R"(<svg xmlns="http://www.w3.org/2000/svg" width="{}" height="{}" font-family="sans-serif" font-size="12">)", W,
       H);
   s += fmt::format(R"(<rect width="100%" height="100%" fill="white"/><text x="{}" y="22" font-size="15">{}</text>)", L,
                    title);
-  const int tick = xmax > 12 ? 5 : 1;
-  for (int k = 0; k * tick <= xmax; ++k) {
-    const double x = k * tick;
-    s += fmt::format(
-        R"(<line x1="{0}" y1="{1}" x2="{0}" y2="{2}" stroke="#ddd"/><text x="{0}" y="{3}" text-anchor="middle">{4:g}</text>)",
-        px(x), T, H - B, H - B + 18, x);
+  for (int e = int(lx0); e <= int(lx1); ++e) {
+    for (const double m : {1.0, 2.0, 5.0}) {
+      const double x = std::pow(10.0, e) * m;
+      if (std::log10(x) > lx1 + 1e-9) break;
+      s += fmt::format(
+          R"(<line x1="{0:.1f}" y1="{1}" x2="{0:.1f}" y2="{2}" stroke="#ddd"/><text x="{0:.1f}" y="{3}" text-anchor="middle">{4:g}</text>)",
+          px(x), T, H - B, H - B + 18, x);
+    }
   }
-  for (const double y : {0.5, 1.0, 2.0, 4.0, 8.0, 16.0}) {
+  for (const double y : {0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0}) {
     if (std::log10(y) < ly0 - 1e-9 || std::log10(y) > ly1 + 1e-9) continue;
     s += fmt::format(
         R"(<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="#ddd"/><text x="{3}" y="{4}" text-anchor="end">{5:g}</text>)",
         L, py(y), W - R, L - 6, py(y) + 4, y);
   }
   s += fmt::format(
-      R"(<text x="{}" y="{}" text-anchor="middle">decode GB/s of records, one core (right is faster)</text>)",
+      R"(<text x="{}" y="{}" text-anchor="middle">decode GB/s of records, one core, log scale (right is faster)</text>)",
       (L + W - R) / 2, H - 12);
   s += fmt::format(
       R"svg(<text x="16" y="{}" transform="rotate(-90 16 {})" text-anchor="middle">bytes per particle per frame (down is smaller)</text>)svg",
       (T + H - B) / 2, (T + H - B) / 2);
+  // Points first, then each label at the first of a few places beside its point that overlaps no
+  // point (nor the room around it) and no label placed before it (boxes estimated at 7 px a
+  // character, 13 px high), with a line to its point when it is not at the first place.
+  struct Box {
+    double x0, y0, x1, y1;
+    bool hits(const Box& o) const { return x0 < o.x1 && o.x0 < x1 && y0 < o.y1 && o.y0 < y1; }
+  };
+  std::vector<Box> taken;
+  std::vector<std::pair<double, double>> at;
   for (const auto& r : results) {
     const std::string name = r["codec"];
     const bool ours = name.find("ours") != std::string::npos;
-    const double x = px(r["decode_gb_s"].get<double>()), y = py(r["bytes_per_particle"].get<double>());
-    s += fmt::format(R"(<circle cx="{:.1f}" cy="{:.1f}" r="{}" fill="{}"/><text x="{:.1f}" y="{:.1f}">{}</text>)", x, y,
-                     ours ? 6 : 4, ours ? "#d62728" : "#1f77b4", x + 8, y - 6, name);
+    const double x = px(speed(r)), y = py(r["bytes_per_particle"].get<double>());
+    s += fmt::format(R"(<circle cx="{:.1f}" cy="{:.1f}" r="{}" fill="{}"/>)", x, y, ours ? 6 : 4,
+                     ours ? "#d62728" : "#1f77b4");
+    taken.push_back({x - 9, y - 9, x + 9, y + 9});  // a point with room around it
+    at.emplace_back(x, y);
+  }
+  for (std::size_t i = 0; i < results.size(); ++i) {
+    const std::string name = results[i]["codec"];
+    const auto [x, y] = at[i];
+    const double w = 7.0 * double(name.size());
+    constexpr double kDy[] = {-6, 16, -22, 32, -38, 48, -54};
+    Box box{};
+    double tx = 0, ty = 0;
+    bool placed = false;
+    for (const bool right : {true, false}) {
+      for (const double dy : kDy) {
+        tx = right ? x + 9 : x - 9 - w;
+        ty = y + dy;
+        box = {tx, ty - 11, tx + w, ty + 2};
+        if (box.x0 < L || box.x1 > W || box.y0 < T - 10 || box.y1 > H - B) continue;
+        if (std::none_of(taken.begin(), taken.end(), [&](const Box& o) { return box.hits(o); })) {
+          placed = true;
+          break;
+        }
+      }
+      if (placed) break;
+    }
+    if (!placed) {  // nowhere free: beside the point, as before
+      tx = x + 9;
+      ty = y - 6;
+      box = {tx, ty - 11, tx + w, ty + 2};
+    }
+    if (tx < x || ty != y - 6) {  // moved from beside its point: a line to it
+      s += fmt::format(R"(<line x1="{:.1f}" y1="{:.1f}" x2="{:.1f}" y2="{:.1f}" stroke="#999"/>)", x, y,
+                       tx < x ? tx + w : tx, ty - 4);
+    }
+    s += fmt::format(R"(<text x="{:.1f}" y="{:.1f}">{}</text>)", tx, ty, name);
+    taken.push_back(box);
   }
   return s + "</svg>\n";
 }
