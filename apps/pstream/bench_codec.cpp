@@ -365,7 +365,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
   return all;
 }
 
-// Bytes per particle (log scale) against decode speed, one labelled point per codec.
+// Bytes per particle against decode speed, both on log scales, one labelled point per codec.
 std::string svg_scatter(const nlohmann::ordered_json& results, const std::string& title) {
   const double W = 760, H = 440, L = 70, R = 30, T = 40, B = 50;
   double xmin = 1e300, xmax = 0, ymin = 1e300, ymax = 0;
