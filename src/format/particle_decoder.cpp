@@ -19,6 +19,14 @@
 #include <type_traits>
 #include <utility>
 
+// The decoder's kernels are also built for AVX2 (picked at run time, use_avx2()) on x86-64 outside
+// the browser; elsewhere only the baseline vectors are.
+#if defined(__x86_64__) && !defined(__EMSCRIPTEN__)
+#define PSTREAM_DECODER_AVX2 1
+#else
+#define PSTREAM_DECODER_AVX2 0
+#endif
+
 namespace pstream::format {
 namespace {
 
@@ -184,7 +192,7 @@ template <int K0, int K1, int K2, int K3>
 void write_group(const Column* columns, std::byte* record, std::size_t rs, std::uint32_t groups) {
   write_group_with<V, K0, K1, K2, K3>(columns, record, rs, groups);
 }
-#if defined(__x86_64__) && !defined(__EMSCRIPTEN__)
+#if PSTREAM_DECODER_AVX2
 template <int K0, int K1, int K2, int K3>
 [[gnu::target("avx2")]] void write_group_avx2(const Column* columns, std::byte* record, std::size_t rs,
                                               std::uint32_t groups) {
@@ -195,7 +203,7 @@ template <int K0, int K1, int K2, int K3>
 // digit x of the index in base 3.
 template <bool Avx2, std::size_t... M>
 constexpr auto known_groups(std::index_sequence<M...>) {
-#if defined(__x86_64__) && !defined(__EMSCRIPTEN__)
+#if PSTREAM_DECODER_AVX2
   if constexpr (Avx2)
     return std::array<WriteGroup, sizeof...(M)>{
         &write_group_avx2<int(M % 3), int(M / 3 % 3), int(M / 9 % 3), int(M / 27)>...};
@@ -251,7 +259,7 @@ using PredictSurvivors = void (*)(const Body&, WordRuns*, std::size_t);
 void predict_survivors_baseline(const Body& b, WordRuns* words, std::size_t count) {
   predict_survivors_with<4>(b, words, count);
 }
-#if defined(__x86_64__) && !defined(__EMSCRIPTEN__)
+#if PSTREAM_DECODER_AVX2
 // The same compiled for AVX2: eight survivors a vector instead of two vectors of four.
 [[gnu::target("avx2")]] void predict_survivors_avx2(const Body& b, WordRuns* words, std::size_t count) {
   predict_survivors_with<8>(b, words, count);
@@ -289,7 +297,7 @@ void derive_run_baseline(std::uint32_t* out, const std::uint32_t* d0, const std:
                          const std::uint8_t* state, std::uint32_t n, float step) {
   derive_run(out, d0, d1, state, n, step);
 }
-#if defined(__x86_64__) && !defined(__EMSCRIPTEN__)
+#if PSTREAM_DECODER_AVX2
 [[gnu::target("avx2")]] void derive_run_avx2(std::uint32_t* out, const std::uint32_t* d0, const std::uint32_t* d1,
                                              const std::uint8_t* state, std::uint32_t n, float step) {
   derive_run(out, d0, d1, state, n, step);
@@ -301,7 +309,7 @@ constexpr DeriveRun derive_run_avx2 = derive_run_baseline;                      
 // AVX2 where the processor has it, unless the environment says PSTREAM_SIMD=baseline (which the
 // tests use to check that both decode the same bits).
 bool use_avx2() {
-#if defined(__x86_64__) && !defined(__EMSCRIPTEN__)
+#if PSTREAM_DECODER_AVX2
   const char* simd = std::getenv("PSTREAM_SIMD");
   return (simd == nullptr || std::string_view(simd) != "baseline") && __builtin_cpu_supports("avx2");
 #else
@@ -745,7 +753,7 @@ class ParticleUnit final : public FrameUnit {
 std::string_view particle_decoder_simd() {
 #if defined(__EMSCRIPTEN__)
   return "SIMD128";
-#elif defined(__x86_64__)
+#elif PSTREAM_DECODER_AVX2
   return use_avx2() ? "AVX2" : "SSE2";
 #else
   return "generic vectors";
