@@ -320,7 +320,8 @@ TEST(ParticleCodec, BytesPerParticleOnTheSims) {
 
 // The default zstd level follows the frame order (format::default_particle_zstd_level): 16 where
 // particles have ids, 12 without, where the residuals are a solver's re-sampling noise and level
-// 16's optimal parser finds under 2 % more. The file records the level it was cooked at.
+// 16's optimal parser finds under 2 % more (since the leftovers are paired, nothing: 0.04 % less).
+// The file records the level it was cooked at.
 TEST(ParticleCodec, DefaultZstdLevelFollowsTheFrameOrder) {
   const fs::path dir = test::fresh_dir();
   const auto cook_at = [&](const std::string& file, const std::string& name, int level) {
@@ -341,8 +342,7 @@ TEST(ParticleCodec, DefaultZstdLevelFollowsTheFrameOrder) {
   EXPECT_NE(flip.cooked_with.find("codec=particle:12 "), std::string::npos) << flip.cooked_with;
   EXPECT_NE(flip16.cooked_with.find("codec=particle:16 "), std::string::npos) << flip16.cooked_with;
   EXPECT_NE(sparks.cooked_with.find("codec=particle:16 "), std::string::npos) << sparks.cooked_with;
-  // Level 16 is smaller on the FLIP pour, by less than 2 %.
-  EXPECT_LT(flip16.stream_size(), flip.stream_size());
+  // Level 16 is not 2 % smaller on the FLIP pour.
   EXPECT_GT(double(flip16.stream_size()), 0.98 * double(flip.stream_size()));
   EXPECT_EQ(format::default_particle_zstd_level(format::FrameOrder::Id, false), format::kDefaultParticleZstdLevel);
   EXPECT_EQ(format::default_particle_zstd_level(format::FrameOrder::Matched, false),
@@ -990,6 +990,76 @@ TEST(ParticleCodec, WithoutIdsEachParticlePairsWithItselfAfterASmallMove) {
     EXPECT_EQ(pairs, kCount);
     EXPECT_EQ(wrong, 0u);
   }
+}
+
+// Without ids the matching pairs what it can: once the closest pairs are taken, the particles
+// left over in both frames are paired among themselves, closest first (a previous particle is left
+// over when closer pairs took each of its few nearest candidates). On the FLIP pour no particle
+// that ends is then within half the matching's cell (the side of a cube holding one particle of
+// the frame's box, about four particle spacings here) of one that starts: the frame has few
+// operations, and its survivors come in long runs.
+TEST(ParticleCodec, WithoutIdsNoParticleThatEndsIsNearOneThatStarts) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path file =
+      cook_with(dir, {"sims/blender_flip_pour_small.abc", "", {}}, "flip", format::FrameCodec::Particle);
+  const auto reader = format::Reader::open(file);
+  const format::Metadata& m = reader.metadata();
+  ASSERT_EQ(m.codec.order, format::FrameOrder::Matched);
+  format::FrameDecoder decoder(m, "flip");
+  std::vector<std::byte> before(m.max_count * m.record_size), after(before.size()), packet, scratch(m.chunk_size);
+  std::vector<format::MatchRun> runs(2 * m.max_count + 1);
+  const auto position = [&](const std::vector<std::byte>& records, std::uint64_t i) {
+    std::array<float, 3> p{};
+    std::memcpy(p.data(), records.data() + i * m.record_size, 12);
+    return p;
+  };
+  std::uint64_t predicted = 0, particles = 0, operations = 0, ended = 0, started = 0, near = 0;
+  double nearest = std::numeric_limits<double>::infinity();  // over every frame, in cells
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    packet.resize(m.frames[f].packet_size);
+    reader.read_packet(f, packet, scratch);
+    const std::size_t count = decoder.decode(f, packet, after, runs);
+    const std::uint64_t n = m.frames[f].count;
+    if (f > 0 && !m.frames[f].keyframe) {
+      ASSERT_NE(count, format::kNoMatching) << "frame " << f;
+      // The encoder's cell: the side of a cube holding one particle of the frame's box.
+      std::array<float, 3> lo = position(after, 0), hi = lo;
+      for (std::uint64_t j = 0; j < n; ++j) {
+        const auto p = position(after, j);
+        for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], p[a]), hi[a] = std::max(hi[a], p[a]);
+      }
+      const double cell = std::cbrt(double(hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]) / double(n));
+      std::vector<std::array<float, 3>> gone, come;
+      std::uint64_t i = 0, j = 0;
+      for (std::size_t r = 0; r < count; ++r) {
+        i += runs[r].keep, j += runs[r].keep;
+        for (std::uint32_t t = 0; t < runs[r].drop; ++t) gone.push_back(position(before, i++));
+        for (std::uint32_t t = 0; t < runs[r].insert; ++t) come.push_back(position(after, j++));
+      }
+      for (const auto& g : gone) {
+        for (const auto& c : come) {
+          double d2 = 0;
+          for (int a = 0; a < 3; ++a) d2 += double(g[a] - c[a]) * double(g[a] - c[a]);
+          const double d = std::sqrt(d2) / cell;
+          nearest = std::min(nearest, d);
+          near += d < 0.5 ? 1 : 0;
+        }
+      }
+      ++predicted;
+      particles += n;
+      operations += count;
+      ended += gone.size();
+      started += come.size();
+    }
+    std::swap(before, after);
+  }
+  ASSERT_GT(predicted, 40u);
+  EXPECT_EQ(near, 0u) << "pairs of an ending and a starting particle within half a cell; the nearest at " << nearest
+                      << " cells";
+  RecordProperty("operations_per_frame", std::to_string(double(operations) / double(predicted)));
+  RecordProperty("particles_per_frame", std::to_string(double(particles) / double(predicted)));
+  RecordProperty("ended_per_frame", std::to_string(double(ended) / double(predicted)));
+  RecordProperty("started_per_frame", std::to_string(double(started) / double(predicted)));
 }
 
 // Format version 4: a packet continues the zstd frame of the one before (a small body), or starts
