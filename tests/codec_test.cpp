@@ -1062,6 +1062,67 @@ TEST(ParticleCodec, WithoutIdsNoParticleThatEndsIsNearOneThatStarts) {
   RecordProperty("started_per_frame", std::to_string(double(started) / double(predicted)));
 }
 
+// A clump of particles a grid step apart beside one stray particle far away: the cells are sized
+// for the whole box, so one cell holds the clump, and each search reads at most kMostRead of its
+// particles (it read all of them, and the leftovers' pairing read them again each round: 8,000
+// particles took 6.8 s to cook). The clip still holds every particle within the bound.
+TEST(ParticleCodec, WithoutIdsAClumpBesideAStrayParticleCooksWithinItsBound) {
+  constexpr std::uint32_t kCount = 8000;
+  constexpr int kFrames = 3;
+  std::uint32_t seed = 11;
+  const auto unit = [&] {
+    seed = seed * 1664525u + 1013904223u;
+    return float(seed >> 8) / float(1u << 24);
+  };
+  std::vector<std::vector<float>> position(kFrames);
+  cook::MemoryClip clip;
+  clip.name = "clump";
+  for (int f = 0; f < kFrames; ++f) {
+    std::vector<float>& p = position[std::size_t(f)];
+    for (std::uint32_t i = 0; i + 1 < kCount; ++i)
+      for (int a = 0; a < 3; ++a) p.push_back(1e-3f * unit());  // within a millimetre
+    p.insert(p.end(), {100.0f, 100.0f, 100.0f + float(f)});     // the stray one, 170 m away
+  }
+  for (int f = 0; f < kFrames; ++f) {
+    cook::MemoryFrame frame;
+    frame.time = f / 24.0;
+    frame.count = kCount;
+    frame.position = position[std::size_t(f)];
+    clip.frames.push_back(frame);
+  }
+  const fs::path dir = test::fresh_dir();
+  cook::Options o;
+  o.output = dir / "clump.pstream";
+  cook::cook(o, clip);
+  const auto reader = format::Reader::open(o.output);
+  const format::Metadata& m = reader.metadata();
+  ASSERT_EQ(m.codec.order, format::FrameOrder::Matched);
+  const double bound = m.codec.words[0].error;  // the position bound the encoder guarantees
+  std::vector<std::byte> records(m.max_count * m.record_size);
+  for (int f = 0; f < kFrames; ++f) {
+    ASSERT_EQ(m.frames[std::size_t(f)].count, kCount);
+    reader.read_frame(std::uint64_t(f), records);
+    std::uint32_t clumped = 0, stray = 0;
+    for (std::uint32_t j = 0; j < kCount; ++j) {
+      float q[3];
+      std::memcpy(q, records.data() + std::size_t(j) * m.record_size, 12);
+      const bool far = q[0] > 50;
+      const float expect[3] = {100.0f, 100.0f, 100.0f + float(f)};
+      for (int a = 0; a < 3; ++a) {
+        if (far) {
+          EXPECT_LE(std::abs(q[a] - expect[a]), bound) << "frame " << f;
+        } else {
+          EXPECT_GE(q[a], -bound) << "frame " << f;
+          EXPECT_LE(q[a], 1e-3 + bound) << "frame " << f;
+        }
+      }
+      (far ? stray : clumped) += 1;
+    }
+    EXPECT_EQ(stray, 1u) << "frame " << f;
+    EXPECT_EQ(clumped, kCount - 1) << "frame " << f;
+  }
+}
+
 // Format version 4: a packet continues the zstd frame of the one before (a small body), or starts
 // one (a keyframe, or a body of 512 KiB or more); the decoder follows either, frame by frame.
 TEST(ParticleCodec, PacketsContinueOneZstdFrameUnlessTheyStartOne) {
