@@ -939,13 +939,14 @@ class GroupEncoder {
       if (!m.prev_taken[i]) left.push_back(i);
     std::vector<Pair>& pairs = m.pairs;
     CellRanges& cells = m.spare_cells;
-    std::uint64_t read = 0;  // candidates read in all rounds, at most kLeftoverReads a particle
-    for (int round = 0;
-         round < kLeftoverRounds && !left.empty() && !spare.empty() && read < std::uint64_t(kLeftoverReads) * n;
-         ++round) {
+    // Candidates read in all rounds, at most kLeftoverReads a particle of the frame.
+    const std::uint64_t budget = std::uint64_t(kLeftoverReads) * n;
+    std::uint64_t read = 0;
+    for (int round = 0; round < kLeftoverRounds && !left.empty() && !spare.empty() && read < budget; ++round) {
       cells.build(spare);
       pairs.clear();
       for (const std::uint32_t i : left) {
+        if (read == budget) break;
         const std::int64_t p[3] = {from(i, 0), from(i, 1), from(i, 2)};
         std::int64_t first[3];  // the 2x2x2 cells' lowest corner: the particle in the nearer half of its cell
         for (int a = 0; a < 3; ++a) {
@@ -954,7 +955,8 @@ class GroupEncoder {
         }
         std::pair<std::int64_t, std::uint32_t> best[kCandidates];  // (distance, current index)
         int found = 0;
-        std::uint32_t unread = kMostRead;
+        const auto most = static_cast<std::uint32_t>(std::min<std::uint64_t>(kMostRead, budget - read));
+        std::uint32_t unread = most;
         for (int d = 0; d < 8 && unread > 0; ++d) {
           auto [t0, t1] = cells.find(cell_key(first[0] + (d & 1), first[1] + (d >> 1 & 1), first[2] + (d >> 2)));
           t1 = t0 + std::min(t1 - t0, unread);
@@ -967,7 +969,7 @@ class GroupEncoder {
           }
         }
         for (int b = 0; b < found; ++b) pairs.push_back(Pair{best[b].first, i, best[b].second});
-        read += kMostRead - unread;
+        read += most - unread;
       }
       if (pairs.empty()) break;
       take_closest_first(pairs, reach, match);
