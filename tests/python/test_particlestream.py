@@ -458,6 +458,35 @@ def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
     assert bad.returncode != 0 and "blender_sparks.abc: frame 999" in bad.stderr
 
 
+def test_flow_prediction_finds_the_sparks_motion_and_none_in_the_liquid():
+    # bench/flow_prediction.py (docs/compression.md, "Where the FLIP pour's bytes go"): moved along
+    # their stored velocities the sparks' particles pair with themselves and cost a fifth of what
+    # they cost unmoved; no prediction, not even the flow of the stored velocities, makes the FLIP
+    # pour's frames more than a few percent cheaper, and its particles' own velocities make them dearer.
+    import subprocess
+    import sys
+    script = pathlib.Path(__file__).parents[2] / "bench" / "flow_prediction.py"
+    found = {}
+    for clip in ("blender_sparks", "blender_flip_pour_small"):
+        out = subprocess.run([sys.executable, str(script), str(DATA / "sims" / f"{clip}.abc"), "--from-frame", "30",
+                              "--to-frame", "31", "--json"], capture_output=True, text=True, check=True)
+        report = json.loads(out.stdout)
+        assert report["grid_step"] > 0
+        found[clip] = {k: v["bits_per_particle"] for k, v in report["predictions"].items()}
+        for v in report["predictions"].values():
+            assert 0 <= v["unpaired_share"] <= 1 and v["paired_bits"] > 0
+    sparks, flip = found["blender_sparks"], found["blender_flip_pour_small"]
+    assert sparks["stored velocity"] < 0.3 * sparks["previous"]
+    assert sparks["flow of stored velocity"] < 0.7 * sparks["previous"]
+    for prediction, bits in flip.items():
+        assert bits > 0.95 * flip["previous"], prediction
+    assert flip["stored velocity"] > 1.05 * flip["previous"]
+    # Frames outside the clip are refused with the file named.
+    bad = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_sparks.abc"), "--to-frame", "999"],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "blender_sparks.abc: frames 8 to 999" in bad.stderr
+
+
 def test_halfway_tangents_ranks_stored_central_backward_and_straight_lines():
     # bench/halfway_tangents.py (docs/compression.md, "Backward, not central, differences"): on the
     # sparks taken every other frame, Hermite through the stored velocities puts the left-out frames
