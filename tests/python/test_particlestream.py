@@ -422,17 +422,28 @@ def test_cook_particles_cooks_arrays_as_a_file_and_names_what_is_wrong(tmp_path)
         ps.cook_particles([{"position": frames[0]["position"]}], tmp_path / "bad.pstream")
 
 
+def run_bench_script(script, *args):
+    """Runs bench/SCRIPT with ARGS under this Python; returns the finished process (output as text)."""
+    import subprocess
+    import sys
+    path = pathlib.Path(__file__).parents[2] / "bench" / script
+    return subprocess.run([sys.executable, str(path), *map(str, args)], capture_output=True, text=True)
+
+
+def bench_script_json(script, *args):
+    """Runs bench/SCRIPT with ARGS and --json, which must succeed; returns its report."""
+    done = run_bench_script(script, *args, "--json")
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
 def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
     # bench/particle_identity.py (docs/compression.md, "Where the FLIP pour's bytes go"): a spark
     # moved on by its velocity lands near itself, a FLIP particle no nearer than unmoved.
-    import subprocess
-    import sys
-    script = pathlib.Path(__file__).parents[2] / "bench" / "particle_identity.py"
     found = {}
     for clip in ("blender_sparks", "blender_flip_pour_small"):
-        out = subprocess.run([sys.executable, str(script), str(DATA / "sims" / f"{clip}.abc"), "--frames", "32",
-                              "--sample", "600", "--json"], capture_output=True, text=True, check=True)
-        report = json.loads(out.stdout)
+        report = bench_script_json("particle_identity.py", DATA / "sims" / f"{clip}.abc", "--frames", "32",
+                                   "--sample", "600")
         assert report["grid_step"] > 0
         (row,) = report["frames"]
         assert row["frame"] == 32 and row["particles"] > 1000
@@ -453,8 +464,7 @@ def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
     for row in (sparks, flip):
         assert 15 < row["set_bits_per_particle"] < 21
     # Unknown frames are refused with the file named.
-    bad = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_sparks.abc"), "--frames", "999"],
-                         capture_output=True, text=True)
+    bad = run_bench_script("particle_identity.py", DATA / "sims" / "blender_sparks.abc", "--frames", "999")
     assert bad.returncode != 0 and "blender_sparks.abc: frame 999" in bad.stderr
 
 
@@ -463,14 +473,10 @@ def test_flow_prediction_finds_the_sparks_motion_and_none_in_the_liquid():
     # their stored velocities the sparks' particles pair with themselves and cost a fifth of what
     # they cost unmoved; no prediction, not even the flow of the stored velocities, makes the FLIP
     # pour's frames more than a few percent cheaper, and its particles' own velocities make them dearer.
-    import subprocess
-    import sys
-    script = pathlib.Path(__file__).parents[2] / "bench" / "flow_prediction.py"
     found = {}
     for clip in ("blender_sparks", "blender_flip_pour_small"):
-        out = subprocess.run([sys.executable, str(script), str(DATA / "sims" / f"{clip}.abc"), "--from-frame", "30",
-                              "--to-frame", "31", "--json"], capture_output=True, text=True, check=True)
-        report = json.loads(out.stdout)
+        report = bench_script_json("flow_prediction.py", DATA / "sims" / f"{clip}.abc", "--from-frame", "30",
+                                   "--to-frame", "31")
         assert report["grid_step"] > 0
         found[clip] = {k: v["bits_per_particle"] for k, v in report["predictions"].items()}
         for v in report["predictions"].values():
@@ -482,8 +488,7 @@ def test_flow_prediction_finds_the_sparks_motion_and_none_in_the_liquid():
         assert bits > 0.95 * flip["previous"], prediction
     assert flip["stored velocity"] > 1.05 * flip["previous"]
     # Frames outside the clip are refused with the file named.
-    bad = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_sparks.abc"), "--to-frame", "999"],
-                         capture_output=True, text=True)
+    bad = run_bench_script("flow_prediction.py", DATA / "sims" / "blender_sparks.abc", "--to-frame", "999")
     assert bad.returncode != 0 and "blender_sparks.abc: frames 8 to 999" in bad.stderr
 
 
@@ -491,17 +496,11 @@ def test_halfway_tangents_ranks_stored_central_backward_and_straight_lines():
     # bench/halfway_tangents.py (docs/compression.md, "Backward, not central, differences"): on the
     # sparks taken every other frame, Hermite through the stored velocities puts the left-out frames
     # back closest, then central differences, then the backward ones the decoder derives, then lines.
-    import subprocess
-    import sys
-    script = pathlib.Path(__file__).parents[2] / "bench" / "halfway_tangents.py"
-    out = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_sparks.abc"), "--json"],
-                         capture_output=True, text=True, check=True)
-    report = json.loads(out.stdout)
+    report = bench_script_json("halfway_tangents.py", DATA / "sims" / "blender_sparks.abc")
     assert report["compared"] > 50000
     rms = report["rms"]
     assert 0 < rms["stored"] < rms["central"] < rms["central_start"] < rms["backward"] < rms["linear"]
     assert rms["backward"] < 0.8 * rms["linear"]
     # A clip without ids has nothing to pair by: refused, with the file named.
-    bad = subprocess.run([sys.executable, str(script), str(DATA / "sims" / "blender_flip_pour_small.abc")],
-                         capture_output=True, text=True)
+    bad = run_bench_script("halfway_tangents.py", DATA / "sims" / "blender_flip_pour_small.abc")
     assert bad.returncode != 0 and "blender_flip_pour_small.abc" in bad.stderr and "no ids" in bad.stderr
