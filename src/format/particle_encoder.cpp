@@ -5,6 +5,10 @@
 #include <zstd.h>
 
 #include <array>
+#include <bit>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <span>
 
 #include "format/particle_common.hpp"
@@ -657,10 +661,30 @@ class GroupEncoder {
                 const float dx = px[t] - p[0], dy = py[t] - p[1], dz = pz[t] - p[2];
                 pe[t] = static_cast<std::int32_t>(dx * dx + dy * dy + dz * dz);  // below 3 x 4096^2
               }
-              for (std::uint32_t t = t0; t < t1; ++t) {
-                if (pe[t] > within) continue;
-                keep_nearest(best, found, std::uint64_t(pe[t]) << 32 | porder[t]);
-                if (found == kCandidates) within = static_cast<std::int32_t>(best[kCandidates - 1] >> 32);
+              // The candidates within the bound, 64 at a time as bits of a mask (4 compared at once
+              // with SSE2), then kept one after another: a branch on each candidate's distance went
+              // either way unpredictably, and the FLIP pour's encode took 1.07x as long (28.2 against
+              // 30.3 MB/s, medians of four alternating runs of `bench codec`; the same pairs). A
+              // candidate that passed against a bound that has shrunk since is refused by
+              // keep_nearest(), which compares with the worst kept.
+              for (std::uint32_t t = t0; t < t1; t += 64) {
+                const std::uint32_t end = std::min(t1, t + 64);
+                std::uint64_t pass = 0;
+                std::uint32_t u = t;
+#if defined(__SSE2__)
+                const __m128i bound = _mm_set1_epi32(within);
+                for (; u + 4 <= end; u += 4) {
+                  const __m128i d = _mm_loadu_si128(reinterpret_cast<const __m128i*>(pe + u));
+                  const int over = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpgt_epi32(d, bound)));
+                  pass |= std::uint64_t(~over & 15) << (u - t);
+                }
+#endif
+                for (; u < end; ++u) pass |= std::uint64_t(pe[u] <= within) << (u - t);
+                for (; pass != 0; pass &= pass - 1) {
+                  const std::uint32_t v = t + static_cast<std::uint32_t>(std::countr_zero(pass));
+                  keep_nearest(best, found, std::uint64_t(pe[v]) << 32 | porder[v]);
+                  if (found == kCandidates) within = static_cast<std::int32_t>(best[kCandidates - 1] >> 32);
+                }
               }
             }
           };
