@@ -672,10 +672,10 @@ class GroupEncoder {
                 std::uint64_t pass = 0;
                 std::uint32_t u = t;
 #if defined(__SSE2__)
-                const __m128i bound = _mm_set1_epi32(within);
+                const __m128i limit4 = _mm_set1_epi32(within);
                 for (; u + 4 <= end; u += 4) {
                   const __m128i d = _mm_loadu_si128(reinterpret_cast<const __m128i*>(pe + u));
-                  const int over = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpgt_epi32(d, bound)));
+                  const int over = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpgt_epi32(d, limit4)));
                   pass |= std::uint64_t(~over & 15) << (u - t);
                 }
 #endif
