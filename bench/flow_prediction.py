@@ -28,6 +28,7 @@ import json
 import numpy as np
 
 import particlestream as ps
+from particle_identity import clip_grid  # bench/, beside this script
 
 PREDICTIONS = ("previous", "linear", "flow", "flow of stored velocity", "stored velocity")
 
@@ -100,13 +101,10 @@ def main():
     if not 1 <= args.from_frame <= last < samples:
         parser.error(f"{args.file}: frames {args.from_frame} to {last}: expected 1 <= from <= to <= {samples - 1}")
     first = max(0, args.from_frame - 2)
-    positions = [archive.positions(name, t).astype(np.float64) for t in range(samples)]
-    present = [p for p in positions if len(p)]
-    if len(present) < 2:
-        parser.error(f"{args.file}: {name} has fewer than two frames with particles")
-    lo = np.min([p.min(0) for p in present], axis=0)
-    hi = np.max([p.max(0) for p in present], axis=0)
-    step = 2 * args.error * float(np.linalg.norm(hi - lo))
+    positions = {t: archive.positions(name, t).astype(np.float64) for t in range(first, last + 1)}
+    if sum(len(p) > 0 for p in positions.values()) < 2:
+        parser.error(f"{args.file}: {name} has fewer than two frames with particles from {first} to {last}")
+    lo, step = clip_grid(archive, name, args.error)
     fps = 1.0 / (archive.time(name, 1) - archive.time(name, 0)) if samples > 1 else 24.0
 
     results = {}

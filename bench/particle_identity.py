@@ -58,6 +58,17 @@ def spacing(points, sample):
     return out
 
 
+def clip_grid(archive, name, error):
+    """The codec's position grid for a points object at the bound `error` (a fraction of the clip's
+    bounds diagonal): its origin, the clip's least corner, and its step, twice the bound."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for t in range(archive.num_samples(name)):
+        p = archive.positions(name, t)
+        if len(p):
+            lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0))
+    return lo, 2 * error * float(np.linalg.norm(hi - lo))
+
+
 def set_bits(points, voxel, step):
     """Bits a particle for the frame as a set of points within voxels of side `voxel` (see above)."""
     _, counts = np.unique(np.floor(points / voxel).astype(np.int64), axis=0, return_counts=True)
@@ -91,12 +102,7 @@ def main():
     samples = archive.num_samples(name)
     if samples < 2:
         sys.exit(f"{args.file}: {name} has {samples} sample(s); two or more are needed")
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for t in range(samples):
-        p = archive.positions(name, t)
-        if len(p):
-            lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0))
-    step = 2 * args.error * float(np.linalg.norm(hi - lo))
+    _, step = clip_grid(archive, name, args.error)
     frames = [int(f) for f in args.frames.split(",") if f] or sorted({max(1, samples * k // 6) for k in range(1, 6)})
     rng = np.random.default_rng(1)
     rows = []
