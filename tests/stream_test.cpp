@@ -17,6 +17,7 @@
 #include <thread>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include "alloc_counter.hpp"
 #include "capi/callback_io.hpp"
@@ -657,6 +658,22 @@ TEST(Stream, DebugInfoRangeAndStop) {
   s->update(0);
   EXPECT_EQ(s->state(), stream::PlayState::Stopped);
   EXPECT_EQ(s->frame().frame, 40u);
+}
+
+// `pstream bench stream --json` gives the host's cost a frame in wall time and in the host
+// thread's CPU time: both there, each 99th percentile at or above its median, and the CPU time
+// within the wall time (over the same interval a thread cannot run longer than the clock does).
+// Not timings: those are the benchmark's.
+TEST(Stream, BenchReportsTheHostCostInWallAndThreadCpuTime) {
+  const auto r = test::run_cli("bench stream --particles 20000 --frames 8 --codec particle --laps 1 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
+  const double wall = j.at("frame_ms_median"), wall_p99 = j.at("frame_ms_p99");
+  const double cpu = j.at("frame_cpu_ms_median"), cpu_p99 = j.at("frame_cpu_ms_p99");
+  EXPECT_GT(cpu, 0.0);
+  EXPECT_GE(wall_p99, wall);
+  EXPECT_GE(cpu_p99, cpu);
+  EXPECT_LE(cpu, wall + 0.01) << r.output;
 }
 
 }  // namespace
