@@ -369,7 +369,10 @@ int main(int argc, char** argv) {
 
   BenchStreamOptions bench_stream_opts;
   auto* bench_stream_cmd = bench_cmd->add_subcommand(
-      "stream", "Per-frame cost of update() + copying the frame out, against memcpy of the same bytes, in real time");
+      "stream",
+      "Per-frame cost of update() + copying the frame out, against memcpy of the same bytes, in real time. Each is "
+      "timed on alternate frames, where it is the first to read the frame (a copy that follows another finds the "
+      "frame in the caches); update + copy in wall time and in the host thread's CPU time");
   bench_stream_cmd
       ->add_option("clip", bench_stream_opts.file,
                    "A .pstream, or its http(s):// URL: then the clip is downloaded and played from the local copy "
