@@ -159,8 +159,9 @@ nlohmann::ordered_json measure(const std::string& location, const std::string& l
     if (s->state() == stream::PlayState::Error) throw Error(s->error());
     if (k % 2 == 0) {
       s->copy_frame(gpu);
+      const double cpu_ms = thread_cpu_ms() - c0;  // within [t0, t1]
       const auto t1 = Clock::now();
-      frame_cpu_ms.push_back(thread_cpu_ms() - c0);
+      frame_cpu_ms.push_back(cpu_ms);
       frame_ms.push_back(std::chrono::duration<double, std::milli>(t1 - t0).count());
     } else {
       const stream::FrameView v = s->frame();  // the same bytes, copied plainly
