@@ -1365,6 +1365,45 @@ TEST(ParticleCodecCli, BenchCodecReportsTheCodecsAndOursAgainstItsPeers) {
   EXPECT_EQ(k["codecs"][0]["encode_runs"].get<int>(), 1);
 }
 
+// `bench codec --error`: every lossy codec of the run keeps the bound asked for (cook's syntax:
+// abs: in scene units here), and a looser bound costs ours fewer bytes. A mistyped bound fails
+// before any frame loads, naming the flag and what it expects.
+TEST(ParticleCodecCli, BenchCodecComparesTheCodecsAtTheBoundAskedFor) {
+  const std::string flip = test::data_path("sims/blender_flip_pour_small.abc");
+  const auto at = [&](const std::string& bound) {
+    const auto r = test::run_cli(
+        fmt::format("bench codec {} --frames 6 --repetitions 1 --codec 'particle (ours)' --codec 'meshopt + zstd -3' "
+                    "--codec draco --error {} --scale-error 2% --json",
+                    flip, bound));
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return nlohmann::json::parse(r.output.substr(r.output.find('{')));
+  };
+  const auto fine = at("abs:0.0005"), coarse = at("abs:0.002");
+  EXPECT_DOUBLE_EQ(fine["error_bound"].get<double>(), 0.0005);
+  EXPECT_EQ(fine["error_bound_spec"], "abs:0.0005");
+  EXPECT_DOUBLE_EQ(fine["scale_error"].get<double>(), 0.02);
+  EXPECT_DOUBLE_EQ(coarse["error_bound"].get<double>(), 0.002);
+  double ours_fine = 0, ours_coarse = 0;
+  for (const auto* j : {&fine, &coarse}) {
+    const double bound = (*j)["error_bound"];
+    ASSERT_EQ((*j)["codecs"].size(), 3u);
+    for (const auto& c : (*j)["codecs"]) {
+      EXPECT_LE(c["max_error_position"].get<double>(), bound) << c.dump();
+      EXPECT_GT(c["max_error_position"].get<double>(), 0.0) << c.dump();  // lossy: the bound was used
+      if (c["codec"] == "particle (ours)") (j == &fine ? ours_fine : ours_coarse) = c["bytes_per_particle"];
+    }
+  }
+  EXPECT_GT(ours_fine, 0.0);
+  EXPECT_LT(ours_coarse, ours_fine);
+  const auto bad = test::run_cli(fmt::format("bench codec {} --error 1e-4x", flip));
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.output.find("--error '1e-4x': expected a fraction of the bounds diagonal"), std::string::npos)
+      << bad.output;
+  const auto bad_scale = test::run_cli(fmt::format("bench codec {} --scale-error 80%", flip));
+  EXPECT_NE(bad_scale.exit_code, 0);
+  EXPECT_NE(bad_scale.output.find("--scale-error '80%'"), std::string::npos) << bad_scale.output;
+}
+
 // `bench codec --svg`: one point per codec, placed by the JSON's figures on logarithmic axes, and
 // every label readable (no two labels' boxes overlap, nor a label and another codec's point).
 TEST(ParticleCodecCli, BenchCodecPlotPlacesEveryCodecAndItsLabelApart) {

@@ -469,6 +469,13 @@ std::string svg_scatter(const nlohmann::ordered_json& results, const std::string
 }  // namespace
 
 int bench_codec(const BenchCodecOptions& o) {
+  // The bounds first, so that a mistyped one fails before the frames load.
+  cook::Options bounds;
+  cook::set_error_bound(bounds, o.error, "--error");
+  cook::set_scale_error(bounds, o.scale_error, "--scale-error");
+  format::ParticleCodecOptions po = bounds.particle;
+  const std::string bound_text =
+      po.error_relative ? fmt::format("{:g} of the diagonal", po.error) : std::string("in scene units");
   const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-bench-codec-{}", ::getpid());
   std::filesystem::create_directories(temp);
   struct Cleanup {
@@ -488,7 +495,6 @@ int bench_codec(const BenchCodecOptions& o) {
   const std::vector<Attribute> layout = format::default_layout();
   format::ClipStats stats(layout);
   for (const Frame& f : frames) stats.add(f.records, f.count);
-  format::ParticleCodecOptions po;
   if (o.zstd_level) po.zstd_level = o.zstd_level;
   const bool ids = !frames.empty() && !frames.front().ids.empty();
   const format::CodecInfo lossy = format::plan_particle_codec(layout, stats, 24.0, ids, po);
@@ -629,6 +635,8 @@ int bench_codec(const BenchCodecOptions& o) {
                                 {"particles", particles},
                                 {"ids", ids},
                                 {"error_bound", lossy.error},
+                                {"error_bound_spec", o.error},
+                                {"scale_error", po.scale_error},
                                 {"keyframe_interval", lossy.keyframe_interval},
                                 {"repetitions", o.repetitions},
                                 {"clock", "thread CPU time"},
@@ -639,19 +647,19 @@ int bench_codec(const BenchCodecOptions& o) {
                                 {"ours_first_pass_vs_meshopt", first_vs_meshopt},
                                 {"codecs", results}};
   if (!o.svg.empty()) {
-    write_file(o.svg,
-               svg_scatter(results, fmt::format("{}: {} frames, error bound 1e-4 of the diagonal",
-                                                std::filesystem::path(o.file).filename().string(), frames.size())));
+    write_file(o.svg, svg_scatter(results, fmt::format("{}: {} frames, error bound {}",
+                                                       std::filesystem::path(o.file).filename().string(), frames.size(),
+                                                       bound_text)));
   }
   if (o.json) {
     fmt::print("{}\n", report.dump(1));
     return 0;
   }
   fmt::print(
-      "{}: {} frames, {} particles ({} ids), [x y z scale] records; error bound {:.3g} (1e-4 of the diagonal), "
-      "keyframe every {}; our decoder runs with {}\n\n",
-      o.file, frames.size(), particles, ids ? "with" : "without", lossy.error, lossy.keyframe_interval,
-      format::particle_decoder_simd());
+      "{}: {} frames, {} particles ({} ids), [x y z scale] records; error bound {:.3g} ({}), scale within "
+      "{:g} % of its own, keyframe every {}; our decoder runs with {}\n\n",
+      o.file, frames.size(), particles, ids ? "with" : "without", lossy.error, bound_text, 100.0 * po.scale_error,
+      lossy.keyframe_interval, format::particle_decoder_simd());
   fmt::print("{:<26} {:>9} {:>7} {:>11} {:>11} {:>9} {:>9} {:>9} {:>9}\n", "codec", "B/p/frame", "ratio", "max err xyz",
              "max err s", "enc MB/s", "dec GB/s", "/memcpy", "1st pass");
   for (const auto& r : results) {

@@ -153,6 +153,8 @@ struct BenchCodecOptions {
   std::string file, object;
   std::vector<std::string> codecs;  // empty: all
   int zstd_level = 0;               // the particle codec's; 0: its default
+  std::string error = "1e-4";       // the position bound (cook --error's syntax), for every lossy codec
+  std::string scale_error = "1%";   // the scale's bound, relative to each particle's own (cook --scale-error)
   std::string svg;                  // optional plot: bytes per particle against decode speed
   std::uint64_t frames = 0;         // 0: all
   int repetitions = 5;

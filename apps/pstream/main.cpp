@@ -346,7 +346,8 @@ int main(int argc, char** argv) {
       "output is held at once (--codec and --frames keep a large cache within memory).\n"
       "Examples:\n"
       "  pstream bench codec tests/data/sims/blender_sparks.abc\n"
-      "  pstream bench codec out/demo/demo.abc --frames 60 --json");
+      "  pstream bench codec out/demo/demo.abc --frames 60 --json\n"
+      "  pstream bench codec tests/data/sims/blender_flip_pour_small.abc --error 4e-4   (size at a looser bound)");
   bench_codec_cmd->add_option("file", bench_codec_opts.file, "An Alembic file (or PLY sequence) to take frames from")
       ->required()
       ->check(CLI::ExistingFile);
@@ -359,6 +360,16 @@ int main(int argc, char** argv) {
       ->add_option("--zstd-level", bench_codec_opts.zstd_level,
                    "The particle codec's zstd level (default 16 with ids, 12 without: its entropy stage's trade-off)")
       ->check(CLI::Range(1, 22));
+  bench_codec_cmd
+      ->add_option("--error", bench_codec_opts.error,
+                   "The bound on every position coordinate for the particle codec, meshoptimizer's and Draco's "
+                   "quantisation: a fraction of the bounds diagonal (1e-4, or rel:1e-4) or scene units (abs:0.001), "
+                   "as cook --error")
+      ->capture_default_str();
+  bench_codec_cmd
+      ->add_option("--scale-error", bench_codec_opts.scale_error,
+                   "The bound on each particle's scale, relative to its own (1% or 0.01), as cook --scale-error")
+      ->capture_default_str();
   bench_codec_cmd
       ->add_option("--repetitions", bench_codec_opts.repetitions,
                    "Decode runs of every codec, and encode runs up to 2 s of CPU a codec; medians are reported")

@@ -504,3 +504,26 @@ def test_halfway_tangents_ranks_stored_central_backward_and_straight_lines():
     # A clip without ids has nothing to pair by: refused, with the file named.
     bad = run_bench_script("halfway_tangents.py", DATA / "sims" / "blender_flip_pour_small.abc")
     assert bad.returncode != 0 and "blender_flip_pour_small.abc" in bad.stderr and "no ids" in bad.stderr
+
+
+def test_bound_sweep_costs_fewer_bytes_at_each_looser_bound_within_each_bound(tmp_path):
+    # bench/bound_sweep.py (docs/compression.md, "Size against the bound"): `pstream bench codec
+    # --error` at each bound; every lossy codec keeps the bound it was given, and ours costs less
+    # at each looser one. The plot has a line per codec and the target's line.
+    svg = tmp_path / "bounds.svg"
+    report = bench_script_json("bound_sweep.py", DATA / "sims" / "blender_flip_pour_small.abc", "--frames", "12",
+                               "--bounds", "1e-4,4e-4,abs:0.002", "--target", "1.6", "--svg", svg)
+    assert report["bounds"] == ["1e-4", "4e-4", "abs:0.002"] and report["frames"] == 12 and not report["ids"]
+    bound = report["error_bound"]
+    assert bound[2] == pytest.approx(0.002) and bound[1] == pytest.approx(4 * bound[0], rel=1e-6)
+    for codec, errors in report["max_error_position"].items():
+        assert all(0 < e <= b for e, b in zip(errors, bound)), (codec, errors, bound)
+    ours = report["bytes_per_particle"]["particle (ours)"]
+    assert ours[0] > ours[1] > ours[2] > 0
+    for peer in ("meshopt + zstd -3", "draco"):
+        assert all(o < p for o, p in zip(ours, report["bytes_per_particle"][peer])), peer
+    text = svg.read_text()
+    assert text.count("<polyline") == 3 and "target 1.6" in text and "stroke-dasharray" in text
+    # A bound bench codec refuses stops the sweep, naming the file and the bound.
+    bad = run_bench_script("bound_sweep.py", DATA / "sims" / "blender_flip_pour_small.abc", "--bounds", "2")
+    assert bad.returncode != 0 and "blender_flip_pour_small.abc" in bad.stderr and "--error 2" in bad.stderr
