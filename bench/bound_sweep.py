@@ -37,6 +37,11 @@ def run(pstream, file, bound, frames):
     return json.loads(done.stdout[done.stdout.index("{"):])
 
 
+def per_codec(reports, key):
+    """Each codec's `key` from every run, in the runs' order."""
+    return {c: [next(x[key] for x in r["codecs"] if x["codec"] == c) for r in reports] for c in CODECS}
+
+
 def svg(title, bounds, scene_bounds, sizes, target):
     """Bytes per particle (linear) against the bound in scene units (logarithmic; each tick labelled
     with its --error), one line per codec."""
@@ -111,8 +116,7 @@ def main():
     for i, b in enumerate(bounds):
         print(f"[{i + 1}/{len(bounds)}] bench codec --error {b}", file=sys.stderr, flush=True)
         reports.append(run(args.pstream, args.file, b, args.frames))
-    sizes = {c: [next(x["bytes_per_particle"] for x in r["codecs"] if x["codec"] == c) for r in reports]
-             for c in CODECS}
+    sizes = per_codec(reports, "bytes_per_particle")
     name = os.path.basename(args.file)
     if args.svg:
         with open(args.svg, "w", encoding="utf-8") as f:
@@ -122,8 +126,7 @@ def main():
         print(json.dumps({"file": name, "frames": reports[0]["frames"], "particles": reports[0]["particles"],
                           "ids": reports[0]["ids"], "bounds": bounds,
                           "error_bound": [r["error_bound"] for r in reports],
-                          "max_error_position": {c: [next(x["max_error_position"] for x in r["codecs"]
-                                                          if x["codec"] == c) for r in reports] for c in CODECS},
+                          "max_error_position": per_codec(reports, "max_error_position"),
                           "bytes_per_particle": sizes}, indent=1))
         return
     print(f"{name}: {reports[0]['frames']} frames, {reports[0]['particles']} particles, [x y z scale], "
@@ -133,6 +136,7 @@ def main():
     print("|---|---:|" + "---:|" * len(CODECS))
     for i, b in enumerate(bounds):
         print(f"| {b} | {reports[i]['error_bound']:.3g} | " + " | ".join(f"{sizes[c][i]:.3f}" for c in CODECS) + " |")
+
 
 if __name__ == "__main__":
     main()

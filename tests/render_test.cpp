@@ -471,8 +471,9 @@ TEST(RenderCommand, ALossyCookLooksLikeTheExactClip) {
       double sum = 0;
       std::size_t off = 0;
       for (const std::size_t i : effect) {
-        sum += differ(exact, lossy, i);
-        off += differ(exact, lossy, i) > 16;
+        const int d = differ(exact, lossy, i);
+        sum += d;
+        off += d > 16;
       }
       const double n = double(std::max<std::size_t>(effect.size(), 1));
       EXPECT_LT(sum / n, most_mean);
