@@ -157,8 +157,8 @@ struct CodecInfo {
   double error = 0.0;                  // the positions' bound, absolute; 0 when lossless
   std::vector<WordCodingEntry> words;  // record_size / 4 entries (particle codec only)
   // Encoder only, for frames matched by position: the record word of a stored velocity's x (y and
-  // z follow), -1 when there is none, and the seconds between frames (docs/compression.md, "A
-  // cache whose particles persist but has no ids").
+  // z follow), -1 when there is none, and the seconds between frames (docs/compression-experiments.md,
+  // "A cache whose particles persist but has no ids").
   std::int32_t velocity_word = -1;
   double frame_seconds = 0.0;
 };

@@ -760,8 +760,8 @@ class ParticleUnit final : public FrameUnit {
   // frames, up to 249,000 particles, decoded over and over with and without these stores
   // alternating on one core (six runs each, large frames walking word by word in both): its
   // default cook (32-byte records) 2.29-2.48 -> 2.60-2.83 GB/s, [x y z scale] 2.89-3.35 ->
-  // 3.09-3.45. The player's own cost is the same (docs/compression.md, "A large frame's records
-  // stored past the caches"). Written with 64 particles a tile (2 KiB of lines in flight) the
+  // 3.09-3.45. The player's own cost is the same (docs/compression-experiments.md, "A large frame's
+  // records stored past the caches"). Written with 64 particles a tile (2 KiB of lines in flight) the
   // default cook was about 30 % slower than with ordinary stores, with each group in a pass of its
   // own 25 %.
   static constexpr std::uint64_t kStreamedRecords = std::uint64_t(1) << 20;

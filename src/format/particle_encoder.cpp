@@ -375,7 +375,8 @@ class GroupEncoder {
     std::uint32_t prev, cur;
   };
   // Kept for each previous particle: 6 rather than 8 makes the FLIP pour 0.6 % larger and its
-  // encode about 1.13x as fast (docs/compression.md, "Six candidates a particle").
+  // encode about 1.13x as fast (docs/compression-experiments.md, "Six candidates a
+  // particle").
   static constexpr int kCandidates = 6;
   // The most candidates one search reads (the FLIP pour's read 68 on average, 566 at most). A
   // clump far denser than the frame's average (particles a grid step apart, beside a stray one far
@@ -944,7 +945,7 @@ class GroupEncoder {
   // previous particles were left over (337 a frame of 3,431): their drops split the survivors into
   // runs of 11 and cost the decoder a branch it mispredicts per run and coded word, and a new
   // particle costs about what a survivor's larger residual does. Paired, the pour has 54 operations
-  // a frame instead of 262, is 2.9 % smaller and decodes about 1.4x as fast (docs/compression.md,
+  // a frame instead of 262, is 2.9 % smaller and decodes about 1.4x as fast (docs/compression-experiments.md,
   // "The leftovers paired").
   static constexpr int kLeftoverRounds = 16;
   static constexpr std::uint32_t kLeftoverReads = 64;

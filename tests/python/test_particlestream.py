@@ -438,8 +438,9 @@ def bench_script_json(script, *args):
 
 
 def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
-    # bench/particle_identity.py (docs/compression.md, "Where the FLIP pour's bytes go"): a spark
-    # moved on by its velocity lands near itself, a FLIP particle no nearer than unmoved.
+    # bench/particle_identity.py (docs/compression-experiments.md, "Where the FLIP pour's bytes
+    # go"): a spark moved on by its velocity lands near itself, a FLIP particle no nearer than
+    # unmoved.
     found = {}
     for clip in ("blender_sparks", "blender_flip_pour_small"):
         report = bench_script_json("particle_identity.py", DATA / "sims" / f"{clip}.abc", "--frames", "32",
@@ -469,8 +470,8 @@ def test_particle_identity_tells_persisting_particles_from_a_resampled_liquid():
 
 
 def test_flow_prediction_finds_the_sparks_motion_and_none_in_the_liquid():
-    # bench/flow_prediction.py (docs/compression.md, "Where the FLIP pour's bytes go"): moved along
-    # their stored velocities the sparks' particles pair with themselves and cost a fifth of what
+    # bench/flow_prediction.py (docs/compression-experiments.md, "Where the FLIP pour's bytes
+    # go"): moved along their stored velocities the sparks' particles pair with themselves and cost a fifth of what
     # they cost unmoved; no prediction, not even the flow of the stored velocities, makes the FLIP
     # pour's frames more than a few percent cheaper, and its particles' own velocities make them dearer.
     found = {}
