@@ -457,8 +457,12 @@ PYBIND11_MODULE(particlestream, m) {
           d["relative"] = a.relative;
           d["exact"] = a.exact;
           d["ok"] = a.ok;
-          d["distinct_source"] = a.distinct_source;
-          d["distinct_clip"] = a.distinct_clip;
+          if (a.counted) {
+            d["distinct_source"] = a.distinct_source;
+            d["distinct_source_capped"] = a.distinct_capped;
+            d["distinct_clip"] = a.distinct_clip;
+            d["kept_apart"] = a.kept_apart;
+          }
           d["derived"] = a.derived;
           if (a.derived) {
             d["in_source"] = a.in_source;

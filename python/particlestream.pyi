@@ -152,4 +152,7 @@ def cook_particles(
 def verify(clip: str, against: str = "") -> dict:
     """Checks a .pstream as `pstream verify` does (and with `against`, each attribute against the
     source within its own bound; a derived velocity reports its rms_error); returns the report:
-    ok, frames, chunks_verified, errors, source, frames_compared, particles_compared, attributes."""
+    ok, frames, chunks_verified, errors, source, frames_compared, particles_compared, attributes
+    (each with name, max_error, bound, relative, exact, ok, and but for positions distinct_clip,
+    distinct_source, distinct_source_capped and kept_apart: how many of the source's values the
+    bound keeps distinct)."""

@@ -1258,6 +1258,16 @@ TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
   EXPECT_TRUE(j["ok"].get<bool>());
   for (const auto& a : j["against"]["attributes"]) {
     EXPECT_TRUE(a["ok"].get<bool>());
+    // Every attribute but the positions counts its distinct values; the clip keeps at least those
+    // the bound keeps apart, and an exact attribute every one.
+    EXPECT_EQ(a.contains("distinct_clip"), a["name"] != "position") << a.dump();
+    if (a.contains("distinct_clip") && !a.value("derived", false)) {
+      EXPECT_GE(a["distinct_clip"].get<std::uint64_t>(), a["kept_apart"].get<std::uint64_t>()) << a.dump();
+      if (a["bound"].get<double>() == 0.0) {
+        EXPECT_EQ(a["kept_apart"], a["distinct_source"]) << a.dump();
+        EXPECT_EQ(a["distinct_clip"], a["distinct_source"]) << a.dump();
+      }
+    }
     if (a.value("derived", false)) {  // a derived velocity: reported against the source's, no bound
       EXPECT_EQ(a["name"], "velocity");
       EXPECT_LT(a["rms_error"].get<double>(), 0.15 * a["rms_source"].get<double>()) << a.dump();
@@ -1268,12 +1278,25 @@ TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
       EXPECT_TRUE(a["relative"].get<bool>());
       EXPECT_DOUBLE_EQ(a["bound"].get<double>(), double(0.01f));
       EXPECT_GT(a["distinct_clip"].get<std::uint64_t>(), 20u);
+      // The sparks' 512 sizes span 2.5 times: at 1 % of each, values whose bounds do not overlap
+      // are at least 1.01 / 0.99 times apart, so at most 46 of them (43 measured).
+      EXPECT_GE(a["kept_apart"].get<std::uint64_t>(), 40u) << a.dump();
+      EXPECT_LE(a["kept_apart"].get<std::uint64_t>(), 46u) << a.dump();
+    }
+    if (a["name"] == "id") {
+      EXPECT_EQ(a["distinct_clip"].get<std::uint64_t>(), 10000u) << a.dump();
     }
   }
   // The text report prints each attribute's error beside its bound.
   r = test::run_cli(fmt::format("verify {} --against {}", clip.string(), sparks));
   EXPECT_NE(r.output.find("scale"), std::string::npos);
   EXPECT_NE(r.output.find("% of each value"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("of which the bound keeps"), std::string::npos) << r.output;
+  const std::size_t position_line = r.output.find("  position ");
+  ASSERT_NE(position_line, std::string::npos) << r.output;
+  EXPECT_EQ(r.output.substr(position_line, r.output.find('\n', position_line) - position_line).find("distinct"),
+            std::string::npos)
+      << r.output;
   // Against another cache the values are far off: a failure, naming the attribute.
   r = test::run_cli(
       fmt::format("verify {} --against {}", clip.string(), test::data_path("alembic/points_varying.abc")));

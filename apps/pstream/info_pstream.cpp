@@ -227,9 +227,13 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
                           {"max_error", a.max_error},
                           {"bound", a.exact ? 0.0 : a.bound},
                           {"relative", a.relative},
-                          {"distinct_source", a.distinct_source},
-                          {"distinct_clip", a.distinct_clip},
                           {"ok", a.ok}});
+    if (a.counted) {
+      attributes.back()["distinct_clip"] = a.distinct_clip;
+      attributes.back()["distinct_source"] = a.distinct_source;
+      attributes.back()["distinct_source_capped"] = a.distinct_capped;
+      attributes.back()["kept_apart"] = a.kept_apart;
+    }
     if (a.derived) {
       attributes.back()["derived"] = true;
       attributes.back()["in_source"] = a.in_source;
@@ -274,8 +278,13 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
                                              : fmt::format("{:.6g}", a.bound);
       const std::string error =
           a.relative ? fmt::format("{:.3g}%", 100.0 * a.max_error) : fmt::format("{:.6g}", a.max_error);
-      fmt::print("  {:<12} max error {} (bound {}); {} distinct values, {} in the source\n", a.name, error, bound,
-                 a.distinct_clip, a.distinct_source);
+      fmt::print("  {:<12} max error {} (bound {})", a.name, error, bound);
+      if (a.counted) {
+        fmt::print("; distinct values: {} in the clip, {}{} in the source", a.distinct_clip, a.distinct_source,
+                   a.distinct_capped ? " or more" : "");
+        if (a.kept_apart != a.distinct_source) fmt::print(", of which the bound keeps {} apart", a.kept_apart);
+      }
+      fmt::print("\n");
     }
   } else {
     for (const auto& e : r.errors) fmt::print(stderr, "{}\n", e);

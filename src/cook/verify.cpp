@@ -3,7 +3,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
+#include <limits>
 #include <unordered_set>
 
 #include <fmt/format.h>
@@ -19,6 +21,32 @@ namespace pstream::cook {
 namespace {
 
 using namespace pstream::format;
+
+// How many of `values` (float bit patterns) a bound must keep apart: the most whose intervals
+// (each value within `bound` of itself, or within `bound` of its own magnitude when `relative`) do
+// not overlap, so that no decoded value can stand for two of them. Intervals taken by their ends,
+// each one that starts past the end of the last one taken (interval scheduling).
+std::uint64_t kept_apart(const std::unordered_set<std::uint32_t>& values, double bound, bool relative) {
+  std::vector<std::pair<double, double>> intervals;  // (end, start)
+  intervals.reserve(values.size());
+  for (const std::uint32_t bits : values) {
+    float f;
+    std::memcpy(&f, &bits, 4);
+    if (!std::isfinite(f)) continue;
+    const double v = f, r = relative ? bound * std::abs(v) : bound;
+    intervals.emplace_back(v + r, v - r);
+  }
+  std::sort(intervals.begin(), intervals.end());
+  std::uint64_t kept = 0;
+  double end = -std::numeric_limits<double>::infinity();
+  for (const auto& [hi, lo] : intervals) {
+    if (lo > end) {
+      ++kept;
+      end = hi;
+    }
+  }
+  return kept;
+}
 
 // The source cooked again as records with the clip's layout, fps and transforms, every frame
 // compared with the clip's frame of the same time.
@@ -72,7 +100,8 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   // A clip ordered by id lists each frame's particles as the source cooked above does (in id
   // order): pairing by position could take a near neighbour in a dense cloud for the particle.
   c.in_order = m.codec.codec == FrameCodec::Particle && m.codec.order == FrameOrder::Id;
-  // Distinct values of float words, in the source and the clip (capped: a count, not a census).
+  // Distinct values of every word but the positions', in the source and the clip (capped: a count,
+  // not a census).
   const std::uint32_t words = m.record_size / 4;
   constexpr std::size_t kDistinctCap = 1 << 16;
   std::vector<std::unordered_set<std::uint32_t>> seen_source(words), seen_clip(words);
@@ -81,8 +110,7 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
                         std::uint64_t count, const Metadata& lm) {
     for (const Attribute& at : m.layout) {
       const Attribute* from = lm.find(at.name);
-      if (at.type != AttributeType::Float32 || at.name == "position" || from == nullptr || from->size() != at.size())
-        continue;
+      if (at.name == "position" || from == nullptr || from->size() != at.size()) continue;
       for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
         const std::uint32_t at_byte = from->offset + 4 * w - at.offset;
         for (std::uint64_t i = 0; i < count && seen[w].size() < kDistinctCap; ++i) {
@@ -113,6 +141,7 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   for (const Attribute& at : m.layout) {
     AttributeCheck check;
     check.name = at.name;
+    check.counted = at.name != "position";
     for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
       const WordCodingEntry* e = particle ? &m.codec.words[w] : nullptr;
       const format::WordCodingType* type = e ? format::find_word_coding(e->coding) : nullptr;
@@ -127,6 +156,16 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
         check.max_error = std::max(check.max_error, relative ? c.max_relative_error[w] : c.max_error[w]);
       check.distinct_source = std::max<std::uint64_t>(check.distinct_source, seen_source[w].size());
       check.distinct_clip = std::max<std::uint64_t>(check.distinct_clip, seen_clip[w].size());
+      check.distinct_capped = check.distinct_capped || seen_source[w].size() >= kDistinctCap;
+      // How many sizes, ages or speeds the bound keeps: the source's values whose bounds do not
+      // overlap stay distinct in the clip (the bound checked below implies it); an exact word keeps
+      // every value.
+      if (check.counted && !(e && e->coding == WordCoding::Derived)) {
+        const std::uint64_t apart = at.type == AttributeType::Float32
+                                        ? kept_apart(seen_source[w], bounded ? double(e->error) : 0.0, relative)
+                                        : seen_source[w].size();
+        check.kept_apart = std::max(check.kept_apart, apart);
+      }
       if (e && e->coding == WordCoding::Derived && w < c.compared.size() && c.compared[w] != 0) {
         check.derived = true;
         check.exact = false;

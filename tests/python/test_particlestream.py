@@ -255,6 +255,12 @@ def test_verify_reports_each_attribute_and_the_derived_velocity(tmp_path):
     assert set(by_name) == {"position", "scale", "color", "velocity"}
     assert by_name["scale"]["relative"] and by_name["scale"]["max_error"] <= by_name["scale"]["bound"] == pytest.approx(0.01)
     assert by_name["color"]["exact"] and by_name["color"]["max_error"] == 0
+    # Distinct values, but for positions: the sizes the 1 % bound keeps apart all stay distinct, and
+    # an exact attribute keeps every value.
+    assert "distinct_clip" not in by_name["position"]
+    scale = by_name["scale"]
+    assert 40 <= scale["kept_apart"] < scale["distinct_source"] and scale["distinct_clip"] >= scale["kept_apart"]
+    assert by_name["color"]["distinct_clip"] == by_name["color"]["kept_apart"] == by_name["color"]["distinct_source"]
     v = by_name["velocity"]
     assert v["derived"] and v["in_source"] and 0 < v["rms_error"] < 0.15 * v["rms_source"]
     # The same report as the command line's.
@@ -267,6 +273,8 @@ def test_verify_reports_each_attribute_and_the_derived_velocity(tmp_path):
         assert cli["ok"] == r["ok"]
         for a in cli["against"]["attributes"]:
             assert by_name[a["name"]]["max_error"] == pytest.approx(a["max_error"])
+            for key in ("distinct_clip", "distinct_source", "distinct_source_capped", "kept_apart"):
+                assert by_name[a["name"]].get(key) == a.get(key), (a["name"], key)
     # A corrupted clip: not ok, and the error names the chunk.
     data = bytearray(clip.read_bytes())
     data[300] ^= 0xFF
