@@ -342,6 +342,9 @@ TEST(ParticleCodec, DefaultZstdLevelFollowsTheFrameOrder) {
   EXPECT_NE(flip.cooked_with.find("codec=particle:12 "), std::string::npos) << flip.cooked_with;
   EXPECT_NE(flip16.cooked_with.find("codec=particle:16 "), std::string::npos) << flip16.cooked_with;
   EXPECT_NE(sparks.cooked_with.find("codec=particle:16 "), std::string::npos) << sparks.cooked_with;
+  // The settings say what the cook did: a velocity is derived only where particles have ids.
+  EXPECT_NE(flip.cooked_with.find(" velocity=stored "), std::string::npos) << flip.cooked_with;
+  EXPECT_NE(sparks.cooked_with.find(" velocity=derived "), std::string::npos) << sparks.cooked_with;
   // Level 16 is not 2 % smaller on the FLIP pour.
   EXPECT_GT(double(flip16.stream_size()), 0.98 * double(flip.stream_size()));
   EXPECT_EQ(format::default_particle_zstd_level(format::FrameOrder::Id, false), format::kDefaultParticleZstdLevel);

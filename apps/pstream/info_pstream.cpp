@@ -197,8 +197,11 @@ int info_pstream(const InfoPstreamOptions& options) {
       "particle per frame\n",
       m.decoded_size() / 1048576.0, stored / 1048576.0, decoded_ratio, bytes_per_particle(m));
   if (m.codec.codec == FrameCodec::Particle) {
-    fmt::print("  frame codec   particle{}, keyframe every {} frames, frames ordered by {}\n",
-               m.codec.lossless ? " (lossless)" : "", m.codec.keyframe_interval, order_name(m.codec.order));
+    const std::string_view order = m.codec.order == FrameOrder::Id        ? "in id order, survivors found by id"
+                                   : m.codec.order == FrameOrder::Matched ? "survivors matched by position (no ids)"
+                                                                          : "in the source's order";
+    fmt::print("  frame codec   particle{}, keyframe every {} frames, {}\n", m.codec.lossless ? " (lossless)" : "",
+               m.codec.keyframe_interval, order);
     for (const Attribute& a : m.layout) {
       fmt::print("    {:<12}", a.name);
       for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) {

@@ -534,7 +534,7 @@ std::string codec_setting(const Options& o, bool has_ids) {
     return fmt::format(
         "particle:{} error={}:{:g} scale_error={:g} attribute_error={:g} keyframe_interval={} velocity={}", level,
         o.particle.error_relative ? "rel" : "abs", o.particle.error, o.particle.scale_error, o.particle.attribute_error,
-        o.particle.keyframe_interval, o.particle.derive_velocity ? "derived" : "stored");
+        o.particle.keyframe_interval, o.particle.derive_velocity && has_ids ? "derived" : "stored");
   }
   return fmt::format("{}:{}", format::codec_name(o.codec), o.codec_level);
 }
