@@ -30,6 +30,9 @@ TEST(Cli, TyposGetDidYouMean) {
   expect_suggestion("cook --codc particle x.abc", "unknown option --codc; did you mean --codec?");
   expect_suggestion("render x.pstream --presett smoke", "unknown option --presett; did you mean --preset?");
   expect_suggestion("cook --helpp", "did you mean --help?");
+  // Two letters the wrong way round are one typo, as one wrong letter is.
+  expect_suggestion("cook x.abc --erorr 1e-4", "unknown option --erorr; did you mean --error?");
+  expect_suggestion("redner x.pstream", "unknown command `redner`; did you mean `render`?");
   // Far from every name: said plainly, with where to look.
   expect_suggestion("cook x.abc --zzzzzzzz", "unknown option --zzzzzzzz for `cook` (see its --help)");
   // Choices the library parses: its message, with the nearest choice.
