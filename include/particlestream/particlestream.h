@@ -159,7 +159,8 @@ typedef struct pstream_cook_options {
                            * and a velocity (derived with ids, else the source's; store_velocity) */
   double fps;             /* output frame rate; 0: the source's */
   int32_t codec;          /* a pstream_codec (a fixed-size field: enums' sizes differ between compilers) */
-  double error;           /* particle codec: the bound, a fraction of the clip's bounds diagonal (default 1e-4) */
+  double error;           /* particle codec: the bound on positions, a fraction of the clip's bounds diagonal
+                           * (default 1e-4), or scene units with error_in_scene_units; 0: the default */
   int interpolate;        /* resample between samples (by id, or along velocities) instead of the nearest */
   pstream_progress_fn progress;
   void* progress_user;
@@ -173,6 +174,10 @@ typedef struct pstream_cook_options {
    * per particle) instead of deriving them from the matched positions (default 0). Added after
    * attribute_error: an older struct_size gets the default. */
   int store_velocity;
+  /* Particle codec: non-zero reads `error` in scene units (the command line's --error abs:VALUE),
+   * for a bound that does not change with the clip's extent (default 0: a fraction of the bounds
+   * diagonal). Added after store_velocity: an older struct_size gets the default. */
+  int error_in_scene_units;
 } pstream_cook_options;
 
 typedef struct pstream_cook_report {

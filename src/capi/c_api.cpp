@@ -297,10 +297,18 @@ pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_re
       case PSTREAM_CODEC_PARTICLE_LOSSLESS:
         o.frame_codec = format::FrameCodec::Particle;
         o.particle.lossless = options->codec == PSTREAM_CODEC_PARTICLE_LOSSLESS;
-        // The same rules as the command line's --error and --scale-error.
-        if (options->error > 0) cook::set_error_bound(o, fmt::format("rel:{}", options->error), "error");
-        cook::set_scale_error(o, fmt::format("{}", options->scale_error), "scale_error");
-        cook::set_attribute_error(o, fmt::format("{}", options->attribute_error), "attribute_error");
+        // The same rules as the command line's --error, --scale-error and --attribute-error; a
+        // bound they refuse is the caller's argument.
+        try {
+          if (options->error != 0) {
+            cook::set_error_bound(
+                o, fmt::format("{}:{}", options->error_in_scene_units ? "abs" : "rel", options->error), "error");
+          }
+          cook::set_scale_error(o, fmt::format("{}", options->scale_error), "scale_error");
+          cook::set_attribute_error(o, fmt::format("{}", options->attribute_error), "attribute_error");
+        } catch (const Error& e) {
+          return fail(PSTREAM_ERROR_ARGUMENT, e.what());
+        }
         o.particle.derive_velocity = options->store_velocity == 0;
         break;
       default: return fail(PSTREAM_ERROR_ARGUMENT, "unknown codec " + std::to_string(options->codec));

@@ -280,13 +280,40 @@ int main(int argc, char** argv) {
     o.codec = PSTREAM_CODEC_PARTICLE;
     o.output = join(3, work, "scale.pstream");
     o.scale_error = 0.7;
-    EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_FORMAT, "scale_error '0.7'");
+    EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_ARGUMENT, "scale_error '0.7'");
     o.scale_error = 0.001;
     CHECK(pstream_cook(&o, NULL) == PSTREAM_OK);
     o.struct_size = offsetof(pstream_cook_options, scale_error);
     o.scale_error = 0.7; /* not read */
     CHECK(pstream_cook(&o, NULL) == PSTREAM_OK);
     o.struct_size = sizeof o;
+    o.scale_error = 0.01;
+    /* The position bound in scene units (--error abs:VALUE): a coarser one than the default's
+     * makes a smaller clip, and a bound the command line refuses is refused here too. */
+    {
+      pstream_cook_report fine, coarse;
+      o.output = join(3, work, "fine.pstream");
+      CHECK(pstream_cook(&o, &fine) == PSTREAM_OK);
+      o.output = join(3, work, "coarse.pstream");
+      o.error = 0.05;
+      o.error_in_scene_units = 1;
+      CHECK(pstream_cook(&o, &coarse) == PSTREAM_OK);
+      CHECK(coarse.file_bytes < fine.file_bytes);
+      o.error = -1;
+      EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_ARGUMENT, "error 'abs:-1'");
+      o.error_in_scene_units = 0;
+      o.error = 2; /* a fraction of the diagonal: below 1 */
+      EXPECT_ERROR(pstream_cook(&o, NULL), PSTREAM_ERROR_ARGUMENT, "error 'rel:2'");
+      o.error = 1e-4;
+      /* A caller built before error_in_scene_units reads `error` as a fraction. */
+      o.struct_size = offsetof(pstream_cook_options, error_in_scene_units);
+      o.error_in_scene_units = 1; /* not read */
+      o.error = 0.5;
+      CHECK(pstream_cook(&o, NULL) == PSTREAM_OK);
+      o.struct_size = sizeof o;
+      o.error_in_scene_units = 0;
+      o.error = 1e-4;
+    }
     if (exists) fclose(exists);
     o.progress = NULL;
     o.codec = 99;
