@@ -459,7 +459,7 @@ PYBIND11_MODULE(particlestream, m) {
           d["ok"] = a.ok;
           if (a.counted) {
             d["distinct_source"] = a.distinct_source;
-            d["distinct_source_capped"] = a.distinct_capped;
+            d["distinct_counted_up_to"] = cook::kDistinctValuesCounted;
             d["distinct_clip"] = a.distinct_clip;
             d["kept_apart"] = a.kept_apart;
           }

@@ -154,5 +154,5 @@ def verify(clip: str, against: str = "") -> dict:
     source within its own bound; a derived velocity reports its rms_error); returns the report:
     ok, frames, chunks_verified, errors, source, frames_compared, particles_compared, attributes
     (each with name, max_error, bound, relative, exact, ok, and but for positions distinct_clip,
-    distinct_source, distinct_source_capped and kept_apart: how many of the source's values the
+    distinct_source, distinct_counted_up_to and kept_apart: how many of the source's values the
     bound keeps distinct)."""

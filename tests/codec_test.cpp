@@ -1428,6 +1428,12 @@ TEST(ParticleCodecCli, BenchCodecComparesTheCodecsAtTheBoundAskedFor) {
   const auto bad_scale = test::run_cli(fmt::format("bench codec {} --scale-error 80%", flip));
   EXPECT_NE(bad_scale.exit_code, 0);
   EXPECT_NE(bad_scale.output.find("--scale-error '80%'"), std::string::npos) << bad_scale.output;
+  // A codec's name mistyped: the names, and the nearest.
+  const auto bad_codec = test::run_cli(fmt::format("bench codec {} --codec 'particle (our)'", flip));
+  EXPECT_NE(bad_codec.exit_code, 0);
+  EXPECT_NE(bad_codec.output.find("--codec 'particle (our)': expected one of 'raw', 'lz4'"), std::string::npos)
+      << bad_codec.output;
+  EXPECT_NE(bad_codec.output.find("(did you mean 'particle (ours)'?)"), std::string::npos) << bad_codec.output;
 }
 
 // `bench codec --svg`: one point per codec, placed by the JSON's figures on logarithmic axes, and

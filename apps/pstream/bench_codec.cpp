@@ -21,6 +21,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/names.hpp"
 #include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/codec.hpp"
@@ -41,13 +42,18 @@ struct Frame {
   std::uint64_t count = 0;
 };
 
-// The names the table prints (and --codec takes) of the codecs this file refers to again.
+// The names the table prints and --codec takes.
+constexpr std::string_view kRaw = "raw";
+constexpr std::string_view kLz4 = "lz4";
+constexpr std::string_view kShuffle = "shuffle + zstd -3";
 constexpr std::string_view kOurs = "particle (ours)";
 constexpr std::string_view kOursLossless = "particle lossless (ours)";
 constexpr std::string_view kZstd3 = "zstd -3";  // the baseline
 constexpr std::string_view kZstd19 = "zstd -19";
 constexpr std::string_view kMeshopt = "meshopt + zstd -3";  // the peer
 constexpr std::string_view kDraco = "draco";
+constexpr std::string_view kCodecNames[] = {kRaw,     kLz4,   kZstd3, kZstd19,      kShuffle,
+                                            kMeshopt, kDraco, kOurs,  kOursLossless};
 
 // One codec under test: encode every frame, decode every frame in order into `out` (a frame's
 // records, the frame index given).
@@ -160,7 +166,7 @@ Grid grid_of(const format::CodecInfo& info, std::size_t word) {
 std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::CodecInfo& lossless,
                                   const std::vector<Attribute>& layout, std::uint64_t max_count) {
   std::vector<Contender> all;
-  all.push_back({"raw",
+  all.push_back({std::string(kRaw),
                  [](const std::vector<Frame>& frames) {
                    std::vector<std::vector<std::byte>> out;
                    for (const Frame& f : frames) out.push_back(f.records);
@@ -169,7 +175,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
                  [](const std::vector<std::vector<std::byte>>& enc, std::size_t f, std::span<std::byte> out) {
                    if (!enc[f].empty()) std::memcpy(out.data(), enc[f].data(), enc[f].size());
                  }});
-  all.push_back({"lz4",
+  all.push_back({std::string(kLz4),
                  [](const std::vector<Frame>& frames) {
                    std::vector<std::vector<std::byte>> out;
                    for (const Frame& f : frames) {
@@ -199,7 +205,7 @@ std::vector<Contender> contenders(const format::CodecInfo& lossy, const format::
   }
   // Byte shuffle: the records' bytes by position in the record, then zstd.
   auto shuffled = std::make_shared<std::vector<std::byte>>(max_count * kRecord);
-  all.push_back({"shuffle + zstd -3",
+  all.push_back({std::string(kShuffle),
                  [](const std::vector<Frame>& frames) {
                    std::vector<std::vector<std::byte>> out;
                    std::vector<std::byte> planes;
@@ -469,7 +475,15 @@ std::string svg_scatter(const nlohmann::ordered_json& results, const std::string
 }  // namespace
 
 int bench_codec(const BenchCodecOptions& o) {
-  // The bounds first, so that a mistyped one fails before the frames load.
+  // The codecs' names and the bounds first, so that a mistyped one fails before the frames load.
+  for (const std::string& name : o.codecs) {
+    if (std::find(std::begin(kCodecNames), std::end(kCodecNames), name) != std::end(kCodecNames)) continue;
+    std::string names;
+    for (const std::string_view n : kCodecNames) names += fmt::format("{}'{}'", names.empty() ? "" : ", ", n);
+    const std::string guess = closest_name(name, kCodecNames);
+    throw Error(fmt::format("--codec '{}': expected one of {}{}", name, names,
+                            guess.empty() ? std::string() : fmt::format(" (did you mean '{}'?)", guess)));
+  }
   cook::Options bounds;
   cook::set_error_bound(bounds, o.error, "--error");
   cook::set_scale_error(bounds, o.scale_error, "--scale-error");
@@ -510,7 +524,6 @@ int bench_codec(const BenchCodecOptions& o) {
   if (!o.codecs.empty()) {
     std::erase_if(
         all, [&](const Contender& c) { return std::find(o.codecs.begin(), o.codecs.end(), c.name) == o.codecs.end(); });
-    if (all.empty()) throw Error("--codec names none of the codecs (see the table of a run without --codec)");
   }
   // Every codec encodes first, and each keeps its output, so that the decodes can be paired: each
   // repetition decodes every frame with every codec, one codec after another, then memcpys the

@@ -234,7 +234,7 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
     if (a.counted) {
       attributes.back()["distinct_clip"] = a.distinct_clip;
       attributes.back()["distinct_source"] = a.distinct_source;
-      attributes.back()["distinct_source_capped"] = a.distinct_capped;
+      attributes.back()["distinct_counted_up_to"] = cook::kDistinctValuesCounted;
       attributes.back()["kept_apart"] = a.kept_apart;
     }
     if (a.derived) {
@@ -283,8 +283,11 @@ int verify_pstream(const std::string& file, bool as_json, const std::string& aga
           a.relative ? fmt::format("{:.3g}%", 100.0 * a.max_error) : fmt::format("{:.6g}", a.max_error);
       fmt::print("  {:<12} max error {} (bound {})", a.name, error, bound);
       if (a.counted) {
-        fmt::print("; distinct values: {} in the clip, {}{} in the source", a.distinct_clip, a.distinct_source,
-                   a.distinct_capped ? " or more" : "");
+        const auto count = [](std::uint64_t n) {
+          return n >= cook::kDistinctValuesCounted ? fmt::format("{} or more", n) : fmt::format("{}", n);
+        };
+        fmt::print("; distinct values: {} in the clip, {} in the source", count(a.distinct_clip),
+                   count(a.distinct_source));
         if (a.kept_apart != a.distinct_source) fmt::print(", of which the bound keeps {} apart", a.kept_apart);
       }
       fmt::print("\n");

@@ -142,6 +142,9 @@ namespace pstream::cook {
 
 // ---- Verifying a cooked clip ------------------------------------------------------------------
 
+// verify() counts each attribute's distinct values up to this many (a count, not a census).
+inline constexpr std::uint64_t kDistinctValuesCounted = std::uint64_t{1} << 16;
+
 // One attribute checked against the source: the largest difference found and the bound the clip
 // promises for it, in the bound's own terms (`relative`: a fraction of each value; otherwise
 // absolute, scene units for positions; 0 with `exact`).
@@ -151,13 +154,13 @@ struct AttributeCheck {
   double bound = 0.0;
   bool relative = false, exact = true, ok = true;
   // Distinct values (per component, over the compared frames, every attribute's but the
-  // positions': `counted`) in the source and in the clip, counted up to 65,536 (`distinct_capped`:
-  // the source has at least that many). `kept_apart`: how many of the source's values the bound
+  // positions': `counted`) in the source and in the clip, counted up to kDistinctValuesCounted (a
+  // count that reaches it means at least that many). `kept_apart`: how many of the source's values the bound
   // must keep distinct, because their bounds do not overlap (all of them for an exact attribute).
   // A bound too coarse for the data shows as few kept apart: sizes from 4 to 20 mm under an
   // absolute bound of 3.6 mm keep 3.
   std::uint64_t distinct_source = 0, distinct_clip = 0, kept_apart = 0;
-  bool counted = false, distinct_capped = false;
+  bool counted = false;
   // A velocity the particle codec derives (no bound): its root-mean-square error against the
   // source's velocities and their root-mean-square value, per component; `in_source` is false when
   // the source has none to compare with.

@@ -100,10 +100,9 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   // A clip ordered by id lists each frame's particles as the source cooked above does (in id
   // order): pairing by position could take a near neighbour in a dense cloud for the particle.
   c.in_order = m.codec.codec == FrameCodec::Particle && m.codec.order == FrameOrder::Id;
-  // Distinct values of every word but the positions', in the source and the clip (capped: a count,
-  // not a census).
+  // Distinct values of every word but the positions', in the source and the clip, counted up to
+  // kDistinctValuesCounted.
   const std::uint32_t words = m.record_size / 4;
-  constexpr std::size_t kDistinctCap = 1 << 16;
   std::vector<std::unordered_set<std::uint32_t>> seen_source(words), seen_clip(words);
   // `recs` in `lm`'s layout; each of the clip's float words is found there by attribute name.
   const auto note = [&](std::vector<std::unordered_set<std::uint32_t>>& seen, std::span<const std::byte> recs,
@@ -113,7 +112,7 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
       if (at.name == "position" || from == nullptr || from->size() != at.size()) continue;
       for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
         const std::uint32_t at_byte = from->offset + 4 * w - at.offset;
-        for (std::uint64_t i = 0; i < count && seen[w].size() < kDistinctCap; ++i) {
+        for (std::uint64_t i = 0; i < count && seen[w].size() < kDistinctValuesCounted; ++i) {
           std::uint32_t v;
           std::memcpy(&v, recs.data() + i * lm.record_size + at_byte, 4);
           seen[w].insert(v);
@@ -156,7 +155,6 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
         check.max_error = std::max(check.max_error, relative ? c.max_relative_error[w] : c.max_error[w]);
       check.distinct_source = std::max<std::uint64_t>(check.distinct_source, seen_source[w].size());
       check.distinct_clip = std::max<std::uint64_t>(check.distinct_clip, seen_clip[w].size());
-      check.distinct_capped = check.distinct_capped || seen_source[w].size() >= kDistinctCap;
       // How many sizes, ages or speeds the bound keeps: the source's values whose bounds do not
       // overlap stay distinct in the clip (the bound checked below implies it); an exact word keeps
       // every value.

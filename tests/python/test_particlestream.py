@@ -273,7 +273,7 @@ def test_verify_reports_each_attribute_and_the_derived_velocity(tmp_path):
         assert cli["ok"] == r["ok"]
         for a in cli["against"]["attributes"]:
             assert by_name[a["name"]]["max_error"] == pytest.approx(a["max_error"])
-            for key in ("distinct_clip", "distinct_source", "distinct_source_capped", "kept_apart"):
+            for key in ("distinct_clip", "distinct_source", "distinct_counted_up_to", "kept_apart"):
                 assert by_name[a["name"]].get(key) == a.get(key), (a["name"], key)
     # A corrupted clip: not ok, and the error names the chunk.
     data = bytearray(clip.read_bytes())
