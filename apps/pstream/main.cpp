@@ -187,6 +187,10 @@ int main(int argc, char** argv) {
                                       "Cook an Alembic point cache or a numbered PLY sequence into a .pstream\n\n"
                                       "Examples:\n"
                                       "  pstream cook splash.abc -o splash.pstream\n"
+                                      "  pstream cook splash.abc -o splash.pstream --error abs:0.0005   "
+                                      "(positions within 0.0005: 0.5 mm in metres)\n"
+                                      "  pstream cook splash.abc -o exact.pstream --codec raw           "
+                                      "(every bit as the source wrote it)\n"
                                       "  pstream cook fx.abc --object /fx/sparks -o sparks.pstream --codec zstd:5\n"
                                       "  pstream cook fx.abc --merge --fps 60 --interpolate -o fx.pstream\n"
                                       "  pstream cook render/frame.0001.ply --fps 24 -o smoke.pstream");
@@ -220,7 +224,8 @@ int main(int argc, char** argv) {
       ->add_option(
           "--codec", cook.codec,
           "particle[:LEVEL] (the default): error-bounded (--error, --scale-error), predicted over time, "
-          "about 1 byte per particle per frame (LEVEL, zstd's, 1..22, default 16 with ids, 12 without: lower "
+          "about 1 byte per particle per frame of [x y z scale] with ids, 2 without (LEVEL, zstd's, 1..22, default 16 "
+          "with ids, 12 without: lower "
           "cooks faster, a little larger); particle-lossless: bit-exact, source order kept; raw, lz4[:HC level], "
           "zstd[:level]: the records as they are, chunk-compressed")
       ->capture_default_str();
