@@ -224,10 +224,9 @@ int main(int argc, char** argv) {
       ->add_option(
           "--codec", cook.codec,
           "particle[:LEVEL] (the default): error-bounded (--error, --scale-error), predicted over time, "
-          "about 1 byte per particle per frame of [x y z scale] with ids, 2 without (LEVEL, zstd's, 1..22, default 16 "
-          "with ids, 12 without: lower "
-          "cooks faster, a little larger); particle-lossless: bit-exact, source order kept; raw, lz4[:HC level], "
-          "zstd[:level]: the records as they are, chunk-compressed")
+          "about 1 byte per particle per frame of [x y z scale] with ids, 2 without (LEVEL, zstd's, 1..22, "
+          "default 16 with ids, 12 without: lower cooks faster, a little larger); particle-lossless: bit-exact, "
+          "source order kept; raw, lz4[:HC level], zstd[:level]: the records as they are, chunk-compressed")
       ->capture_default_str();
   cook_cmd
       ->add_option("--error", cook.error,

@@ -155,10 +155,10 @@ struct AttributeCheck {
   bool relative = false, exact = true, ok = true;
   // Distinct values (per component, over the compared frames, every attribute's but the
   // positions': `counted`) in the source and in the clip, counted up to kDistinctValuesCounted (a
-  // count that reaches it means at least that many). `kept_apart`: how many of the source's values the bound
-  // must keep distinct, because their bounds do not overlap (all of them for an exact attribute).
-  // A bound too coarse for the data shows as few kept apart: sizes from 4 to 20 mm under an
-  // absolute bound of 3.6 mm keep 3.
+  // count that reaches it means at least that many). `kept_apart`: how many of the source's
+  // values the bound must keep distinct, because their bounds do not overlap (all of them for an
+  // exact attribute). A bound too coarse for the data shows as few kept apart: sizes from 4 to
+  // 20 mm under an absolute bound of 3.6 mm keep 3.
   std::uint64_t distinct_source = 0, distinct_clip = 0, kept_apart = 0;
   bool counted = false;
   // A velocity the particle codec derives (no bound): its root-mean-square error against the

@@ -157,10 +157,10 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
       check.distinct_clip = std::max<std::uint64_t>(check.distinct_clip, seen_clip[w].size());
       // How many sizes, ages or speeds the bound keeps: the source's values whose bounds do not
       // overlap stay distinct in the clip (the bound checked below implies it); an exact word keeps
-      // every value.
+      // every value, bit for bit.
       if (check.counted && !(e && e->coding == WordCoding::Derived)) {
-        const std::uint64_t apart = at.type == AttributeType::Float32
-                                        ? kept_apart(seen_source[w], bounded ? double(e->error) : 0.0, relative)
+        const std::uint64_t apart = bounded && at.type == AttributeType::Float32
+                                        ? kept_apart(seen_source[w], double(e->error), relative)
                                         : seen_source[w].size();
         check.kept_apart = std::max(check.kept_apart, apart);
       }
