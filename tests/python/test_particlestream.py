@@ -557,6 +557,7 @@ def test_a_reader_written_from_the_spec_decodes_every_frame_as_the_library_does(
         "varying_ids": (varying, dict(attributes=["velocity", "id"])),
         "zstd": (varying, dict(codec="zstd")),
         "lz4": (varying, dict(codec="lz4")),
+        "empty_frames": (DATA / "alembic" / "points_empty_frames.abc", {}),  # frames of no particles
     }
     clips = [DATA / "pstream_v1" / "points_varying_lz4.pstream"] + sorted((DATA / "pstream").glob("*.pstream"))
     for name, (source, options) in cooks.items():
