@@ -554,6 +554,7 @@ def test_a_reader_written_from_the_spec_decodes_every_frame_as_the_library_does(
         "flip": (flip, {}),  # matched order, stored velocity
         "flip_k5": (flip, dict(keyframe_interval=5)),
         "lossless": (sparks, dict(codec="particle-lossless")),
+        "lossless_ids": (sparks, dict(codec="particle-lossless", attributes=["id", "velocity"])),  # ids exact
         "varying_ids": (varying, dict(attributes=["velocity", "id"])),
         "zstd": (varying, dict(codec="zstd")),
         "lz4": (varying, dict(codec="lz4")),
