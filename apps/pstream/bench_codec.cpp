@@ -480,9 +480,7 @@ int bench_codec(const BenchCodecOptions& o) {
     if (std::find(std::begin(kCodecNames), std::end(kCodecNames), name) != std::end(kCodecNames)) continue;
     std::string names;
     for (const std::string_view n : kCodecNames) names += fmt::format("{}'{}'", names.empty() ? "" : ", ", n);
-    const std::string guess = closest_name(name, kCodecNames);
-    throw Error(fmt::format("--codec '{}': expected one of {}{}", name, names,
-                            guess.empty() ? std::string() : fmt::format(" (did you mean '{}'?)", guess)));
+    throw Error(fmt::format("--codec '{}': expected one of {}{}", name, names, did_you_mean(name, kCodecNames)));
   }
   cook::Options bounds;
   cook::set_error_bound(bounds, o.error, "--error");

@@ -43,9 +43,13 @@ std::string closest_name(std::string_view word, std::span<const std::string_view
   return best_distance <= std::max<std::size_t>(1, word.size() / 3) ? std::string(best) : std::string();
 }
 
-std::string did_you_mean(std::string_view word, std::initializer_list<std::string_view> names) {
-  const std::string guess = closest_name(word, std::span(names.begin(), names.size()));
+std::string did_you_mean(std::string_view word, std::span<const std::string_view> names) {
+  const std::string guess = closest_name(word, names);
   return guess.empty() ? std::string() : fmt::format(" (did you mean '{}'?)", guess);
+}
+
+std::string did_you_mean(std::string_view word, std::initializer_list<std::string_view> names) {
+  return did_you_mean(word, std::span(names.begin(), names.size()));
 }
 
 std::pair<std::int64_t, std::int64_t> parse_frame_range(std::string_view text, std::string_view flag) {

@@ -15,6 +15,7 @@ namespace pstream {
 // at most a third of the word's length, and at least 1); empty otherwise.
 std::string closest_name(std::string_view word, std::span<const std::string_view> names);
 // " (did you mean 'X'?)" for a message, or "" when nothing is close.
+std::string did_you_mean(std::string_view word, std::span<const std::string_view> names);
 std::string did_you_mean(std::string_view word, std::initializer_list<std::string_view> names);
 
 // "A:B", "A:" or ":B" -> {A, B} (from A up to but not including B); B is -1 when left open.

@@ -104,12 +104,14 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   // kDistinctValuesCounted.
   const std::uint32_t words = m.record_size / 4;
   std::vector<std::unordered_set<std::uint32_t>> seen_source(words), seen_clip(words);
-  // `recs` in `lm`'s layout; each of the clip's float words is found there by attribute name.
+  // Every attribute's distinct values are counted but the positions' (a census of no use).
+  const auto counted = [](const Attribute& at) { return at.name != "position"; };
+  // `recs` in `lm`'s layout; each of the clip's words is found there by attribute name.
   const auto note = [&](std::vector<std::unordered_set<std::uint32_t>>& seen, std::span<const std::byte> recs,
                         std::uint64_t count, const Metadata& lm) {
     for (const Attribute& at : m.layout) {
       const Attribute* from = lm.find(at.name);
-      if (at.name == "position" || from == nullptr || from->size() != at.size()) continue;
+      if (!counted(at) || from == nullptr || from->size() != at.size()) continue;
       for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
         const std::uint32_t at_byte = from->offset + 4 * w - at.offset;
         for (std::uint64_t i = 0; i < count && seen[w].size() < kDistinctValuesCounted; ++i) {
@@ -140,7 +142,7 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   for (const Attribute& at : m.layout) {
     AttributeCheck check;
     check.name = at.name;
-    check.counted = at.name != "position";
+    check.counted = counted(at);
     for (std::uint32_t w = at.offset / 4; w < (at.offset + at.size()) / 4; ++w) {
       const WordCodingEntry* e = particle ? &m.codec.words[w] : nullptr;
       const format::WordCodingType* type = e ? format::find_word_coding(e->coding) : nullptr;
