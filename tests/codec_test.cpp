@@ -1247,6 +1247,36 @@ TEST(ParticleCodec, PacketsContinueOneZstdFrameUnlessTheyStartOne) {
   }
 }
 
+// verify --against reads the source frame by frame beside the clip and writes nothing: it used to
+// cook the whole source into a temporary (2 GB in /tmp for the demo's clip, left there by Ctrl-C).
+// With TMPDIR naming no folder, any temporary would fail. A clip of some of the source's frames
+// is compared on those frames alone; progress goes to stderr, a line a stage, when it is long.
+TEST(ParticleCodecCli, VerifyAgainstReadsTheSourceWithoutATemporary) {
+  const fs::path dir = test::fresh_dir();
+  const std::string sparks = test::data_path("sims/blender_sparks.abc");
+  const fs::path clip = dir / "part.pstream";
+  ASSERT_EQ(test::run_cli(fmt::format("cook {} -o {} --frames 10:20 -q", test::q(sparks), test::q(clip))).exit_code, 0);
+  const std::string tmp = "TMPDIR=" + (dir / "no-such-folder").string() + " ";
+  auto r = test::run_cli_raw(tmp + PSTREAM_CLI +
+                             fmt::format(" verify {} --against {} --json", test::q(clip), test::q(sparks)));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
+  EXPECT_TRUE(j["ok"].get<bool>()) << r.output;
+  EXPECT_EQ(j["against"]["frames_compared"], 10) << r.output;
+  std::uint64_t particles = 0;
+  const auto reader = format::Reader::open(clip);
+  for (const auto& fr : reader.metadata().frames) particles += fr.count;
+  EXPECT_EQ(j["against"]["particles"].get<std::uint64_t>(), particles);
+  // The same through bench codec, which reads the source the same way.
+  r = test::run_cli_raw(tmp + PSTREAM_CLI +
+                        fmt::format(" bench codec {} --frames 3 --repetitions 1 --codec raw --json", test::q(sparks)));
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  // Against another cache: its error, named.
+  test::expect_error(test::run_cli(fmt::format("verify {} --against {}", test::q(clip),
+                                               test::q(test::data_path("alembic/points_varying.abc")))),
+                     "no object '/Emitter/Sparks'");
+}
+
 TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
   const fs::path dir = test::fresh_dir();
   const std::string sparks = test::data_path("sims/blender_sparks.abc");

@@ -61,15 +61,8 @@ void write_clip(const std::filesystem::path& path, std::uint64_t count, int fram
 int bench_all(const BenchAllOptions& o) {
   namespace fs = std::filesystem;
   check_output(o.out);  // before minutes of work: a missing folder is said now
-  const fs::path dir = fs::temp_directory_path() / fmt::format("pstream-bench-all-{}", ::getpid());
-  fs::create_directories(dir);
-  struct Cleanup {
-    fs::path d;
-    ~Cleanup() {
-      std::error_code ec;
-      fs::remove_all(d, ec);
-    }
-  } cleanup{dir};
+  const ScratchFolder scratch("bench-all");
+  const fs::path& dir = scratch.path();
   ProgressBar bar("bench all", true);
   const std::size_t steps = 6;
   bar.update(0, steps, "writing a 1M-particle Alembic clip");

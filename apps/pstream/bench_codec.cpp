@@ -5,7 +5,6 @@
 // fit in a time budget).
 #include <lz4.h>
 #include <meshoptimizer.h>
-#include <unistd.h>
 #include <zstd.h>
 
 #include <algorithm>
@@ -80,42 +79,36 @@ void zstd_decompress(ZSTD_DCtx* ctx, std::span<const std::byte> in, std::span<st
   if (ZSTD_isError(n) || n != out.size()) throw Error("zstd: corrupt bench data");
 }
 
-// The source's frames as [x y z scale] records, with ids when it has them (through the cook, so
-// exactly what a cooked clip would hold).
-std::vector<Frame> load_frames(const BenchCodecOptions& o, const std::filesystem::path& temp) {
+// The source's frames as [x y z scale] records, with ids when it has them (read as the cook reads
+// them, so exactly what a cooked clip would hold).
+std::vector<Frame> load_frames(const BenchCodecOptions& o) {
   cook::Options c;
   c.input = o.file;
   c.object = o.object;
-  c.output = temp / "source.pstream";
   c.color_from = "none";
   c.frame_codec = format::FrameCodec::Records;  // the records as they are
   c.keep_velocity = false;                      // [x y z scale] (+ id)
   c.attributes = {"id"};
-  c.threads = 1;
-  try {
-    cook::cook(c);
-  } catch (const Error&) {
-    c.attributes.clear();  // no ids
-    cook::cook(c);
-  }
-  const auto reader = format::Reader::open(c.output);
-  const format::Metadata& m = reader.metadata();
-  const std::uint64_t frames = o.frames ? std::min<std::uint64_t>(o.frames, m.frame_count()) : m.frame_count();
-  std::vector<std::byte> buffer(m.max_count * m.record_size);
-  std::vector<Frame> out(frames);
-  const format::Attribute* id = m.find("id");
-  for (std::uint64_t f = 0; f < frames; ++f) {
-    reader.read_frame(f, buffer);
-    Frame& fr = out[f];
-    fr.count = m.frames[f].count;
+  std::vector<Frame> out;
+  const auto take = [&](const format::Metadata& m, const cook::CookedFrame& cf) {
+    const format::Attribute* id = m.find("id");
+    Frame& fr = out.emplace_back();
+    fr.count = cf.count;
     fr.records.resize(fr.count * kRecord);
     if (id) fr.ids.resize(fr.count);
     for (std::uint64_t i = 0; i < fr.count; ++i) {
-      std::memcpy(fr.records.data() + i * kRecord, buffer.data() + i * m.record_size, kRecord);
-      if (id) std::memcpy(&fr.ids[i], buffer.data() + i * m.record_size + id->offset, 8);
+      std::memcpy(fr.records.data() + i * kRecord, cf.records.data() + i * m.record_size, kRecord);
+      if (id) std::memcpy(&fr.ids[i], cf.records.data() + i * m.record_size + id->offset, 8);
     }
+    return o.frames == 0 || out.size() < o.frames;
+  };
+  try {
+    cook::read_frames(c, take);
+  } catch (const Error&) {
+    if (!out.empty()) throw;  // failed on a frame, not for want of ids
+    c.attributes.clear();     // no ids
+    cook::read_frames(c, take);
   }
-  std::filesystem::remove(c.output);
   return out;
 }
 
@@ -488,16 +481,7 @@ int bench_codec(const BenchCodecOptions& o) {
   format::ParticleCodecOptions po = bounds.particle;
   const std::string bound_text =
       po.error_relative ? fmt::format("{:g} of the diagonal", po.error) : std::string("in scene units");
-  const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-bench-codec-{}", ::getpid());
-  std::filesystem::create_directories(temp);
-  struct Cleanup {
-    std::filesystem::path dir;
-    ~Cleanup() {
-      std::error_code ec;
-      std::filesystem::remove_all(dir, ec);
-    }
-  } cleanup{temp};
-  const std::vector<Frame> frames = load_frames(o, temp);
+  const std::vector<Frame> frames = load_frames(o);
   std::uint64_t particles = 0, max_count = 0;
   for (const Frame& f : frames) {
     particles += f.count;

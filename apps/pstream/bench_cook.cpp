@@ -6,11 +6,13 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <vector>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/cook.hpp"
@@ -63,8 +65,8 @@ void settle(const std::filesystem::path& output) {
 }  // namespace
 
 int bench_cook(const BenchCookOptions& options) {
-  const auto dir = std::filesystem::temp_directory_path() / fmt::format("pstream-bench-cook-{}", ::getpid());
-  std::filesystem::create_directories(dir);
+  std::optional<ScratchFolder> scratch(std::in_place, "bench-cook");
+  const std::filesystem::path dir = scratch->path();
   std::vector<double> cook_s, base_s;
   std::uint64_t stream_bytes = 0, file_bytes = 0;
   cook::Options o;
@@ -84,23 +86,18 @@ int bench_cook(const BenchCookOptions& options) {
     settle(dir / "baseline.bin");
     return baseline_seconds(options.file, dir / "baseline.bin", file_bytes);
   };
-  try {
-    run_cook();  // warm-up: page cache, first-touch of the binary's code
-    for (int r = 0; r < options.repetitions; ++r) {
-      // Alternating order, so a drift of the machine within a pair hits both alike.
-      if (r % 2 == 0) {
-        cook_s.push_back(run_cook());
-        base_s.push_back(run_baseline());
-      } else {
-        base_s.push_back(run_baseline());
-        cook_s.push_back(run_cook());
-      }
+  run_cook();  // warm-up: page cache, first-touch of the binary's code
+  for (int r = 0; r < options.repetitions; ++r) {
+    // Alternating order, so a drift of the machine within a pair hits both alike.
+    if (r % 2 == 0) {
+      cook_s.push_back(run_cook());
+      base_s.push_back(run_baseline());
+    } else {
+      base_s.push_back(run_baseline());
+      cook_s.push_back(run_cook());
     }
-  } catch (...) {
-    std::filesystem::remove_all(dir);
-    throw;
   }
-  std::filesystem::remove_all(dir);
+  scratch.reset();  // the cooks' files go before the report
   const double mb = double(stream_bytes) / 1e6;
   const double cook_mb_s = mb / median(cook_s), base_mb_s = mb / median(base_s);
   const double ratio = cook_mb_s / base_mb_s;

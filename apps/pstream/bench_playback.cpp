@@ -3,7 +3,6 @@
 // frame and per cached frame — at several particle counts (docs/playback.md).
 #include <epoxy/gl.h>
 #include <time.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -11,12 +10,14 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 #include <thread>
 #include <vector>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "base/output_file.hpp"
 #include "commands.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/playback.hpp"
@@ -191,20 +192,12 @@ int bench_playback(const BenchPlaybackOptions& o) {
   if (paths.empty()) paths = {playback::PlaybackPath::Gpu, playback::PlaybackPath::Cpu};
   nlohmann::ordered_json rows = nlohmann::ordered_json::array();
   for (const std::uint64_t count : counts) {
-    fs::path file = o.file, temp;
+    fs::path file = o.file;
+    std::optional<ScratchFolder> scratch;
     if (file.empty()) {
-      temp = fs::temp_directory_path() / fmt::format("pstream-bench-playback-{}", ::getpid());
-      fs::create_directories(temp);
-      file = temp / "generated.pstream";
+      file = scratch.emplace("bench-playback").path() / "generated.pstream";
       generate(file, count, std::max<std::uint64_t>(o.frames, 2), !o.json);
     }
-    struct Cleanup {
-      fs::path dir;
-      ~Cleanup() {
-        std::error_code ec;
-        if (!dir.empty()) fs::remove_all(dir, ec);
-      }
-    } cleanup{temp};
     for (const playback::PlaybackPath path : paths) rows.push_back(measure(file, path, o.host_hz, !o.json));
   }
   nlohmann::ordered_json j{

@@ -1,6 +1,5 @@
 // `pstream bench stream [FILE]`: the per-frame cost of streaming — update() plus copying the
 // current frame into a caller buffer — against a plain memcpy of the same bytes, in real time.
-#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -8,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <numeric>
+#include <optional>
 #include <thread>
 
 #include <fmt/format.h>
@@ -268,20 +268,11 @@ double download(const std::string& url, const std::filesystem::path& file, bool 
 }  // namespace
 
 int bench_stream(const BenchStreamOptions& o) {
-  std::filesystem::path temp;
   std::string location = o.file;
   const bool url = io::is_url(o.file);
-  if (o.file.empty() || url) {
-    temp = std::filesystem::temp_directory_path() / fmt::format("pstream-bench-stream-{}", ::getpid());
-    std::filesystem::create_directories(temp);
-  }
-  struct Cleanup {
-    std::filesystem::path dir;
-    ~Cleanup() {
-      std::error_code ec;
-      if (!dir.empty()) std::filesystem::remove_all(dir, ec);
-    }
-  } cleanup{temp};
+  std::optional<ScratchFolder> scratch;
+  if (o.file.empty() || url) scratch.emplace("bench-stream");
+  const std::filesystem::path temp = scratch ? scratch->path() : std::filesystem::path();
   if (o.file.empty()) {
     location = (temp / "generated.pstream").string();
     generate_clip(location, o.particles, o.frames, o.fps, o.codec == "particle", !o.json);

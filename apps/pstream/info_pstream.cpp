@@ -2,6 +2,7 @@
 #include <cstring>
 #include <fstream>
 #include <map>
+#include <optional>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -17,6 +18,7 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
+#include "progress.hpp"
 
 namespace pstream::app {
 namespace {
@@ -44,13 +46,17 @@ std::string_view coding_name(WordCoding c) {
   return type ? type->name : "?";
 }
 
-std::string_view order_name(FrameOrder o) {
+// A frame order's name (JSON) and what it means (text).
+struct OrderWords {
+  std::string_view name, phrase;
+};
+OrderWords order_words(FrameOrder o) {
   switch (o) {
-    case FrameOrder::Source: return "source";
-    case FrameOrder::Id: return "id";
-    case FrameOrder::Matched: return "matched";
+    case FrameOrder::Source: return {"source", "in the source's order"};
+    case FrameOrder::Id: return {"id", "in id order, survivors found by id"};
+    case FrameOrder::Matched: return {"matched", "survivors matched by position (no ids)"};
   }
-  return "?";
+  return {"?", "in an unknown order"};
 }
 
 double bytes_per_particle(const Metadata& m) {
@@ -63,7 +69,7 @@ json codec_json(const Metadata& m) {
   json j{{"name", frame_codec_name(m.codec.codec)}, {"bytes_per_particle", bytes_per_particle(m)}};
   if (m.codec.codec != FrameCodec::Particle) return j;
   j["lossless"] = m.codec.lossless;
-  j["order"] = order_name(m.codec.order);
+  j["order"] = order_words(m.codec.order).name;
   j["keyframe_interval"] = m.codec.keyframe_interval;
   j["error"] = m.codec.error;
   json attributes = json::array();
@@ -197,11 +203,8 @@ int info_pstream(const InfoPstreamOptions& options) {
       "particle per frame\n",
       m.decoded_size() / 1048576.0, stored / 1048576.0, decoded_ratio, bytes_per_particle(m));
   if (m.codec.codec == FrameCodec::Particle) {
-    const std::string_view order = m.codec.order == FrameOrder::Id        ? "in id order, survivors found by id"
-                                   : m.codec.order == FrameOrder::Matched ? "survivors matched by position (no ids)"
-                                                                          : "in the source's order";
     fmt::print("  frame codec   particle{}, keyframe every {} frames, {}\n", m.codec.lossless ? " (lossless)" : "",
-               m.codec.keyframe_interval, order);
+               m.codec.keyframe_interval, order_words(m.codec.order).phrase);
     for (const Attribute& a : m.layout) {
       fmt::print("    {:<12}", a.name);
       for (std::uint32_t w = a.offset / 4; w < (a.offset + a.size()) / 4; ++w) {
@@ -223,7 +226,18 @@ int info_pstream(const InfoPstreamOptions& options) {
 }
 
 int verify_pstream(const std::string& file, bool as_json, const std::string& against) {
-  const cook::VerifyReport r = cook::verify(file, against);
+  // A bar a stage (the last stage of a long verify --against is the source's reading).
+  std::optional<ProgressBar> bar;
+  int stage = -1;
+  const cook::VerifyReport r = cook::verify(file, against, [&](const cook::VerifyProgress& p) {
+    if (int(p.stage) != stage) {
+      stage = int(p.stage);
+      constexpr const char* kLabels[] = {"verify: checksums", "verify: decode", "verify: compare"};
+      bar.emplace(kLabels[stage], !as_json);
+    }
+    bar->update(p.done, p.total, p.stage == cook::VerifyProgress::Checksums ? "chunks" : "frames");
+  });
+  bar.reset();
   json attributes = json::array();
   for (const cook::AttributeCheck& a : r.attributes) {
     attributes.push_back({{"name", a.name},

@@ -108,6 +108,23 @@ struct Report {
 // frame and what was wrong; the output is only created when everything succeeded.
 Report cook(const Options& options, const std::function<void(const Progress&)>& progress = {});
 
+// One frame of a source as cook() packs it, handed to read_frames()'s visitor.
+struct CookedFrame {
+  std::uint64_t index = 0, frame_count = 0;  // this output frame, of how many
+  double time = 0.0;                         // seconds
+  std::uint64_t count = 0;                   // particles
+  std::span<const std::byte> records;        // count records in the clip's layout; valid during the call
+};
+// Called once a frame with the clip's header (layout, record size, fps, time of frame 0, "cooked
+// with"; no frame table) and the frame. Returns false to stop.
+using FrameVisitor = std::function<bool(const format::Metadata& clip, const CookedFrame& frame)>;
+// Reads `options.input` as cook() does (the same plan, frames, transforms, particle order, checks
+// and errors) and hands each frame's records, packed as a records cook stores them, to `visit` in
+// time order, writing nothing: options.output, the codecs and chunk sizes are not used. Memory is
+// one frame's. Returns how many frames were visited. verify() compares a clip with its source
+// this way.
+std::uint64_t read_frames(const Options& options, const FrameVisitor& visit);
+
 // Particles handed over in memory instead of read from a file: a script's simulation, or a DCC's
 // evaluated particles (the Blender add-on, blender/). Each array holds `count` entries per
 // particle's components (3 for position and velocity, 4 for colour), or is empty where the clip
@@ -179,10 +196,20 @@ struct VerifyReport {
   bool ok() const { return errors.empty(); }
 };
 
+// Where verify() is: every chunk checked, then every frame decoded, then (with a source) every
+// frame compared; `done` of `total` chunks or frames in each stage.
+struct VerifyProgress {
+  enum Stage { Checksums, Decode, Compare } stage = Checksums;
+  std::uint64_t done = 0, total = 0;
+};
+
 // Checks every chunk's checksum and decoding and decodes every frame; with `against` (the clip's
 // source: .abc or a PLY sequence), also every attribute of every frame against its bound
-// (docs/format.md: each word's coding). Errors are collected in the report, not thrown.
-VerifyReport verify(const std::filesystem::path& file, const std::filesystem::path& against = {});
+// (docs/format.md: each word's coding), the source read frame by frame as cook() reads it
+// (read_frames(): nothing is written, not even a temporary). Errors are collected in the report,
+// not thrown.
+VerifyReport verify(const std::filesystem::path& file, const std::filesystem::path& against = {},
+                    const std::function<void(const VerifyProgress&)>& progress = {});
 
 // Whether `file` is the source `meta` was cooked from, by the name and content hash its "cooked
 // with" string records (an Alembic source): an export must not write over it.

@@ -1,5 +1,6 @@
 #include "base/output_file.hpp"
 
+#include <dirent.h>
 #include <fcntl.h>
 #include <pthread.h>
 #include <signal.h>
@@ -7,12 +8,14 @@
 #include <sys/random.h>
 #include <sys/stat.h>
 #include <sys/statvfs.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <array>
 #include <atomic>
 #include <cerrno>
 #include <climits>
+#include <cstdlib>
 #include <cstring>
 #include <mutex>
 #include <utility>
@@ -31,12 +34,46 @@ constexpr std::size_t kBufferSize = 1 << 20;
 constexpr int kMaxTemporaries = 64;
 std::array<std::array<char, 4096>, kMaxTemporaries> temp_names{};
 std::array<std::atomic<bool>, kMaxTemporaries> temp_used{};
+std::array<std::atomic<bool>, kMaxTemporaries> temp_is_folder{};  // a ScratchFolder
 std::mutex temp_mutex;
 std::atomic<bool> handlers_installed{false};
 
+// A scratch folder's files, then the folder, with async-signal-safe calls only (the kernel's
+// directory listing, not readdir's heap). Passes repeat from the start until one removes nothing:
+// a listing need not return every entry while entries are removed.
+void remove_folder_in_handler(const char* path) {
+  const int fd = ::open(path, O_RDONLY | O_DIRECTORY | O_NOFOLLOW | O_CLOEXEC);
+  if (fd >= 0) {
+    alignas(8) char listing[4096];
+    for (int pass = 0; pass < 64; ++pass) {
+      bool removed = false;
+      ::lseek(fd, 0, SEEK_SET);
+      for (long n; (n = ::syscall(SYS_getdents64, fd, listing, sizeof listing)) > 0;) {
+        for (long at = 0; at < n;) {
+          const auto* entry = reinterpret_cast<const struct dirent64*>(listing + at);
+          at += entry->d_reclen;
+          const char* name = entry->d_name;
+          if (name[0] == '.' && (name[1] == 0 || (name[1] == '.' && name[2] == 0))) continue;
+          removed = ::unlinkat(fd, name, 0) == 0 || removed;
+        }
+      }
+      if (!removed) break;
+    }
+    ::close(fd);
+  }
+  ::rmdir(path);
+}
+
 void on_fatal_signal(int signal) {
-  for (int i = 0; i < kMaxTemporaries; ++i) {
-    if (temp_used[static_cast<std::size_t>(i)].load()) ::unlink(temp_names[static_cast<std::size_t>(i)].data());
+  for (const bool folders : {false, true}) {  // files first: a temporary may lie in a scratch folder
+    for (int i = 0; i < kMaxTemporaries; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      if (!temp_used[k].load() || temp_is_folder[k].load() != folders) continue;
+      if (folders)
+        remove_folder_in_handler(temp_names[k].data());
+      else
+        ::unlink(temp_names[k].data());
+    }
   }
   ::signal(signal, SIG_DFL);  // then end as the signal would have ended us
   ::raise(signal);
@@ -55,7 +92,7 @@ void install_handlers() {
   }
 }
 
-int register_temporary(const std::string& name) {
+int register_temporary(const std::string& name, bool folder = false) {
   std::lock_guard lock(temp_mutex);
   install_handlers();
   if (name.size() >= temp_names[0].size()) return -1;
@@ -63,11 +100,31 @@ int register_temporary(const std::string& name) {
     auto& used = temp_used[static_cast<std::size_t>(i)];
     if (used.load()) continue;
     std::memcpy(temp_names[static_cast<std::size_t>(i)].data(), name.c_str(), name.size() + 1);
+    temp_is_folder[static_cast<std::size_t>(i)].store(folder);
     used.store(true);
     return i;
   }
   return -1;
 }
+
+// SIGINT, SIGTERM and SIGHUP wait while this lives: while a temporary is made and registered, so
+// that the handler knows of every temporary a signal could leave behind (one arriving in between
+// had ended the process with the new file unknown to it).
+class EndingSignalsWait {
+ public:
+  EndingSignalsWait() {
+    sigset_t ending;
+    sigemptyset(&ending);
+    for (const int s : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&ending, s);
+    ::pthread_sigmask(SIG_BLOCK, &ending, &before_);
+  }
+  ~EndingSignalsWait() { ::pthread_sigmask(SIG_SETMASK, &before_, nullptr); }
+  EndingSignalsWait(const EndingSignalsWait&) = delete;
+  EndingSignalsWait& operator=(const EndingSignalsWait&) = delete;
+
+ private:
+  sigset_t before_{};
+};
 
 void unregister_temporary(int slot) {
   if (slot < 0) return;
@@ -189,17 +246,13 @@ OutputFile OutputFile::create(const std::filesystem::path& path, std::span<const
   }
   const std::filesystem::path dir = path.parent_path();
   remove_stale_temporaries(dir);
-  // SIGINT, SIGTERM and SIGHUP wait while the temporary is made and registered, so that the
-  // handler knows of every temporary a signal could leave behind (one arriving in between had
-  // ended the process with the new file unknown to it).
-  sigset_t ending, before;
-  sigemptyset(&ending);
-  for (const int s : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&ending, s);
-  ::pthread_sigmask(SIG_BLOCK, &ending, &before);
-  out.fd_ = create_locked_temporary(path, out.temp_);
-  const int err = errno;
-  if (out.fd_ >= 0) out.slot_ = register_temporary(out.temp_.string());
-  ::pthread_sigmask(SIG_SETMASK, &before, nullptr);
+  int err = 0;
+  {
+    const EndingSignalsWait wait;
+    out.fd_ = create_locked_temporary(path, out.temp_);
+    err = errno;
+    if (out.fd_ >= 0) out.slot_ = register_temporary(out.temp_.string());
+  }
   if (out.fd_ < 0) {
     const std::string folder = dir.empty() ? std::string(".") : dir.string();
     out.temp_.clear();
@@ -320,6 +373,32 @@ std::uint64_t free_space(const std::filesystem::path& path) {
   struct statvfs vfs {};
   if (::statvfs(dir.c_str(), &vfs) != 0) return UINT64_MAX;
   return static_cast<std::uint64_t>(vfs.f_bavail) * vfs.f_frsize;
+}
+
+ScratchFolder::ScratchFolder(std::string_view what) {
+  std::error_code ec;
+  const std::filesystem::path base = std::filesystem::temp_directory_path(ec);
+  if (ec) {
+    const char* tmpdir = std::getenv("TMPDIR");
+    throw Error(fmt::format("no folder for temporary files: TMPDIR is '{}' ({})", tmpdir ? tmpdir : "", ec.message()));
+  }
+  std::string name = (base / fmt::format("pstream-{}-XXXXXX", what)).string();
+  const char* made = nullptr;
+  int error = 0;
+  {
+    const EndingSignalsWait wait;
+    made = ::mkdtemp(name.data());
+    error = errno;
+    if (made != nullptr) slot_ = register_temporary(name, true);
+  }
+  if (made == nullptr) throw Error(fmt::format("{}: cannot make a scratch folder: {}", name, std::strerror(error)));
+  path_ = name;
+}
+
+ScratchFolder::~ScratchFolder() {
+  std::error_code ec;
+  std::filesystem::remove_all(path_, ec);
+  unregister_temporary(std::exchange(slot_, -1));
 }
 
 std::vector<std::string> open_temporaries() {

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace pstream {
@@ -58,6 +59,23 @@ class OutputFile {
   bool direct_ = false;
   std::uint64_t end_ = 0, flushed_ = 0;
   std::vector<std::byte> buffer_;
+};
+
+// A private folder for a command's scratch files (a clip a benchmark generates and reads back) in
+// the system's temporary folder ($TMPDIR, else /tmp), named pstream-WHAT-XXXXXX. It goes with
+// everything in it when this object goes, and on SIGINT, SIGTERM or SIGHUP as OutputFile's
+// temporaries do; files go at its top level (the signal handler empties one level).
+class ScratchFolder {
+ public:
+  explicit ScratchFolder(std::string_view what);  // throws pstream::Error naming the folder
+  ScratchFolder(const ScratchFolder&) = delete;
+  ScratchFolder& operator=(const ScratchFolder&) = delete;
+  ~ScratchFolder();
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+  int slot_ = -1;  // in the signal-cleanup table
 };
 
 // The checks create() makes, without creating anything: a command calls it before long work.

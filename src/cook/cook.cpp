@@ -485,6 +485,10 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
 struct FramePlan {
   double fps = 0.0, start = 0.0;
   std::int64_t first = 0, last = 0;
+  std::uint64_t count() const { return static_cast<std::uint64_t>(last - first); }
+  double time(std::uint64_t index) const {  // of output frame `index`, in seconds
+    return start + static_cast<double>(first + static_cast<std::int64_t>(index)) / fps;
+  }
 };
 
 FramePlan plan_frames(const Options& options, const Source& source) {
@@ -575,63 +579,91 @@ void check_cook_options(const Options& options) {
   }
 }
 
+// What a cook of `source` makes: the records' plan, the output frames and the clip's header.
+struct Prepared {
+  Plan plan;
+  FramePlan frames;
+  format::Metadata meta;
+};
+
+// One output frame through the general path: read, scanned, NaN/Inf dropped or refused, the
+// particle limit checked. Returns the frame's bounds.
+std::array<float, 6> read_frame(Source& source, const Options& options, const Plan& plan, const FramePlan& frames,
+                                std::uint64_t index, ParticleFrame& frame, Report& report) {
+  const double time = frames.time(index);
+  frame.clear(plan.request.floats.size());
+  source.read(time, plan.request, frame);
+  const Scan found = scan(frame);
+  report.dropped_invalid += drop_invalid(frame, found, plan, options, index, source.name());
+  if (frame.count > options.max_particles) {
+    throw OptionError("max_particles", fmt::format("{}: frame {} has {} particles, more than `max_particles`, {}",
+                                                   source.name(), index, frame.count, options.max_particles));
+  }
+  source.check_intact();
+  return found.bounds;
+}
+
+// The clip's header as the cook writes it (the frame table is filled as frames are written).
+format::Metadata clip_metadata(const Options& options, const Source& source, const Plan& plan,
+                               const FramePlan& frames) {
+  format::Metadata meta;
+  meta.flags =
+      (options.bake_xforms ? format::kFlagXformsBaked : 0) | (options.interpolate ? format::kFlagInterpolated : 0);
+  meta.fps = frames.fps;
+  meta.time_of_frame0 = frames.time(0);
+  meta.chunk_size = options.chunk_size;
+  meta.layout = plan.layout;
+  meta.record_size = plan.record_size;
+  meta.source_file = std::filesystem::path(source.name()).filename().string();
+  meta.source_object = source.object();
+  meta.cooked_with = describe_settings(options, source.content_hash(), plan.request.id);
+  return meta;
+}
+
+Prepared prepare(const Options& options, Source& source, Report& report) {
+  const float no_widths_scale =
+      options.scale_from == ScaleFrom::Widths && !source.has_widths() ? default_scale(source, options) : kFallbackScale;
+  Prepared p{make_plan(options, source, report, no_widths_scale), plan_frames(options, source), {}};
+  p.meta = clip_metadata(options, source, p.plan, p.frames);
+  return p;
+}
+
+std::unique_ptr<Source> open_source(const Options& options) {
+  check_cook_options(options);
+  return is_ply(options.input) ? open_ply_sequence(options) : open_alembic(options);
+}
+
 // Cooks from an open source: the one path for files and for particles handed over in memory.
 Report cook_source(const Options& options, Source& opened, const std::function<void(const Progress&)>& progress,
                    std::chrono::steady_clock::time_point t0) {
   Source* const source = &opened;
   Report report;
   report.object = source->object();
-  const float no_widths_scale = options.scale_from == ScaleFrom::Widths && !source->has_widths()
-                                    ? default_scale(*source, options)
-                                    : kFallbackScale;
-  const Plan plan = make_plan(options, *source, report, no_widths_scale);
-  const FramePlan frames = plan_frames(options, *source);
-  const double fps = frames.fps, start = frames.start;
-  const std::int64_t first = frames.first, last = frames.last;
+  const Prepared prepared = prepare(options, *source, report);
+  const Plan& plan = prepared.plan;
+  const FramePlan& frames = prepared.frames;
+  const format::Metadata& meta = prepared.meta;
   const std::vector<std::filesystem::path> inputs = source->files();
   check_output(options.output, inputs);  // before any long work
 
-  format::Metadata meta;
-  meta.flags =
-      (options.bake_xforms ? format::kFlagXformsBaked : 0) | (options.interpolate ? format::kFlagInterpolated : 0);
-  meta.fps = fps;
-  meta.time_of_frame0 = start + static_cast<double>(first) / fps;
-  meta.chunk_size = options.chunk_size;
-  meta.layout = plan.layout;
-  meta.source_file = std::filesystem::path(source->name()).filename().string();
-  meta.source_object = source->object();
-  meta.cooked_with = describe_settings(options, source->content_hash(), plan.request.id);
   const unsigned threads = options.threads ? options.threads : std::max(1u, std::thread::hardware_concurrency());
 
-  // One output frame through the general path: read, scanned, NaN/Inf dropped or refused, the
-  // particle limit checked. Returns the frame's bounds.
   const auto read = [&](std::uint64_t index, ParticleFrame& frame) {
-    const double time = start + static_cast<double>(first + static_cast<std::int64_t>(index)) / fps;
-    frame.clear(plan.request.floats.size());
-    source->read(time, plan.request, frame);
-    const Scan found = scan(frame);
-    report.dropped_invalid += drop_invalid(frame, found, plan, options, index, source->name());
-    if (frame.count > options.max_particles) {
-      throw OptionError("max_particles", fmt::format("{}: frame {} has {} particles, more than `max_particles`, {}",
-                                                     source->name(), index, frame.count, options.max_particles));
-    }
-    source->check_intact();
-    return found.bounds;
+    return read_frame(*source, options, plan, frames, index, frame, report);
   };
-  const auto frame_count = static_cast<std::uint64_t>(last - first);
   if (options.frame_codec == format::FrameCodec::Particle) {
-    cook_particle(options, plan, meta, frame_count, threads, read, progress, *source, report);
+    cook_particle(options, plan, meta, frames.count(), threads, read, progress, *source, report);
     report.input_bytes = source->input_bytes();
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return report;
   }
   format::Writer writer(options.output, meta, inputs);
-  SpaceCheck space(options.output, static_cast<std::uint64_t>(last - first));
+  SpaceCheck space(options.output, frames.count());
 
   const std::size_t batch_chunks = std::max<std::size_t>(2, threads * 2);
   std::vector<std::vector<std::byte>> batch;  // raw chunks waiting to be encoded together
   Progress state;
-  state.frame_count = static_cast<std::uint64_t>(last - first);
+  state.frame_count = frames.count();
   const auto encode_batch = [&] {
     for (const auto& c : encode_all(batch, options, threads)) {
       writer.append_chunk(c);
@@ -657,9 +689,8 @@ Report cook_source(const Options& options, Source& opened, const std::function<v
 
   ParticleFrame frame;
   Source::DirectFrame direct;
-  for (std::int64_t k = first; k < last; ++k) {
-    const double time = start + static_cast<double>(k) / fps;
-    const auto index = static_cast<std::uint64_t>(k - first);
+  for (std::uint64_t index = 0; index < frames.count(); ++index) {
+    const double time = frames.time(index);
     // The default record straight from the source's mapping, packed, scanned and checked in one
     // pass. A frame it cannot take (or one that fails) goes through the general path below,
     // which names what is wrong.
@@ -701,9 +732,28 @@ Report cook_source(const Options& options, Source& opened, const std::function<v
 
 Report cook(const Options& options, const std::function<void(const Progress&)>& progress) {
   const auto t0 = std::chrono::steady_clock::now();
-  check_cook_options(options);
-  const std::unique_ptr<Source> source = is_ply(options.input) ? open_ply_sequence(options) : open_alembic(options);
+  const std::unique_ptr<Source> source = open_source(options);
   return cook_source(options, *source, progress, t0);
+}
+
+std::uint64_t read_frames(const Options& options, const FrameVisitor& visit) {
+  const std::unique_ptr<Source> source = open_source(options);
+  Report report;
+  const Prepared prepared = prepare(options, *source, report);
+  const Plan& plan = prepared.plan;
+  const FramePlan& frames = prepared.frames;
+  ParticleFrame frame;
+  std::vector<std::byte> records;
+  std::uint64_t index = 0;
+  for (; index < frames.count(); ++index) {
+    read_frame(*source, options, plan, frames, index, frame, report);
+    if (!options.keep_source_order) order_by_id(frame, plan);
+    records.resize(frame.count * plan.record_size);
+    for (std::uint64_t i = 0; i < frame.count; ++i) pack_record(frame, plan, i, records.data() + i * plan.record_size);
+    if (!visit(prepared.meta, CookedFrame{index, frames.count(), frames.time(index), frame.count, records}))
+      return index + 1;
+  }
+  return index;
 }
 
 Report cook(const Options& options, const MemoryClip& clip, const std::function<void(const Progress&)>& progress) {

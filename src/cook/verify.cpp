@@ -1,6 +1,4 @@
 // cook::verify: a cooked clip's checksums, decoding, and every attribute against its bound.
-#include <unistd.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -50,7 +48,8 @@ std::uint64_t kept_apart(const std::unordered_set<std::uint32_t>& values, double
 
 // The source cooked again as records with the clip's layout, fps and transforms, every frame
 // compared with the clip's frame of the same time.
-void compare_with_source(const Reader& reader, const std::filesystem::path& source, VerifyReport& report) {
+void compare_with_source(const Reader& reader, const std::filesystem::path& source, VerifyReport& report,
+                         const std::function<void(const VerifyProgress&)>& progress) {
   const Metadata& m = reader.metadata();
   Options o;
   o.input = source;
@@ -71,31 +70,8 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
     if (a.name == "position" || a.name == "scale" || a.name == "color" || (derived && a.name == "velocity")) continue;
     o.attributes.push_back(a.name == "id" && a.type == AttributeType::Uint32 ? "id32" : a.name);
   }
-  const auto temp = std::filesystem::temp_directory_path() / fmt::format("pstream-verify-{}.pstream", ::getpid());
-  o.output = temp;
-  struct Remove {
-    std::filesystem::path p;
-    ~Remove() {
-      std::error_code ec;
-      std::filesystem::remove(p, ec);
-    }
-  } remove{temp};
-  cook(o);
-  const Reader src = Reader::open(temp);
-  const Metadata& sm = src.metadata();
   report.source = source.string();
-  // Attributes are compared by name (a derived velocity: the source may have none, compared as
-  // 0, or place it elsewhere); every other attribute of the clip must be in the source.
-  const bool source_velocity = sm.find("velocity") != nullptr;
-  for (const Attribute& at : m.layout) {
-    const Attribute* from = sm.find(at.name);
-    if ((from == nullptr || from->size() != at.size()) && !(derived && at.name == "velocity")) {
-      report.errors.push_back(fmt::format("{}: the source cooks to {}-byte records without the clip's '{}' ({} bytes)",
-                                          source.string(), sm.record_size, at.name, at.size()));
-      return;
-    }
-  }
-  std::vector<std::byte> a = frame_buffer(m, reader.name()), b = frame_buffer(sm, source.string());
+  std::vector<std::byte> a = frame_buffer(m, reader.name());
   FrameComparison c;
   // A clip ordered by id lists each frame's particles as the source cooked above does (in id
   // order): pairing by position could take a near neighbour in a dense cloud for the particle.
@@ -122,21 +98,46 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
       }
     }
   };
-  std::uint64_t s = 0;
-  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
-    while (s < sm.frame_count() && sm.frames[s].time < m.frames[f].time - 0.25 / m.fps) ++s;
-    if (s == sm.frame_count() || std::abs(sm.frames[s].time - m.frames[f].time) > 0.25 / m.fps) {
-      report.errors.push_back(
-          fmt::format("frame {} (time {}): the source has no frame at that time", f, m.frames[f].time));
-      continue;
+  // The clip's frames walked beside the source's, by time: a clip frame passed over had no
+  // source frame at its time.
+  const double tolerance = 0.25 / m.fps;
+  std::uint64_t f = 0;
+  const auto no_source_frame = [&] {
+    report.errors.push_back(
+        fmt::format("frame {} (time {}): the source has no frame at that time", f, m.frames[f].time));
+    ++f;
+  };
+  bool source_velocity = false, layouts_differ = false;
+  read_frames(o, [&](const Metadata& sm, const CookedFrame& s) {
+    if (s.index == 0) {
+      // Attributes are compared by name (a derived velocity: the source may have none, compared
+      // as 0, or place it elsewhere); every other attribute of the clip must be in the source.
+      source_velocity = sm.find("velocity") != nullptr;
+      for (const Attribute& at : m.layout) {
+        const Attribute* from = sm.find(at.name);
+        if ((from == nullptr || from->size() != at.size()) && !(derived && at.name == "velocity")) {
+          report.errors.push_back(
+              fmt::format("{}: the source cooks to {}-byte records without the clip's '{}' ({} bytes)", source.string(),
+                          sm.record_size, at.name, at.size()));
+          layouts_differ = true;
+          return false;
+        }
+      }
     }
+    while (f < m.frame_count() && m.frames[f].time < s.time - tolerance) no_source_frame();
+    if (f == m.frame_count()) return false;
+    if (std::abs(s.time - m.frames[f].time) > tolerance) return true;  // between the clip's frames
     reader.read_frame(f, a);
-    src.read_frame(s, b);
-    c.add(m.layout, a, m.frames[f].count, sm.layout, b, sm.frames[s].count, &m.codec);
+    c.add(m.layout, a, m.frames[f].count, sm.layout, s.records, s.count, &m.codec);
     note(seen_clip, a, m.frames[f].count, m);
-    note(seen_source, b, sm.frames[s].count, sm);
+    note(seen_source, s.records, s.count, sm);
     ++report.frames_compared;
-  }
+    ++f;
+    if (progress) progress({VerifyProgress::Compare, f, m.frame_count()});
+    return true;
+  });
+  if (layouts_differ) return;
+  while (f < m.frame_count()) no_source_frame();
   report.particles_compared = c.particles;
   const bool particle = m.codec.codec == FrameCodec::Particle;
   for (const Attribute& at : m.layout) {
@@ -198,7 +199,8 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
 
 }  // namespace
 
-VerifyReport verify(const std::filesystem::path& file, const std::filesystem::path& against) {
+VerifyReport verify(const std::filesystem::path& file, const std::filesystem::path& against,
+                    const std::function<void(const VerifyProgress&)>& progress) {
   VerifyReport report;
   report.file = file.string();
   try {
@@ -210,6 +212,7 @@ VerifyReport verify(const std::filesystem::path& file, const std::filesystem::pa
       try {
         reader.read_chunk(c, scratch);  // checksum and decode
         ++report.chunks_verified;
+        if (progress) progress({VerifyProgress::Checksums, c + 1, m.chunk_count()});
       } catch (const Error& e) {
         report.errors.push_back(e.what());
       }
@@ -220,13 +223,14 @@ VerifyReport verify(const std::filesystem::path& file, const std::filesystem::pa
       for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
         try {
           reader.read_frame(f, records);
+          if (progress) progress({VerifyProgress::Decode, f + 1, m.frame_count()});
         } catch (const Error& e) {
           report.errors.push_back(e.what());
           break;
         }
       }
     }
-    if (report.errors.empty() && !against.empty()) compare_with_source(reader, against, report);
+    if (report.errors.empty() && !against.empty()) compare_with_source(reader, against, report, progress);
   } catch (const Error& e) {
     report.errors.push_back(e.what());
   }
