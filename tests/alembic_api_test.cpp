@@ -8,6 +8,8 @@
 #include <nlohmann/json.hpp>
 
 #include "particlestream/alembic.hpp"
+#include "particlestream/alembic_describe.hpp"
+#include "particlestream/io.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -40,6 +42,46 @@ TEST(AlembicApi, PositionsIntoCallerBufferMatchOfficialSums) {
       for (std::size_t i = 0; i < 50000; ++i) s += buffer[i * 3 + c];
       expect_near_rel(sums[c].get<double>(), s, "frame " + std::to_string(f));
     }
+  }
+}
+
+// The reader takes a byte source: a mapped one is read in place, any other (pread, the host's
+// callbacks, a URL: Http.AlembicCachesAreReadFromAUrl) read whole into memory first. Every value
+// comes out the same as from the path (the whole description, every sample's sums).
+TEST(AlembicApi, AnyByteSourceReadsAsThePathDoes) {
+  for (const std::string name : {"alembic/points_large.abc", "alembic/points_varying.abc", "sims/blender_sparks.abc"}) {
+    SCOPED_TRACE(name);
+    const std::string path = test::data_path(name);
+    const DescribeOptions options;
+    const std::string want = describe_json(Archive::open(path), options);
+    const Archive read = Archive::open(io::open_file(path));
+    EXPECT_EQ(describe_json(read, options), want);
+    EXPECT_EQ(read.name(), path);
+    auto source = io::open_mapped_file(path);
+    const std::byte* const mapping = source->mapped().data();
+    const Archive mapped = Archive::open(std::move(source));
+    EXPECT_EQ(describe_json(mapped, options), want);
+    EXPECT_EQ(mapped.bytes().data(), mapping);  // read in place
+  }
+  // A source that claims a terabyte and ends after 1000 bytes: its error, after one 8 MiB piece
+  // was allocated rather than the terabyte.
+  class Short : public io::ByteSource {
+   public:
+    void read(std::uint64_t offset, std::span<std::byte> out) override {
+      if (offset + out.size() > 1000) throw Error(fmt::format("short: nothing past byte 1000 (read at {})", offset));
+      std::fill(out.begin(), out.end(), std::byte{0});
+    }
+    std::uint64_t size() const override { return 1ull << 40; }  // claims a terabyte
+    const std::string& name() const override { return name_; }
+
+   private:
+    std::string name_ = "short";
+  };
+  try {
+    Archive::open(std::make_unique<Short>());
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("nothing past byte 1000"), std::string::npos) << e.what();
   }
 }
 

@@ -925,6 +925,44 @@ TEST(Http, SmallChunksMergeIntoFewerRequests) {
               static_cast<unsigned long long>(st.requests), static_cast<unsigned long long>(st.merged));
 }
 
+// An Alembic cache at a URL: info, cook, verify --against and bench codec read it whole into
+// memory (alembic::Archive over the URL's byte source). The cook is the local cook's, byte for
+// byte: a clip records its source's file name and content hash, not where it was read. A
+// transient fault is retried; a missing file, and a PLY sequence (found by listing its folder),
+// get their errors.
+TEST(Http, AlembicCachesAreReadFromAUrl) {
+  if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
+  const fs::path dir = test::fresh_dir();
+  const std::string abc = test::data_path("sims/blender_sparks.abc");
+  const std::string url = test::test_url(abc);
+  const auto strip = [](std::string s, const std::string& name) {
+    for (std::size_t at; (at = s.find(name)) != std::string::npos;) s.erase(at, name.size());
+    return s;
+  };
+  const auto local_info = test::run_cli("info '" + abc + "' --json");
+  const auto remote_info = test::run_cli("info '" + url + "' --json");
+  ASSERT_EQ(remote_info.exit_code, 0) << remote_info.output;
+  EXPECT_EQ(strip(remote_info.output, url), strip(local_info.output, abc));
+  const fs::path local = dir / "local.pstream", remote = dir / "remote.pstream";
+  ASSERT_EQ(test::run_cli("cook '" + abc + "' -o '" + local.string() + "' -q").exit_code, 0);
+  const auto cooked =
+      test::run_cli("cook '" + test::test_url(abc, "/~fail=503x1") + "' -o '" + remote.string() + "' -q");
+  ASSERT_EQ(cooked.exit_code, 0) << cooked.output;
+  EXPECT_EQ(test::read_text(remote), test::read_text(local));
+  const auto verified = test::run_cli("verify '" + remote.string() + "' --against '" + url + "'");
+  EXPECT_EQ(verified.exit_code, 0) << verified.output;
+  EXPECT_NE(verified.output.find("every value within its bound"), std::string::npos) << verified.output;
+  const auto bench = test::run_cli("bench codec '" + url + "' --frames 2 --repetitions 1 --codec raw --json");
+  EXPECT_EQ(bench.exit_code, 0) << bench.output;
+  test::expect_error(
+      test::run_cli("cook '" + test::test_url(dir / "nope.abc") + "' -o '" + (dir / "x.pstream").string() + "'"),
+      "HTTP 404");
+  test::expect_error(
+      test::run_cli("cook '" + test::test_url(dir / "frame.0001.ply") + "' -o '" + (dir / "x.pstream").string() + "'"),
+      "read from local files");
+  EXPECT_FALSE(fs::exists(dir / "x.pstream"));
+}
+
 TEST(Http, CommandsTakeUrls) {
   if (!fault_server()) GTEST_SKIP() << "needs tests/http/with_server.sh faulty (CTest: StreamOverHttp.faulty)";
   const fs::path dir = test::fresh_dir();

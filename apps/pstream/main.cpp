@@ -174,7 +174,9 @@ int main(int argc, char** argv) {
   std::string info_file;
   bool info_json = false, info_frames = false;
   auto* info_cmd = app.add_subcommand("info", "Describe an Alembic (.abc) or cooked (.pstream) file");
-  info_cmd->add_option("file", info_file, "An Alembic (Ogawa) or .pstream file")->required()->check(file_or_url());
+  info_cmd->add_option("file", info_file, "An Alembic (Ogawa) or .pstream file, or its http(s):// URL (.abc: Alembic)")
+      ->required()
+      ->check(file_or_url());
   info_cmd->add_flag("--json", info_json,
                      "Print JSON. For Alembic: the alembic-fixture-expected/1 schema (docs/alembic.md), comparable "
                      "value by value with the official library. For .pstream: header, layout and chunk summary");
@@ -194,9 +196,12 @@ int main(int argc, char** argv) {
                                       "  pstream cook fx.abc --object /fx/sparks -o sparks.pstream --codec zstd:5\n"
                                       "  pstream cook fx.abc --merge --fps 60 --interpolate -o fx.pstream\n"
                                       "  pstream cook render/frame.0001.ply --fps 24 -o smoke.pstream");
-  cook_cmd->add_option("input", cook.input, "Alembic file, or any file of a PLY sequence (frame.0001.ply)")
+  cook_cmd
+      ->add_option("input", cook.input,
+                   "Alembic file (or its http(s):// URL: read whole into memory), or any file of a local PLY "
+                   "sequence (frame.0001.ply)")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(file_or_url());
   cook_cmd
       ->add_option("-o,--output", cook.output,
                    "The .pstream to write (written to a temporary file, renamed on success)")
@@ -304,7 +309,7 @@ int main(int argc, char** argv) {
                    "The Alembic file (or PLY sequence) the clip was cooked from: decode every frame and report the\n"
                    "largest error of each attribute against the source, pairing particles by id, or by nearest\n"
                    "position when the codec re-ordered a cache without ids. Fails above the clip's stated bound.")
-      ->check(CLI::ExistingFile);
+      ->check(file_or_url());
   verify_cmd->add_flag("--json", verify_json, "Print the result as JSON");
 
   // bench ------------------------------------------------------------------------------------
@@ -354,7 +359,7 @@ int main(int argc, char** argv) {
       "  pstream bench codec tests/data/sims/blender_flip_pour_small.abc --error 4e-4   (size at a looser bound)");
   bench_codec_cmd->add_option("file", bench_codec_opts.file, "An Alembic file (or PLY sequence) to take frames from")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(file_or_url());
   bench_codec_cmd->add_option("--object", bench_codec_opts.object, "The points object (default: the only one)");
   bench_codec_cmd->add_option("--frames", bench_codec_opts.frames, "Use the first N frames (default: all)");
   bench_codec_cmd->add_option(

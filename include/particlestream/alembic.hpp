@@ -26,6 +26,10 @@
 
 #include "particlestream/error.hpp"
 
+namespace pstream::io {
+class ByteSource;
+}
+
 namespace pstream::alembic {
 
 namespace detail {
@@ -233,7 +237,13 @@ class Archive {
   // Opens and validates an Ogawa archive. Throws pstream::Error (file, offset, what was expected)
   // for anything that is not a complete, well-formed Ogawa Alembic file — the HDF5 backend,
   // a file still being written, truncation, corrupted offsets, cycles.
+  // A local file is mapped and read in place. An http(s):// URL is read whole into memory first,
+  // a piece at a time (memory grows with the bytes that arrive, not with the size the server
+  // claims): the reader needs every offset at hand.
   static Archive open(const std::filesystem::path& path);
+  // The same from any byte source (particlestream/io.hpp): read in place when the source is
+  // mapped, otherwise read whole into memory as a URL is.
+  static Archive open(std::unique_ptr<io::ByteSource> source);
   // The same for bytes in memory, which must outlive the Archive (fuzzing, embedded data).
   static Archive from_memory(std::span<const std::byte> bytes, std::string name);
 

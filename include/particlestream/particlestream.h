@@ -117,6 +117,7 @@ typedef struct pstream_attribute {
 
 typedef struct pstream_archive pstream_archive;
 
+/* `path`: a local .abc (mapped), or its http(s):// URL (read whole into memory at open). */
 PSTREAM_API pstream_result pstream_archive_open(const char* path, pstream_archive** out);
 /* Closes the handle (NULL: nothing to do, PSTREAM_OK). Closing it again, or one that no open
  * returned, is PSTREAM_ERROR_ARGUMENT

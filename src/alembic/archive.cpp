@@ -264,9 +264,33 @@ Archive& Archive::operator=(Archive&&) noexcept = default;
 Archive::~Archive() = default;
 
 Archive Archive::open(const std::filesystem::path& path) {
+  if (io::is_url(path.string())) return open(io::open_url(path.string()));
   MappedFile mapping = MappedFile::open(path);
   const auto bytes = mapping.bytes();
   return Archive(parse(std::make_unique<ArchiveData>(std::move(mapping), bytes, path.string())));
+}
+
+Archive Archive::open(std::unique_ptr<io::ByteSource> source) {
+  const std::span<const std::byte> mapped = source->mapped();
+  if (!mapped.empty()) {
+    auto data = std::make_unique<ArchiveData>(MappedFile(), mapped, source->name());
+    data->source = std::move(source);
+    return Archive(parse(std::move(data)));
+  }
+  // A piece at a time: a source that claims more than it delivers fails on the first read that
+  // comes short, having grown the buffer only as far as the bytes that came.
+  constexpr std::uint64_t kPiece = std::uint64_t{8} << 20;
+  const std::uint64_t size = source->size();
+  std::vector<std::byte> bytes;
+  for (std::uint64_t at = 0; at < size;) {
+    const std::uint64_t n = std::min(kPiece, size - at);
+    bytes.resize(at + n);
+    source->read(at, std::span(bytes).subspan(at, n));
+    at += n;
+  }
+  auto data = std::make_unique<ArchiveData>(MappedFile(), std::span<const std::byte>(bytes), source->name());
+  data->owned = std::move(bytes);  // the buffer moves with it: the span stays valid
+  return Archive(parse(std::move(data)));
 }
 
 Archive Archive::from_memory(std::span<const std::byte> bytes, std::string name) {

@@ -10,6 +10,7 @@
 #include "alembic/ogawa.hpp"
 #include "base/mapped_file.hpp"
 #include "particlestream/alembic.hpp"
+#include "particlestream/io.hpp"
 
 namespace pstream::alembic::detail {
 
@@ -40,7 +41,9 @@ struct ObjectNode {
 struct ArchiveData {
   ArchiveData(MappedFile m, std::span<const std::byte> bytes, std::string name)
       : mapping(std::move(m)), file(bytes, std::move(name)) {}
-  MappedFile mapping;  // empty for from_memory archives
+  MappedFile mapping;                      // empty for from_memory archives
+  std::unique_ptr<io::ByteSource> source;  // a mapped byte source, kept open
+  std::vector<std::byte> owned;            // the bytes of a source read into memory
   ogawa::File file;
   std::uint32_t ogawa_version = 0;
   std::uint32_t archive_version = 0;

@@ -16,6 +16,7 @@
 #include "cook/source.hpp"
 #include "cook/spacing.hpp"
 #include "particlestream/cook.hpp"
+#include "particlestream/io.hpp"
 
 namespace pstream::cook {
 namespace {
@@ -630,7 +631,14 @@ Prepared prepare(const Options& options, Source& source, Report& report) {
 
 std::unique_ptr<Source> open_source(const Options& options) {
   check_cook_options(options);
-  return is_ply(options.input) ? open_ply_sequence(options) : open_alembic(options);
+  if (!is_ply(options.input)) return open_alembic(options);
+  if (io::is_url(options.input.string())) {
+    throw Error(
+        fmt::format("{}: a PLY sequence is read from local files (its frames are found by listing "
+                    "its folder); copy it here first",
+                    options.input.string()));
+  }
+  return open_ply_sequence(options);
 }
 
 // Cooks from an open source: the one path for files and for particles handed over in memory.

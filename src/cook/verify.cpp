@@ -46,8 +46,8 @@ std::uint64_t kept_apart(const std::unordered_set<std::uint32_t>& values, double
   return kept;
 }
 
-// The source cooked again as records with the clip's layout, fps and transforms, every frame
-// compared with the clip's frame of the same time.
+// The source read again as a records cook reads it (read_frames: the clip's layout, fps and
+// transforms, nothing written), every frame compared with the clip's frame of the same time.
 void compare_with_source(const Reader& reader, const std::filesystem::path& source, VerifyReport& report,
                          const std::function<void(const VerifyProgress&)>& progress) {
   const Metadata& m = reader.metadata();
@@ -73,7 +73,7 @@ void compare_with_source(const Reader& reader, const std::filesystem::path& sour
   report.source = source.string();
   std::vector<std::byte> a = frame_buffer(m, reader.name());
   FrameComparison c;
-  // A clip ordered by id lists each frame's particles as the source cooked above does (in id
+  // A clip ordered by id lists each frame's particles as read_frames gives the source's (in id
   // order): pairing by position could take a near neighbour in a dense cloud for the particle.
   c.in_order = m.codec.codec == FrameCodec::Particle && m.codec.order == FrameOrder::Id;
   // Distinct values of every word but the positions', in the source and the clip, counted up to

@@ -32,3 +32,17 @@ def test_clip_and_player_open_urls_and_equal_the_file():
 def test_a_missing_url_raises_particlestream_error():
     with pytest.raises(ps.Error, match="HTTP 404"):
         ps.Clip(url(DATA / "pstream" / "no_such.pstream"))
+
+
+def test_an_alembic_cache_at_a_url_reads_and_cooks_as_the_file(tmp_path):
+    abc = DATA / "sims" / "blender_sparks.abc"
+    local, remote = ps.Archive(str(abc)), ps.Archive(url(abc, "/~fail=503x1"))
+    name = local.points()[0]
+    assert remote.points() == local.points()
+    assert remote.num_samples(name) == local.num_samples(name)
+    for t in range(local.num_samples(name)):
+        np.testing.assert_array_equal(remote.positions(name, t), local.positions(name, t))
+        np.testing.assert_array_equal(remote.ids(name, t), local.ids(name, t))
+    ps.cook(str(abc), str(tmp_path / "local.pstream"))
+    ps.cook(url(abc), str(tmp_path / "remote.pstream"))
+    assert (tmp_path / "remote.pstream").read_bytes() == (tmp_path / "local.pstream").read_bytes()
