@@ -321,6 +321,7 @@ PYBIND11_MODULE(particlestream, m) {
     std::function<void(const cook::Progress&)> report;
     if (progress) {
       report = [&](const cook::Progress& p) {
+        if (p.stage == cook::Stage::Fetch) return;  // bytes, not frames
         py::gil_scoped_acquire gil;
         progress(p.frames_done, p.frame_count);
       };

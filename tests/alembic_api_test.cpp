@@ -63,26 +63,52 @@ TEST(AlembicApi, AnyByteSourceReadsAsThePathDoes) {
     EXPECT_EQ(describe_json(mapped, options), want);
     EXPECT_EQ(mapped.bytes().data(), mapping);  // read in place
   }
-  // A source that claims a terabyte and ends after 1000 bytes: its error, after one 8 MiB piece
-  // was allocated rather than the terabyte.
+  // A source that ends short of the size it claims: its error. One that claims more than the
+  // machine's memory: refused before anything is allocated or read.
   class Short : public io::ByteSource {
    public:
+    Short(std::uint64_t claimed, int* reads) : claimed_(claimed), reads_(reads) {}
     void read(std::uint64_t offset, std::span<std::byte> out) override {
+      ++*reads_;
       if (offset + out.size() > 1000) throw Error(fmt::format("short: nothing past byte 1000 (read at {})", offset));
       std::fill(out.begin(), out.end(), std::byte{0});
     }
-    std::uint64_t size() const override { return 1ull << 40; }  // claims a terabyte
+    std::uint64_t size() const override { return claimed_; }
     const std::string& name() const override { return name_; }
 
    private:
+    std::uint64_t claimed_;
+    int* reads_;
     std::string name_ = "short";
   };
-  try {
-    Archive::open(std::make_unique<Short>());
-    ADD_FAILURE() << "no error";
-  } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("nothing past byte 1000"), std::string::npos) << e.what();
-  }
+  std::vector<std::uint64_t> fetched;
+  const auto expect_error = [&](std::uint64_t claimed, const std::string& fragment, int reads) {
+    int made = 0;  // reads the source saw (it goes with the failed open)
+    try {
+      Archive::open(std::make_unique<Short>(claimed, &made),
+                    [&](std::uint64_t done, std::uint64_t) { fetched.push_back(done); });
+      ADD_FAILURE() << "no error";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(made, reads);
+  };
+  expect_error(64ull << 20, "nothing past byte 1000", 1);
+  expect_error(std::uint64_t{1} << 60, "it is read whole into memory, and this machine has", 0);
+  EXPECT_TRUE(fetched.empty());
+  // Fetch progress: after each 8 MiB read, up to the whole.
+  int zero_reads = 0;
+  struct Zeros : Short {
+    explicit Zeros(int* reads) : Short(20ull << 20, reads) {}
+    void read(std::uint64_t, std::span<std::byte> out) override { std::fill(out.begin(), out.end(), std::byte{0}); }
+  };
+  EXPECT_THROW(Archive::open(std::make_unique<Zeros>(&zero_reads),
+                             [&](std::uint64_t done, std::uint64_t total) {
+                               EXPECT_EQ(total, 20ull << 20);
+                               fetched.push_back(done);
+                             }),
+               Error);  // zeros are no archive
+  EXPECT_EQ(fetched, (std::vector<std::uint64_t>{8ull << 20, 16ull << 20, 20ull << 20}));
 }
 
 TEST(AlembicApi, TooSmallBufferIsAnErrorNotAnOverflow) {

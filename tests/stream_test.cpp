@@ -949,6 +949,22 @@ TEST(Http, AlembicCachesAreReadFromAUrl) {
       test::run_cli("cook '" + test::test_url(abc, "/~fail=503x1") + "' -o '" + remote.string() + "' -q");
   ASSERT_EQ(cooked.exit_code, 0) << cooked.output;
   EXPECT_EQ(test::read_text(remote), test::read_text(local));
+  // The library's cook reports the fetch (bytes) before its frames.
+  cook::Options o;
+  o.input = url;
+  o.output = dir / "library.pstream";
+  std::vector<cook::Progress> seen;
+  cook::cook(o, [&](const cook::Progress& p) { seen.push_back(p); });
+  ASSERT_FALSE(seen.empty());
+  EXPECT_EQ(seen.front().stage, cook::Stage::Fetch);
+  const auto last_fetch =
+      std::find_if(seen.rbegin(), seen.rend(), [](const auto& p) { return p.stage == cook::Stage::Fetch; });
+  ASSERT_NE(last_fetch, seen.rend());
+  EXPECT_EQ(last_fetch->bytes_in, fs::file_size(abc));
+  EXPECT_EQ(last_fetch->bytes_total, fs::file_size(abc));
+  EXPECT_EQ(std::find_if(seen.begin(), last_fetch.base(), [](const auto& p) { return p.stage != cook::Stage::Fetch; }),
+            last_fetch.base());  // no frame before the fetch ends
+  EXPECT_EQ(test::read_text(o.output), test::read_text(local));
   const auto verified = test::run_cli("verify '" + remote.string() + "' --against '" + url + "'");
   EXPECT_EQ(verified.exit_code, 0) << verified.output;
   EXPECT_NE(verified.output.find("every value within its bound"), std::string::npos) << verified.output;

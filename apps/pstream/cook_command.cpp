@@ -70,9 +70,16 @@ int run_cook(const CookCli& cli) {
   o.max_frames = cli.max_frames;
 
   const bool show = !cli.quiet && !cli.json;
-  std::optional<ProgressBar> scan;  // the particle codec's first pass
+  std::optional<ProgressBar> scan;   // the particle codec's first pass
+  std::optional<ProgressBar> fetch;  // an Alembic cache at a URL, read into memory first
   ProgressBar bar("cook", show);
   const cook::Report r = cook::cook(o, [&](const cook::Progress& p) {
+    if (p.stage == cook::Stage::Fetch) {
+      if (!fetch) fetch.emplace("cook: fetch", show);
+      fetch->update(p.bytes_in >> 20, p.bytes_total >> 20, "MiB");
+      return;
+    }
+    fetch.reset();
     if (p.stage == cook::Stage::Scan) {
       if (!scan) scan.emplace("cook: scan", show);
       scan->update(p.frames_done, p.frame_count, "frames");

@@ -8,6 +8,7 @@
 #include "commands.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/alembic_describe.hpp"
+#include "progress.hpp"
 
 namespace pstream::app {
 namespace {
@@ -89,7 +90,9 @@ void print_points(const Object& o) {
 }  // namespace
 
 int info_alembic(const InfoOptions& options) {
-  const Archive archive = Archive::open(options.file);
+  ProgressBar fetch("info: fetch", !options.json);  // a URL is read whole first
+  const Archive archive = Archive::open(
+      options.file, [&](std::uint64_t done, std::uint64_t total) { fetch.update(done >> 20, total >> 20, "MiB"); });
   if (options.json) {
     fmt::print("{}\n", describe_json(archive));
     return 0;

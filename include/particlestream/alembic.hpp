@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -237,13 +238,15 @@ class Archive {
   // Opens and validates an Ogawa archive. Throws pstream::Error (file, offset, what was expected)
   // for anything that is not a complete, well-formed Ogawa Alembic file — the HDF5 backend,
   // a file still being written, truncation, corrupted offsets, cycles.
-  // A local file is mapped and read in place. An http(s):// URL is read whole into memory first,
-  // a piece at a time (memory grows with the bytes that arrive, not with the size the server
-  // claims): the reader needs every offset at hand.
-  static Archive open(const std::filesystem::path& path);
+  // A local file is mapped and read in place. An http(s):// URL is read whole into memory first
+  // (the reader needs every offset at hand): one allocation of the size the server gives, whose
+  // pages are taken as the bytes arrive, refused when it is more than the machine's memory.
+  // `fetched(done, total)` is called after each 8 MiB read (long work; nothing for a local file).
+  using Fetched = std::function<void(std::uint64_t done, std::uint64_t total)>;
+  static Archive open(const std::filesystem::path& path, const Fetched& fetched = {});
   // The same from any byte source (particlestream/io.hpp): read in place when the source is
   // mapped, otherwise read whole into memory as a URL is.
-  static Archive open(std::unique_ptr<io::ByteSource> source);
+  static Archive open(std::unique_ptr<io::ByteSource> source, const Fetched& fetched = {});
   // The same for bytes in memory, which must outlive the Archive (fuzzing, embedded data).
   static Archive from_memory(std::span<const std::byte> bytes, std::string name);
 

@@ -81,12 +81,14 @@ std::string describe_settings(const Options& options, std::uint64_t content_hash
 
 // Where a cook is: the particle codec reads its source twice (a scan for the ranges its grids
 // need, then the encoding), each stage counting frames_done from 1 to frame_count (the clip's
-// frames); the records codec has the writing stage alone.
-enum class Stage { Scan, Write };
+// frames); the records codec has the writing stage alone. An Alembic cache at a URL is fetched
+// first (Fetch: bytes_in of bytes_total, no frames yet).
+enum class Stage { Scan, Write, Fetch };
 struct Progress {
   std::uint64_t frames_done = 0, frame_count = 0;
   std::uint64_t bytes_out = 0;
   Stage stage = Stage::Write;
+  std::uint64_t bytes_in = 0, bytes_total = 0;  // Fetch
 };
 
 struct Report {

@@ -1,8 +1,11 @@
 // Opening an archive: the root group, archive metadata, time samplings, the indexed-metadata
 // table and the object hierarchy with every property header.
+#include <unistd.h>
+
 #include <algorithm>
 #include <cstdlib>
 #include <limits>
+#include <memory>
 
 #include <fmt/format.h>
 
@@ -11,6 +14,12 @@
 
 namespace pstream::alembic {
 namespace {
+
+// The machine's memory in bytes (the most when it cannot be told).
+std::uint64_t physical_memory() {
+  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && page > 0 ? std::uint64_t(pages) * std::uint64_t(page) : UINT64_MAX;
+}
 
 using detail::ArchiveData;
 using detail::ObjectNode;
@@ -263,33 +272,39 @@ Archive::Archive(Archive&&) noexcept = default;
 Archive& Archive::operator=(Archive&&) noexcept = default;
 Archive::~Archive() = default;
 
-Archive Archive::open(const std::filesystem::path& path) {
-  if (io::is_url(path.string())) return open(io::open_url(path.string()));
+Archive Archive::open(const std::filesystem::path& path, const Fetched& fetched) {
+  if (io::is_url(path.string())) return open(io::open_url(path.string()), fetched);
   MappedFile mapping = MappedFile::open(path);
   const auto bytes = mapping.bytes();
   return Archive(parse(std::make_unique<ArchiveData>(std::move(mapping), bytes, path.string())));
 }
 
-Archive Archive::open(std::unique_ptr<io::ByteSource> source) {
+Archive Archive::open(std::unique_ptr<io::ByteSource> source, const Fetched& fetched) {
   const std::span<const std::byte> mapped = source->mapped();
   if (!mapped.empty()) {
     auto data = std::make_unique<ArchiveData>(MappedFile(), mapped, source->name());
     data->source = std::move(source);
     return Archive(parse(std::move(data)));
   }
-  // A piece at a time: a source that claims more than it delivers fails on the first read that
-  // comes short, having grown the buffer only as far as the bytes that came.
-  constexpr std::uint64_t kPiece = std::uint64_t{8} << 20;
+  // One allocation, not filled first: its pages are taken as the reads fill them, so a source
+  // that claims more than it delivers costs the bytes that came.
   const std::uint64_t size = source->size();
-  std::vector<std::byte> bytes;
+  const std::uint64_t memory = physical_memory();
+  if (size > memory) {
+    throw Error(fmt::format("{}: the archive is {} bytes; it is read whole into memory, and this machine has {}",
+                            source->name(), size, memory));
+  }
+  std::unique_ptr<std::byte[]> bytes = std::make_unique_for_overwrite<std::byte[]>(size);
+  constexpr std::uint64_t kPiece = std::uint64_t{8} << 20;
   for (std::uint64_t at = 0; at < size;) {
     const std::uint64_t n = std::min(kPiece, size - at);
-    bytes.resize(at + n);
-    source->read(at, std::span(bytes).subspan(at, n));
+    source->read(at, std::span(bytes.get() + at, n));
     at += n;
+    if (fetched) fetched(at, size);
   }
-  auto data = std::make_unique<ArchiveData>(MappedFile(), std::span<const std::byte>(bytes), source->name());
-  data->owned = std::move(bytes);  // the buffer moves with it: the span stays valid
+  auto data =
+      std::make_unique<ArchiveData>(MappedFile(), std::span<const std::byte>(bytes.get(), size), source->name());
+  data->owned = std::move(bytes);
   return Archive(parse(std::move(data)));
 }
 

@@ -43,7 +43,7 @@ struct ArchiveData {
       : mapping(std::move(m)), file(bytes, std::move(name)) {}
   MappedFile mapping;                      // empty for from_memory archives
   std::unique_ptr<io::ByteSource> source;  // a mapped byte source, kept open
-  std::vector<std::byte> owned;            // the bytes of a source read into memory
+  std::unique_ptr<std::byte[]> owned;      // the bytes of a source read into memory
   ogawa::File file;
   std::uint32_t ogawa_version = 0;
   std::uint32_t archive_version = 0;

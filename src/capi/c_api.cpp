@@ -317,6 +317,7 @@ pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_re
     std::function<void(const cook::Progress&)> progress;
     if (options->progress) {
       progress = [&](const cook::Progress& p) {
+        if (p.stage == cook::Stage::Fetch) return;  // bytes, not frames
         if (options->progress(options->progress_user, p.frames_done, p.frame_count) != 0) {
           cancelled = true;
           throw Error(std::string(options->input) + ": the cook was cancelled by its progress callback");

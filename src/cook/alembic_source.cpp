@@ -85,9 +85,21 @@ struct Cooked {
   }
 };
 
+Archive::Fetched fetch_progress(const std::function<void(const Progress&)>& progress) {
+  if (!progress) return {};
+  return [progress](std::uint64_t done, std::uint64_t total) {
+    Progress p;
+    p.stage = Stage::Fetch;
+    p.bytes_in = done;
+    p.bytes_total = total;
+    progress(p);
+  };
+}
+
 class AlembicSource final : public Source {
  public:
-  explicit AlembicSource(const Options& options) : archive_(Archive::open(options.input)) {
+  AlembicSource(const Options& options, const std::function<void(const Progress&)>& progress)
+      : archive_(Archive::open(options.input, fetch_progress(progress))) {
     const std::string file = options.input.string();
     if (!options.object.empty()) {
       const auto o = archive_.find(options.object);
@@ -440,6 +452,8 @@ class AlembicSource final : public Source {
 
 }  // namespace
 
-std::unique_ptr<Source> open_alembic(const Options& options) { return std::make_unique<AlembicSource>(options); }
+std::unique_ptr<Source> open_alembic(const Options& options, const std::function<void(const Progress&)>& progress) {
+  return std::make_unique<AlembicSource>(options, progress);
+}
 
 }  // namespace pstream::cook

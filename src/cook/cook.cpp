@@ -629,9 +629,9 @@ Prepared prepare(const Options& options, Source& source, Report& report) {
   return p;
 }
 
-std::unique_ptr<Source> open_source(const Options& options) {
+std::unique_ptr<Source> open_source(const Options& options, const std::function<void(const Progress&)>& progress) {
   check_cook_options(options);
-  if (!is_ply(options.input)) return open_alembic(options);
+  if (!is_ply(options.input)) return open_alembic(options, progress);
   if (io::is_url(options.input.string())) {
     throw Error(
         fmt::format("{}: a PLY sequence is read from local files (its frames are found by listing "
@@ -740,12 +740,12 @@ Report cook_source(const Options& options, Source& opened, const std::function<v
 
 Report cook(const Options& options, const std::function<void(const Progress&)>& progress) {
   const auto t0 = std::chrono::steady_clock::now();
-  const std::unique_ptr<Source> source = open_source(options);
+  const std::unique_ptr<Source> source = open_source(options, progress);
   return cook_source(options, *source, progress, t0);
 }
 
 std::uint64_t read_frames(const Options& options, const FrameVisitor& visit) {
-  const std::unique_ptr<Source> source = open_source(options);
+  const std::unique_ptr<Source> source = open_source(options, {});
   Report report;
   const Prepared prepared = prepare(options, *source, report);
   const Plan& plan = prepared.plan;

@@ -99,7 +99,8 @@ class Source {
   virtual bool read_direct(double /*time*/, const Request& /*request*/, DirectFrame& /*out*/) { return false; }
 };
 
-std::unique_ptr<Source> open_alembic(const Options& options);
+// `progress` hears of a URL's fetch (Stage::Fetch).
+std::unique_ptr<Source> open_alembic(const Options& options, const std::function<void(const Progress&)>& progress = {});
 std::unique_ptr<Source> open_ply_sequence(const Options& options);
 std::unique_ptr<Source> open_memory(const Options& options, const MemoryClip& clip);
 
