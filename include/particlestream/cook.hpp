@@ -117,8 +117,9 @@ struct CookedFrame {
   std::uint64_t count = 0;                   // particles
   std::span<const std::byte> records;        // count records in the clip's layout; valid during the call
 };
-// Called once a frame with the clip's header (layout, record size, fps, time of frame 0, "cooked
-// with"; no frame table) and the frame. Returns false to stop.
+// Called once a frame with the clip's header (layout, record size, fps, time of frame 0, flags,
+// source; no frame table, and no "cooked with", which would hash every byte of the source first)
+// and the frame. Returns false to stop.
 using FrameVisitor = std::function<bool(const format::Metadata& clip, const CookedFrame& frame)>;
 // Reads `options.input` as cook() does (the same plan, frames, transforms, particle order, checks
 // and errors) and hands each frame's records, packed as a records cook stores them, to `visit` in

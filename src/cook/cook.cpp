@@ -605,8 +605,9 @@ std::array<float, 6> read_frame(Source& source, const Options& options, const Pl
 }
 
 // The clip's header as the cook writes it (the frame table is filled as frames are written).
-format::Metadata clip_metadata(const Options& options, const Source& source, const Plan& plan,
-                               const FramePlan& frames) {
+// Without `settings`, no "cooked with": it hashes every byte of the source.
+format::Metadata clip_metadata(const Options& options, const Source& source, const Plan& plan, const FramePlan& frames,
+                               bool settings) {
   format::Metadata meta;
   meta.flags =
       (options.bake_xforms ? format::kFlagXformsBaked : 0) | (options.interpolate ? format::kFlagInterpolated : 0);
@@ -617,15 +618,15 @@ format::Metadata clip_metadata(const Options& options, const Source& source, con
   meta.record_size = plan.record_size;
   meta.source_file = std::filesystem::path(source.name()).filename().string();
   meta.source_object = source.object();
-  meta.cooked_with = describe_settings(options, source.content_hash(), plan.request.id);
+  if (settings) meta.cooked_with = describe_settings(options, source.content_hash(), plan.request.id);
   return meta;
 }
 
-Prepared prepare(const Options& options, Source& source, Report& report) {
+Prepared prepare(const Options& options, Source& source, Report& report, bool settings = true) {
   const float no_widths_scale =
       options.scale_from == ScaleFrom::Widths && !source.has_widths() ? default_scale(source, options) : kFallbackScale;
   Prepared p{make_plan(options, source, report, no_widths_scale), plan_frames(options, source), {}};
-  p.meta = clip_metadata(options, source, p.plan, p.frames);
+  p.meta = clip_metadata(options, source, p.plan, p.frames, settings);
   return p;
 }
 
@@ -747,7 +748,7 @@ Report cook(const Options& options, const std::function<void(const Progress&)>& 
 std::uint64_t read_frames(const Options& options, const FrameVisitor& visit) {
   const std::unique_ptr<Source> source = open_source(options, {});
   Report report;
-  const Prepared prepared = prepare(options, *source, report);
+  const Prepared prepared = prepare(options, *source, report, false);  // a few frames need not hash the whole source
   const Plan& plan = prepared.plan;
   const FramePlan& frames = prepared.frames;
   ParticleFrame frame;
