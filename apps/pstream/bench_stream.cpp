@@ -258,7 +258,7 @@ double download(const std::string& url, const std::filesystem::path& file, bool 
     source->read(at, std::span(piece).first(n));
     out.append(piece.data(), n);
     at += n;
-    bar.update(at >> 20, size >> 20, "MiB");
+    bar.update_bytes(at, size);
   }
   out.commit();
   const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();

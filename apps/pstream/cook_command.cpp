@@ -76,7 +76,7 @@ int run_cook(const CookCli& cli) {
   const cook::Report r = cook::cook(o, [&](const cook::Progress& p) {
     if (p.stage == cook::Stage::Fetch) {
       if (!fetch) fetch.emplace("cook: fetch", show);
-      fetch->update(p.bytes_in >> 20, p.bytes_total >> 20, "MiB");
+      fetch->update_bytes(p.bytes_in, p.bytes_total);
       return;
     }
     fetch.reset();

@@ -92,7 +92,7 @@ void print_points(const Object& o) {
 int info_alembic(const InfoOptions& options) {
   ProgressBar fetch("info: fetch", !options.json);  // a URL is read whole first
   const Archive archive = Archive::open(
-      options.file, [&](std::uint64_t done, std::uint64_t total) { fetch.update(done >> 20, total >> 20, "MiB"); });
+      options.file, [&](std::uint64_t done, std::uint64_t total) { fetch.update_bytes(done, total); });
   if (options.json) {
     fmt::print("{}\n", describe_json(archive));
     return 0;

@@ -17,7 +17,9 @@ class ProgressBar {
   explicit ProgressBar(std::string label, bool enabled = true)
       : label_(std::move(label)), enabled_(enabled), tty_(::isatty(STDERR_FILENO) != 0) {}
 
-  void update(std::uint64_t done, std::uint64_t total, const std::string& detail = {}) {
+  // `done` of `total` units; `detail` follows the counts, `rate_unit` names the rate's unit.
+  void update(std::uint64_t done, std::uint64_t total, const std::string& detail = {},
+              const std::string& rate_unit = {}) {
     if (!enabled_ || total == 0) return;
     const int percent = static_cast<int>(100 * done / total);
     // The rate so far and the time left at that rate (once there is a rate to speak of).
@@ -25,7 +27,7 @@ class ProgressBar {
     std::string pace;
     if (done > 0 && seconds > 0.2) {
       const double rate = double(done) / seconds, left = double(total - done) / rate;
-      pace = fmt::format(" · {:.3g}/s", rate);
+      pace = fmt::format(" · {:.3g}{}{}/s", rate, rate_unit.empty() ? "" : " ", rate_unit);
       if (done < total)
         pace += left < 90 ? fmt::format(", {:.0f} s left", left) : fmt::format(", {:.0f} min left", left / 60);
     }
@@ -45,6 +47,9 @@ class ProgressBar {
     }
     std::fflush(stderr);
   }
+
+  // Bytes read or written, shown in MiB with a MiB/s rate.
+  void update_bytes(std::uint64_t done, std::uint64_t total) { update(done >> 20, total >> 20, "MiB", "MiB"); }
 
  private:
   std::string label_;

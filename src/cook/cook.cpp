@@ -255,6 +255,17 @@ void pack_record(const ParticleFrame& f, const Plan& plan, std::uint64_t i, std:
   }
 }
 
+// Records `first` to `first + n` of a frame, packed one after another from `dst`.
+void pack_records(const ParticleFrame& f, const Plan& plan, std::uint64_t first, std::uint64_t n, std::byte* dst) {
+  for (std::uint64_t k = 0; k < n; ++k) pack_record(f, plan, first + k, dst + k * plan.record_size);
+}
+
+// A whole frame's records, into `out` (sized to fit).
+void pack_frame(const ParticleFrame& f, const Plan& plan, std::vector<std::byte>& out) {
+  out.resize(f.count * plan.record_size);
+  pack_records(f, plan, 0, f.count, out.data());
+}
+
 // With ids, a frame is written in ascending id order (a stable sort when the source's is not), so
 // that a player matches particles across frames by one linear merge (format::match_by_id).
 void order_by_id(ParticleFrame& f, const Plan& plan) {
@@ -291,7 +302,7 @@ void pack(const ParticleFrame& f, const Plan& plan, ChunkCutter& out) {
       continue;
     }
     const std::uint64_t n = std::min<std::uint64_t>(room.size() / plan.record_size, f.count - i);
-    for (std::uint64_t k = 0; k < n; ++k) pack_record(f, plan, i + k, room.data() + k * plan.record_size);
+    pack_records(f, plan, i, n, room.data());
     out.commit(n * plan.record_size);
     i += n;
   }
@@ -321,8 +332,7 @@ std::vector<HeldFrame*> two_before(std::vector<std::vector<HeldFrame>>& groups, 
 
 void hold(const ParticleFrame& f, const Plan& plan, HeldFrame& out) {
   out.count = f.count;
-  out.records.resize(f.count * plan.record_size);
-  for (std::uint64_t i = 0; i < f.count; ++i) pack_record(f, plan, i, out.records.data() + i * plan.record_size);
+  pack_frame(f, plan, out.records);
   out.ids.assign(f.id.begin(), f.id.begin() + static_cast<std::ptrdiff_t>(plan.request.id ? f.count : 0));
 }
 
@@ -757,8 +767,7 @@ std::uint64_t read_frames(const Options& options, const FrameVisitor& visit) {
   for (; index < frames.count(); ++index) {
     read_frame(*source, options, plan, frames, index, frame, report);
     if (!options.keep_source_order) order_by_id(frame, plan);
-    records.resize(frame.count * plan.record_size);
-    for (std::uint64_t i = 0; i < frame.count; ++i) pack_record(frame, plan, i, records.data() + i * plan.record_size);
+    pack_frame(frame, plan, records);
     if (!visit(prepared.meta, CookedFrame{index, frames.count(), frames.time(index), frame.count, records}))
       return index + 1;
   }
