@@ -491,6 +491,39 @@ PYBIND11_MODULE(particlestream, m) {
       "values in the source and the clip; a derived velocity (derived=True) has no bound: its rms_error "
       "against the source's velocities (in_source) and their rms_source.");
 
+  m.def(
+      "export",
+      [](const std::string& clip, const std::filesystem::path& output,
+         const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
+        cook::ExportOptions o;
+        o.input = clip;
+        o.output = output;
+        std::function<void(std::uint64_t, std::uint64_t)> report;
+        if (progress) {
+          report = [&](std::uint64_t done, std::uint64_t total) {
+            py::gil_scoped_acquire gil;
+            progress(done, total);
+          };
+        }
+        cook::ExportReport r;
+        {
+          py::gil_scoped_release release;
+          r = cook::export_clip(o, report);
+        }
+        py::dict d;
+        d["format"] = r.ply ? "ply" : "alembic";
+        d["frames"] = r.frames;
+        d["first"] = r.first.string();
+        d["bytes_written"] = r.bytes_written;
+        return d;
+      },
+      py::arg("clip"), py::arg("output"), py::arg("progress") = nullptr,
+      "Writes a .pstream (a path or URL) back out for a DCC, as `pstream export` does; the output's "
+      "extension chooses the format: NAME.abc an Alembic points cache (P, ids, velocities, widths = 2 x "
+      "scale, Cd, other float attributes), NAME.ply a binary PLY sequence NAME.0001.ply, NAME.0002.ply ... "
+      "progress(frames_done, frame_count) is called after each frame. Returns the report (format, frames, "
+      "first: the file or the sequence's first, bytes_written).");
+
   py::class_<PyClip>(m, "Clip", "A .pstream read directly.")
       .def(py::init<std::filesystem::path>(), py::arg("path"))
       .def_property_readonly("frame_count", [](const PyClip& c) { return c.reader.metadata().frame_count(); })

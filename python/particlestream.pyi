@@ -149,6 +149,15 @@ def cook_particles(
     (N x 3, per second), 'id' (N, stable) and 'color' (N x 4, linear RGBA in 0..1). Returns the
     report (frames, particles, file_bytes, seconds)."""
 
+def export(
+    clip: str,
+    output: PathLike,
+    progress: Optional[Callable[[int, int], None]] = None,
+) -> dict:
+    """Writes a .pstream (a path or URL) back out for a DCC, as `pstream export` does: NAME.abc an
+    Alembic points cache, NAME.ply a binary PLY sequence (NAME.0001.ply ...). Returns the report:
+    format ('alembic' or 'ply'), frames, first (the file or the sequence's first), bytes_written."""
+
 def verify(clip: str, against: str = "") -> dict:
     """Checks a .pstream as `pstream verify` does (and with `against`, each attribute against the
     source within its own bound; a derived velocity reports its rms_error); returns the report:

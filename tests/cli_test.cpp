@@ -3,6 +3,7 @@
 
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -140,6 +141,25 @@ TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("the extension chooses the format"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir / "x.txt"));
+  // --out DIR is DIR/frame.NNNN.ply; --json says what was written, for scripts.
+  const fs::path clip = dir / "points_empty_frames" / "clip.pstream";
+  r = run_cli("export --json " + q(clip) + " --out " + q(dir / "plys"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output);
+  const auto frame_count = pstream::format::Reader::open(clip).metadata().frame_count();
+  EXPECT_EQ(j["format"], "ply");
+  EXPECT_EQ(j["frames"], frame_count);
+  EXPECT_EQ(j["first"], (dir / "plys" / "frame.0001.ply").string());
+  std::uint64_t bytes = 0;
+  std::size_t files = 0;
+  for (const auto& e : fs::directory_iterator(dir / "plys")) bytes += fs::file_size(e.path()), ++files;
+  EXPECT_EQ(files, frame_count);
+  EXPECT_EQ(j["bytes_written"], bytes);
+  // A file where the sequence's folder would be is named, and nothing is written.
+  std::ofstream(dir / "taken") << "a file";
+  r = run_cli("export -q " + q(clip) + " -o " + q(dir / "taken" / "f.ply"));
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("taken: exists and is not a folder"), std::string::npos) << r.output;
 }
 
 }  // namespace

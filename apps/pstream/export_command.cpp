@@ -1,248 +1,36 @@
-// `pstream export clip.pstream --out DIR | -o x.abc`: a cooked clip back into a DCC, as a binary
-// PLY sequence (one file a frame) or an Alembic points cache written by our Alembic writer.
-#include <unistd.h>
-
-#include <algorithm>
-#include <cctype>
-#include <cstring>
+// `pstream export clip.pstream --out DIR | -o NAME.abc | -o NAME.ply`: arguments and printing around
+// cook::export_clip().
 #include <filesystem>
-#include <fstream>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
-#include "base/output_file.hpp"
 #include "commands.hpp"
-#include "particlestream/alembic_writer.hpp"
-#include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
+#include "particlestream/error.hpp"
 #include "progress.hpp"
 
 namespace pstream::app {
-namespace {
 
-using namespace pstream::format;
-namespace fs = std::filesystem;
-
-// One frame's records as columns: what both writers take.
-struct Columns {
-  std::vector<float> position, scale_width, velocity;
-  std::vector<std::uint64_t> id;
-  std::vector<std::uint8_t> color;                 // RGBA8
-  std::vector<std::vector<float>> floats;          // other float attributes
-  std::vector<const Attribute*> float_attributes;  // their layout entries
-};
-
-void split(const Metadata& m, std::span<const std::byte> records, std::uint64_t n, Columns& c) {
-  const auto get = [&](const Attribute& a, std::uint64_t i, std::size_t k, auto& out) {
-    std::memcpy(&out, records.data() + i * m.record_size + a.offset + k * sizeof(out), sizeof(out));
-  };
-  // Each column the clip has is sized for the frame, even an empty one (an empty frame is an
-  // empty sample with every property, not a sample with some missing).
-  c.position.resize(n * 3);
-  c.scale_width.resize(n);
-  c.velocity.assign(m.find("velocity") ? n * 3 : 0, 0.0f);
-  c.id.assign(m.find("id") ? n : 0, 0);
-  c.color.assign(m.find("color") ? n * 4 : 0, 0);
-  c.floats.assign(c.float_attributes.size(), {});
-  for (const Attribute& a : m.layout) {
-    for (std::uint64_t i = 0; i < n; ++i) {
-      if (a.name == "position") {
-        for (std::size_t k = 0; k < 3; ++k) get(a, i, k, c.position[i * 3 + k]);
-      } else if (a.name == "scale") {
-        get(a, i, 0, c.scale_width[i]);
-      } else if (a.name == "velocity") {
-        for (std::size_t k = 0; k < 3; ++k) get(a, i, k, c.velocity[i * 3 + k]);
-      } else if (a.name == "id") {
-        if (a.type == AttributeType::Uint64) {
-          get(a, i, 0, c.id[i]);
-        } else {
-          std::uint32_t v;
-          get(a, i, 0, v);
-          c.id[i] = v;
-        }
-      } else if (a.name == "color") {
-        std::memcpy(&c.color[i * 4], records.data() + i * m.record_size + a.offset, 4);
-      }
-    }
-  }
-  for (std::size_t e = 0; e < c.float_attributes.size(); ++e) {
-    const Attribute& a = *c.float_attributes[e];
-    c.floats[e].resize(n * a.components);
-    for (std::uint64_t i = 0; i < n; ++i)
-      for (std::size_t k = 0; k < a.components; ++k) get(a, i, k, c.floats[e][i * a.components + k]);
-  }
-}
-
-// A PLY header is lines of words: a name is data, never syntax. Names with a space (or anything
-// the reader's validation lets through but a PLY word cannot hold) are refused; text in the
-// comment is escaped.
-const std::string& ply_word(const std::string& name, const fs::path& input) {
-  if (name.find_first_of(" \t\r\n\v\f") != std::string::npos || !format::is_valid_name(name)) {
-    throw Error(
-        fmt::format("{}: the attribute \"{}\" cannot be a PLY property name (it is not one word); export "
-                    "to Alembic (-o NAME.abc) instead",
-                    input.string(), format::escaped_name(name)));
-  }
-  return name;
-}
-
-// A binary little-endian PLY of one frame, complete or not at all (never over `input`).
-void write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::uint64_t n, const fs::path& input) {
-  bool ids32 = true;
-  for (std::uint64_t v : c.id) ids32 = ids32 && v <= 0xffffffffu;
-  std::string header = fmt::format(
-      "ply\nformat binary_little_endian 1.0\ncomment pstream export of {} {}\n"
-      "element vertex {}\nproperty float x\nproperty float y\nproperty float z\n"
-      "property float pscale\n",
-      format::escaped_name(m.source_file), format::escaped_name(m.source_object), n);
-  // The clip's attributes decide the properties, so that every file of the sequence (an empty
-  // frame's too) has the same ones.
-  const bool velocity = m.find("velocity") != nullptr, color = m.find("color") != nullptr, id = m.find("id") != nullptr;
-  if (velocity) header += "property float vx\nproperty float vy\nproperty float vz\n";
-  if (color) header += "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n";
-  if (id) header += ids32 ? "property uint id\n" : "property double id\n";
-  for (const Attribute* a : c.float_attributes) {
-    for (std::size_t k = 0; k < a->components; ++k)
-      header += a->components == 1 ? fmt::format("property float {}\n", ply_word(a->name, input))
-                                   : fmt::format("property float {}_{}\n", ply_word(a->name, input), k);
-  }
-  header += "end_header\n";
-  std::vector<std::byte> body(reinterpret_cast<const std::byte*>(header.data()),
-                              reinterpret_cast<const std::byte*>(header.data() + header.size()));
-  const auto put = [&](const auto& v) {
-    const auto* b = reinterpret_cast<const std::byte*>(&v);
-    body.insert(body.end(), b, b + sizeof(v));
-  };
-  for (std::uint64_t i = 0; i < n; ++i) {
-    for (int k = 0; k < 3; ++k) put(c.position[i * 3 + k]);
-    put(c.scale_width[i]);  // pscale is a radius, as the record's scale
-    if (velocity)
-      for (int k = 0; k < 3; ++k) put(c.velocity[i * 3 + k]);
-    if (color)
-      for (int k = 0; k < 4; ++k) put(c.color[i * 4 + k]);
-    if (id) {
-      if (ids32)
-        put(static_cast<std::uint32_t>(c.id[i]));
-      else
-        put(static_cast<double>(c.id[i]));
-    }
-    for (std::size_t e = 0; e < c.floats.size(); ++e)
-      for (std::size_t k = 0; k < c.float_attributes[e]->components; ++k)
-        put(c.floats[e][i * c.float_attributes[e]->components + k]);
-  }
-  const fs::path inputs[] = {input};
-  write_file(path, body, inputs);
-}
-
-}  // namespace
-
-int run_export(const ExportCli& given) {
-  ExportCli cli = given;
+int run_export(const ExportCli& cli) {
   if (cli.out.empty() == cli.output.empty())
     throw Error("export: give either --out DIR (a PLY sequence) or -o FILE.abc (an Alembic cache)");
-  // -o's extension chooses the format: .abc an Alembic cache, .ply a PLY sequence numbered from
-  // the name (NAME.0001.ply ...); anything else is refused rather than written in the wrong one.
-  std::string ply_stem = "frame";
-  if (!cli.output.empty()) {
-    std::error_code ec;
-    if (fs::equivalent(cli.output, cli.file, ec)) {  // the data-loss message first, whatever the extension
-      const fs::path inputs[] = {cli.file};
-      check_output(cli.output, inputs);
-    }
-    const fs::path o(cli.output);
-    std::string ext = o.extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
-    if (ext == ".ply") {
-      ply_stem = o.stem().string();
-      cli.out = o.parent_path().empty() ? "." : o.parent_path().string();
-      cli.output.clear();
-    } else if (ext != ".abc") {
-      throw Error(
-          fmt::format("-o {}: the extension chooses the format: .abc (an Alembic cache) or .ply (a PLY "
-                      "sequence, NAME.0001.ply ...); '{}' is neither",
-                      given.output, ext.empty() ? std::string("no extension") : ext));
-    }
+  cook::ExportOptions o;
+  o.input = cli.file;
+  o.output = cli.out.empty() ? std::filesystem::path(cli.output) : std::filesystem::path(cli.out) / "frame.ply";
+  ProgressBar bar("export", !cli.quiet && !cli.json);
+  const cook::ExportReport r =
+      cook::export_clip(o, [&](std::uint64_t done, std::uint64_t total) { bar.update(done, total, "frames"); });
+  if (cli.json) {
+    const nlohmann::ordered_json j{{"input", cli.file},
+                                   {"format", r.ply ? "ply" : "alembic"},
+                                   {"frames", r.frames},
+                                   {"first", r.first.string()},
+                                   {"bytes_written", r.bytes_written}};
+    fmt::print("{}\n", j.dump(2));
+  } else if (!cli.quiet) {
+    fmt::print("{} frames -> {}{}\n", r.frames, r.first.string(), r.ply ? " ..." : "");
   }
-  const Reader reader = Reader::open(cli.file);
-  const Metadata& m = reader.metadata();
-  Columns c;
-  for (const Attribute& a : m.layout) {
-    const bool known =
-        a.name == "position" || a.name == "scale" || a.name == "velocity" || a.name == "id" || a.name == "color";
-    if (!known && a.type == AttributeType::Float32) c.float_attributes.push_back(&a);
-  }
-  std::vector<std::byte> records = format::frame_buffer(m, cli.file);
-  ProgressBar bar("export", !cli.quiet);
-  if (!cli.out.empty()) {
-    if (fs::exists(cli.out) && !fs::is_directory(cli.out))
-      throw Error(fmt::format("--out {}: exists and is not a folder", cli.out));
-    for (const Attribute* a : c.float_attributes) ply_word(a->name, cli.file);  // before anything is written
-    fs::create_directories(cli.out);
-    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
-      reader.read_frame(f, records);
-      split(m, records, m.frames[f].count, c);
-      write_ply(fs::path(cli.out) / fmt::format("{}.{:04}.ply", ply_stem, f + 1), m, c, m.frames[f].count, cli.file);
-      bar.update(f + 1, m.frame_count(), "frames");
-    }
-    if (!cli.quiet) fmt::print("{} frames -> {}/{}.0001.ply ...\n", m.frame_count(), cli.out, ply_stem);
-    return 0;
-  }
-  // Alembic: widths are diameters (twice the record's radius); colours become Cd: rgb, or rgba when
-  // any particle is not opaque (so that alpha comes back, as the cook reads a fourth Cd component).
-  alembic::PointsWriterOptions po;
-  po.velocities = m.find("velocity") != nullptr;
-  const Attribute* color = m.find("color");
-  bool alpha = false;
-  for (std::uint64_t f = 0; color && !alpha && f < m.frame_count(); ++f) {
-    reader.read_frame(f, records);
-    for (std::uint64_t i = 0; i < m.frames[f].count && !alpha; ++i)
-      alpha = std::to_integer<std::uint8_t>(records[i * m.record_size + color->offset + 3]) != 255;
-  }
-  const int cd_components = alpha ? 4 : 3;
-  if (color) po.float_params.push_back({"Cd", cd_components});
-  for (const Attribute* a : c.float_attributes) po.float_params.push_back({a->name, a->components});
-  const fs::path inputs[] = {cli.file};
-  check_output(cli.output, inputs);
-  if (cook::is_source_of(m, cli.output)) {
-    throw Error(
-        fmt::format("-o {}: is the source {} was cooked from; writing it would destroy the source. Choose "
-                    "another output",
-                    cli.output, cli.file));
-  }
-  {
-    // The writer writes a temporary beside the output and renames it at close().
-    alembic::ArchiveWriter writer(cli.output, "pstream export", fmt::format("{} {}", m.source_file, m.source_object),
-                                  m.fps, m.time_of_frame0, po);
-    std::vector<float> widths, cd;
-    std::vector<std::uint64_t> index_ids;
-    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
-      reader.read_frame(f, records);
-      const std::uint64_t n = m.frames[f].count;
-      split(m, records, n, c);
-      widths.resize(n);
-      for (std::uint64_t i = 0; i < n; ++i) widths[i] = 2.0f * c.scale_width[i];
-      if (!m.find("id")) {  // no ids in the clip: Alembic wants some, the index it is
-        index_ids.resize(n);
-        for (std::uint64_t i = 0; i < n; ++i) index_ids[i] = i;
-      }
-      alembic::PointsSample s;
-      s.positions = c.position;
-      s.ids = !m.find("id") ? std::span<const std::uint64_t>(index_ids) : std::span<const std::uint64_t>(c.id);
-      s.velocities = c.velocity;
-      s.widths = widths;
-      if (color) {
-        cd.resize(n * cd_components);
-        for (std::uint64_t i = 0; i < n; ++i)
-          for (int k = 0; k < cd_components; ++k) cd[i * cd_components + k] = float(c.color[i * 4 + k]) / 255.0f;
-        s.params.push_back(cd);
-      }
-      for (const auto& values : c.floats) s.params.push_back(values);
-      writer.write_sample(s);
-      bar.update(f + 1, m.frame_count(), "frames");
-    }
-    writer.close();
-  }
-  if (!cli.quiet) fmt::print("{} frames -> {}\n", m.frame_count(), cli.output);
   return 0;
 }
 

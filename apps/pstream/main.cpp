@@ -289,13 +289,16 @@ int main(int argc, char** argv) {
       "rgb, or rgba when any particle is not opaque).\n"
       "Examples:\n"
       "  pstream export splash.pstream --out splash_ply        # splash_ply/frame.0001.ply ...\n"
-      "  pstream export splash.pstream -o splash_decoded.abc");
+      "  pstream export splash.pstream -o splash_decoded.abc\n"
+      "  pstream export splash.pstream -o seq/splash.ply     # seq/splash.0001.ply ...");
   export_cmd->add_option("file", export_cli.file, "A .pstream file")->required()->check(file_or_url());
   export_cmd->add_option("--out", export_cli.out, "Folder for the PLY sequence");
   export_cmd->add_option("-o,--output", export_cli.output,
                          "The file to write; its extension chooses the format: NAME.abc (an Alembic cache) or "
                          "NAME.ply (a PLY sequence NAME.0001.ply ...)");
   export_cmd->add_flag("-q,--quiet", export_cli.quiet, "No progress or summary");
+  export_cmd->add_flag("--json", export_cli.json,
+                       "Print what was written as JSON (format, frames, first file, bytes_written)");
 
   // verify -----------------------------------------------------------------------------------
   std::string verify_file;

@@ -218,4 +218,32 @@ VerifyReport verify(const std::filesystem::path& file, const std::filesystem::pa
 // with" string records (an Alembic source): an export must not write over it.
 bool is_source_of(const format::Metadata& meta, const std::filesystem::path& file);
 
+// ---- Export: a cooked clip back out for a DCC (`pstream export`) ----
+
+struct ExportOptions {
+  std::string input;  // a .pstream: a path or an http(s) URL
+  // What to write, chosen by the extension (any other is refused before anything is read):
+  // - NAME.abc: an Alembic points cache written by our Alembic writer: P, ids (each particle's
+  //   index where the clip has none), velocities, widths (twice the record's scale), Cd (rgb, or
+  //   rgba when any particle is not opaque) and every other float attribute under its own name;
+  // - NAME.ply: a binary little-endian PLY sequence, NAME.0001.ply, NAME.0002.ply ..., one file a
+  //   frame (x y z pscale, vx vy vz, red green blue alpha, id, other float attributes), in a
+  //   folder created if need be.
+  // Every file appears complete or not at all, and none is written over the input or the source
+  // the clip was cooked from.
+  std::filesystem::path output;
+};
+
+struct ExportReport {
+  std::uint64_t frames = 0;
+  bool ply = false;             // a PLY sequence (else one Alembic file)
+  std::filesystem::path first;  // the Alembic file, or the sequence's first file
+  std::uint64_t bytes_written = 0;
+};
+
+// Writes every frame of the clip as `options.output` says. progress(frames_done, frame_count) is
+// called after each frame. Throws pstream::Error naming the file and what was wrong.
+ExportReport export_clip(const ExportOptions& options,
+                         const std::function<void(std::uint64_t done, std::uint64_t total)>& progress = {});
+
 }  // namespace pstream::cook
