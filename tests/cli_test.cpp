@@ -51,6 +51,19 @@ TEST(Cli, TyposGetDidYouMean) {
   EXPECT_EQ(r.output.find("did you mean"), std::string::npos) << r.output;
 }
 
+// A command that needs a subcommand, given none, shows what it offers (exit code 2).
+TEST(Cli, ACommandAloneListsItsSubcommands) {
+  const auto top = run_cli("");
+  EXPECT_EQ(top.exit_code, 2) << top.output;
+  for (const char* word : {"Typical use:", "Subcommands:", "  cook ", "  export ", "  render ", "  bench "})
+    EXPECT_NE(top.output.find(word), std::string::npos) << word << " in:\n" << top.output;
+  const auto bench = run_cli("bench");
+  EXPECT_EQ(bench.exit_code, 2) << bench.output;
+  for (const char* word : {"Measure a stage", "  codec ", "  sort ", "  playback "})
+    EXPECT_NE(bench.output.find(word), std::string::npos) << word << " in:\n" << bench.output;
+  EXPECT_EQ(bench.output.find("Typical use:"), std::string::npos) << bench.output;  // bench's own, not the top's
+}
+
 }  // namespace
 
 namespace {

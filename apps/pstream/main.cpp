@@ -653,7 +653,19 @@ int main(int argc, char** argv) {
     fmt::print(stderr, "pstream: error: {}\nRun with --help for more information.\n", typo);
     return 2;
   }
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // `pstream` or `pstream bench` alone: what it offers, rather than "a subcommand is required".
+    if (dynamic_cast<const CLI::RequiredError*>(&e) != nullptr &&
+        std::string_view(e.what()).find("subcommand is required") != std::string_view::npos) {
+      const CLI::App* at = &app;
+      while (!at->get_subcommands().empty()) at = at->get_subcommands().front();
+      fmt::print(stderr, "{}", at->help());
+      return 2;
+    }
+    return app.exit(e);
+  }
   render_cli.sprite_look.given = given_flags(*render_cmd);
   viewer.sprite_look.given = given_flags(*play_cmd);
   if (play_cmd->parsed() && !viewer.screenshot.empty() && viewer.frames_to_run <= 0) {
