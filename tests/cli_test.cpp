@@ -117,6 +117,19 @@ TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
                 q(sub / "from_ply.pstream"));
     ASSERT_EQ(r.exit_code, 0) << r.output;
     const auto original = frames(sub / "clip.pstream");
+    // info on any file of the PLY sequence describes the whole of it: one file a frame, each with
+    // its frame's count.
+    r = run_cli("info --json " + q(sub / "seq" / "fx.0002.ply"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    const auto ply = nlohmann::json::parse(r.output);
+    EXPECT_EQ(ply["format"], "ply");
+    EXPECT_EQ(ply["encoding"], "binary_little_endian");
+    EXPECT_EQ(ply["first_number"], 1);
+    ASSERT_EQ(ply["files"].size(), original.size());
+    for (std::size_t f = 0; f < original.size(); ++f)
+      EXPECT_EQ(ply["files"][f]["count"], original[f]["count"]) << "frame " << f;
+    EXPECT_EQ(ply["properties"][3]["name"], "pscale");
+    EXPECT_EQ(ply["cook"]["scale_from"], "pscale");
     for (const fs::path& copy : {sub / "from_abc.pstream", sub / "from_ply.pstream"}) {
       const auto back = frames(copy);
       ASSERT_EQ(back.size(), original.size()) << copy;
@@ -154,6 +167,14 @@ TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("the extension chooses the format"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir / "x.txt"));
+  // A sequence with a file missing is named as the cook names it; a URL is refused.
+  fs::remove(dir / "blender_sparks" / "seq" / "fx.0003.ply");
+  r = run_cli("info " + q(dir / "blender_sparks" / "seq" / "fx.0001.ply"));
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("fx.####.ply: frame 3 is missing (between fx.0002.ply and fx.0004.ply)"), std::string::npos)
+      << r.output;
+  r = run_cli("info http://127.0.0.1:9/x.0001.ply");
+  EXPECT_NE(r.output.find("a PLY sequence is read from local files"), std::string::npos) << r.output;
   // --out DIR is DIR/frame.NNNN.ply; --json says what was written, for scripts.
   const fs::path clip = dir / "points_empty_frames" / "clip.pstream";
   r = run_cli("export --json " + q(clip) + " --out " + q(dir / "plys"));

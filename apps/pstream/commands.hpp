@@ -16,6 +16,7 @@ struct InfoOptions {
   bool json = false;
 };
 int info_alembic(const InfoOptions& options);
+int info_ply(const InfoOptions& options);  // a PLY sequence, from any of its files
 
 struct InfoPstreamOptions {
   std::string file;

@@ -115,14 +115,13 @@ std::string first_bytes(const std::string& file, std::size_t n) {
 
 }  // namespace
 
-// A URL is read as a clip unless its path ends in .abc, without a request of its own to sniff it:
-// the reader's header check (format::parse_header) gives the same "cook it first" message for
-// anything else.
+// A URL is read as a clip unless its path ends in .abc (or .ply: a PLY sequence), without a request of its own to sniff
+// it: the reader's header check (format::parse_header) gives the same "cook it first" message for anything else.
 bool is_pstream_file(const std::string& file) {
   if (!io::is_url(file)) return first_bytes(file, 8) == std::string("PSTREAM\0", 8);
   std::string path = file.substr(0, file.find_first_of("?#"));
   std::transform(path.begin(), path.end(), path.begin(), [](unsigned char c) { return std::tolower(c); });
-  return !path.ends_with(".abc");
+  return !path.ends_with(".abc") && !path.ends_with(".ply");
 }
 
 void require_cooked(const std::string& file) {

@@ -16,6 +16,7 @@
 #include "base/names.hpp"
 #include "cli_terms.hpp"
 #include "commands.hpp"
+#include "particlestream/cook.hpp"
 #include "particlestream/error.hpp"
 #include "particlestream/io.hpp"
 
@@ -173,8 +174,12 @@ int main(int argc, char** argv) {
   // info -------------------------------------------------------------------------------------
   std::string info_file;
   bool info_json = false, info_frames = false;
-  auto* info_cmd = app.add_subcommand("info", "Describe an Alembic (.abc) or cooked (.pstream) file");
-  info_cmd->add_option("file", info_file, "An Alembic (Ogawa) or .pstream file, or its http(s):// URL (.abc: Alembic)")
+  auto* info_cmd = app.add_subcommand(
+      "info", "Describe an Alembic (.abc) file, a PLY sequence (any of its .ply files) or a cooked (.pstream) clip");
+  info_cmd
+      ->add_option("file", info_file,
+                   "An Alembic (Ogawa) or .pstream file, or its http(s):// URL (.abc: Alembic); or a file of a "
+                   "numbered PLY sequence (NAME.0001.ply: the whole sequence)")
       ->required()
       ->check(file_or_url());
   info_cmd->add_flag("--json", info_json,
@@ -683,6 +688,7 @@ int main(int argc, char** argv) {
     if (info_cmd->parsed()) {
       if (is_pstream_file(info_file) || std::filesystem::path(info_file).extension() == ".pstream")
         return info_pstream({info_file, info_json, info_frames});
+      if (pstream::cook::is_ply_sequence(info_file)) return info_ply({info_file, info_json});
       return info_alembic({info_file, info_json});
     }
     if (cook_cmd->parsed()) return run_cook(cook);

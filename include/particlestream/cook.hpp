@@ -153,6 +153,31 @@ struct MemoryClip {
 // that is wrong (a size that is not count × components, a NaN, an attribute in some frames only).
 Report cook(const Options& options, const MemoryClip& clip, const std::function<void(const Progress&)>& progress = {});
 
+// Whether cook() reads `path` as a PLY sequence (its extension is .ply, in any case) rather than
+// an Alembic archive.
+bool is_ply_sequence(const std::filesystem::path& path);
+
+// What a numbered PLY sequence holds, from its files' headers (`pstream info frame.0001.ply`).
+struct PlySequenceInfo {
+  std::vector<std::filesystem::path> files;  // in frame order, numbered without gaps
+  std::int64_t first_number = 0;             // the first file's frame number
+  bool binary = false;
+  std::string format;  // "ascii" or "binary_little_endian"
+  struct Property {
+    std::string name, type;  // type: int8 ... float64
+  };
+  std::vector<Property> properties;   // the vertex element's, the same in every file
+  std::vector<std::uint64_t> counts;  // each file's vertex count
+  std::uint64_t bytes = 0;            // of all the files
+  // What a default cook takes: the scale from this property ("" when none: a constant), halved
+  // when it is a width; colours (red green blue [alpha]), velocities (vx vy vz) and ids.
+  std::string scale_property;
+  bool scale_is_diameter = false, has_color = false, has_velocity = false, has_ids = false;
+};
+// Throws pstream::Error naming the file and what is wrong, as cook() would (a missing frame, a
+// file whose format or properties differ from the first's, a header that does not parse).
+PlySequenceInfo describe_ply_sequence(const std::filesystem::path& example);
+
 // Scale stored in a record for an Alembic width (a diameter): the radius.
 inline float scale_from_width(float width) { return width * 0.5f; }
 

@@ -364,12 +364,6 @@ std::vector<format::EncodedChunk> encode_all(const std::vector<std::vector<std::
   return out;
 }
 
-bool is_ply(const std::filesystem::path& p) {
-  std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  return ext == ".ply";
-}
-
 // Refuses a cook that would not fit on the disk: once enough is written to project the total,
 // the projection is compared with the free space left.
 class SpaceCheck {
@@ -642,13 +636,7 @@ Prepared prepare(const Options& options, Source& source, Report& report, bool se
 
 std::unique_ptr<Source> open_source(const Options& options, const std::function<void(const Progress&)>& progress) {
   check_cook_options(options);
-  if (!is_ply(options.input)) return open_alembic(options, progress);
-  if (io::is_url(options.input.string())) {
-    throw Error(
-        fmt::format("{}: a PLY sequence is read from local files (its frames are found by listing "
-                    "its folder); copy it here first",
-                    options.input.string()));
-  }
+  if (!is_ply_sequence(options.input)) return open_alembic(options, progress);
   return open_ply_sequence(options);
 }
 
@@ -779,6 +767,12 @@ Report cook(const Options& options, const MemoryClip& clip, const std::function<
   check_cook_options(options);
   const std::unique_ptr<Source> source = open_memory(options, clip);
   return cook_source(options, *source, progress, t0);
+}
+
+bool is_ply_sequence(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  return ext == ".ply";
 }
 
 }  // namespace pstream::cook

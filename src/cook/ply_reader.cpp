@@ -35,6 +35,11 @@ bool parse_type(const std::string& s, PlyType& t) {
 
 }  // namespace
 
+const char* ply_type_name(PlyType type) {
+  static constexpr const char* names[] = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64"};
+  return names[static_cast<int>(type)];
+}
+
 PlyHeader parse_ply_header(std::string_view text, const std::string& file) {
   PlyHeader h;
   const auto end = text.find("end_header");

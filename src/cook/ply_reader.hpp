@@ -31,6 +31,7 @@ struct PlyHeader {
 };
 
 const char* ply_format_name(bool binary);  // "ascii" or "binary_little_endian"
+const char* ply_type_name(PlyType type);   // "uint8", "float32", ...
 
 // Parses the header at the start of `text`. Throws pstream::Error naming `file`.
 PlyHeader parse_ply_header(std::string_view text, const std::string& file);

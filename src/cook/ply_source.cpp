@@ -16,6 +16,7 @@
 #include "base/mapped_file.hpp"
 #include "cook/ply_reader.hpp"
 #include "cook/source.hpp"
+#include "particlestream/io.hpp"
 
 namespace pstream::cook {
 namespace {
@@ -27,6 +28,12 @@ struct SequenceFile {
 
 // The numbered files of the sequence `example` belongs to, sorted, with no gaps.
 std::vector<SequenceFile> find_sequence(const std::filesystem::path& example) {
+  if (io::is_url(example.string())) {
+    throw Error(
+        fmt::format("{}: a PLY sequence is read from local files (its frames are found by listing "
+                    "its folder); copy it here first",
+                    example.string()));
+  }
   const std::string name = example.filename().string();
   const auto dot = name.rfind('.');
   std::size_t digits_end = dot == std::string::npos ? name.size() : dot;
@@ -92,7 +99,7 @@ class PlySource final : public Source {
   double start_time() const override { return static_cast<double>(files_.front().number) / fps_; }
   double end_time() const override { return static_cast<double>(files_.back().number) / fps_; }
   std::uint64_t input_bytes() const override { return bytes_; }
-  bool has_widths() const override { return find("pscale") >= 0 || find("scale") >= 0 || find("width") >= 0; }
+  bool has_widths() const override { return !default_scale().first.empty(); }
   bool has_color() const override { return (find("red") >= 0 && find("green") >= 0 && find("blue") >= 0); }
   bool has_velocity() const override { return find("vx") >= 0 && find("vy") >= 0 && find("vz") >= 0; }
   bool has_ids() const override { return find("id") >= 0; }
@@ -128,18 +135,7 @@ class PlySource final : public Source {
     PlyHeader h;
     read_ply_vertices(mapping.bytes(), file, max_particles_, h, values_);
     mapping.check_intact();
-    std::vector<std::string> names;
-    for (const auto& p : h.properties) names.push_back(p.name);
-    if (h.binary != header_.binary) {
-      throw Error(
-          fmt::format("{}: is {} PLY, but the sequence's first file {} is {}; every file of a sequence must "
-                      "have one format",
-                      file, ply_format_name(h.binary), files_.front().path.string(), ply_format_name(header_.binary)));
-    }
-    if (names != names_) {
-      throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file,
-                              fmt::join(names, " "), fmt::join(names_, " ")));
-    }
+    check_like_the_first(h, file);
     const std::uint64_t n = h.vertex_count;
     const std::vector<double>& values = values_;
     const std::size_t stride = h.properties.size();
@@ -161,9 +157,10 @@ class PlySource final : public Source {
       bool diameter = false;
       if (request.scale_from == ScaleFrom::Attribute) {
         k = find(request.scale_attribute);
-      } else if ((k = find("pscale")) < 0 && (k = find("scale")) < 0) {
-        k = find("width");
-        diameter = true;
+      } else {
+        const auto [name, is_diameter] = default_scale();
+        k = find(name);
+        diameter = is_diameter;
       }
       if (k < 0) throw Error(fmt::format("{}: no vertex property to take the scale from", file));
       for (std::uint64_t i = 0; i < n; ++i) {
@@ -215,6 +212,32 @@ class PlySource final : public Source {
     }
   }
 
+  // Every file of a sequence has the first one's format and vertex properties.
+  void check_like_the_first(const PlyHeader& h, const std::string& file) const {
+    std::vector<std::string> names;
+    for (const auto& p : h.properties) names.push_back(p.name);
+    if (h.binary != header_.binary) {
+      throw Error(
+          fmt::format("{}: is {} PLY, but the sequence's first file {} is {}; every file of a sequence must "
+                      "have one format",
+                      file, ply_format_name(h.binary), files_.front().path.string(), ply_format_name(header_.binary)));
+    }
+    if (names != names_) {
+      throw Error(fmt::format("{}: vertex properties ({}) differ from the first file's ({})", file,
+                              fmt::join(names, " "), fmt::join(names_, " ")));
+    }
+  }
+
+  const PlyHeader& first_header() const { return header_; }
+  const std::vector<SequenceFile>& sequence() const { return files_; }
+
+  // The name of the property the scale comes from by default, and whether it is a diameter.
+  std::pair<std::string, bool> default_scale() const {
+    for (const char* name : {"pscale", "scale"})
+      if (find(name) >= 0) return {name, false};
+    return find("width") >= 0 ? std::pair<std::string, bool>{"width", true} : std::pair<std::string, bool>{"", false};
+  }
+
  private:
   int find(std::string_view name) const {
     for (std::size_t i = 0; i < names_.size(); ++i) {
@@ -235,5 +258,33 @@ class PlySource final : public Source {
 }  // namespace
 
 std::unique_ptr<Source> open_ply_sequence(const Options& options) { return std::make_unique<PlySource>(options); }
+
+PlySequenceInfo describe_ply_sequence(const std::filesystem::path& example) {
+  Options options;
+  options.input = example;
+  const PlySource source(options);
+  PlySequenceInfo info;
+  const PlyHeader& first = source.first_header();
+  info.binary = first.binary;
+  info.format = ply_format_name(first.binary);
+  for (const PlyProperty& p : first.properties) info.properties.push_back({p.name, ply_type_name(p.type)});
+  info.first_number = source.sequence().front().number;
+  for (const SequenceFile& f : source.sequence()) {
+    const MappedFile mapping = MappedFile::open(f.path);
+    const auto text = std::string_view(reinterpret_cast<const char*>(mapping.bytes().data()), mapping.bytes().size());
+    const PlyHeader h = parse_ply_header(text, f.path.string());
+    source.check_like_the_first(h, f.path.string());
+    info.files.push_back(f.path);
+    info.counts.push_back(h.vertex_count);
+    info.bytes += mapping.bytes().size();
+  }
+  const auto [scale, diameter] = source.default_scale();
+  info.scale_property = scale;
+  info.scale_is_diameter = diameter;
+  info.has_color = source.has_color();
+  info.has_velocity = source.has_velocity();
+  info.has_ids = source.has_ids();
+  return info;
+}
 
 }  // namespace pstream::cook
