@@ -248,9 +248,11 @@ bool is_source_of(const format::Metadata& meta, const std::filesystem::path& fil
 struct ExportOptions {
   std::string input;  // a .pstream: a path or an http(s) URL
   // What to write, chosen by the extension (any other is refused before anything is read):
-  // - NAME.abc: an Alembic points cache written by our Alembic writer: P, ids (each particle's
-  //   index where the clip has none), velocities, widths (twice the record's scale), Cd (rgb, or
-  //   rgba when any particle is not opaque) and every other float attribute under its own name;
+  // - NAME.abc: an Alembic points cache written by our Alembic writer: P, ids, velocities, widths
+  //   (twice the record's scale), Cd (rgb, or rgba when any particle is not opaque) and every
+  //   other float attribute under its own name. A clip that keeps no ids gets ids that follow the
+  //   codec's matching: a particle it carries over from the frame before keeps its id, any other
+  //   takes a new one (at a keyframe, or with no matching, every particle does);
   // - NAME.ply: a binary little-endian PLY sequence, NAME.0001.ply, NAME.0002.ply ..., one file a
   //   frame (x y z pscale, vx vy vz, red green blue alpha, id, other float attributes), in a
   //   folder created if need be.

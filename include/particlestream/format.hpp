@@ -271,6 +271,8 @@ class ChunkDecoder {
 
 // ---- Reading ----------------------------------------------------------------------------------
 
+struct MatchRun;  // codec.hpp
+
 class Reader {
  public:
   // Opens and validates header and tables (every size, count, offset and checksum);
@@ -298,7 +300,10 @@ class Reader {
   // the one before): read frames in order for speed. The chunk read last is kept (read, checked
   // and decompressed once while frames in turn come from it), in a buffer of one chunk made on
   // the first call.
-  void read_frame(std::uint64_t frame, std::span<std::byte> out) const;
+  // With `matching` (room for 2 × max_count + 1 runs is always enough): the codec's matching of
+  // this frame's particles with the frame before's, as FrameDecoder::decode() gives it; returns
+  // the number of runs, or kNoMatching (a keyframe, a clip in source order, the records codec).
+  std::size_t read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<MatchRun> matching = {}) const;
 
  private:
   struct Impl;

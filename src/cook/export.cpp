@@ -4,11 +4,13 @@
 #include <cctype>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 
 #include <fmt/format.h>
 
 #include "base/output_file.hpp"
 #include "particlestream/alembic_writer.hpp"
+#include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/error.hpp"
 
@@ -132,6 +134,37 @@ std::uint64_t write_ply(const fs::path& path, const Metadata& m, const Columns& 
   return body.size();
 }
 
+// Ids for a clip that keeps none (Alembic wants them): a particle the codec's matching carries
+// over from the frame before keeps its id, and every other particle takes the next unused number.
+// Where the codec gives no matching (a keyframe, a clip in source order, the records codec) no
+// particle is known to persist, so each takes a new one: an id never names two particles.
+class MatchedIds {
+ public:
+  explicit MatchedIds(const Metadata& m) : runs_(2 * m.max_count + 1) {}
+  std::span<MatchRun> runs() { return runs_; }
+
+  // This frame's ids from the runs read_frame() gave (or kNoMatching).
+  std::span<const std::uint64_t> next(std::uint64_t count, std::size_t run_count) {
+    cur_.resize(count);
+    std::uint64_t i = 0, j = 0;
+    if (run_count != kNoMatching) {
+      for (const MatchRun& r : std::span(runs_).first(run_count)) {
+        for (std::uint32_t t = 0; t < r.keep; ++t) cur_[j++] = prev_[i++];
+        i += r.drop;
+        for (std::uint32_t t = 0; t < r.insert; ++t) cur_[j++] = next_++;
+      }
+    }
+    while (j < count) cur_[j++] = next_++;  // no matching: all new
+    prev_.swap(cur_);
+    return prev_;
+  }
+
+ private:
+  std::vector<MatchRun> runs_;
+  std::vector<std::uint64_t> prev_, cur_;
+  std::uint64_t next_ = 0;
+};
+
 }  // namespace
 
 ExportReport export_clip(const ExportOptions& options,
@@ -203,20 +236,17 @@ ExportReport export_clip(const ExportOptions& options,
   alembic::ArchiveWriter writer(output, "pstream export", fmt::format("{} {}", m.source_file, m.source_object), m.fps,
                                 m.time_of_frame0, po);
   std::vector<float> widths, cd;
-  std::vector<std::uint64_t> index_ids;
+  std::optional<MatchedIds> matched;  // a clip without ids
+  if (!m.find("id")) matched.emplace(m);
   for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
-    reader.read_frame(f, records);
+    const std::size_t runs = reader.read_frame(f, records, matched ? matched->runs() : std::span<MatchRun>{});
     const std::uint64_t n = m.frames[f].count;
     split(m, records, n, c);
     widths.resize(n);
     for (std::uint64_t i = 0; i < n; ++i) widths[i] = 2.0f * c.scale_width[i];
-    if (!m.find("id")) {  // no ids in the clip: Alembic wants some, the index it is
-      index_ids.resize(n);
-      for (std::uint64_t i = 0; i < n; ++i) index_ids[i] = i;
-    }
     alembic::PointsSample s;
     s.positions = c.position;
-    s.ids = !m.find("id") ? std::span<const std::uint64_t>(index_ids) : std::span<const std::uint64_t>(c.id);
+    s.ids = matched ? matched->next(n, runs) : std::span<const std::uint64_t>(c.id);
     s.velocities = c.velocity;
     s.widths = widths;
     if (color) {

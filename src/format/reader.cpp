@@ -146,7 +146,7 @@ void Reader::read_packet(std::uint64_t frame, std::span<std::byte> out, std::spa
   if (packet.data() != out.data() && !packet.empty()) std::memcpy(out.data(), packet.data(), packet.size());
 }
 
-void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
+std::size_t Reader::read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<MatchRun> matching) const {
   Impl& d = *impl_;
   const Metadata& m = d.meta;
   if (frame >= m.frame_count()) {
@@ -165,11 +165,16 @@ void Reader::read_frame(std::uint64_t frame, std::span<std::byte> out) const {
     d.decoded = frame_buffer(m, d.name);
   }
   // Forward from the keyframe, or on from the frame decoded last.
+  std::size_t runs = kNoMatching;
   for (std::uint64_t f = decode_start(m, frame, d.frames->last_decoded()); f <= frame; ++f) {
     const std::span<const std::byte> packet = packet_bytes(*this, f, d.packet, d.scratch, d.scratch_chunk);
     // Frames on the way are decoded aside: they may hold more particles than `out`.
-    d.frames->decode(f, packet, f == frame ? out : std::span(d.decoded));
+    if (f == frame)
+      runs = d.frames->decode(f, packet, out, matching);
+    else
+      d.frames->decode(f, packet, std::span(d.decoded));
   }
+  return runs;
 }
 
 }  // namespace pstream::format

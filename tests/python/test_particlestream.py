@@ -311,13 +311,27 @@ def test_export_writes_the_clip_back_as_alembic_and_ply(tmp_path):
         records = clip.read_frame(f)
         assert archive.count(name, f) == len(records)
         np.testing.assert_array_equal(archive.positions(name, f), records["position"])
-        # The default cook matches by id but keeps none: each particle's index stands in.
-        np.testing.assert_array_equal(archive.ids(name, f), np.arange(len(records), dtype=np.uint64))
         np.testing.assert_array_equal(archive.velocities(name, f), records["velocity"])
         widths = archive.attribute(name, ".widths", f)
         np.testing.assert_array_equal(np.asarray(widths, dtype=np.float32).ravel(), 2 * records["scale"])
         cd = np.asarray(archive.attribute(name, "Cd", f), dtype=np.float32).reshape(len(records), -1)
         np.testing.assert_array_equal(np.rint(cd * 255), records["color"][:, :cd.shape[1]])
+
+    # The default cook matches by id but keeps none: the exported ids follow the codec's matching.
+    # The same cook keeping the ids orders every frame the same way (by id), so each exported id
+    # must stand for one source id in every frame it is in, and the clip (48 frames: one keyframe
+    # group of the default 64) gets as many ids as the source has particles.
+    ps.cook(DATA / "sims" / "blender_sparks.abc", tmp_path / "ids.pstream", attributes=["id"])
+    with_ids = ps.Clip(tmp_path / "ids.pstream")
+    source_of = {}
+    for f in range(clip.frame_count):
+        exported = archive.ids(name, f)
+        real = with_ids.read_frame(f)["id"]
+        assert len(exported) == len(real) and len(set(exported.tolist())) == len(exported)
+        for e, r in zip(exported.tolist(), real.tolist()):
+            assert source_of.setdefault(e, r) == r, (f, e, r)
+    assert len(source_of) == len(set(source_of.values()))
+    assert len(source_of) == len({int(i) for f in range(clip.frame_count) for i in with_ids.read_frame(f)["id"]})
 
     r = ps.export(str(clip_path), tmp_path / "seq" / "sparks.ply")
     assert r["format"] == "ply" and r["first"] == str(tmp_path / "seq" / "sparks.0001.ply")
