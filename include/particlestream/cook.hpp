@@ -161,7 +161,6 @@ bool is_ply_sequence(const std::filesystem::path& path);
 struct PlySequenceInfo {
   std::vector<std::filesystem::path> files;  // in frame order, numbered without gaps
   std::int64_t first_number = 0;             // the first file's frame number
-  bool binary = false;
   std::string format;  // "ascii" or "binary_little_endian"
   struct Property {
     std::string name, type;  // type: int8 ... float64

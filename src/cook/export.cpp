@@ -147,6 +147,14 @@ class MatchedIds {
   std::span<const std::uint64_t> next(std::uint64_t count, std::size_t run_count) {
     cur_.resize(count);
     std::uint64_t i = 0, j = 0;
+    if (run_count != kNoMatching) {  // the decoder checked that the runs cover both frames; so does this
+      std::uint64_t from = 0, to = 0;
+      for (const MatchRun& r : std::span(runs_).first(run_count)) {
+        from += std::uint64_t{r.keep} + r.drop;
+        to += std::uint64_t{r.keep} + r.insert;
+      }
+      if (from != prev_.size() || to != count) run_count = kNoMatching;
+    }
     if (run_count != kNoMatching) {
       for (const MatchRun& r : std::span(runs_).first(run_count)) {
         for (std::uint32_t t = 0; t < r.keep; ++t) cur_[j++] = prev_[i++];

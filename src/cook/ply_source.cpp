@@ -265,7 +265,6 @@ PlySequenceInfo describe_ply_sequence(const std::filesystem::path& example) {
   const PlySource source(options);
   PlySequenceInfo info;
   const PlyHeader& first = source.first_header();
-  info.binary = first.binary;
   info.format = ply_format_name(first.binary);
   for (const PlyProperty& p : first.properties) info.properties.push_back({p.name, ply_type_name(p.type)});
   info.first_number = source.sequence().front().number;
