@@ -22,6 +22,9 @@ CLI::Validator positive_number();
 // A finite number > 0, at most `max`.
 CLI::Validator positive_number_up_to(double max);
 
+// "512 B", "3.4 KiB", "9.2 MiB", "3.1 GiB".
+std::string human_bytes(double bytes);
+
 // "1 chunk", "2 chunks" (`plural` when it is not singular + "s").
 std::string count_of(std::uint64_t n, std::string_view singular, std::string_view plural = {});
 

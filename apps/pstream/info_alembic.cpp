@@ -5,6 +5,7 @@
 
 #include <fmt/format.h>
 
+#include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/alembic_describe.hpp"
@@ -14,16 +15,6 @@ namespace pstream::app {
 namespace {
 
 using namespace pstream::alembic;
-
-std::string human_bytes(double bytes) {
-  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
-  int u = 0;
-  while (bytes >= 1024.0 && u < 4) {
-    bytes /= 1024.0;
-    ++u;
-  }
-  return u == 0 ? fmt::format("{:.0f} {}", bytes, units[u]) : fmt::format("{:.1f} {}", bytes, units[u]);
-}
 
 std::string type_name(const PropertyHeader& h) {
   return h.extent == 1 ? std::string(pod_name(h.pod)) : fmt::format("{}x{}", pod_name(h.pod), int(h.extent));
@@ -91,8 +82,8 @@ void print_points(const Object& o) {
 
 int info_alembic(const InfoOptions& options) {
   ProgressBar fetch("info: fetch", !options.json);  // a URL is read whole first
-  const Archive archive = Archive::open(
-      options.file, [&](std::uint64_t done, std::uint64_t total) { fetch.update_bytes(done, total); });
+  const Archive archive =
+      Archive::open(options.file, [&](std::uint64_t done, std::uint64_t total) { fetch.update_bytes(done, total); });
   if (options.json) {
     fmt::print("{}\n", describe_json(archive));
     return 0;

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/cook.hpp"
 
@@ -43,11 +44,14 @@ int info_ply(const InfoOptions& options) {
     fmt::print("{}\n", j.dump(1));
     return 0;
   }
-  fmt::print("{}: PLY sequence ({}), {} files, {}\n", options.file, s.format, s.files.size(),
-             fmt::format("{:.1f} MiB", double(s.bytes) / 1048576.0));
-  fmt::print("  files         {} .. {} (frames {} .. {})\n", s.files.front().filename().string(),
-             s.files.back().filename().string(), s.first_number,
-             s.first_number + static_cast<std::int64_t>(s.files.size()) - 1);
+  fmt::print("{}: PLY sequence ({}), {}, {}\n", options.file, s.format, count_of(s.files.size(), "file"),
+             human_bytes(double(s.bytes)));
+  if (s.files.size() == 1)
+    fmt::print("  files         {} (one frame)\n", s.files.front().filename().string());
+  else
+    fmt::print("  files         {} .. {} (frames {} .. {})\n", s.files.front().filename().string(),
+               s.files.back().filename().string(), s.first_number,
+               s.first_number + static_cast<std::int64_t>(s.files.size()) - 1);
   fmt::print("  particles     min {} / avg {:.1f} / max {} per file\n", min, avg, max);
   fmt::print("  vertex properties:\n");
   for (const auto& p : s.properties) fmt::print("      {:<14} {}\n", p.name, p.type);
