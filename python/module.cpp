@@ -24,6 +24,7 @@
 
 #include <fmt/format.h>
 
+#include "base/names.hpp"
 #include "particlestream/alembic.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
@@ -494,10 +495,11 @@ PYBIND11_MODULE(particlestream, m) {
   m.def(
       "export",
       [](const std::string& clip, const std::filesystem::path& output,
-         const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
+         const std::function<void(std::uint64_t, std::uint64_t)>& progress, const std::string& frames) {
         cook::ExportOptions o;
         o.input = clip;
         o.output = output;
+        if (!frames.empty()) std::tie(o.frame_begin, o.frame_end) = pstream::parse_frame_range(frames, "frames");
         std::function<void(std::uint64_t, std::uint64_t)> report;
         if (progress) {
           report = [&](std::uint64_t done, std::uint64_t total) {
@@ -517,12 +519,13 @@ PYBIND11_MODULE(particlestream, m) {
         d["bytes_written"] = r.bytes_written;
         return d;
       },
-      py::arg("clip"), py::arg("output"), py::arg("progress") = nullptr,
+      py::arg("clip"), py::arg("output"), py::arg("progress") = nullptr, py::arg("frames") = "",
       "Writes a .pstream (a path or URL) back out for a DCC, as `pstream export` does; the output's "
       "extension chooses the format: NAME.abc an Alembic points cache (P, ids, velocities, widths = 2 x "
       "scale, Cd, other float attributes), NAME.ply a binary PLY sequence NAME.0001.ply, NAME.0002.ply ... "
-      "progress(frames_done, frame_count) is called after each frame. Returns the report (format, frames, "
-      "first: the file or the sequence's first, bytes_written).");
+      "progress(frames_done, frame_count) is called after each frame; frames: 'A:B' the clip's frames from A up to "
+      "but not including B (a PLY file keeps its frame's number). Returns the report (format, frames, first: the "
+      "file or the sequence's first, bytes_written).");
 
   py::class_<PyClip>(m, "Clip", "A .pstream read directly.")
       .def(py::init<std::filesystem::path>(), py::arg("path"))

@@ -153,9 +153,11 @@ def export(
     clip: str,
     output: PathLike,
     progress: Optional[Callable[[int, int], None]] = None,
+    frames: str = "",
 ) -> dict:
     """Writes a .pstream (a path or URL) back out for a DCC, as `pstream export` does: NAME.abc an
-    Alembic points cache, NAME.ply a binary PLY sequence (NAME.0001.ply ...). Returns the report:
+    Alembic points cache, NAME.ply a binary PLY sequence (NAME.0001.ply ...); frames 'A:B' exports
+    the clip's frames from A up to but not including B. Returns the report:
     format ('alembic' or 'ply'), frames, first (the file or the sequence's first), bytes_written."""
 
 def verify(clip: str, against: str = "") -> dict:

@@ -189,6 +189,12 @@ TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
   for (const auto& e : fs::directory_iterator(dir / "plys")) bytes += fs::file_size(e.path()), ++files;
   EXPECT_EQ(files, frame_count);
   EXPECT_EQ(j["bytes_written"], bytes);
+  // --frames A:B: a part, the files numbered as their frames.
+  r = run_cli("export --json --frames 1:3 " + q(clip) + " -o " + q(dir / "part" / "p.ply"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(nlohmann::json::parse(r.output)["frames"], 2);
+  EXPECT_TRUE(fs::exists(dir / "part" / "p.0002.ply") && fs::exists(dir / "part" / "p.0003.ply"));
+  EXPECT_FALSE(fs::exists(dir / "part" / "p.0001.ply") || fs::exists(dir / "part" / "p.0004.ply"));
   // A file where the sequence's folder would be is named, and nothing is written.
   std::ofstream(dir / "taken") << "a file";
   r = run_cli("export -q " + q(clip) + " -o " + q(dir / "taken" / "f.ply"));

@@ -165,7 +165,7 @@ int bench_codec(const BenchCodecOptions& options);
 
 // `pstream export`: a cooked clip as a PLY sequence (out) or an Alembic file (output).
 struct ExportCli {
-  std::string file, out, output;
+  std::string file, out, output, frames;
   bool quiet = false, json = false;
 };
 int run_export(const ExportCli& cli);

@@ -1,10 +1,12 @@
 // `pstream export clip.pstream --out DIR | -o NAME.abc | -o NAME.ply`: arguments and printing around
 // cook::export_clip().
 #include <filesystem>
+#include <tuple>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "cli_terms.hpp"
 #include "commands.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/error.hpp"
@@ -18,6 +20,7 @@ int run_export(const ExportCli& cli) {
   cook::ExportOptions o;
   o.input = cli.file;
   o.output = cli.out.empty() ? std::filesystem::path(cli.output) : std::filesystem::path(cli.out) / "frame.ply";
+  if (!cli.frames.empty()) std::tie(o.frame_begin, o.frame_end) = parse_frame_range(cli.frames);
   ProgressBar bar("export", !cli.quiet && !cli.json);
   const cook::ExportReport r =
       cook::export_clip(o, [&](std::uint64_t done, std::uint64_t total) { bar.update(done, total, "frames"); });

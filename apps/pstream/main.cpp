@@ -301,6 +301,8 @@ int main(int argc, char** argv) {
   export_cmd->add_option("-o,--output", export_cli.output,
                          "The file to write; its extension chooses the format: NAME.abc (an Alembic cache) or "
                          "NAME.ply (a PLY sequence NAME.0001.ply ...)");
+  export_cmd->add_option("--frames", export_cli.frames,
+                         "Clip frames A:B (from A up to but not including B); a PLY file keeps its frame's number");
   export_cmd->add_flag("-q,--quiet", export_cli.quiet, "No progress or summary");
   export_cmd->add_flag("--json", export_cli.json,
                        "Print what was written as JSON (format, frames, first file, bytes_written)");

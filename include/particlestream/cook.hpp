@@ -161,7 +161,7 @@ bool is_ply_sequence(const std::filesystem::path& path);
 struct PlySequenceInfo {
   std::vector<std::filesystem::path> files;  // in frame order, numbered without gaps
   std::int64_t first_number = 0;             // the first file's frame number
-  std::string format;  // "ascii" or "binary_little_endian"
+  std::string format;                        // "ascii" or "binary_little_endian"
   struct Property {
     std::string name, type;  // type: int8 ... float64
   };
@@ -258,10 +258,14 @@ struct ExportOptions {
   // Every file appears complete or not at all, and none is written over the input or the source
   // the clip was cooked from.
   std::filesystem::path output;
+  // The clip's frames from frame_begin up to but not including frame_end (-1: to the end), as
+  // parse_frame_range() reads "A:B". A PLY file keeps its frame's number (frame f is
+  // NAME.{f+1}.ply); the Alembic cache starts at the first frame's time.
+  std::int64_t frame_begin = 0, frame_end = -1;
 };
 
 struct ExportReport {
-  std::uint64_t frames = 0;
+  std::uint64_t frames = 0;     // written
   bool ply = false;             // a PLY sequence (else one Alembic file)
   std::filesystem::path first;  // the Alembic file, or the sequence's first file
   std::uint64_t bytes_written = 0;

@@ -200,8 +200,16 @@ ExportReport export_clip(const ExportOptions& options,
         a.name == "position" || a.name == "scale" || a.name == "velocity" || a.name == "id" || a.name == "color";
     if (!known && a.type == AttributeType::Float32) c.float_attributes.push_back(&a);
   }
+  const std::uint64_t first = static_cast<std::uint64_t>(std::max<std::int64_t>(options.frame_begin, 0));
+  const std::uint64_t end =
+      options.frame_end < 0 ? m.frame_count() : std::min<std::uint64_t>(options.frame_end, m.frame_count());
+  if (options.frame_begin < 0 || first >= end) {
+    throw Error(fmt::format("{}: frames {}:{} select none; the clip has {} (0:{})", input, options.frame_begin,
+                            options.frame_end < 0 ? std::string() : std::to_string(options.frame_end), m.frame_count(),
+                            m.frame_count()));
+  }
   std::vector<std::byte> records = format::frame_buffer(m, input);
-  report.frames = m.frame_count();
+  report.frames = end - first;
   if (report.ply) {
     const fs::path folder = output.parent_path().empty() ? fs::path(".") : output.parent_path();
     const std::string stem = output.stem().string();
@@ -209,13 +217,13 @@ ExportReport export_clip(const ExportOptions& options,
       throw Error(fmt::format("{}: exists and is not a folder (the PLY sequence's)", folder.string()));
     for (const Attribute* a : c.float_attributes) ply_word(a->name, input);  // before anything is written
     fs::create_directories(folder);
-    report.first = folder / fmt::format("{}.0001.ply", stem);
-    for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    report.first = folder / fmt::format("{}.{:04}.ply", stem, first + 1);
+    for (std::uint64_t f = first; f < end; ++f) {
       reader.read_frame(f, records);
       split(m, records, m.frames[f].count, c);
       report.bytes_written +=
           write_ply(folder / fmt::format("{}.{:04}.ply", stem, f + 1), m, c, m.frames[f].count, input);
-      if (progress) progress(f + 1, m.frame_count());
+      if (progress) progress(f - first + 1, report.frames);
     }
     return report;
   }
@@ -225,7 +233,7 @@ ExportReport export_clip(const ExportOptions& options,
   po.velocities = m.find("velocity") != nullptr;
   const Attribute* color = m.find("color");
   bool alpha = false;
-  for (std::uint64_t f = 0; color && !alpha && f < m.frame_count(); ++f) {
+  for (std::uint64_t f = first; color && !alpha && f < end; ++f) {
     reader.read_frame(f, records);
     for (std::uint64_t i = 0; i < m.frames[f].count && !alpha; ++i)
       alpha = std::to_integer<std::uint8_t>(records[i * m.record_size + color->offset + 3]) != 255;
@@ -242,11 +250,11 @@ ExportReport export_clip(const ExportOptions& options,
   }
   // The writer writes a temporary beside the output and renames it at close().
   alembic::ArchiveWriter writer(output, "pstream export", fmt::format("{} {}", m.source_file, m.source_object), m.fps,
-                                m.time_of_frame0, po);
+                                first == 0 ? m.time_of_frame0 : m.frames[first].time, po);
   std::vector<float> widths, cd;
   std::optional<MatchedIds> matched;  // a clip without ids
   if (!m.find("id")) matched.emplace(m);
-  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+  for (std::uint64_t f = first; f < end; ++f) {
     const std::size_t runs = reader.read_frame(f, records, matched ? matched->runs() : std::span<MatchRun>{});
     const std::uint64_t n = m.frames[f].count;
     split(m, records, n, c);
@@ -265,7 +273,7 @@ ExportReport export_clip(const ExportOptions& options,
     }
     for (const auto& values : c.floats) s.params.push_back(values);
     writer.write_sample(s);
-    if (progress) progress(f + 1, m.frame_count());
+    if (progress) progress(f - first + 1, report.frames);
   }
   writer.close();
   report.first = output;

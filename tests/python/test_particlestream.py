@@ -348,6 +348,20 @@ def test_export_writes_the_clip_back_as_alembic_and_ply(tmp_path):
         got = np.frombuffer(body, dtype=vertex)
         for field in ("position", "scale", "velocity", "color"):
             np.testing.assert_array_equal(got[field], records[field])
+    # A part of the clip: its frames, at their times; PLY files keep their frames' numbers.
+    r = ps.export(str(clip_path), tmp_path / "part.abc", frames="10:20")
+    assert r["frames"] == 10
+    part = ps.Archive(tmp_path / "part.abc")
+    assert part.num_samples(name) == 10
+    for k in (0, 9):
+        assert part.time(name, k) == pytest.approx(clip.time(10 + k), abs=1e-9)
+        np.testing.assert_array_equal(part.positions(name, k), clip.read_frame(10 + k)["position"])
+    r = ps.export(str(clip_path), tmp_path / "tail" / "t.ply", frames="40:")
+    assert r["frames"] == clip.frame_count - 40 and r["first"] == str(tmp_path / "tail" / "t.0041.ply")
+    assert sorted(p.name for p in (tmp_path / "tail").iterdir()) == [f"t.{f + 1:04}.ply" for f in range(40, 48)]
+    with pytest.raises(ps.Error, match="select none; the clip has 48"):
+        ps.export(str(clip_path), tmp_path / "none.abc", frames="60:70")
+    assert not (tmp_path / "none.abc").exists()
     with pytest.raises(ps.Error, match="the extension chooses the format"):
         ps.export(str(clip_path), tmp_path / "x.txt")
     assert not (tmp_path / "x.txt").exists()
