@@ -1,6 +1,6 @@
 // libFuzzer target: particle-codec packet bodies. Any body either decodes into exactly the frame's
-// records or raises pstream::Error naming the frame; nothing is written outside the output
-// (AddressSanitizer watches the exactly-sized buffers).
+// records (and a matching whose runs cover both frames) or raises pstream::Error naming the frame;
+// nothing is written outside the output (AddressSanitizer watches the exactly-sized buffers).
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -37,7 +37,17 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     std::vector<std::byte> out0(meta.frames[0].count * meta.record_size);
     decoder.decode(0, packets[0], out0);
     std::vector<std::byte> out1(meta.frames[1].count * meta.record_size);
-    decoder.decode(1, packets[1], out1);
+    // The matching too, as the stream asks for it: any runs it gives cover both frames exactly.
+    std::vector<format::MatchRun> runs(2 * meta.max_count + 1);
+    const std::size_t n = decoder.decode(1, packets[1], out1, runs);
+    if (n != format::kNoMatching) {
+      std::uint64_t from = 0, to = 0;
+      for (std::size_t i = 0; i < n; ++i) {
+        from += std::uint64_t{runs[i].keep} + runs[i].drop;
+        to += std::uint64_t{runs[i].keep} + runs[i].insert;
+      }
+      if (n > runs.size() || from != meta.frames[0].count || to != meta.frames[1].count) __builtin_trap();
+    }
   } catch (const Error&) {
     // A clear error is the expected outcome for a malformed body.
   }

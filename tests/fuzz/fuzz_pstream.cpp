@@ -5,6 +5,7 @@
 #include <span>
 #include <vector>
 
+#include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
@@ -16,9 +17,20 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     std::vector<std::byte> scratch(std::min(m.chunk_size, m.stream_size()));
     for (std::uint64_t c = 0; c < m.chunk_count(); ++c) reader.read_chunk(c, scratch);
     std::vector<std::byte> frame;
+    // With the matching, as export asks for it: any runs cover this frame and the one before.
+    // (frame_buffer() first: it refuses a max_count the file's bytes do not justify.)
+    const std::vector<std::byte> largest = frame_buffer(m, "fuzz.pstream");
+    std::vector<MatchRun> runs(2 * m.max_count + 1);
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
       frame.resize(m.frames[f].count * m.record_size);
-      reader.read_frame(f, frame);
+      const std::size_t n = reader.read_frame(f, frame, runs);
+      if (n == kNoMatching) continue;
+      std::uint64_t from = 0, to = 0;
+      for (std::size_t i = 0; i < n; ++i) {
+        from += std::uint64_t{runs[i].keep} + runs[i].drop;
+        to += std::uint64_t{runs[i].keep} + runs[i].insert;
+      }
+      if (f == 0 || n > runs.size() || from != m.frames[f - 1].count || to != m.frames[f].count) __builtin_trap();
     }
   } catch (const pstream::Error&) {
     // A clear error is the expected outcome for malformed input.
