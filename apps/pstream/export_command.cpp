@@ -32,7 +32,7 @@ int run_export(const ExportCli& cli) {
                                    {"bytes_written", r.bytes_written}};
     fmt::print("{}\n", j.dump(2));
   } else if (!cli.quiet) {
-    fmt::print("{} frames -> {}{}\n", r.frames, r.first.string(), r.ply ? " ..." : "");
+    fmt::print("{} -> {}{}\n", count_of(r.frames, "frame"), r.first.string(), r.ply && r.frames > 1 ? " ..." : "");
   }
   return 0;
 }
