@@ -493,6 +493,42 @@ PYBIND11_MODULE(particlestream, m) {
       "against the source's velocities (in_source) and their rms_source.");
 
   m.def(
+      "describe_ply",
+      [](const std::filesystem::path& file) {
+        cook::PlySequenceInfo s;
+        {
+          py::gil_scoped_release release;
+          s = cook::describe_ply_sequence(file);
+        }
+        py::list files, properties;
+        for (std::size_t i = 0; i < s.files.size(); ++i) {
+          py::dict f;
+          f["file"] = s.files[i].string();
+          f["count"] = s.counts[i];
+          files.append(f);
+        }
+        for (const auto& p : s.properties) properties.append(py::make_tuple(p.name, p.type));
+        py::dict d;
+        d["encoding"] = s.format;
+        d["first_number"] = s.first_number;
+        d["files"] = files;
+        d["bytes"] = s.bytes;
+        d["properties"] = properties;
+        d["scale_from"] = s.scale_property;
+        d["scale_is_diameter"] = s.scale_is_diameter;
+        d["color"] = s.has_color;
+        d["velocity"] = s.has_velocity;
+        d["ids"] = s.has_ids;
+        return d;
+      },
+      py::arg("file"),
+      "Describes the numbered PLY sequence `file` belongs to, as `pstream info frame.0001.ply` does and as "
+      "cook() will read it, from the files' headers: encoding ('ascii' or 'binary_little_endian'), "
+      "first_number, files (each its file and vertex count, in frame order), bytes, properties ((name, type) "
+      "pairs), and what a cook takes: scale_from (the property, '' for none), scale_is_diameter, color, "
+      "velocity, ids. A missing frame or a file unlike the first raises particlestream.Error as cook() would.");
+
+  m.def(
       "export",
       [](const std::string& clip, const std::filesystem::path& output,
          const std::function<void(std::uint64_t, std::uint64_t)>& progress, const std::string& frames) {

@@ -149,6 +149,11 @@ def cook_particles(
     (N x 3, per second), 'id' (N, stable) and 'color' (N x 4, linear RGBA in 0..1). Returns the
     report (frames, particles, file_bytes, seconds)."""
 
+def describe_ply(file: PathLike) -> dict:
+    """Describes the numbered PLY sequence `file` belongs to, as `pstream info frame.0001.ply`
+    does: encoding, first_number, files (each {file, count}), bytes, properties ((name, type)
+    pairs) and what a cook takes (scale_from, scale_is_diameter, color, velocity, ids)."""
+
 def export(
     clip: str,
     output: PathLike,

@@ -359,6 +359,16 @@ def test_export_writes_the_clip_back_as_alembic_and_ply(tmp_path):
     r = ps.export(str(clip_path), tmp_path / "tail" / "t.ply", frames="40:")
     assert r["frames"] == clip.frame_count - 40 and r["first"] == str(tmp_path / "tail" / "t.0041.ply")
     assert sorted(p.name for p in (tmp_path / "tail").iterdir()) == [f"t.{f + 1:04}.ply" for f in range(40, 48)]
+    # describe_ply(): the sequence export wrote, as the cook will read it.
+    d = ps.describe_ply(tmp_path / "seq" / "sparks.0007.ply")
+    assert d["encoding"] == "binary_little_endian" and d["first_number"] == 1
+    assert [f["count"] for f in d["files"]] == [clip.count(f) for f in range(clip.frame_count)]
+    assert d["bytes"] == sum(p.stat().st_size for p in files)
+    assert [p[0] for p in d["properties"]][:4] == ["x", "y", "z", "pscale"]
+    assert (d["scale_from"], d["color"], d["velocity"], d["ids"]) == ("pscale", True, True, False)
+    (tmp_path / "tail" / "t.0042.ply").unlink()
+    with pytest.raises(ps.Error, match="frame 42 is missing"):
+        ps.describe_ply(tmp_path / "tail" / "t.0041.ply")
     with pytest.raises(ps.Error, match="select none; the clip has 48"):
         ps.export(str(clip_path), tmp_path / "none.abc", frames="60:70")
     assert not (tmp_path / "none.abc").exists()
