@@ -36,6 +36,15 @@ TEST(Cli, TyposGetDidYouMean) {
   expect_suggestion("redner x.pstream", "unknown command `redner`; did you mean `render`?");
   // Far from every name: said plainly, with where to look.
   expect_suggestion("cook x.abc --zzzzzzzz", "unknown option --zzzzzzzz for `cook` (see its --help)");
+  // A short option the command lacks (render writes to --out, where cook has -o): named, with the
+  // long options that begin with its letter, rather than a complaint about the argument after it.
+  expect_suggestion("render x.pstream -o frames", "unknown option -o; did you mean --out or --opacity?");
+  expect_suggestion("render x.pstream -f 1:2", "unknown option -f for `render` (see its --help)");
+  {
+    // Negative numbers are values, not options.
+    const auto value = run_cli("render /no/such/x.pstream --camera -3,2,1:0,0,0");
+    EXPECT_EQ(value.output.find("unknown option"), std::string::npos) << value.output;
+  }
   // Choices the library parses: its message, with the nearest choice.
   const std::string abc = pstream::test::data_path("alembic/points_constant.abc");
   const auto codec = run_cli("cook '" + abc + "' -o /nonexistent/dir/x.pstream --codec partcle");

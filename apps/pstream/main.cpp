@@ -1,5 +1,6 @@
 // pstream: the ParticleStream command-line tool.
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <exception>
 #include <filesystem>
@@ -128,6 +129,29 @@ std::string typo_message(CLI::App& app, int argc, char** argv) {
       const std::string guess = closest(name, names);
       return guess.empty() ? fmt::format("unknown option --{} for `{}` (see its --help)", name, at->get_name())
                            : fmt::format("unknown option --{}; did you mean --{}?", name, guess);
+    }
+    // A short option (a letter after one dash; "-0.5" and "-3,2,1" are values) that no command on
+    // the way has: CLI11 would otherwise report the positional argument after it.
+    if (word.size() >= 2 && word[0] == '-' && word[1] != '-' && std::isalpha(static_cast<unsigned char>(word[1]))) {
+      const char letter = word[1];
+      bool known = false;
+      std::vector<std::string> starting;  // the long options that start with that letter
+      for (const CLI::App* a : chain) {
+        for (const CLI::Option* o : a->get_options()) {
+          for (const std::string& s : o->get_snames()) known = known || s == std::string(1, letter);
+          for (const std::string& l : o->get_lnames())
+            if (l.front() == letter && std::find(starting.begin(), starting.end(), l) == starting.end())
+              starting.push_back(l);
+        }
+      }
+      if (known) continue;
+      std::string guess;
+      for (std::size_t k = 0; k < starting.size(); ++k)
+        guess += fmt::format("{}--{}", k == 0 ? "" : k + 1 == starting.size() ? " or " : ", ", starting[k]);
+      const std::string_view shown = word.substr(0, 2);
+      return starting.empty() || starting.size() > 3
+                 ? fmt::format("unknown option {} for `{}` (see its --help)", shown, at->get_name())
+                 : fmt::format("unknown option {}; did you mean {}?", shown, guess);
     }
     if (word.starts_with("-") || !expect_subcommand) continue;
     const std::vector<CLI::App*> subs = at->get_subcommands([](CLI::App*) { return true; });

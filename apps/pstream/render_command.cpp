@@ -298,7 +298,8 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
         {"frame_ms", {{"median", percentile(frame_ms, 0.5)}, {"p95", percentile(frame_ms, 0.95)}}}};
     fmt::print("{}\n", j.dump());
   } else if (!cli.quiet) {
-    fmt::print("{} frames -> {}/frame_NNNNN.png ({})\n", outputs, cli.out, render::Renderer::gl_renderer());
+    const std::string files = outputs == 1 ? fmt::format("frame_{:05d}.png", first_number) : "frame_NNNNN.png";
+    fmt::print("{} -> {}/{} ({})\n", count_of(outputs, "frame"), cli.out, files, render::Renderer::gl_renderer());
   }
   if (!cli.video.empty()) {
     encode_video(cli.out, first_number, outputs, fps, cli.video);  // no shell; exactly this render's frames
