@@ -628,13 +628,15 @@ PYBIND11_MODULE(particlestream, m) {
 
   py::class_<PyPlayer>(m, "Player", "Playback of one or more clips (the C++ playback::Player).")
       .def(py::init([](std::vector<std::filesystem::path> paths, const std::string& interpolation, bool blocking,
-                       bool loop, const std::string& sort, double cache_seconds) {
+                       bool loop, const std::string& sort, double cache_seconds, long long saved_states) {
              if (!(cache_seconds >= 0.0) || !std::isfinite(cache_seconds))  // as the C API
                throw Error(fmt::format("cache_seconds is {}, expected a finite number >= 0", cache_seconds));
+             if (saved_states < 0) throw Error(fmt::format("saved_states is {}, expected 0 or more", saved_states));
              playback::PlayerOptions o;
              o.interpolation = playback::parse_interpolation(interpolation);
              o.stream.blocking = blocking;
              o.stream.cache_seconds = cache_seconds;
+             o.stream.saved_states = static_cast<std::size_t>(saved_states);
              o.loop = loop;
              auto p = std::make_unique<PyPlayer>();
              p->sort = sort::parse_sort_mode(sort);
@@ -642,7 +644,11 @@ PYBIND11_MODULE(particlestream, m) {
              return p;
            }),
            py::arg("paths"), py::arg("interpolation") = "hermite", py::arg("blocking") = true, py::arg("loop") = true,
-           py::arg("sort") = "none", py::arg("cache_seconds") = 1.0)
+           py::arg("sort") = "none", py::arg("cache_seconds") = 1.0,
+           py::arg("saved_states") = static_cast<long long>(stream::StreamOptions{}.saved_states),
+           "saved_states: decoder states kept for playing backwards (and seeking back) within a keyframe group; "
+           "each holds about 8 bytes per particle and coded word; 0 decodes every frame shown backwards from "
+           "its keyframe.")
       .def("play", [](PyPlayer& p) { p.player->play(); })
       .def("pause", [](PyPlayer& p) { p.player->pause(); })
       .def(

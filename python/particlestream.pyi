@@ -81,7 +81,11 @@ class Player:
         loop: bool = True,
         sort: str = "none",
         cache_seconds: float = 1.0,
-    ) -> None: ...
+        saved_states: int = 3,
+    ) -> None:
+        """saved_states: decoder states kept for playing backwards (and seeking back) within a
+        keyframe group, about 8 bytes per particle and coded word each; 0 decodes every frame
+        shown backwards from its keyframe (docs/playback.md, "Going back")."""
     @property
     def clip_count(self) -> int: ...
     def play(self) -> None: ...

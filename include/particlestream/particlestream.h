@@ -352,7 +352,7 @@ typedef struct pstream_player_stats {
   double stream_ms, interpolate_ms, sort_ms; /* the last update() */
   uint64_t particles;
   uint64_t stalls;       /* frames a clip could not show in time, since open (all clips) */
-  uint64_t cache_bytes;  /* memory held by all clips (chunk caches and decoded frames) */
+  uint64_t cache_bytes;  /* memory held by all clips (chunk caches, decoded frames, decoder state) */
   uint32_t failed_clips; /* clips in their error state (pstream_player_check() returns the error) */
 } pstream_player_stats;
 

@@ -104,6 +104,13 @@ struct StreamOptions {
   unsigned max_loads_in_flight = 0;  // 0: what the source prefers (a local file 1, HTTP its connections)
   // Decoded frames held: the current one, the next, and room to decode ahead (at least 2).
   std::size_t decoded_frames = 3;
+  // Going back (reverse play, a seek back): decoder states saved over a keyframe group, so that a
+  // frame decodes from the nearest one rather than from its keyframe (format::FrameDecoder). Each
+  // costs FrameDecoder::saved_state_bytes() (the particle codec: about 8 bytes per particle and
+  // coded word, plus its zstd stream's 1.4 MiB); fewer are kept when the memory (the budget's
+  // room, or without one what the clip's stored bytes justify) has no room for them, none for
+  // codecs that need none. Saving runs only while playing backwards.
+  std::size_t saved_states = 3;
   bool blocking = false;  // update() waits for data instead of stalling
   // Hold the frame at or before the playhead and the one after it (next_frame(), fraction()) for
   // interpolation, instead of the nearest frame alone.
@@ -166,13 +173,16 @@ class ParticleStream {
   void pause();
   void stop();  // pause and go back to the start of the range
   // The frame nearest `time` becomes current once it is decoded (from the keyframe at or before
-  // it: at most keyframe_interval - 1 extra frame decodes). Invalidates the current FrameView.
+  // it, or nearer: after the frame decoded last or a saved state of its group; at most
+  // keyframe_interval - 1 extra frame decodes). Invalidates the current FrameView.
   void seek(double time);
   void set_loop(bool loop);
   // 0, fractional, > 1 (frames are skipped, never chunks), or negative: reverse. Decoding only runs
-  // forwards, so in reverse each cached frame restarts it at that frame's keyframe (records clips:
-  // the frame alone; particle clips: up to keyframe_interval frames each; cook with a short
-  // --keyframe-interval for clips meant to play backwards).
+  // forwards, so in reverse each cached frame restarts it (records clips: the frame alone). A
+  // particle clip restarts from the nearest of the decoder's saved states
+  // (StreamOptions::saved_states): about 4 to 6 decodes a frame shown in groups of 64 frames
+  // (docs/playback.md), and from the keyframe without them. In reverse the IO worker decodes no
+  // further than the frame after the one shown.
   void set_speed(double speed);
   void set_range(double start, double end);
   void update(double dt);

@@ -6,6 +6,7 @@
 #include <zstd.h>
 
 #include <climits>
+#include <cstring>
 
 #include "base/memory.hpp"
 #include "format/zstd_memory.hpp"
@@ -31,6 +32,7 @@ EntropyDecoder::EntropyDecoder(int stream_window_log) {
   ZSTD_DCtx_setParameter(d, ZSTD_d_windowLogMax, stream_window_log);
   state_ = block;  // the context starts the block
   static_ = true;
+  block_bytes_ = bytes;
 }
 
 EntropyDecoder::~EntropyDecoder() {
@@ -91,6 +93,26 @@ std::size_t EntropyDecoder::zstd_stream(std::span<std::byte> out, std::span<cons
   }
   streaming_ = true;
   return dst.pos;
+}
+
+// A static context keeps everything it needs between packets in its own block: the window, its
+// buffers, its entropy tables, and the pointers into them, which all point inside the block. A
+// copy of the block, put back at the same address, is therefore the stream as it was (the codec
+// tests check the frames decoded after a restore bit for bit against a straight decode).
+bool EntropyDecoder::can_save_stream() { return true; }
+
+std::uint64_t EntropyDecoder::saved_stream_bytes() const { return static_ ? block_bytes_ : 0; }
+
+bool EntropyDecoder::save_stream(std::span<std::byte> to) const {
+  if (!static_ || !streaming_ || to.size() < block_bytes_) return false;
+  std::memcpy(to.data(), state_, block_bytes_);
+  return true;
+}
+
+void EntropyDecoder::restore_stream(std::span<const std::byte> from) {
+  if (!static_ || from.size() < block_bytes_) return;
+  std::memcpy(state_, from.data(), block_bytes_);
+  streaming_ = true;
 }
 
 std::size_t EntropyDecoder::lz4(std::span<std::byte> out, std::span<const std::byte> in, std::string& error) {

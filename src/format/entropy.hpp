@@ -32,13 +32,25 @@ class EntropyDecoder {
   // data, a window larger than the stream's, more than out.size() bytes, or `in` ending inside a
   // block). After a failure only a restart decodes.
   std::size_t zstd_stream(std::span<std::byte> out, std::span<const std::byte> in, bool restart, std::string& error);
+  // The stream's state between two packets, saved and restored as bytes, so that decoding can come
+  // back to a packet after decoding on past it (reverse play keeps a few such states). 0 when
+  // there is no stream to save (`stream_window_log` 0), or when this build cannot save it: check
+  // can_save_stream() first (the browser's stream lives in the worker).
+  static bool can_save_stream();
+  std::uint64_t saved_stream_bytes() const;
+  // After a packet decoded whole: false (nothing written) when no stream is open.
+  bool save_stream(std::span<std::byte> to) const;
+  // The stream continues after the packet whose save_stream() wrote `from` (this decoder's own
+  // bytes, of saved_stream_bytes()).
+  void restore_stream(std::span<const std::byte> from);
   // The same for an lz4 block.
   std::size_t lz4(std::span<std::byte> out, std::span<const std::byte> in, std::string& error);
 
  private:
-  [[maybe_unused]] void* state_ = nullptr;   // libzstd's DCtx natively; the host's handle in the browser
-  [[maybe_unused]] bool static_ = false;     // natively: state_ is a static DCtx in a block of ours
-  [[maybe_unused]] bool streaming_ = false;  // a stream is open (restarted, and no failure since)
+  [[maybe_unused]] void* state_ = nullptr;        // libzstd's DCtx natively; the host's handle in the browser
+  [[maybe_unused]] bool static_ = false;          // natively: state_ is a static DCtx in a block of ours
+  [[maybe_unused]] std::size_t block_bytes_ = 0;  // natively: that block's size
+  [[maybe_unused]] bool streaming_ = false;       // a stream is open (restarted, and no failure since)
 };
 
 }  // namespace pstream::format

@@ -6,8 +6,8 @@ namespace pstream::format {
 namespace {
 
 constexpr FrameCodecDecoding kDecoders[] = {
-    {FrameCodec::Records, "records", records_unit_state_bytes, make_records_unit},
-    {FrameCodec::Particle, "particle", particle_unit_state_bytes, make_particle_unit},
+    {FrameCodec::Records, "records", records_unit_state_bytes, make_records_unit, records_unit_save_bytes},
+    {FrameCodec::Particle, "particle", particle_unit_state_bytes, make_particle_unit, particle_unit_save_bytes},
 };
 
 }  // namespace

@@ -29,13 +29,42 @@ std::uint64_t decode_start(const Metadata& meta, std::uint64_t frame, std::uint6
   return last_decoded != UINT64_MAX && last_decoded < frame && last_decoded >= key ? last_decoded + 1 : key;
 }
 
-FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit)
+namespace {
+
+// The longest keyframe group of the clip, in frames.
+std::uint64_t longest_group(const Metadata& meta) {
+  std::uint64_t longest = 0, start = 0;
+  for (std::uint64_t f = 0; f < meta.frame_count(); ++f) {
+    if (meta.frames[f].keyframe) start = f;
+    longest = std::max(longest, f - start + 1);
+  }
+  return longest;
+}
+
+}  // namespace
+
+std::uint64_t FrameDecoder::base_state_bytes(const Metadata& meta) {
+  const FrameCodecDecoding* codec = find_frame_codec(meta.codec.codec);
+  return codec ? codec->state_bytes(meta) : 0;
+}
+
+std::uint64_t FrameDecoder::saved_state_bytes(const Metadata& meta) {
+  const FrameCodecDecoding* codec = find_frame_codec(meta.codec.codec);
+  return codec && longest_group(meta) > 2 ? codec->save_bytes(meta) : 0;
+}
+
+FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit, std::size_t saved_states)
     : meta_(meta), name_(std::move(name)) {
   const std::uint64_t limit = memory_limit ? memory_limit : unbudgeted_memory_limit(meta);
   const FrameCodecDecoding* codec = find_frame_codec(meta.codec.codec);
   if (codec == nullptr)
     throw Error(fmt::format("{}: unknown frame codec {}", name_, static_cast<int>(meta.codec.codec)));
-  const std::uint64_t needed = codec->state_bytes(meta);
+  // Saved states: more than the longest group's frames would never be used.
+  save_bytes_ = saved_states > 0 ? saved_state_bytes(meta) : 0;
+  if (save_bytes_ == 0) saved_states = 0;
+  saved_states = std::min<std::uint64_t>(saved_states, longest_group(meta));
+  const std::uint64_t saved_total = save_bytes_ * saved_states;
+  const std::uint64_t needed = codec->state_bytes(meta) + saved_total;
   if (needed > limit) {
     throw OptionError(
         "budget",
@@ -45,13 +74,38 @@ FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t
                     memory_limit ? "the memory budget" : "the clip's stored bytes justify", limit / 1048576.0));
   }
   unit_ = codec->make_unit(meta_, name_);
-  state_bytes_ = unit_->state_bytes();
+  if (save_bytes_ != 0 && unit_->save_bytes() != save_bytes_)
+    throw Error(fmt::format("{}: the {} codec saves {} bytes a state, not {}", name_, codec->name, unit_->save_bytes(),
+                            save_bytes_));
+  saved_.resize(saved_total);
+  tags_.resize(saved_states);
+  saves_.resize(saved_states);
+  state_bytes_ = unit_->state_bytes() + saved_total;
 }
 
 FrameDecoder::~FrameDecoder() = default;
 
+const FrameDecoder::Saved* FrameDecoder::saved_before(std::uint64_t frame) const {
+  if (frame >= meta_.frame_count() || tags_.empty()) return nullptr;
+  const std::uint64_t key = keyframe_of(meta_, frame);
+  const Saved* best = nullptr;
+  for (const Saved& t : tags_) {
+    if (t.keyframe == key && t.frame < frame && (best == nullptr || t.frame > best->frame)) best = &t;
+  }
+  return best;
+}
+
+std::uint64_t FrameDecoder::resume_frame(std::uint64_t frame) const {
+  const std::uint64_t start = decode_start(meta_, frame, last_);
+  const Saved* saved = saved_before(frame);
+  return saved != nullptr && saved->frame + 1 > start ? saved->frame + 1 : start;
+}
+
 bool FrameDecoder::can_decode(std::uint64_t frame) const {
-  return frame < meta_.frame_count() && (meta_.frames[frame].keyframe || (last_ != UINT64_MAX && frame == last_ + 1));
+  if (frame >= meta_.frame_count()) return false;
+  if (meta_.frames[frame].keyframe || (last_ != UINT64_MAX && frame == last_ + 1)) return true;
+  const Saved* saved = saved_before(frame);
+  return saved != nullptr && saved->frame + 1 == frame;
 }
 
 void FrameDecoder::reset() {
@@ -69,10 +123,55 @@ std::size_t FrameDecoder::decode(std::uint64_t frame, std::span<const std::byte>
     throw Error(
         fmt::format("{}: frame {}: {} bytes for {} records", name_, frame, out.size(), meta_.frames[frame].count));
   }
+  const bool keyframe = meta_.frames[frame].keyframe;
+  if (!keyframe && last_ + 1 != frame) {  // resume after a saved state
+    const Saved* saved = saved_before(frame);
+    const std::size_t slot = static_cast<std::size_t>(saved - tags_.data());
+    unit_->restore(std::span(saved_).subspan(slot * save_bytes_, save_bytes_));
+    keyframe_ = saved->keyframe;
+  }
   last_ = UINT64_MAX;  // a failed decode leaves no reference
-  const std::size_t runs = unit_->decode(frame, meta_.frames[frame].keyframe, packet, out, matching);
+  const std::size_t runs = unit_->decode(frame, keyframe, packet, out, matching);
   last_ = frame;
+  if (keyframe) keyframe_ = frame;
+  if (target_ != kForward && frame < target_ && !tags_.empty()) {
+    if (!planned_) plan_saves(frame);  // the first decode on the way
+    if (save_count_ != 0 && saves_[save_count_ - 1].frame == frame) {
+      const std::size_t slot = static_cast<std::size_t>(saves_[--save_count_].keyframe);
+      tags_[slot] = {};  // not a state until it is whole
+      unit_->save(std::span(saved_).subspan(slot * save_bytes_, save_bytes_));
+      tags_[slot] = {frame, keyframe_};
+    }
+  }
   return runs;
+}
+
+void FrameDecoder::go_back(std::uint64_t target) {
+  if (target == target_) return;
+  target_ = target;
+  planned_ = false;
+  save_count_ = 0;
+}
+
+// Going back to target_, decoding from `first` on: a state is worth keeping when a frame before the
+// target will resume from it (after a frame of the target's group, two or more before it); every
+// other slot is free. The first free one gets the frame halfway from the one before `first` to
+// the target, the next halfway from there, and so on (saves_ is kept last first: decode() takes
+// from its end).
+void FrameDecoder::plan_saves(std::uint64_t first) {
+  planned_ = true;
+  save_count_ = 0;
+  const std::uint64_t key = keyframe_of(meta_, target_), t = target_;
+  std::uint64_t lo = first;  // one past the state decoding continues from
+  for (std::size_t slot = 0; slot < tags_.size(); ++slot) {
+    const Saved& tag = tags_[slot];
+    if (tag.frame != UINT64_MAX && tag.keyframe == key && tag.frame + 2 <= t) continue;  // still useful
+    const std::uint64_t mid = lo + (t - lo) / 2;  // (lo - 1 + t) / 2 rounded up, without lo - 1
+    if (mid < lo || mid + 1 >= t) break;
+    saves_[save_count_++] = {mid, slot};
+    lo = mid + 1;
+  }
+  std::reverse(saves_.begin(), saves_.begin() + static_cast<std::ptrdiff_t>(save_count_));
 }
 
 // ---- Matching ----------------------------------------------------------------------------------

@@ -75,6 +75,14 @@ struct StateSizes {
     return 2 * (2 * words * 4 + ids * 8 + steps) + (particles + derived + blocks) * 4 + body +
            EntropyDecoder::stream_bytes(window_log);
   }
+  // A saved state (ParticleUnit::save): the frame's particle count, then per coded word its values
+  // and steps, the ids, the step states (max_count of each), then the zstd stream. 0 where the
+  // stream cannot be saved.
+  std::uint64_t saved_bytes(std::uint64_t max_count, std::size_t coded) const {
+    if (window_log > 0 && !EntropyDecoder::can_save_stream()) return 0;
+    return 8 + 2 * coded * max_count * 4 + ids * 8 + (steps != 0 ? max_count : 0) +
+           EntropyDecoder::stream_bytes(window_log);
+  }
 };
 
 // ---- records from the state ----------------------------------------------------------------
@@ -373,6 +381,7 @@ class ParticleUnit final : public FrameUnit {
     bias_.assign(sizes.blocks, 0);
     stride_ = sizes.stride;
     bias_stride_ = sizes.bias_stride;
+    save_bytes_ = sizes.saved_bytes(meta.max_count, plan_.coded.size());
     runs_.resize(plan_.coded.size());
     columns_.resize(plan_.words);
     words_.resize(plan_.coded.size());
@@ -386,6 +395,45 @@ class ParticleUnit final : public FrameUnit {
                           EntropyDecoder::stream_bytes(stream_window_log(meta_));
     for (int b = 0; b < 2; ++b) bytes += (q_[b].size() + d_[b].size()) * 4 + ids_[b].size() * 8 + steps_[b].size();
     return bytes;
+  }
+
+  std::uint64_t save_bytes() const override { return save_bytes_; }
+
+  // The state decode() reads of the frame before (the other half of q_, d_, ids_ and steps_, its
+  // count) and the zstd stream, each as far as the frame's particles reach.
+  void save(std::span<std::byte> to) const override {
+    const int s = cur_ ^ 1;
+    const std::uint32_t count = count_[s];
+    std::byte* p = to.data();
+    const auto put = [&](const void* from, std::size_t bytes, std::size_t room) {
+      std::memcpy(p, from, bytes);
+      p += room;
+    };
+    const std::uint64_t m = meta_.max_count;
+    put(&count, 4, 8);
+    for (std::size_t k = 0; k < plan_.coded.size(); ++k) put(q_[s].data() + k * stride_, count * 4ull, m * 4);
+    for (std::size_t k = 0; k < plan_.coded.size(); ++k) put(d_[s].data() + k * stride_, count * 4ull, m * 4);
+    if (!ids_[s].empty()) put(ids_[s].data(), count * 8ull, m * 8);
+    if (!steps_[s].empty()) put(steps_[s].data(), count, m);
+    entropy_.save_stream({p, to.data() + to.size()});
+  }
+
+  void restore(std::span<const std::byte> from) override {
+    const int s = cur_ ^ 1;
+    const std::byte* p = from.data();
+    const auto get = [&](void* to, std::size_t bytes, std::size_t room) {
+      std::memcpy(to, p, bytes);
+      p += room;
+    };
+    const std::uint64_t m = meta_.max_count;
+    std::uint32_t count = 0;
+    get(&count, 4, 8);
+    count_[s] = count;
+    for (std::size_t k = 0; k < plan_.coded.size(); ++k) get(q_[s].data() + k * stride_, count * 4ull, m * 4);
+    for (std::size_t k = 0; k < plan_.coded.size(); ++k) get(d_[s].data() + k * stride_, count * 4ull, m * 4);
+    if (!ids_[s].empty()) get(ids_[s].data(), count * 8ull, m * 8);
+    if (!steps_[s].empty()) get(steps_[s].data(), count, m);
+    if (stream_window_log(meta_) > 0) entropy_.restore_stream({p, from.data() + from.size()});
   }
 
   std::size_t decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet, std::span<std::byte> out,
@@ -809,6 +857,7 @@ class ParticleUnit final : public FrameUnit {
   std::vector<std::uint8_t> steps_[2];  // per particle: grid steps known (0, 1, 2 = two or more)
   std::vector<std::uint32_t> derived_;  // per derived word and particle: the value's bits
   std::uint32_t count_[2] = {0, 0};
+  std::uint64_t save_bytes_ = 0;
   int cur_ = 0;
   std::vector<Body::Word> words_;
   std::vector<std::byte> body_;
@@ -834,6 +883,11 @@ std::string_view particle_decoder_simd() {
 }
 
 std::uint64_t particle_unit_state_bytes(const Metadata& meta) { return StateSizes(meta, WordPlan(meta.codec)).bytes(); }
+
+std::uint64_t particle_unit_save_bytes(const Metadata& meta) {
+  const WordPlan plan(meta.codec);
+  return StateSizes(meta, plan).saved_bytes(meta.max_count, plan.coded.size());
+}
 
 std::unique_ptr<FrameUnit> make_particle_unit(const Metadata& meta, std::string_view name) {
   return std::make_unique<ParticleUnit>(meta, name);

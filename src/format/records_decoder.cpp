@@ -38,5 +38,6 @@ std::unique_ptr<FrameUnit> make_records_unit(const Metadata& meta, std::string_v
 }
 
 std::uint64_t records_unit_state_bytes(const Metadata& /*meta*/) { return 0; }
+std::uint64_t records_unit_save_bytes(const Metadata& /*meta*/) { return 0; }
 
 }  // namespace pstream::format

@@ -115,6 +115,7 @@ std::unique_ptr<Player> Player::open(std::span<const std::filesystem::path> file
     o.max_slots = options.stream.max_slots;
     o.max_loads_in_flight = options.stream.max_loads_in_flight;
     o.decoded_frames = options.stream.decoded_frames;
+    o.saved_states = options.stream.saved_states;
     // The GPU path stages the frame after next before the playhead gets there (FramePair::ahead):
     // one more decoded frame lets the IO worker decode it a whole cached frame ahead.
     if (options.path == PlaybackPath::Gpu && options.interpolation != Interpolation::None)

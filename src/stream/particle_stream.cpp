@@ -123,6 +123,11 @@ struct ParticleStream::Impl {
   std::uint32_t in_flight = 0;
   // The producer: the next frame to decode, and from which frame of its first lap to publish.
   std::uint64_t p_lap = 0, p_frame = 0, p_publish_from = 0, epoch = 0;
+  // Playing backwards (the host's speed, under `mutex`): the decoder saves states on the way, and
+  // the producer decodes nothing after the frame the host shows and the one after it (the host
+  // only goes back from there: decoding on would only hold the decoder when the host restarts).
+  bool p_backwards = false;
+  bool p_resume = false;                    // a restart came while a decode ran: ask the decoder where to start
   std::uint64_t host_seq = 0;               // the frame the host wants now (lap × frame_count + frame)
   std::size_t pin_slot = 0, pin_count = 0;  // chunk slots a decode under way reads
 
@@ -225,7 +230,13 @@ struct ParticleStream::Impl {
 
   bool produce_one(std::unique_lock<std::mutex>& lock) {
     if (closing || failed || producer_done || meta->frame_count() == 0) return false;
+    if (p_resume) {  // the decoder is free now: start after its last frame or a saved state, if nearer
+      p_resume = false;
+      const std::uint64_t start = frame_decoder->resume_frame(p_publish_from);
+      if (p_lap == 0 && start > p_frame) begin_at(start);
+    }
     const std::uint64_t frame = p_frame, lap_ = p_lap;
+    if (p_backwards && frame_seq(lap_, frame) > host_seq + 1) return false;
     const format::FrameEntry& entry = meta->frames[frame];
     const auto [k_first, k_last] = packet_seqs(lap_, frame);
     if (entry.packet_size > 0) {
@@ -262,6 +273,7 @@ struct ParticleStream::Impl {
     const bool after_prev = match_capacity > 0 && frame > 0 && p_prev_slot != target &&
                             p_prev_slot < frame_slots.size() && p_prev_seq + 1 == frame_seq(lap_, frame);
     const std::size_t prev_slot = p_prev_slot;
+    const std::uint64_t back_to = p_backwards && lap_ == 0 ? p_publish_from : format::FrameDecoder::kForward;
     lock.unlock();
     const auto t0 = std::chrono::steady_clock::now();
     std::string error;
@@ -275,6 +287,7 @@ struct ParticleStream::Impl {
       }
       std::byte* out = decoded.get() + target * frame_bytes;
       const std::span<format::MatchRun> match(matching.get() + target * match_capacity, match_capacity);
+      frame_decoder->go_back(back_to);
       runs = frame_decoder->decode(frame, packet, {out, frame_bytes}, match);
       if (runs == format::kNoMatching && after_prev) {  // only the producer writes decoded slots
         runs = format::match_by_id(*meta, {decoded.get() + prev_slot * frame_bytes, frame_bytes},
@@ -364,12 +377,30 @@ struct ParticleStream::Impl {
     d.loaded.notify_all();
   }
 
-  // Playback restarts at `frame` (a seek, or a jump ahead): decoding starts at its keyframe,
-  // the chunk ring at that keyframe's packet. Loads under way free their slots when they end; a
-  // decode under way is thrown away (the epoch changes) and keeps its chunk slots until then.
+  // Playback restarts at `frame` (a seek, or a jump ahead): decoding starts at its keyframe, or
+  // nearer (begin_at()); the frames decoded before are dropped. A decode under way is thrown away
+  // (the epoch changes) and keeps its chunk slots until it ends.
   void restart_locked(std::uint64_t frame) {
     ++epoch;
-    const std::uint64_t key = format::keyframe_of(*meta, frame);
+    for (FrameSlot& f : frame_slots) {
+      if (f.state == FrameSlot::Ready) f = FrameSlot{};
+    }
+    p_publish_from = frame;
+    p_backwards = playhead.speed < 0.0;
+    p_prev_slot = SIZE_MAX;
+    host_seq = frame;  // lap 0: what the host waits for (update() sets it again)
+    producer_done = false;
+    // The decoder says where to start (after the frame it decoded last, or after a state it saved,
+    // when either is nearer than the keyframe), but it is the producer's while a decode runs: the
+    // producer then asks it when it is free (p_resume).
+    p_resume = producing;
+    begin_at(producing ? format::keyframe_of(*meta, frame) : frame_decoder->resume_frame(frame));
+    kick_locked();
+  }
+
+  // The producer decodes on from `start`, the chunk ring loading from its packet. Loads under way
+  // free their slots when they end.
+  void begin_at(std::uint64_t start) {
     std::size_t after = 0;
     for (LoadRequest& r : requests) {
       if (r.status.load(std::memory_order_acquire) != LoadRequest::Idle) {
@@ -382,19 +413,11 @@ struct ParticleStream::Impl {
       const bool pinned = pin_count > 0 && (i + slot_count - pin_slot) % slot_count < pin_count;
       if (slots[i].state == SlotState::Ready && !pinned) slots[i] = SlotInfo{};
     }
-    for (FrameSlot& f : frame_slots) {
-      if (f.state == FrameSlot::Ready) f = FrameSlot{};
-    }
-    seq_base = oldest = next = meta->frame_chunks(key).first - c0;
+    seq_base = oldest = next = meta->frame_chunks(start).first - c0;
     slot_base = after;
     p_lap = 0;
-    p_frame = key;
-    p_publish_from = frame;
-    p_prev_slot = SIZE_MAX;
-    host_seq = 0;
-    producer_done = false;
+    p_frame = start;
     issue_locked();
-    kick_locked();
   }
 
   // restart_locked(), with the frame on screen (if any) still shown, as sequence number
@@ -446,11 +469,22 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   impl->frame_bytes = (m.max_count * m.record_size + 63) / 64 * 64;
   std::uint64_t max_packet = 0;
   for (std::uint64_t f = 0; f < m.frame_count(); ++f) max_packet = std::max(max_packet, m.frames[f].packet_size);
-  impl->frame_decoder =
-      std::make_unique<format::FrameDecoder>(s->meta_, impl->name, options.budget ? options.budget->total() : 0);
   // Interpolating, each decoded frame also keeps how its particles continue the frame before: room
   // for runs of one particle in eight changing (more than that: the pair is not matched).
   impl->match_capacity = options.interpolate ? std::size_t(m.max_count / 8 + 64) : 0;
+  // The decoder's saved states for going back, as many of those asked for as the memory allows
+  // beside everything else (the budget's room, or what the clip's stored bytes justify).
+  std::size_t saved_states = 0;
+  if (const std::uint64_t each = format::FrameDecoder::saved_state_bytes(m); each != 0 && options.saved_states != 0) {
+    const std::uint64_t others = frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) +
+                                 max_packet + format::FrameDecoder::base_state_bytes(m) +
+                                 (options.budget ? impl->cache_bytes + options.budget->used() : 0);
+    const std::uint64_t limit = options.budget ? options.budget->total() : format::unbudgeted_memory_limit(m);
+    saved_states = static_cast<std::size_t>(
+        std::min<std::uint64_t>(options.saved_states, limit > others ? (limit - others) / each : 0));
+  }
+  impl->frame_decoder = std::make_unique<format::FrameDecoder>(
+      s->meta_, impl->name, options.budget ? options.budget->total() : 0, saved_states);
   const std::uint64_t decode_bytes =
       frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) + max_packet +
       impl->frame_decoder->state_bytes();
@@ -618,6 +652,10 @@ void ParticleStream::update(double dt) {
   d.io_fault_locked();
   if (failed()) return;
   d.host_seq = target_seq;
+  if (const bool backwards = d.playhead.speed < 0.0; backwards != d.p_backwards) {
+    d.p_backwards = backwards;
+    d.kick_locked();  // forwards again: decoding ahead resumes
+  }
   const auto find = [&](std::uint64_t seq) {
     for (std::size_t i = 0; i < d.frame_slots.size(); ++i) {
       if (d.frame_slots[i].state == FrameSlot::Ready && d.frame_slots[i].seq == seq) return i;
@@ -656,7 +694,7 @@ void ParticleStream::update(double dt) {
     const std::uint64_t lap = d.playhead.lap;
     d.restart_keeping_shown(target, d.current_seq);
     d.p_lap = lap;  // the same lap: chunk sequence numbers and frames stay in step
-    d.seq_base = d.oldest = d.next = d.packet_seqs(lap, target_key).first;
+    d.seq_base = d.oldest = d.next = d.packet_seqs(lap, d.p_frame).first;
     d.issue_locked();
   }
   // 3. Keep the IO worker busy (it also chains loads and decodes by itself as each one completes).

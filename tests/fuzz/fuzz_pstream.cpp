@@ -8,6 +8,16 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 
+namespace {
+
+std::uint64_t hash(std::span<const std::byte> bytes) {  // FNV-1a
+  std::uint64_t h = 14695981039346656037ull;
+  for (const std::byte b : bytes) h = (h ^ std::to_integer<std::uint64_t>(b)) * 1099511628211ull;
+  return h;
+}
+
+}  // namespace
+
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace pstream::format;
   try {
@@ -21,9 +31,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     // (frame_buffer() first: it refuses a max_count the file's bytes do not justify.)
     const std::vector<std::byte> largest = frame_buffer(m, "fuzz.pstream");
     std::vector<MatchRun> runs(2 * m.max_count + 1);
+    std::vector<std::uint64_t> hashes(m.frame_count());
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
       frame.resize(m.frames[f].count * m.record_size);
       const std::size_t n = reader.read_frame(f, frame, runs);
+      hashes[f] = hash(frame);
       if (n == kNoMatching) continue;
       std::uint64_t from = 0, to = 0;
       for (std::size_t i = 0; i < n; ++i) {
@@ -31,6 +43,23 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         to += std::uint64_t{runs[i].keep} + runs[i].insert;
       }
       if (f == 0 || n > runs.size() || from != m.frames[f - 1].count || to != m.frames[f].count) __builtin_trap();
+    }
+    // Every frame read: backwards, as reverse play decodes them (from the decoder's saved states,
+    // their zstd stream restored), each frame must come out as it did forwards, and never fail.
+    FrameDecoder decoder(m, "fuzz.pstream", 0, 3);
+    std::vector<std::byte> packet, out(largest.size());
+    for (std::uint64_t f = m.frame_count(); f-- > 0;) {
+      decoder.go_back(f);
+      for (std::uint64_t g = decoder.resume_frame(f); g <= f; ++g) {
+        packet.resize(m.frames[g].packet_size);
+        reader.read_packet(g, packet, scratch);
+        try {
+          decoder.decode(g, packet, out);
+        } catch (const pstream::Error&) {
+          __builtin_trap();  // it decoded forwards
+        }
+      }
+      if (hash(std::span(out).first(m.frames[f].count * m.record_size)) != hashes[f]) __builtin_trap();
     }
   } catch (const pstream::Error&) {
     // A clear error is the expected outcome for malformed input.

@@ -217,6 +217,32 @@ def test_what_the_c_api_refuses_raises_particlestream_error():
         ps.Player([DATA / "alembic" / "points_varying.expected.json"])
 
 
+def test_player_plays_backwards_from_saved_states(tmp_path):
+    # A default cook of the sparks (one keyframe group of 48 frames), played backwards one cached
+    # frame a step: every frame shown is the clip's frame, and the decoder's saved states (3 by
+    # default) cut the decodes to under a third of those from the keyframe (saved_states=0).
+    ps.cook(DATA / "sims" / "blender_sparks.abc", tmp_path / "s.pstream")
+    clip = ps.Clip(tmp_path / "s.pstream")
+    n = clip.frame_count
+    decoded, memory = {}, {}
+    for states in (0, 3):
+        player = ps.Player([tmp_path / "s.pstream"], interpolation="none", loop=False, saved_states=states)
+        player.seek(clip.time(n - 1))
+        player.update(0)
+        start = player.stats()["frames_decoded"]
+        player.set_speed(-1)
+        player.play()
+        for f in range(n - 2, -1, -1):
+            player.update(1 / clip.fps)
+            np.testing.assert_array_equal(player.frame(0), clip.read_frame(f))
+        decoded[states] = player.stats()["frames_decoded"] - start
+        memory[states] = player.stats()["decode_bytes"]
+    assert decoded[3] * 3 < decoded[0], decoded
+    assert memory[3] > memory[0]
+    with pytest.raises(ps.Error, match="saved_states is -1"):
+        ps.Player([tmp_path / "s.pstream"], saved_states=-1)
+
+
 def test_default_cook_is_the_particle_codec_with_its_bounds(tmp_path):
     abc = DATA / "sims" / "blender_sparks.abc"
     calls = []

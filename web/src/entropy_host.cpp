@@ -46,6 +46,13 @@ std::size_t EntropyDecoder::zstd(std::span<std::byte> out, std::span<const std::
   return kFailed;
 }
 
+// The stream lives in the worker's heap, out of reach: no saved states (reverse play decodes from
+// the keyframe).
+bool EntropyDecoder::can_save_stream() { return false; }
+std::uint64_t EntropyDecoder::saved_stream_bytes() const { return 0; }
+bool EntropyDecoder::save_stream(std::span<std::byte>) const { return false; }
+void EntropyDecoder::restore_stream(std::span<const std::byte>) {}
+
 std::size_t EntropyDecoder::lz4(std::span<std::byte>, std::span<const std::byte>, std::string& error) {
   error = "the browser player has no lz4 decoder: cook the clip with the default particle codec, or --codec zstd";
   return kFailed;
