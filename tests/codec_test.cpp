@@ -1114,7 +1114,7 @@ TEST(ParticleCodec, SavedStatesResumeBitForBitGoingBackwards) {
                                        d.saved_states() * format::FrameDecoder::saved_state_bytes(m));
       }
       for (std::uint64_t f = m.frame_count(); f-- > 0;) {
-        d.go_back(f);
+        d.set_target(f);
         for (std::uint64_t g = d.resume_frame(f); g <= f; ++g) {
           ASSERT_TRUE(d.can_decode(g)) << "frame " << g << " on the way to " << f;
           const auto r = decode(d, g);

@@ -314,8 +314,8 @@ TEST(Stream, ReverseStepRightAfterASeek) {
   }
 }
 
-// Played backwards, frame by frame from the last to the first, a particle clip with long keyframe
-// groups shows every frame exactly as decoded forwards, with a tiny chunk cache (decoding resumes
+// Played backwards, frame by frame from the last to the first, or scrubbed back by seeks, a
+// particle clip with long keyframe groups shows every frame exactly as decoded forwards, with a tiny chunk cache (decoding resumes
 // mid-ring) and with a roomy one, interpolating or not. The decoder's saved states (3, the
 // default) make that at least 3 times cheaper in decodes than restarting at each frame's keyframe
 // (0 states). Then without blocking, at random host steps: whatever frame is shown is right.
@@ -350,12 +350,16 @@ TEST(Stream, ReversePlaybackResumesFromSavedStates) {
         decodes[states != 0] = s->debug().frames_decoded - before;
         memory[states != 0] = s->debug().decode_bytes;
         // Once more, counting allocations: saving and restoring states copies, never allocates.
+        // (Not over HTTP: each restart cancels the reads under way, and libcurl allocates for the
+        // connection it opens again.)
         s->seek(m.frames.back().time);
         s->update(0);
         s->play();  // reaching the first frame paused it
         const std::uint64_t allocations = test::allocation_count();
         for (std::uint64_t f = m.frame_count() - 1; f-- > 0;) s->update(1.0 / m.fps);
-        EXPECT_EQ(test::allocation_count(), allocations);
+        if (std::string_view(test::io_mode()) != "http") {
+          EXPECT_EQ(test::allocation_count(), allocations);
+        }
         EXPECT_EQ(s->frame().frame, 0u);
       }
       std::cout << fmt::format(
@@ -365,6 +369,26 @@ TEST(Stream, ReversePlaybackResumesFromSavedStates) {
       EXPECT_LT(decodes[1] * 3, decodes[0]);
       EXPECT_EQ(memory[1] - memory[0], 3 * format::FrameDecoder::saved_state_bytes(m));
     }
+  }
+  // Scrubbing back, paused: a seek to each frame from the last to the first. The seeks save
+  // states on the way to their frames too.
+  {
+    std::uint64_t decodes[2] = {0, 0};
+    for (const std::size_t states : {std::size_t{0}, std::size_t{3}}) {
+      stream::StreamOptions o = tiny_cache(true);
+      o.saved_states = states;
+      auto s = open_stream(file, std::move(o));
+      const std::uint64_t before = s->debug().frames_decoded;
+      for (std::uint64_t f = m.frame_count(); f-- > 0;) {
+        s->seek(m.frames[f].time);
+        s->update(0);
+        ASSERT_TRUE(frame_matches(*s, ref, f)) << "scrubbing back, " << states << " saved states";
+      }
+      decodes[states != 0] = s->debug().frames_decoded - before;
+    }
+    std::cout << fmt::format("{} seeks back: {} decodes from keyframes, {} with 3 saved states\n", m.frame_count(),
+                             decodes[0], decodes[1]);
+    EXPECT_LT(decodes[1] * 2, decodes[0]);
   }
   // Without blocking: the host steps back at random, faster or slower than decoding, wrapping
   // from the first frame to the last.

@@ -239,9 +239,10 @@ std::size_t match_by_id(const Metadata& meta, std::span<const std::byte> prev, s
 // Saved states make going back cheap. A frame codec that predicts frames from the frame before
 // must otherwise decode from the keyframe to reach a frame it has passed: up to a keyframe
 // group's length of decodes for each frame shown when playing backwards. With `saved_states` > 0,
-// a decoder told that it is going back (go_back()) keeps the state after a few frames on its way
-// to the target: halfway from where it started, then halfway from there, one for each saved
-// state that no earlier frame would need; resume_frame() starts from the nearest. Played
+// a decoder told which frame it is decoding towards (set_target(): the frame a seek or a step back
+// wants) keeps the state after a few of the frames on its way there: halfway from where it
+// started, then halfway from there, one for each saved state that no earlier frame would need;
+// resume_frame() starts from the nearest. Forward play past the target saves nothing. Played
 // backwards, a group of 64 frames then costs about 4.3 decodes a frame with 3 states (6 with 2),
 // against 32 from the keyframe. The states are allocated here with the rest; saving copies them.
 // Codecs whose frames need no state (records) and builds that cannot save it (the browser's,
@@ -273,10 +274,10 @@ class FrameDecoder {
   // The first frame to decode on the way to `frame`: decode_start()'s (on from the last decoded
   // frame, or the keyframe), or the frame after a saved state of frame's group when that is nearer.
   std::uint64_t resume_frame(std::uint64_t frame) const;
-  // The decodes that follow are on the way back to `target` (decoded after them; kForward: play
-  // goes forwards, and nothing is saved, the default).
-  static constexpr std::uint64_t kForward = UINT64_MAX;
-  void go_back(std::uint64_t target);
+  // The decodes that follow are on the way to `target` (decoded after them): states are saved on
+  // the way. kNoTarget (the default): nothing is saved.
+  static constexpr std::uint64_t kNoTarget = UINT64_MAX;
+  void set_target(std::uint64_t target);
   std::size_t saved_states() const { return tags_.size(); }
 
   // The decoding state's size in bytes, saved states included (fixed at construction).
@@ -299,12 +300,12 @@ class FrameDecoder {
   std::uint64_t state_bytes_ = 0;
   std::uint64_t last_ = UINT64_MAX;
   std::uint64_t keyframe_ = 0;  // the keyframe of the frame decoded last
-  // Saved states: `saved_` holds tags_.size() of save_bytes_ each. Going back to target_, the
+  // Saved states: `saved_` holds tags_.size() of save_bytes_ each. On the way to target_, the
   // state after frame saves_[i].frame goes to slot saves_[i].keyframe (planned_ after the first
   // decode on the way).
   std::vector<std::byte> saved_;
   std::vector<Saved> tags_, saves_;
-  std::uint64_t save_bytes_ = 0, target_ = kForward;
+  std::uint64_t save_bytes_ = 0, target_ = kNoTarget;
   std::size_t save_count_ = 0;
   bool planned_ = false;
 };

@@ -134,7 +134,7 @@ std::size_t FrameDecoder::decode(std::uint64_t frame, std::span<const std::byte>
   const std::size_t runs = unit_->decode(frame, keyframe, packet, out, matching);
   last_ = frame;
   if (keyframe) keyframe_ = frame;
-  if (target_ != kForward && frame < target_ && !tags_.empty()) {
+  if (target_ != kNoTarget && frame < target_ && !tags_.empty()) {
     if (!planned_) plan_saves(frame);  // the first decode on the way
     if (save_count_ != 0 && saves_[save_count_ - 1].frame == frame) {
       const std::size_t slot = static_cast<std::size_t>(saves_[--save_count_].keyframe);
@@ -146,14 +146,14 @@ std::size_t FrameDecoder::decode(std::uint64_t frame, std::span<const std::byte>
   return runs;
 }
 
-void FrameDecoder::go_back(std::uint64_t target) {
+void FrameDecoder::set_target(std::uint64_t target) {
   if (target == target_) return;
   target_ = target;
   planned_ = false;
   save_count_ = 0;
 }
 
-// Going back to target_, decoding from `first` on: a state is worth keeping when a frame before the
+// On the way to target_, decoding from `first` on: a state is worth keeping when a frame before the
 // target will resume from it (after a frame of the target's group, two or more before it); every
 // other slot is free. The first free one gets the frame halfway from the one before `first` to
 // the target, the next halfway from there, and so on (saves_ is kept last first: decode() takes

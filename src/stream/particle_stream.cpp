@@ -123,9 +123,9 @@ struct ParticleStream::Impl {
   std::uint32_t in_flight = 0;
   // The producer: the next frame to decode, and from which frame of its first lap to publish.
   std::uint64_t p_lap = 0, p_frame = 0, p_publish_from = 0, epoch = 0;
-  // Playing backwards (the host's speed, under `mutex`): the decoder saves states on the way, and
-  // the producer decodes nothing after the frame the host shows and the one after it (the host
-  // only goes back from there: decoding on would only hold the decoder when the host restarts).
+  // Playing backwards (the host's speed, under `mutex`): the producer decodes nothing after the
+  // frame the host shows and the one after it (the host only goes back from there: decoding on
+  // would only hold the decoder when the host restarts).
   bool p_backwards = false;
   bool p_resume = false;                    // a restart came while a decode ran: ask the decoder where to start
   std::uint64_t host_seq = 0;               // the frame the host wants now (lap × frame_count + frame)
@@ -273,7 +273,9 @@ struct ParticleStream::Impl {
     const bool after_prev = match_capacity > 0 && frame > 0 && p_prev_slot != target &&
                             p_prev_slot < frame_slots.size() && p_prev_seq + 1 == frame_seq(lap_, frame);
     const std::size_t prev_slot = p_prev_slot;
-    const std::uint64_t back_to = p_backwards && lap_ == 0 ? p_publish_from : format::FrameDecoder::kForward;
+    // After a restart (a seek, a step back) the frames before the one wanted are decoded as
+    // references: the decoder saves states among them, for the next step or seek back.
+    const std::uint64_t towards = lap_ == 0 ? p_publish_from : format::FrameDecoder::kNoTarget;
     lock.unlock();
     const auto t0 = std::chrono::steady_clock::now();
     std::string error;
@@ -287,7 +289,7 @@ struct ParticleStream::Impl {
       }
       std::byte* out = decoded.get() + target * frame_bytes;
       const std::span<format::MatchRun> match(matching.get() + target * match_capacity, match_capacity);
-      frame_decoder->go_back(back_to);
+      frame_decoder->set_target(towards);
       runs = frame_decoder->decode(frame, packet, {out, frame_bytes}, match);
       if (runs == format::kNoMatching && after_prev) {  // only the producer writes decoded slots
         runs = format::match_by_id(*meta, {decoded.get() + prev_slot * frame_bytes, frame_bytes},

@@ -49,7 +49,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     FrameDecoder decoder(m, "fuzz.pstream", 0, 3);
     std::vector<std::byte> packet, out(largest.size());
     for (std::uint64_t f = m.frame_count(); f-- > 0;) {
-      decoder.go_back(f);
+      decoder.set_target(f);
       for (std::uint64_t g = decoder.resume_frame(f); g <= f; ++g) {
         packet.resize(m.frames[g].packet_size);
         reader.read_packet(g, packet, scratch);
