@@ -296,6 +296,11 @@ typedef struct pstream_player_options {
   /* A pstream_playback (added after io_timeout_seconds: an older struct_size gets
    * PSTREAM_PLAYBACK_CPU). */
   int32_t playback;
+  /* Decoder states each particle clip keeps for going back (reverse play, seeks back), so that a
+   * frame decodes from the nearest rather than from its keyframe: about 8 bytes per particle and
+   * coded word each, plus 1.3 MiB. Default 3; 0: none. Under memory_budget a clip keeps only those
+   * that fit. (Added after playback: an older struct_size gets the default.) */
+  int32_t saved_states;
 } pstream_player_options;
 
 /* A clip's frame as update() prepared it, valid until the next update() or close(). */

@@ -246,6 +246,7 @@ struct PlayerOptions {
   pstream_sort sort = PSTREAM_SORT_BACK_TO_FRONT;
   bool blocking = false;  // update() waits for data (offline rendering)
   bool loop = true;
+  int saved_states = 3;                // decoder states kept for going back (pstream_player_options)
   std::vector<pstream_io> io;          // empty, or one per clip (then paths only name them)
   std::optional<pstream_tasks> tasks;  // the host's job system
 };
@@ -261,6 +262,7 @@ class Player {
     o.sort = options.sort;
     o.blocking = options.blocking ? 1 : 0;
     o.loop = options.loop ? 1 : 0;
+    o.saved_states = options.saved_states;
     if (!options.io.empty()) {
       if (options.io.size() != paths.size())
         throw Error(PSTREAM_ERROR_ARGUMENT, "PlayerOptions::io has " + std::to_string(options.io.size()) +

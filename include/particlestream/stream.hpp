@@ -107,7 +107,7 @@ struct StreamOptions {
   // Going back (reverse play, a seek back): decoder states saved over a keyframe group, so that a
   // frame decodes from the nearest one rather than from its keyframe (format::FrameDecoder). Each
   // costs FrameDecoder::saved_state_bytes() (the particle codec: about 8 bytes per particle and
-  // coded word, plus its zstd stream's 1.4 MiB); fewer are kept when the memory (the budget's
+  // coded word, plus its zstd stream's 1.3 MiB); fewer are kept when the memory (the budget's
   // room, or without one what the clip's stored bytes justify) has no room for them, none for
   // codecs that need none. Saving runs only while playing backwards.
   std::size_t saved_states = 3;

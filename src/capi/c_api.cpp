@@ -410,6 +410,7 @@ void pstream_player_options_init(pstream_player_options* options) {
   options->interpolation = PSTREAM_INTERPOLATION_HERMITE;
   options->sort = PSTREAM_SORT_BACK_TO_FRONT;
   options->loop = 1;
+  options->saved_states = static_cast<int32_t>(stream::StreamOptions{}.saved_states);
 }
 
 pstream_result pstream_player_open(const char* const* paths, size_t count, const pstream_player_options* options,
@@ -454,6 +455,8 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
   if (!(o.cache_seconds >= 0.0)) return fail(PSTREAM_ERROR_ARGUMENT, "cache_seconds must be 0 or more");
   if (o.playback != PSTREAM_PLAYBACK_CPU && o.playback != PSTREAM_PLAYBACK_GPU)
     return fail(PSTREAM_ERROR_ARGUMENT, "unknown playback " + std::to_string(o.playback) + " (0: cpu, 1: gpu)");
+  if (o.saved_states < 0)
+    return fail(PSTREAM_ERROR_ARGUMENT, "saved_states is " + std::to_string(o.saved_states) + ", expected 0 or more");
   if (!(o.io_timeout_seconds >= 0.0) || !std::isfinite(o.io_timeout_seconds))
     return fail(PSTREAM_ERROR_ARGUMENT, "io_timeout_seconds must be a finite number of seconds, 0 or more");
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
@@ -461,6 +464,7 @@ pstream_result pstream_player_open(const char* const* paths, size_t count, const
     po.interpolation = static_cast<playback::Interpolation>(o.interpolation);
     po.path = o.playback == PSTREAM_PLAYBACK_GPU ? playback::PlaybackPath::Gpu : playback::PlaybackPath::Cpu;
     po.stream.cache_seconds = o.cache_seconds;
+    po.stream.saved_states = static_cast<std::size_t>(o.saved_states);
     po.stream.blocking = o.blocking != 0;
     po.loop = o.loop != 0;
     if (o.memory_budget) po.stream.budget = std::make_shared<stream::MemoryBudget>(o.memory_budget);

@@ -422,7 +422,7 @@ int main(int argc, char** argv) {
     clips[0] = join(1, work, "particle.pstream");
     clips[1] = join(2, work, "raw.pstream");
     pstream_player_options_init(&options);
-    CHECK(options.struct_size == sizeof options && options.loop == 1);
+    CHECK(options.struct_size == sizeof options && options.loop == 1 && options.saved_states == 3);
     options.blocking = 1;
     CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
     CHECK(pstream_player_clip_count(player) == 1);
@@ -456,6 +456,16 @@ int main(int argc, char** argv) {
     EXPECT_ERROR(pstream_player_update(player, -1.0, NULL), PSTREAM_ERROR_ARGUMENT, "dt");
     EXPECT_ERROR(pstream_player_seek(player, NAN), PSTREAM_ERROR_ARGUMENT, "not finite");
     pstream_player_close(player);
+    {
+      /* Without the decoder's saved states for going back, the particle clip holds less. */
+      pstream_player_stats lean;
+      options.saved_states = 0;
+      CHECK(pstream_player_open(clips, 1, &options, &player) == PSTREAM_OK);
+      CHECK(pstream_player_stats_get(player, &lean) == PSTREAM_OK);
+      CHECK(lean.cache_bytes < stats.cache_bytes);
+      pstream_player_close(player);
+      options.saved_states = 3;
+    }
 
     /* The GPU path for an engine's own shaders: no records, a frame pair (tests/sdk/frame_pair.c
      * checks its values against the CPU path). */

@@ -135,6 +135,10 @@ int main(int argc, char** argv) {
     pstream_player_options_init(&options);
     options.io_timeout_seconds = -1.0;
     EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "io_timeout_seconds");
+    /* Nor a negative number of saved states. */
+    pstream_player_options_init(&options);
+    options.saved_states = -1;
+    EXPECT_ERROR(pstream_player_open(clips, 1, &options, &player), PSTREAM_ERROR_ARGUMENT, "saved_states is -1");
     /* A struct from an older release (without io_timeout_seconds) is still taken. */
     pstream_player_options_init(&options);
     options.struct_size = sizeof options - sizeof(double);
