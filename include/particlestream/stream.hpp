@@ -109,7 +109,8 @@ struct StreamOptions {
   // costs FrameDecoder::saved_state_bytes() (the particle codec: about 8 bytes per particle and
   // coded word, plus its zstd stream's 1.3 MiB); fewer are kept when the memory (the budget's
   // room, or without one what the clip's stored bytes justify) has no room for them, none for
-  // codecs that need none. Saving runs only while playing backwards.
+  // codecs that need none. States are saved among the frames decoded only on the way to a seek's
+  // or a step back's frame (a copy each), never in forward play past it.
   std::size_t saved_states = 3;
   bool blocking = false;  // update() waits for data instead of stalling
   // Hold the frame at or before the playhead and the one after it (next_frame(), fraction()) for

@@ -136,6 +136,8 @@ std::size_t FrameDecoder::decode(std::uint64_t frame, std::span<const std::byte>
   if (keyframe) keyframe_ = frame;
   if (target_ != kNoTarget && frame < target_ && !tags_.empty()) {
     if (!planned_) plan_saves(frame);  // the first decode on the way
+    // (Decoding may have started again further on, after a state saved on the way.)
+    while (save_count_ != 0 && saves_[save_count_ - 1].frame < frame) --save_count_;
     if (save_count_ != 0 && saves_[save_count_ - 1].frame == frame) {
       const std::size_t slot = static_cast<std::size_t>(saves_[--save_count_].keyframe);
       tags_[slot] = {};  // not a state until it is whole
