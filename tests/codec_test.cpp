@@ -11,11 +11,13 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <random>
 #include <set>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "format/entropy.hpp"
 #include "format/particle_common.hpp"  // the decoder's derived-velocity rule, checked against the spec's
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
@@ -1059,6 +1061,40 @@ TEST(ParticleCodec, WithoutIdsEachParticlePairsWithItselfAfterASmallMove) {
     EXPECT_EQ(pairs, kCount);
     EXPECT_EQ(wrong, 0u);
   }
+}
+
+// The zstd stream's saved state (EntropyDecoder::save_stream): a packet decoded after the state
+// was put back comes out as it did the first time, again and again, with the window, repeat
+// offsets and entropy tables of the packets before it; without the saved bytes the stream is
+// closed, and the next packet is refused rather than decoded against a stale window.
+TEST(ParticleCodec, TheZstdStreamsSavedStateContinuesItExactly) {
+  std::mt19937 rng(5);
+  std::vector<std::vector<std::byte>> bodies(4);
+  for (std::size_t k = 0; k < bodies.size(); ++k) {  // repetitive across packets: matches reach back
+    bodies[k].resize(200000);
+    for (std::size_t i = 0; i < bodies[k].size(); ++i) bodies[k][i] = std::byte(((i * 7) % 251) ^ (rng() % 4) ^ k);
+  }
+  const std::vector<std::span<const std::byte>> spans(bodies.begin(), bodies.end());
+  const auto packets = test::compress_packets(spans, true, 3);
+  format::EntropyDecoder d(format::particle::kStreamWindowLog);
+  ASSERT_TRUE(format::EntropyDecoder::can_save_stream());
+  ASSERT_GT(d.saved_stream_bytes(), std::uint64_t{1} << format::particle::kStreamWindowLog);
+  std::vector<std::byte> out(300000), saved(d.saved_stream_bytes());
+  std::string why;
+  for (std::size_t k = 0; k < 2; ++k) {
+    ASSERT_EQ(d.zstd_stream(out, packets[k], k == 0, why), bodies[k].size()) << why;
+  }
+  ASSERT_TRUE(d.save_stream(saved));
+  for (int pass = 0; pass < 3; ++pass) {
+    d.restore_stream(saved);
+    for (std::size_t k = 2; k < bodies.size(); ++k) {
+      ASSERT_EQ(d.zstd_stream(out, packets[k], false, why), bodies[k].size()) << why;
+      ASSERT_TRUE(std::equal(bodies[k].begin(), bodies[k].end(), out.begin())) << "pass " << pass << " packet " << k;
+    }
+  }
+  d.restore_stream({});
+  EXPECT_EQ(d.zstd_stream(out, packets[2], false, why), format::EntropyDecoder::kFailed);
+  EXPECT_NE(why.find("not decoded just before"), std::string::npos) << why;
 }
 
 // Saved states (FrameDecoder's `saved_states`, for reverse play): going back through every frame

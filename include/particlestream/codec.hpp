@@ -300,11 +300,15 @@ class FrameDecoder {
   std::uint64_t state_bytes_ = 0;
   std::uint64_t last_ = UINT64_MAX;
   std::uint64_t keyframe_ = 0;  // the keyframe of the frame decoded last
+  struct Planned {
+    std::uint64_t frame = 0;  // save the state after this frame
+    std::size_t slot = 0;     // into this one
+  };
   // Saved states: `saved_` holds tags_.size() of save_bytes_ each. On the way to target_, the
-  // state after frame saves_[i].frame goes to slot saves_[i].keyframe (planned_ after the first
-  // decode on the way).
+  // first save_count_ of saves_ (planned_ after the first decode on the way, the last first).
   std::vector<std::byte> saved_;
-  std::vector<Saved> tags_, saves_;
+  std::vector<Saved> tags_;
+  std::vector<Planned> saves_;
   std::uint64_t save_bytes_ = 0, target_ = kNoTarget;
   std::size_t save_count_ = 0;
   bool planned_ = false;

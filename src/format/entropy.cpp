@@ -110,9 +110,9 @@ bool EntropyDecoder::save_stream(std::span<std::byte> to) const {
 }
 
 void EntropyDecoder::restore_stream(std::span<const std::byte> from) {
-  if (!static_ || from.size() < block_bytes_) return;
-  std::memcpy(state_, from.data(), block_bytes_);
-  streaming_ = true;
+  if (!static_) return;
+  streaming_ = from.size() >= block_bytes_;  // too few bytes: no stream to continue
+  if (streaming_) std::memcpy(state_, from.data(), block_bytes_);
 }
 
 std::size_t EntropyDecoder::lz4(std::span<std::byte> out, std::span<const std::byte> in, std::string& error) {

@@ -41,7 +41,7 @@ class EntropyDecoder {
   // After a packet decoded whole: false (nothing written) when no stream is open.
   bool save_stream(std::span<std::byte> to) const;
   // The stream continues after the packet whose save_stream() wrote `from` (this decoder's own
-  // bytes, of saved_stream_bytes()).
+  // bytes, of saved_stream_bytes()); fewer bytes leave no stream open (only a restart decodes).
   void restore_stream(std::span<const std::byte> from);
   // The same for an lz4 block.
   std::size_t lz4(std::span<std::byte> out, std::span<const std::byte> in, std::string& error);

@@ -139,7 +139,7 @@ std::size_t FrameDecoder::decode(std::uint64_t frame, std::span<const std::byte>
     // (Decoding may have started again further on, after a state saved on the way.)
     while (save_count_ != 0 && saves_[save_count_ - 1].frame < frame) --save_count_;
     if (save_count_ != 0 && saves_[save_count_ - 1].frame == frame) {
-      const std::size_t slot = static_cast<std::size_t>(saves_[--save_count_].keyframe);
+      const std::size_t slot = saves_[--save_count_].slot;
       tags_[slot] = {};  // not a state until it is whole
       unit_->save(std::span(saved_).subspan(slot * save_bytes_, save_bytes_));
       tags_[slot] = {frame, keyframe_};

@@ -75,7 +75,8 @@ struct StateSizes {
     return 2 * (2 * words * 4 + ids * 8 + steps) + (particles + derived + blocks) * 4 + body +
            EntropyDecoder::stream_bytes(window_log);
   }
-  // A saved state (ParticleUnit::save): the frame's particle count, then per coded word its values
+  // A saved state (ParticleUnit::save): the frame's particle count and whether the stream follows
+  // (4 bytes each), then per coded word its values
   // and steps, the ids, the step states (max_count of each), then the zstd stream. 0 where the
   // stream cannot be saved.
   std::uint64_t saved_bytes(std::uint64_t max_count, std::size_t coded) const {
@@ -415,7 +416,9 @@ class ParticleUnit final : public FrameUnit {
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) put(d_[s].data() + k * stride_, count * 4ull, m * 4);
     if (!ids_[s].empty()) put(ids_[s].data(), count * 8ull, m * 8);
     if (!steps_[s].empty()) put(steps_[s].data(), count, m);
-    entropy_.save_stream({p, to.data() + to.size()});
+    // After the count, whether the stream was saved (a restore without it cannot continue one).
+    const std::uint32_t stream = entropy_.save_stream({p, to.data() + to.size()}) ? 1 : 0;
+    std::memcpy(to.data() + 4, &stream, 4);
   }
 
   void restore(std::span<const std::byte> from) override {
@@ -426,14 +429,17 @@ class ParticleUnit final : public FrameUnit {
       p += room;
     };
     const std::uint64_t m = meta_.max_count;
-    std::uint32_t count = 0;
-    get(&count, 4, 8);
+    std::uint32_t count = 0, stream = 0;
+    get(&count, 4, 4);
+    get(&stream, 4, 4);
     count_[s] = count;
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) get(q_[s].data() + k * stride_, count * 4ull, m * 4);
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) get(d_[s].data() + k * stride_, count * 4ull, m * 4);
     if (!ids_[s].empty()) get(ids_[s].data(), count * 8ull, m * 8);
     if (!steps_[s].empty()) get(steps_[s].data(), count, m);
-    if (stream_window_log(meta_) > 0) entropy_.restore_stream({p, from.data() + from.size()});
+    if (stream_window_log(meta_) > 0)  // no saved stream: the next packet fails as not its successor
+      entropy_.restore_stream(stream ? std::span<const std::byte>(p, from.data() + from.size())
+                                     : std::span<const std::byte>{});
   }
 
   std::size_t decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet, std::span<std::byte> out,
