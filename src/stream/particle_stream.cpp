@@ -474,12 +474,15 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   // Interpolating, each decoded frame also keeps how its particles continue the frame before: room
   // for runs of one particle in eight changing (more than that: the pair is not matched).
   impl->match_capacity = options.interpolate ? std::size_t(m.max_count / 8 + 64) : 0;
+  // The decoded frames with their matching, and a packet's staging: the decoding side but the
+  // decoder's own state.
+  const std::uint64_t ring_bytes =
+      frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) + max_packet;
   // The decoder's saved states for going back, as many of those asked for as the memory allows
   // beside everything else (the budget's room, or what the clip's stored bytes justify).
   std::size_t saved_states = 0;
   if (const std::uint64_t each = format::FrameDecoder::saved_state_bytes(m); each != 0 && options.saved_states != 0) {
-    const std::uint64_t others = frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) +
-                                 max_packet + format::FrameDecoder::base_state_bytes(m) +
+    const std::uint64_t others = ring_bytes + format::FrameDecoder::base_state_bytes(m) +
                                  (options.budget ? impl->cache_bytes + options.budget->used() : 0);
     const std::uint64_t limit = options.budget ? options.budget->total() : format::unbudgeted_memory_limit(m);
     saved_states = static_cast<std::size_t>(
@@ -487,9 +490,7 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
   }
   impl->frame_decoder = std::make_unique<format::FrameDecoder>(
       s->meta_, impl->name, options.budget ? options.budget->total() : 0, saved_states);
-  const std::uint64_t decode_bytes =
-      frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) + max_packet +
-      impl->frame_decoder->state_bytes();
+  const std::uint64_t decode_bytes = ring_bytes + impl->frame_decoder->state_bytes();
   const std::uint64_t total_bytes = impl->cache_bytes + decode_bytes;
   // Without the host's budget, the decoded side is held to what the clip's stored bytes justify.
   if (!options.budget && decode_bytes > format::unbudgeted_memory_limit(m)) {
