@@ -401,45 +401,34 @@ class ParticleUnit final : public FrameUnit {
   std::uint64_t save_bytes() const override { return save_bytes_; }
 
   // The state decode() reads of the frame before (the other half of q_, d_, ids_ and steps_, its
-  // count) and the zstd stream, each as far as the frame's particles reach.
+  // count) and the zstd stream, each as far as the frame's particles reach. Its layout is
+  // StateSizes::saved_bytes(): an 8-byte header, then each piece of saved_pieces() in its room.
   void save(std::span<std::byte> to) const override {
     const int s = cur_ ^ 1;
-    const std::uint32_t count = count_[s];
-    std::byte* p = to.data();
-    const auto put = [&](const void* from, std::size_t bytes, std::size_t room) {
+    std::byte* p = to.data() + 8;
+    saved_pieces(*this, s, count_[s], [&](const void* from, std::size_t bytes, std::size_t room) {
       std::memcpy(p, from, bytes);
       p += room;
-    };
-    const std::uint64_t m = meta_.max_count;
-    put(&count, 4, 8);
-    for (std::size_t k = 0; k < plan_.coded.size(); ++k) put(q_[s].data() + k * stride_, count * 4ull, m * 4);
-    for (std::size_t k = 0; k < plan_.coded.size(); ++k) put(d_[s].data() + k * stride_, count * 4ull, m * 4);
-    if (!ids_[s].empty()) put(ids_[s].data(), count * 8ull, m * 8);
-    if (!steps_[s].empty()) put(steps_[s].data(), count, m);
-    // After the count, whether the stream was saved (a restore without it cannot continue one).
-    const std::uint32_t stream = entropy_.save_stream({p, to.data() + to.size()}) ? 1 : 0;
-    std::memcpy(to.data() + 4, &stream, 4);
+    });
+    // The header: the count, and whether the stream was saved (a restore without it cannot
+    // continue one).
+    const std::uint32_t header[2] = {count_[s], entropy_.save_stream({p, to.data() + to.size()}) ? 1u : 0u};
+    std::memcpy(to.data(), header, 8);
   }
 
   void restore(std::span<const std::byte> from) override {
     const int s = cur_ ^ 1;
-    const std::byte* p = from.data();
-    const auto get = [&](void* to, std::size_t bytes, std::size_t room) {
+    std::uint32_t header[2];
+    std::memcpy(header, from.data(), 8);
+    count_[s] = header[0];
+    const std::byte* p = from.data() + 8;
+    saved_pieces(*this, s, header[0], [&](void* to, std::size_t bytes, std::size_t room) {
       std::memcpy(to, p, bytes);
       p += room;
-    };
-    const std::uint64_t m = meta_.max_count;
-    std::uint32_t count = 0, stream = 0;
-    get(&count, 4, 4);
-    get(&stream, 4, 4);
-    count_[s] = count;
-    for (std::size_t k = 0; k < plan_.coded.size(); ++k) get(q_[s].data() + k * stride_, count * 4ull, m * 4);
-    for (std::size_t k = 0; k < plan_.coded.size(); ++k) get(d_[s].data() + k * stride_, count * 4ull, m * 4);
-    if (!ids_[s].empty()) get(ids_[s].data(), count * 8ull, m * 8);
-    if (!steps_[s].empty()) get(steps_[s].data(), count, m);
+    });
     if (stream_window_log(meta_) > 0)  // no saved stream: the next packet fails as not its successor
-      entropy_.restore_stream(stream ? std::span<const std::byte>(p, from.data() + from.size())
-                                     : std::span<const std::byte>{});
+      entropy_.restore_stream(header[1] ? std::span<const std::byte>(p, from.data() + from.size())
+                                        : std::span<const std::byte>{});
   }
 
   std::size_t decode(std::uint64_t frame, bool keyframe, std::span<const std::byte> packet, std::span<std::byte> out,
@@ -512,6 +501,19 @@ class ParticleUnit final : public FrameUnit {
   }
 
  private:
+  // The saved state's pieces after its header, in order: f(data, bytes of `count` particles,
+  // bytes of room for max_count) for each coded word's values, then its steps, the ids and the
+  // step states of state half `s` (`self` const when saving).
+  template <class Self, class F>
+  static void saved_pieces(Self& self, int s, std::uint32_t count, F&& f) {
+    const std::uint64_t m = self.meta_.max_count;
+    const std::size_t coded = self.plan_.coded.size();
+    for (std::size_t k = 0; k < coded; ++k) f(self.q_[s].data() + k * self.stride_, count * 4ull, m * 4);
+    for (std::size_t k = 0; k < coded; ++k) f(self.d_[s].data() + k * self.stride_, count * 4ull, m * 4);
+    if (!self.ids_[s].empty()) f(self.ids_[s].data(), count * 8ull, m * 8);
+    if (!self.steps_[s].empty()) f(self.steps_[s].data(), std::size_t{count}, m);
+  }
+
   // "position.y", "color", "velocity.x": the attribute (and component) a record word belongs to.
   std::string word_name(std::uint32_t w) const {
     for (const Attribute& a : meta_.layout) {
