@@ -575,6 +575,10 @@ PYBIND11_MODULE(particlestream, m) {
           "layout", [](const PyClip& c) { return layout_of(c.reader.metadata()); },
           "[(name, type, components, offset)]")
       .def_property_readonly("dtype", [](const PyClip& c) { return c.dtype; })
+      .def_property_readonly(
+          "frames_decoded", [](const PyClip& c) { return c.reader.frames_decoded(); },
+          "The frames read_frame() has decoded so far, those decoded on the way to the ones asked for "
+          "included (a predicted frame decodes on from its keyframe or a frame before it).")
       .def(
           "count",
           [](const PyClip& c, std::uint64_t f) {

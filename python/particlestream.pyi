@@ -62,6 +62,11 @@ class Clip:
     @property
     def dtype(self) -> np.dtype:
         """The numpy structured dtype of a record: one field per attribute."""
+    @property
+    def frames_decoded(self) -> int:
+        """The frames `read_frame` has decoded so far, those decoded on the way to the ones asked
+        for included: read in order, one a frame; read going back, a few a frame (the first read
+        back keeps 3 saved decoder states from then on)."""
     def count(self, frame: int) -> int: ...
     def time(self, frame: int) -> float: ...
     def read_frame(self, frame: int, out: Optional[np.ndarray] = None) -> np.ndarray:

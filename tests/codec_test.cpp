@@ -1165,12 +1165,23 @@ TEST(ParticleCodec, SavedStatesResumeBitForBitGoingBackwards) {
         }
       }
     }
+    // The Reader (Python's Clip.read_frame, pstream_clip_read_frame) read last to first: it makes
+    // its decoder again with saved states at the first read that goes back.
+    const auto back = format::Reader::open(file);
+    std::vector<std::byte> read(bytes);
+    for (std::uint64_t f = m.frame_count(); f-- > 0;) {
+      back.read_frame(f, read);
+      ASSERT_TRUE(std::equal(forward[f].begin(), forward[f].end(), read.begin())) << "Reader, frame " << f;
+    }
     std::cout << file.filename().string() << ": " << m.frame_count() << " frames backwards, " << decodes[0]
-              << " decodes from keyframes, " << decodes[1] << " with 3 saved states\n";
+              << " decodes from keyframes, " << decodes[1] << " with 3 saved states, " << back.frames_decoded()
+              << " by the Reader\n";
     EXPECT_LE(decodes[1], decodes[0]);
+    EXPECT_LE(back.frames_decoded(), decodes[0]);
     if (m.codec.codec == format::FrameCodec::Particle && format::FrameDecoder::saved_state_bytes(m) != 0 &&
         m.frame_count() >= 32) {
       EXPECT_LT(decodes[1] * 2, decodes[0]) << "saved states should at least halve the decodes";
+      EXPECT_LT(back.frames_decoded() * 2, decodes[0]) << "the Reader's too";
     }
   }
   EXPECT_GE(saving_clips, 8);

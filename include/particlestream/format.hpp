@@ -296,14 +296,19 @@ class Reader {
   // must hold the raw size of each chunk the packet touches (chunk_size, or less for the last).
   void read_packet(std::uint64_t frame, std::span<std::byte> out, std::span<std::byte> scratch) const;
   // The frame's records, decoded, into `out` (count × record_size bytes). With a predicting codec
-  // this decodes forward from the frame's keyframe (or from the last frame read, when that is
-  // the one before): read frames in order for speed. The chunk read last is kept (read, checked
-  // and decompressed once while frames in turn come from it), in a buffer of one chunk made on
-  // the first call.
+  // this decodes forward from the frame's keyframe, or from the last frame read when that is the
+  // one before: frames read in order cost one decode each. The first read that goes back makes
+  // the decoder again with 3 saved states (fewer when the clip's stored bytes do not justify their
+  // memory): later reads back resume from the nearest state saved on the way, so frames read last
+  // to first cost a few decodes each rather than half a keyframe group. The chunk read last is
+  // kept (read, checked and decompressed once while frames in turn come from it), in a buffer of
+  // one chunk made on the first call.
   // With `matching` (room for 2 × max_count + 1 runs is always enough): the codec's matching of
   // this frame's particles with the frame before's, as FrameDecoder::decode() gives it; returns
   // the number of runs, or kNoMatching (a keyframe, a clip in source order, the records codec).
   std::size_t read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<MatchRun> matching = {}) const;
+  // The frames read_frame() has decoded, those on the way to the frames asked for included.
+  std::uint64_t frames_decoded() const;
 
  private:
   struct Impl;

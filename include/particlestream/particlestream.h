@@ -212,7 +212,9 @@ PSTREAM_API pstream_result pstream_clip_frame_info(const pstream_clip* clip, uin
                                                    double* time);
 /* Decodes frame `frame`'s records into `out` (`capacity` bytes, at least count x record_size).
    Read frames in order: each then continues from the one before, and a chunk is read and checked
-   once while the frames come from it (a keyframe's group is decoded again to go back). */
+   once while the frames come from it. The first read that goes back gives the clip's decoder 3
+   saved states (fewer when the clip's stored bytes do not justify their memory): later reads
+   back resume from the nearest one saved on the way rather than from the keyframe. */
 PSTREAM_API pstream_result pstream_clip_read_frame(pstream_clip* clip, uint64_t frame, void* out, uint64_t capacity);
 
 /* ---- Playback -------------------------------------------------------------------------- */

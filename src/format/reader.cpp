@@ -9,6 +9,8 @@
 namespace pstream::format {
 namespace {
 constexpr std::uint64_t kNoChunk = UINT64_MAX;
+// The decoder's saved states once frames are read going back (as the stream's default).
+constexpr std::size_t kSavedStatesGoingBack = 3;
 }  // namespace
 
 struct Reader::Impl {
@@ -26,6 +28,10 @@ struct Reader::Impl {
   // frames read in turn mostly share a chunk, which is then read (fetched, checked, decompressed)
   // once instead of once per frame. kNoChunk when it holds none.
   std::uint64_t scratch_chunk = kNoChunk;
+  std::uint64_t frames_decoded = 0;
+  // A read went back: the decoder was made again with saved states (once; a Reader read forwards
+  // never holds them).
+  bool went_back = false;
 };
 
 Reader::Reader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -146,6 +152,8 @@ void Reader::read_packet(std::uint64_t frame, std::span<std::byte> out, std::spa
   if (packet.data() != out.data() && !packet.empty()) std::memcpy(out.data(), packet.data(), packet.size());
 }
 
+std::uint64_t Reader::frames_decoded() const { return impl_->frames_decoded; }
+
 std::size_t Reader::read_frame(std::uint64_t frame, std::span<std::byte> out, std::span<MatchRun> matching) const {
   Impl& d = *impl_;
   const Metadata& m = d.meta;
@@ -164,10 +172,29 @@ std::size_t Reader::read_frame(std::uint64_t frame, std::span<std::byte> out, st
     d.scratch.resize(std::min(m.chunk_size, m.stream_size()));
     d.decoded = frame_buffer(m, d.name);
   }
-  // Forward from the keyframe, or on from the frame decoded last.
+  // The first read that goes back (to a frame a keyframe does not start, at or before the last
+  // one read) makes the decoder again with saved states, as many as fit beside it in what the
+  // clip's stored bytes justify: each later read back resumes from the nearest one saved on the
+  // way, instead of from the keyframe.
+  const std::uint64_t last = d.frames->last_decoded();
+  if (!d.went_back && last != UINT64_MAX && frame <= last && !m.frames[frame].keyframe) {
+    d.went_back = true;
+    if (const std::uint64_t each = FrameDecoder::saved_state_bytes(m); each != 0) {
+      const std::uint64_t others = FrameDecoder::base_state_bytes(m) + d.decoded.size(),
+                          limit = unbudgeted_memory_limit(m);
+      const std::uint64_t fit = limit > others ? (limit - others) / each : 0;
+      if (fit != 0) {
+        d.frames.reset();  // its state goes before the new one is allocated
+        d.frames = std::make_unique<FrameDecoder>(m, d.name, 0, std::min<std::uint64_t>(kSavedStatesGoingBack, fit));
+      }
+    }
+  }
+  // Forward from the keyframe, or on from the frame decoded last or a state saved on the way.
+  d.frames->set_target(frame);
   std::size_t runs = kNoMatching;
-  for (std::uint64_t f = decode_start(m, frame, d.frames->last_decoded()); f <= frame; ++f) {
+  for (std::uint64_t f = d.frames->resume_frame(frame); f <= frame; ++f) {
     const std::span<const std::byte> packet = packet_bytes(*this, f, d.packet, d.scratch, d.scratch_chunk);
+    ++d.frames_decoded;
     // Frames on the way are decoded aside: they may hold more particles than `out`.
     if (f == frame)
       runs = d.frames->decode(f, packet, out, matching);
