@@ -53,6 +53,9 @@ struct FrameSlot {
   // Runs pairing the frame's particles with the frame before it (format::MatchRun), or
   // kNoMatching; they lie in the slot's part of Impl::matching.
   std::size_t runs = format::kNoMatching;
+  // The runs are those forward play gives the frame (false: the frame before was not decoded just
+  // before it, so no matching by id could be made). Only such a frame outlives a restart.
+  bool exact = true;
 };
 
 }  // namespace
@@ -156,6 +159,13 @@ struct ParticleStream::Impl {
     v.matched = runs != format::kNoMatching;
     if (v.matched) v.matching = {matching.get() + slot * match_capacity, runs};
   }
+  // The Ready decoded slot holding sequence number `seq`, or frame_slots.size().
+  std::size_t ready_slot(std::uint64_t seq) const {
+    for (std::size_t i = 0; i < frame_slots.size(); ++i) {
+      if (frame_slots[i].state == FrameSlot::Ready && frame_slots[i].seq == seq) return i;
+    }
+    return frame_slots.size();
+  }
   std::size_t slot_of(std::uint64_t seq) const { return (slot_base + (seq - seq_base)) % slot_count; }
   std::uint64_t frame_seq(std::uint64_t lap_, std::uint64_t frame) const { return lap_ * meta->frame_count() + frame; }
   // Chunk sequence numbers of frame f's packet in lap `lap_`.
@@ -245,20 +255,34 @@ struct ParticleStream::Impl {
         if (slots[slot_of(k)].state != SlotState::Ready) return false;
       }
     }
-    // Frames before the range, before a seek's target, or behind the frame the host waits for are
-    // decoded only as references: nobody will show them.
-    const bool publish =
-        frame >= frame_begin && (lap_ > 0 || frame >= p_publish_from) && frame_seq(lap_, frame) >= host_seq;
+    // A frame a restart kept (restart_locked()): backwards, the frames from it on are held
+    // already; forwards it is decoded again only as the next one's reference.
+    const bool held = ready_slot(frame_seq(lap_, frame)) != frame_slots.size();
+    if (p_backwards && held) return false;
     // A free decoded slot: the frame lands there (and stays Empty when it is not published).
     // The one holding the frame decoded last is taken only when no other is free: the new frame
     // may be matched to it.
-    std::size_t target = frame_slots.size();
+    std::size_t target = frame_slots.size(), empty = 0;
     for (std::size_t i = 0; i < frame_slots.size(); ++i) {
-      if (frame_slots[i].state == FrameSlot::Empty && (target == frame_slots.size() || target == p_prev_slot)) {
-        target = i;
-      }
+      if (frame_slots[i].state != FrameSlot::Empty) continue;
+      ++empty;
+      if (target == frame_slots.size() || target == p_prev_slot) target = i;
     }
     if (target == frame_slots.size()) return false;
+    // Frames before the range, before a seek's target, or behind the frame the host waits for are
+    // decoded only as references: nobody will show them. Backwards, the frame just before a
+    // restart's target is kept too when slots stay free for the frames still to come (the target
+    // and the one after it, unless held): the host's next step back finds it.
+    bool before_target = p_backwards && lap_ == 0 && frame + 1 == p_publish_from;
+    if (before_target) {
+      std::size_t to_come = 0;
+      for (std::uint64_t f = frame + 1; f <= std::min(host_seq + 1, frame_end); ++f)
+        to_come += ready_slot(f) == frame_slots.size() ? 1 : 0;
+      before_target = empty > to_come;
+    }
+    const bool publish =
+        !held && frame >= frame_begin &&
+        (before_target || ((lap_ > 0 || frame >= p_publish_from) && frame_seq(lap_, frame) >= host_seq));
     frame_slots[target].state = FrameSlot::Decoding;
     const std::uint64_t my_epoch = epoch;
     pin_slot = slot_of(k_first);
@@ -318,8 +342,14 @@ struct ParticleStream::Impl {
       failure = std::move(error);
       return false;
     }
-    if (publish) frame_slots[target] = {FrameSlot::Ready, frame_seq(lap_, frame), runs};
-    p_prev_slot = target;
+    if (publish) {
+      const bool exact = runs != format::kNoMatching || match_capacity == 0 || frame == 0 || after_prev;
+      frame_slots[target] = {FrameSlot::Ready, frame_seq(lap_, frame), runs, exact};
+    }
+    // The next frame is matched to this one's records: those a restart kept, when the frame was
+    // held (decoded again only as a reference, its slot stays free), or the slot it landed in.
+    const std::size_t kept = ready_slot(frame_seq(lap_, frame));
+    p_prev_slot = kept < frame_slots.size() ? kept : target;
     p_prev_seq = frame_seq(lap_, frame);
     // Move on, and give back the chunks before the next packet.
     if (frame < frame_end) {
@@ -384,8 +414,19 @@ struct ParticleStream::Impl {
   // (the epoch changes) and keeps its chunk slots until it ends.
   void restart_locked(std::uint64_t frame) {
     ++epoch;
+    // The frames decoded before are dropped, but the target and the one after it, which
+    // playback needs next (a step back's target is the frame before the one shown): they are
+    // renumbered into lap 0, and the producer takes them as decoded.
+    const std::uint64_t n = meta->frame_count();
     for (FrameSlot& f : frame_slots) {
-      if (f.state == FrameSlot::Ready) f = FrameSlot{};
+      if (f.state != FrameSlot::Ready) continue;
+      const std::uint64_t at = f.seq == FrameSlot::kHeld ? FrameSlot::kHeld : f.seq % n;
+      const bool needed = at != FrameSlot::kHeld && at >= frame && at <= std::min(frame + 1, frame_end);
+      if (needed && f.exact) {
+        f.seq = at;
+      } else {
+        f = FrameSlot{};
+      }
     }
     p_publish_from = frame;
     p_backwards = playhead.speed < 0.0;
@@ -427,7 +468,7 @@ struct ParticleStream::Impl {
   void restart_keeping_shown(std::uint64_t frame, std::uint64_t shown_seq) {
     FrameSlot shown = frame_slots[current];
     restart_locked(frame);
-    if (!current_valid) return;
+    if (!current_valid || frame_slots[current].state == FrameSlot::Ready) return;  // kept
     shown.seq = shown_seq;
     frame_slots[current] = shown;
   }
@@ -659,16 +700,12 @@ void ParticleStream::update(double dt) {
     d.p_backwards = backwards;
     d.kick_locked();  // forwards again: decoding ahead resumes
   }
-  const auto find = [&](std::uint64_t seq) {
-    for (std::size_t i = 0; i < d.frame_slots.size(); ++i) {
-      if (d.frame_slots[i].state == FrameSlot::Ready && d.frame_slots[i].seq == seq) return i;
-    }
-    return d.frame_slots.size();
-  };
+  const auto find = [&](std::uint64_t seq) { return d.ready_slot(seq); };
   // Backwards (reverse speed, or a host clock that went back): the producer only decodes forwards,
-  // so once the playhead is before everything it holds, decoding restarts at the target's
-  // keyframe (at most keyframe_interval - 1 extra decodes a frame; records clips need none). The
-  // frame shown stays shown until the target is decoded.
+  // so once the playhead is before everything it holds, decoding restarts at the target, from its
+  // keyframe or a state the decoder saved on the way; the target and the frame after it stay when
+  // they are decoded already (restart_locked()). The frame shown stays shown until the target is
+  // decoded.
   {
     // The producer will not bring the target: it has decoded past it, or it decodes it only as a
     // reference (before where a restart asked it to publish from).
@@ -684,11 +721,14 @@ void ParticleStream::update(double dt) {
     }
   }
   // 2. Release decoded frames playback has passed (the current one stays until a newer one is
-  // shown). When the producer is so far behind that a keyframe lies between it and the target,
-  // it jumps there: the frames in between need not be decoded.
+  // shown): backwards, those after the target's successor. When the producer is so far behind
+  // that a keyframe lies between it and the target, it jumps there: the frames in between need
+  // not be decoded.
+  const bool backwards = d.playhead.speed < 0.0;
   for (std::size_t i = 0; i < d.frame_slots.size(); ++i) {
     FrameSlot& f = d.frame_slots[i];
-    if (f.state == FrameSlot::Ready && f.seq < target_seq && !(d.current_valid && i == d.current)) f = FrameSlot{};
+    const bool passed = backwards ? f.seq > target_seq + 1 : f.seq < target_seq;
+    if (f.state == FrameSlot::Ready && passed && !(d.current_valid && i == d.current)) f = FrameSlot{};
   }
   const std::uint64_t producer_seq = d.frame_seq(d.p_lap, d.p_frame);
   const std::uint64_t target_key = format::keyframe_of(m, target);
@@ -756,9 +796,7 @@ FrameView ParticleStream::Impl::decoded_after(std::uint64_t ahead) const {
   std::size_t slot = frame_slots.size();
   {
     std::lock_guard lock(mutex);
-    for (std::size_t i = 0; i < frame_slots.size(); ++i) {
-      if (frame_slots[i].state == FrameSlot::Ready && frame_slots[i].seq == seq) slot = i;
-    }
+    slot = ready_slot(seq);
   }
   if (slot == frame_slots.size()) return v;  // still being decoded: the caller shows the current frame
   const std::uint64_t frame = seq % m.frame_count();
