@@ -247,6 +247,12 @@ struct ParticleStream::Impl {
     }
     const std::uint64_t frame = p_frame, lap_ = p_lap;
     if (p_backwards && frame_seq(lap_, frame) > host_seq + 1) return false;
+    // A frame a restart kept (restart_locked()): backwards, the frames from it on are held
+    // already; forwards it is decoded again only when the next one is predicted from it.
+    const std::size_t kept = ready_slot(frame_seq(lap_, frame));
+    const bool held = kept != frame_slots.size();
+    if (p_backwards && held) return false;
+    if (held && (frame == frame_end || meta->frames[frame + 1].keyframe)) return move_on_locked(frame, lap_, kept);
     const format::FrameEntry& entry = meta->frames[frame];
     const auto [k_first, k_last] = packet_seqs(lap_, frame);
     if (entry.packet_size > 0) {
@@ -255,10 +261,6 @@ struct ParticleStream::Impl {
         if (slots[slot_of(k)].state != SlotState::Ready) return false;
       }
     }
-    // A frame a restart kept (restart_locked()): backwards, the frames from it on are held
-    // already; forwards it is decoded again only as the next one's reference.
-    const bool held = ready_slot(frame_seq(lap_, frame)) != frame_slots.size();
-    if (p_backwards && held) return false;
     // A free decoded slot: the frame lands there (and stays Empty when it is not published).
     // The one holding the frame decoded last is taken only when no other is free: the new frame
     // may be matched to it.
@@ -348,10 +350,15 @@ struct ParticleStream::Impl {
     }
     // The next frame is matched to this one's records: those a restart kept, when the frame was
     // held (decoded again only as a reference, its slot stays free), or the slot it landed in.
-    const std::size_t kept = ready_slot(frame_seq(lap_, frame));
-    p_prev_slot = kept < frame_slots.size() ? kept : target;
+    const std::size_t shown_slot = ready_slot(frame_seq(lap_, frame));
+    return move_on_locked(frame, lap_, shown_slot < frame_slots.size() ? shown_slot : target);
+  }
+
+  // The producer has `frame` of lap `lap_` in decoded slot `slot`: on to the next frame, giving
+  // back the chunks before its packet.
+  bool move_on_locked(std::uint64_t frame, std::uint64_t lap_, std::size_t slot) {
+    p_prev_slot = slot;
     p_prev_seq = frame_seq(lap_, frame);
-    // Move on, and give back the chunks before the next packet.
     if (frame < frame_end) {
       p_frame = frame + 1;
     } else if (loop) {
@@ -663,7 +670,8 @@ void ParticleStream::seek(double time) {
   }
   d.playhead.time = std::clamp(time, meta_.frames[d.frame_begin].time, meta_.frames[d.frame_end].time);
   d.playhead.lap = 0;
-  const std::uint64_t frame = std::clamp(meta_.frame_at(d.playhead.time), d.frame_begin, d.frame_end);
+  // The frame update() will want: between two frames, interpolating, the one before.
+  const std::uint64_t frame = d.playhead.target(meta_, d.frame_begin, d.frame_end, d.interpolate);
   std::lock_guard lock(d.mutex);
   d.restart_locked(frame);
   seeking_ = true;
