@@ -794,6 +794,28 @@ TEST(Playback, RetimedPlaybackFollowsTheRetimedClock) {
   EXPECT_GT(player->clip(0).fraction(), 0.3);  // held between frames 10 and 11, interpolated
 }
 
+// The largest distance of the player's records from the ballistic truth at clip time `source`,
+// over the particles alive in both cached frames around it (births and deaths grow and shrink
+// instead); `compared` counts them.
+double ballistic_error(const playback::Player& player, const format::Attribute& id, double source, int& compared) {
+  const int f = int(std::floor(source * Analytic::fps + 1e-9));
+  double worst = 0;
+  for (const auto& b : player.batches()) {
+    for (std::uint64_t i = 0; i < b.count; ++i) {
+      const std::byte* r = b.first.data() + i * b.record_size;
+      std::uint64_t key = 0;
+      std::memcpy(&key, r + id.offset, 8);
+      if (!Analytic::alive(int(key), f) || !Analytic::alive(int(key), f + 1)) continue;
+      float p[3];
+      std::memcpy(p, r, 12);
+      const auto truth = Analytic::at(Motion::Ballistic, int(key), source);
+      for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(p[c] - truth[c])));
+      ++compared;
+    }
+  }
+  return worst;
+}
+
 // Reverse: speed -1 from the end to the start, at 120 Hz, through a records clip and a particle
 // clip (keyframes every 8 frames: each backward step decodes from one). Every host frame shows
 // the truth at the clock running backwards, interpolated, births and deaths included (a
@@ -835,20 +857,7 @@ TEST(Playback, ReversePlaybackIsInterpolatedToo) {
       source = std::max(0.0, source - dt);
       ASSERT_NEAR(player->clip(0).time(), source, 1e-9);
       EXPECT_EQ(stats.unmatched_clips, 0u) << "host frame " << k << " clip frame " << player->clip(0).frame().frame;
-      const int f = int(std::floor(source * Analytic::fps + 1e-9));
-      for (const auto& b : player->batches()) {
-        for (std::uint64_t i = 0; i < b.count; ++i) {
-          const std::byte* r = b.first.data() + i * b.record_size;
-          std::uint64_t key = 0;
-          std::memcpy(&key, r + id->offset, 8);
-          if (!Analytic::alive(int(key), f) || !Analytic::alive(int(key), f + 1)) continue;
-          float p[3];
-          std::memcpy(p, r, 12);
-          const auto truth = Analytic::at(Motion::Ballistic, int(key), source);
-          for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(p[c] - truth[c])));
-          ++compared;
-        }
-      }
+      worst = std::max(worst, ballistic_error(*player, *id, source, compared));
     }
     EXPECT_GT(compared, 10000);
     EXPECT_LT(worst, 2e-5);
@@ -901,20 +910,7 @@ TEST(Playback, ASeekKeepsTheDecodedFramesItNeedsAndWhatFollowsStaysMatched) {
       EXPECT_LE(d.frames_decoded, decoded + d.decoded_slots - 1);
     }
     EXPECT_EQ(stats.unmatched_clips, 0u) << "host frame " << k << " clip frame " << player->clip(0).frame().frame;
-    const int f = int(std::floor(source * Analytic::fps + 1e-9));
-    for (const auto& b : player->batches()) {
-      for (std::uint64_t i = 0; i < b.count; ++i) {
-        const std::byte* r = b.first.data() + i * b.record_size;
-        std::uint64_t key = 0;
-        std::memcpy(&key, r + id->offset, 8);
-        if (!Analytic::alive(int(key), f) || !Analytic::alive(int(key), f + 1)) continue;
-        float p[3];
-        std::memcpy(p, r, 12);
-        const auto truth = Analytic::at(Motion::Ballistic, int(key), source);
-        for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(p[c] - truth[c])));
-        ++compared;
-      }
-    }
+    worst = std::max(worst, ballistic_error(*player, *id, source, compared));
   }
   EXPECT_GT(compared, 10000);
   EXPECT_LT(worst, 2e-5);
