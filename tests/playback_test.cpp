@@ -876,14 +876,8 @@ TEST(Playback, ReversePlaybackIsInterpolatedToo) {
 // frame needs, and leave it unmatched).
 TEST(Playback, ASeekKeepsTheDecodedFramesItNeedsAndWhatFollowsStaysMatched) {
   const fs::path dir = test::fresh_dir();
-  const fs::path clip = analytic_clip(dir, Motion::Ballistic);
-  playback::PlayerOptions options;
-  options.stream.blocking = true;
-  options.loop = false;
-  const fs::path files[] = {clip};
-  const auto player = playback::Player::open(files, std::move(options));
-  const format::Metadata& m = player->clip(0).metadata();
-  const format::Attribute* id = m.find("id");
+  const auto player = open_blocking(analytic_clip(dir, Motion::Ballistic), playback::Interpolation::Hermite);
+  const format::Attribute* id = player->clip(0).metadata().find("id");
   ASSERT_TRUE(id);
   const double hz = 120.0, start = 5.5 / Analytic::fps;
   player->seek(start);
