@@ -350,8 +350,8 @@ struct ParticleStream::Impl {
     }
     // The next frame is matched to this one's records: those a restart kept, when the frame was
     // held (decoded again only as a reference, its slot stays free), or the slot it landed in.
-    const std::size_t shown_slot = ready_slot(frame_seq(lap_, frame));
-    return move_on_locked(frame, lap_, shown_slot < frame_slots.size() ? shown_slot : target);
+    const std::size_t holding = ready_slot(frame_seq(lap_, frame));
+    return move_on_locked(frame, lap_, holding < frame_slots.size() ? holding : target);
   }
 
   // The producer has `frame` of lap `lap_` in decoded slot `slot`: on to the next frame, giving
@@ -708,7 +708,6 @@ void ParticleStream::update(double dt) {
     d.p_backwards = backwards;
     d.kick_locked();  // forwards again: decoding ahead resumes
   }
-  const auto find = [&](std::uint64_t seq) { return d.ready_slot(seq); };
   // Backwards (reverse speed, or a host clock that went back): the producer only decodes forwards,
   // so once the playhead is before everything it holds, decoding restarts at the target, from its
   // keyframe or a state the decoder saved on the way; the target and the frame after it stay when
@@ -719,7 +718,7 @@ void ParticleStream::update(double dt) {
     // reference (before where a restart asked it to publish from).
     const bool passed = d.frame_seq(d.p_lap, d.p_frame) > target_seq ||
                         (d.p_lap == 0 && d.playhead.lap == 0 && target < d.p_publish_from);
-    if (passed && find(target_seq) == d.frame_slots.size()) {
+    if (passed && d.ready_slot(target_seq) == d.frame_slots.size()) {
       d.playhead.lap = 0;  // sequence numbers restart with the decoding
       target_seq = target;
       d.current_seq %= m.frame_count();
@@ -756,12 +755,13 @@ void ParticleStream::update(double dt) {
     const bool want_next = d.playhead.fraction > 0.0;  // interpolating: the next frame too
     const auto ready_or_failed = [&] {
       return d.failed || d.producer_done ||
-             (find(target_seq) < d.frame_slots.size() && (!want_next || find(target_seq + 1) < d.frame_slots.size()));
+             (d.ready_slot(target_seq) < d.frame_slots.size() &&
+              (!want_next || d.ready_slot(target_seq + 1) < d.frame_slots.size()));
     };
     while (!d.loaded.wait_for(lock, std::chrono::milliseconds(50), ready_or_failed)) d.io_fault_locked();
     if (failed()) return;
   }
-  const std::size_t ready = find(target_seq);
+  const std::size_t ready = d.ready_slot(target_seq);
   if (ready < d.frame_slots.size()) {
     const std::uint64_t shown = d.frame_slots[d.current].seq;
     if (d.current_valid && d.current != ready && (shown < target_seq || shown == FrameSlot::kHeld))
@@ -801,11 +801,10 @@ FrameView ParticleStream::Impl::decoded_after(std::uint64_t ahead) const {
     if ((current_seq + k) % m.frame_count() == 0) return v;  // across a loop's end: not interpolated
   }
   const std::uint64_t seq = current_seq + ahead;
-  std::size_t slot = frame_slots.size();
-  {
+  const std::size_t slot = [&] {
     std::lock_guard lock(mutex);
-    slot = ready_slot(seq);
-  }
+    return ready_slot(seq);
+  }();
   if (slot == frame_slots.size()) return v;  // still being decoded: the caller shows the current frame
   const std::uint64_t frame = seq % m.frame_count();
   const auto& f = m.frames[frame];
