@@ -378,6 +378,32 @@ TEST(Stream, ReversePlaybackResumesFromSavedStates) {
       EXPECT_EQ(memory[1] - memory[0], 3 * format::FrameDecoder::saved_state_bytes(m));
     }
   }
+  // More decoded frames hold more of the frames decoded on the way to each step back's target,
+  // published for the steps after it: fewer decodes, every frame still right.
+  {
+    std::uint64_t decodes[2] = {0, 0};
+    for (const std::size_t frames : {std::size_t{3}, std::size_t{8}}) {
+      SCOPED_TRACE(fmt::format("{} decoded frames", frames));
+      stream::StreamOptions o;
+      o.blocking = true;
+      o.interpolate = true;
+      o.decoded_frames = frames;
+      auto s = open_stream(file, std::move(o));
+      s->seek(m.frames.back().time);
+      s->update(0);
+      const std::uint64_t before = s->debug().frames_decoded;
+      s->set_speed(-1);
+      s->play();
+      for (std::uint64_t f = m.frame_count() - 1; f-- > 0;) {
+        s->update(1.0 / m.fps);
+        ASSERT_TRUE(frame_matches(*s, ref, f)) << "going back";
+      }
+      decodes[frames != 3] = s->debug().frames_decoded - before;
+    }
+    std::cout << fmt::format("{} frames backwards with 3 saved states: {} decodes with 3 decoded frames, {} with 8\n",
+                             m.frame_count() - 1, decodes[0], decodes[1]);
+    EXPECT_LT(decodes[1] * 3, decodes[0] * 2);
+  }
   // Scrubbing back, paused: a seek to each frame from the last to the first. The seeks save
   // states on the way to their frames too.
   {

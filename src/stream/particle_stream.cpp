@@ -272,15 +272,15 @@ struct ParticleStream::Impl {
     }
     if (target == frame_slots.size()) return false;
     // Frames before the range, before a seek's target, or behind the frame the host waits for are
-    // decoded only as references: nobody will show them. Backwards, the frame just before a
-    // restart's target is kept too when slots stay free for the frames still to come (the target
-    // and the one after it, unless held): the host's next step back finds it.
-    bool before_target = p_backwards && lap_ == 0 && frame + 1 == p_publish_from;
+    // decoded only as references: nobody will show them. Backwards, the frames just before a
+    // restart's target are kept too, as many as the free slots hold beside the frames still to
+    // come (the target and the one after it, unless held): the host's next steps back find them.
+    bool before_target = p_backwards && lap_ == 0 && frame < p_publish_from;
     if (before_target) {
-      std::size_t to_come = 0;
-      for (std::uint64_t f = frame + 1; f <= std::min(host_seq + 1, frame_end); ++f)
-        to_come += ready_slot(f) == frame_slots.size() ? 1 : 0;
-      before_target = empty > to_come;
+      std::uint64_t wanted = p_publish_from - frame;  // this frame and those up to the target
+      for (std::uint64_t f = p_publish_from; f <= std::min(host_seq + 1, frame_end); ++f)
+        wanted += ready_slot(f) == frame_slots.size() ? 1 : 0;
+      before_target = empty >= wanted;
     }
     const bool publish =
         !held && frame >= frame_begin &&
