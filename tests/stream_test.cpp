@@ -333,6 +333,27 @@ TEST(Stream, ReversePlaybackResumesFromSavedStates) {
   ASSERT_GT(format::FrameDecoder::saved_state_bytes(m), 0u);
   std::uint64_t walks = 0;  // each frame before the last decoded once from its keyframe
   for (std::uint64_t f = 0; f + 1 < m.frame_count(); ++f) walks += f - format::keyframe_of(m, f) + 1;
+  // A blocking stream played from its last frame back to the first, one frame a step, every frame
+  // checked: the stream, and the decodes it took.
+  const auto play_back = [&](stream::StreamOptions o) {
+    o.blocking = true;
+    auto s = open_stream(file, std::move(o));
+    s->seek(m.frames.back().time);
+    s->update(0);
+    EXPECT_TRUE(frame_matches(*s, ref, m.frame_count() - 1));
+    const std::uint64_t before = s->debug().frames_decoded;
+    s->set_speed(-1);
+    s->play();
+    for (std::uint64_t f = m.frame_count() - 1; f-- > 0;) {
+      s->update(1.0 / m.fps);
+      if (const auto shown = frame_matches(*s, ref, f); !shown) {
+        ADD_FAILURE() << "going back: " << shown.message();
+        break;
+      }
+    }
+    const std::uint64_t decodes = s->debug().frames_decoded - before;
+    return std::pair{std::move(s), decodes};
+  };
   for (const bool tiny : {true, false}) {
     for (const bool interpolate : {false, true}) {
       std::uint64_t decodes[2] = {0, 0};
@@ -340,21 +361,11 @@ TEST(Stream, ReversePlaybackResumesFromSavedStates) {
       for (const std::size_t states : {std::size_t{0}, std::size_t{3}}) {
         SCOPED_TRACE(fmt::format("tiny cache {}, interpolate {}, {} saved states", tiny, interpolate, states));
         stream::StreamOptions o = tiny ? tiny_cache(true) : stream::StreamOptions{};
-        o.blocking = true;
         o.interpolate = interpolate;
         o.saved_states = states;
-        auto s = open_stream(file, std::move(o));
-        s->seek(m.frames.back().time);
-        s->update(0);
-        ASSERT_TRUE(frame_matches(*s, ref, m.frame_count() - 1));
-        const std::uint64_t before = s->debug().frames_decoded;
-        s->set_speed(-1);
-        s->play();
-        for (std::uint64_t f = m.frame_count() - 1; f-- > 0;) {
-          s->update(1.0 / m.fps);
-          ASSERT_TRUE(frame_matches(*s, ref, f)) << "going back";
-        }
-        decodes[states != 0] = s->debug().frames_decoded - before;
+        auto [s, going_back] = play_back(std::move(o));
+        ASSERT_FALSE(HasFailure());
+        decodes[states != 0] = going_back;
         memory[states != 0] = s->debug().decode_bytes;
         // Once more, counting allocations: saving and restoring states copies, never allocates.
         // (Not over HTTP: each restart cancels the reads under way, and libcurl allocates for the
@@ -385,20 +396,10 @@ TEST(Stream, ReversePlaybackResumesFromSavedStates) {
     for (const std::size_t frames : {std::size_t{3}, std::size_t{8}}) {
       SCOPED_TRACE(fmt::format("{} decoded frames", frames));
       stream::StreamOptions o;
-      o.blocking = true;
       o.interpolate = true;
       o.decoded_frames = frames;
-      auto s = open_stream(file, std::move(o));
-      s->seek(m.frames.back().time);
-      s->update(0);
-      const std::uint64_t before = s->debug().frames_decoded;
-      s->set_speed(-1);
-      s->play();
-      for (std::uint64_t f = m.frame_count() - 1; f-- > 0;) {
-        s->update(1.0 / m.fps);
-        ASSERT_TRUE(frame_matches(*s, ref, f)) << "going back";
-      }
-      decodes[frames != 3] = s->debug().frames_decoded - before;
+      decodes[frames != 3] = play_back(std::move(o)).second;
+      ASSERT_FALSE(HasFailure());
     }
     std::cout << fmt::format("{} frames backwards with 3 saved states: {} decodes with 3 decoded frames, {} with 8\n",
                              m.frame_count() - 1, decodes[0], decodes[1]);
