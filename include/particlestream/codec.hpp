@@ -286,6 +286,10 @@ class FrameDecoder {
   // (0: the clip's codec keeps none).
   static std::uint64_t base_state_bytes(const Metadata& meta);
   static std::uint64_t saved_state_bytes(const Metadata& meta);
+  // How many of `wanted` saved states fit in `limit` bytes beside the decoder's own state and
+  // `others` bytes held elsewhere (0 when the clip's codec keeps none): fewer rather than a refusal.
+  static std::size_t saved_states_that_fit(const Metadata& meta, std::size_t wanted, std::uint64_t limit,
+                                           std::uint64_t others);
 
  private:
   struct Saved {

@@ -53,6 +53,14 @@ std::uint64_t FrameDecoder::saved_state_bytes(const Metadata& meta) {
   return codec && longest_group(meta) > 2 ? codec->save_bytes(meta) : 0;
 }
 
+std::size_t FrameDecoder::saved_states_that_fit(const Metadata& meta, std::size_t wanted, std::uint64_t limit,
+                                                std::uint64_t others) {
+  const std::uint64_t each = saved_state_bytes(meta);
+  if (each == 0 || wanted == 0) return 0;
+  const std::uint64_t held = others + base_state_bytes(meta);
+  return static_cast<std::size_t>(std::min<std::uint64_t>(wanted, limit > held ? (limit - held) / each : 0));
+}
+
 FrameDecoder::FrameDecoder(const Metadata& meta, std::string name, std::uint64_t memory_limit, std::size_t saved_states)
     : meta_(meta), name_(std::move(name)) {
   const std::uint64_t limit = memory_limit ? memory_limit : unbudgeted_memory_limit(meta);

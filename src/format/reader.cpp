@@ -179,14 +179,11 @@ std::size_t Reader::read_frame(std::uint64_t frame, std::span<std::byte> out, st
   const std::uint64_t last = d.frames->last_decoded();
   if (!d.went_back && last != UINT64_MAX && frame <= last && !m.frames[frame].keyframe) {
     d.went_back = true;
-    if (const std::uint64_t each = FrameDecoder::saved_state_bytes(m); each != 0) {
-      const std::uint64_t others = FrameDecoder::base_state_bytes(m) + d.decoded.size(),
-                          limit = unbudgeted_memory_limit(m);
-      const std::uint64_t fit = limit > others ? (limit - others) / each : 0;
-      if (fit != 0) {
-        d.frames.reset();  // its state goes before the new one is allocated
-        d.frames = std::make_unique<FrameDecoder>(m, d.name, 0, std::min<std::uint64_t>(kSavedStatesGoingBack, fit));
-      }
+    const std::size_t states =
+        FrameDecoder::saved_states_that_fit(m, kSavedStatesGoingBack, unbudgeted_memory_limit(m), d.decoded.size());
+    if (states != 0) {
+      d.frames.reset();  // its state goes before the new one is allocated
+      d.frames = std::make_unique<FrameDecoder>(m, d.name, 0, states);
     }
   }
   // Forward from the keyframe, or on from the frame decoded last or a state saved on the way.

@@ -528,14 +528,9 @@ std::unique_ptr<ParticleStream> ParticleStream::open(const std::filesystem::path
       frame_slots * (impl->frame_bytes + impl->match_capacity * sizeof(format::MatchRun)) + max_packet;
   // The decoder's saved states for going back, as many of those asked for as the memory allows
   // beside everything else (the budget's room, or what the clip's stored bytes justify).
-  std::size_t saved_states = 0;
-  if (const std::uint64_t each = format::FrameDecoder::saved_state_bytes(m); each != 0 && options.saved_states != 0) {
-    const std::uint64_t others = ring_bytes + format::FrameDecoder::base_state_bytes(m) +
-                                 (options.budget ? impl->cache_bytes + options.budget->used() : 0);
-    const std::uint64_t limit = options.budget ? options.budget->total() : format::unbudgeted_memory_limit(m);
-    saved_states = static_cast<std::size_t>(
-        std::min<std::uint64_t>(options.saved_states, limit > others ? (limit - others) / each : 0));
-  }
+  const std::size_t saved_states = format::FrameDecoder::saved_states_that_fit(
+      m, options.saved_states, options.budget ? options.budget->total() : format::unbudgeted_memory_limit(m),
+      ring_bytes + (options.budget ? impl->cache_bytes + options.budget->used() : 0));
   impl->frame_decoder = std::make_unique<format::FrameDecoder>(
       s->meta_, impl->name, options.budget ? options.budget->total() : 0, saved_states);
   const std::uint64_t decode_bytes = ring_bytes + impl->frame_decoder->state_bytes();
