@@ -9,7 +9,8 @@
 //           &size=WxH             the canvas size in pixels (default: the window's)
 //           &flat=1               flat colours, no lighting (as `pstream render --preset debug`)
 //           &bench=1              steps through every cached frame once and reports, per frame, the
-//                                 worker's decode and sort times and this thread's draw time
+//                                 worker's decode and sort times and this thread's draw time, then
+//                                 steps back to the first frame and reports the decodes
 //                                 (window.player.bench; bench/web/run.sh compares them with native)
 const params = new URLSearchParams(location.search);
 const canvas = document.getElementById('view');
@@ -19,7 +20,7 @@ const errorBox = document.getElementById('error');
 const state = {
   ready: false, error: null, playing: !params.has('frame'), speed: Number(params.get('speed') || 1),
   time: 0, frame: -1, shown: 0, distinctShown: 0, stalls: 0, meta: null,
-  timing: { decodeMs: 0, sortMs: 0, drawMs: 0, fetchMs: 0 }, cache: null, count: 0
+  timing: { decodeMs: 0, sortMs: 0, drawMs: 0, fetchMs: 0 }, cache: null, count: 0, framesDecoded: 0
 };
 window.player = { state };
 
@@ -262,6 +263,7 @@ async function requestFrame(force = false) {
     state.timing.fetchMs = reply.fetchMs;
     state.cache = reply.cache;
     state.buffersMade = reply.buffersMade;
+    state.framesDecoded = reply.framesDecoded;
     updateControls();
   } catch (e) {
     fail(e.message);
@@ -378,36 +380,56 @@ window.player.records = async (frame) => {
   return { count: reply.count, bytes: new Uint8Array(reply.bytes) };
 };
 // Every cached frame in order, paused: per-frame decode (worker), sort and pack (worker) and draw
-// (this thread, to a pixel read back) times, with their medians and 95th percentiles.
+// (this thread, to a pixel read back) times, with their medians and 95th percentiles; then every
+// step back to the first frame, each image between two frames: the decode times and the frames
+// decoded.
 async function bench() {
   state.playing = false;
   benchmarking = true;
   const rows = { decodeMs: [], sortMs: [], drawMs: [], fetchMs: [], count: [] };
+  let decodedBefore = 0;
   for (let f = 0; f < state.meta.frames; ++f) {
     const reply = await drawAt(state.meta.times[f]);
+    decodedBefore = reply.framesDecoded;
     rows.decodeMs.push(reply.decodeMs);
     rows.sortMs.push(reply.sortMs);
     rows.fetchMs.push(reply.fetchMs);
     rows.drawMs.push(state.timing.drawMs);
     rows.count.push(reply.count);
   }
+  // Then backwards, each image halfway between two cached frames: what a step back costs.
+  // Most steps decode nothing (the frames are kept) and a few walk from the keyframe: the mean is
+  // what playing backwards costs.
+  const back = [], t = state.meta.times;
+  let decodedAfter = decodedBefore;
+  for (let f = t.length - 2; f >= 0; --f) {
+    const reply = await drawAt(t[f] + 0.5 * (t[f + 1] - t[f]));
+    back.push(reply.decodeMs);
+    decodedAfter = reply.framesDecoded;
+  }
+  const stepsBack = back.length;
   const stat = (v) => {
     const s = [...v].sort((a, b) => a - b);
-    return { median: s[Math.floor(s.length / 2)], p95: s[Math.min(s.length - 1, Math.floor(s.length * 0.95))] };
+    return { median: s[Math.floor(s.length / 2)], p95: s[Math.min(s.length - 1, Math.floor(s.length * 0.95))],
+      mean: s.reduce((a, b) => a + b, 0) / s.length, max: s[s.length - 1] };
   };
   const result = { frames: state.meta.frames, particles: stat(rows.count).median, decodeMs: stat(rows.decodeMs),
-    sortMs: stat(rows.sortMs), drawMs: stat(rows.drawMs), fetchMs: stat(rows.fetchMs), size: [canvas.width, canvas.height] };
+    sortMs: stat(rows.sortMs), drawMs: stat(rows.drawMs), fetchMs: stat(rows.fetchMs), size: [canvas.width, canvas.height],
+    backDecodeMs: stepsBack ? stat(back) : null, stepsBack,
+    backFramesDecoded: decodedAfter - decodedBefore };
   window.player.bench = result;
   status.textContent = `bench: ${result.frames} frames of ${result.particles.toLocaleString()} particles: decode ` +
     `${result.decodeMs.median.toFixed(2)} ms, sort ${result.sortMs.median.toFixed(2)} ms, ` +
     `draw ${result.drawMs.median.toFixed(2)} ms (medians)`;
 }
 
-// Resolves when frame `frame` is drawn (paused), for screenshots.
+// Resolves when frame `frame` is drawn (paused), for screenshots and tests; a fraction (12.5) is
+// that far towards the next cached frame, interpolated.
 window.player.show = async (frame) => {
   state.playing = false;
   while (inFlight) await new Promise((r) => setTimeout(r, 5));
-  state.time = state.meta.times[frame] - state.meta.times[0];
+  const times = state.meta.times, f = Math.floor(frame), towards = frame - f;
+  state.time = times[f] - times[0] + (towards > 0 && f + 1 < times.length ? towards * (times[f + 1] - times[f]) : 0);
   await requestFrame(true);
 };
 

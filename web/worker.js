@@ -346,7 +346,7 @@ async function decodeFrames(from, to, decoder) {
   const decodeStart = performance.now();
   await withBytes(decoder);
   lookAhead(to);
-  return { fetchMs, decodeMs: performance.now() - decodeStart };
+  return { fetchMs, decodeMs: performance.now() - decodeStart, framesDecoded: M._pw_frames_decoded() };
 }
 
 const handlers = {

@@ -48,6 +48,11 @@ for row in sys.argv[1:]:
         natv = (f"{nat['median']:.2f} ms" + (f" (p95 {nat['p95']:.2f})" if nat['p95'] == nat['p95'] else "")) if nat else "-"
         print(f"| {int(w['particles']):,} | {stage} | {web['median']:.2f} ms (p95 {web['p95']:.2f}) | {natv} | {ratio} |")
     line("decode", w["decodeMs"], n["decode_ms"])
+    b = w.get("backDecodeMs")
+    if b:
+        print(f"| {int(w['particles']):,} | decode, played backwards: a step back, each image between two frames "
+              f"({w['backFramesDecoded']} frames decoded in {w['stepsBack']} steps) | {b['mean']:.2f} ms mean "
+              f"(median {b['median']:.2f}, max {b['max']:.2f}) | - | - |")
     line("sort back to front + pack", w["sortMs"], n["sort_ms"])
     line("draw (the page: upload, one instanced call, a pixel read back; native: draw and read-back)", w["drawMs"],
          render["frame_ms"])

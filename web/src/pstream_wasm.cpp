@@ -8,6 +8,7 @@
 // it stopped, since the Reader keeps its place in the keyframe group.
 #include <emscripten.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
@@ -64,18 +65,27 @@ class FetchedSource final : public io::ByteSource {
 // A decoded cached frame, and the runs matching its particles to the frame before it.
 struct Slot {
   std::uint64_t frame = UINT64_MAX;
+  std::uint64_t used = 0;  // when it was last decoded or read (Player::clock)
   std::vector<std::byte> records;
   std::vector<format::MatchRun> matching;
   std::size_t runs = format::kNoMatching;
 };
+
+// Decoded frames kept: at least the two an interpolated image needs, and up to 8 within 64 MiB.
+// The browser's decoder cannot save its state on the way (its zstd stream lives in the worker), so
+// going back decodes from the keyframe; the frames kept from that walk then serve the next steps
+// back without decoding (docs/web.md, "Playing backwards").
+constexpr std::size_t kMostKeptFrames = 8;
+constexpr std::uint64_t kKeptFramesBudget = 64ull << 20;
 
 struct Player {
   std::optional<format::Reader> reader;
   std::optional<format::FrameDecoder> decoder;
   std::optional<playback::FrameBlender> blender;
   std::vector<std::byte> packet, chunk;  // a frame's packet, a chunk
-  Slot slots[2];                         // the last two frames decoded, in order
-  int last = 0;                          // the slot decoded last
+  std::vector<Slot> slots;               // the decoded frames kept, allocated at open
+  std::uint64_t clock = 0;               // counts decodes and reads, for Slot::used
+  std::uint64_t frames_decoded = 0;      // every frame decoded, those on the way included
   std::vector<std::byte> blended;        // between two cached frames (room for both)
   const std::byte* records = nullptr;    // what pw_pack draws
   std::uint64_t count = 0;
@@ -138,32 +148,50 @@ Slot* slot_of(std::uint64_t frame) {
   return nullptr;
 }
 
-// Where decoding `frame` starts: on from the frame decoded last, or at its keyframe.
+// Where decoding `frame` starts: nowhere when it is kept, else on from the frame decoded last, or
+// at its keyframe.
 std::uint64_t first_to_decode(std::uint64_t frame) {
   if (slot_of(frame) != nullptr) return frame;
   return format::decode_start(g->reader->metadata(), frame, g->decoder->last_decoded());
 }
 
-// Decodes up to `frame`, each frame into the slot not holding the one before it. A read that needs
-// bytes not fetched yet throws NeedBytes before the decoder's state changes, so a call again
-// resumes.
+// The slot frame `f` is decoded into, on the way to `target`: the one already holding it, else the
+// one used longest ago, sparing the frame before it (its matching by id needs it) and the target's
+// successor (played backwards, the image before showed it, and the next interpolates towards it).
+Slot& slot_for(std::uint64_t f, std::uint64_t target) {
+  if (Slot* held = slot_of(f)) return *held;
+  Slot* pick = nullptr;
+  for (int spare_successor = 1; spare_successor >= 0 && pick == nullptr; --spare_successor) {
+    for (Slot& slot : g->slots) {
+      if (slot.frame != UINT64_MAX && (slot.frame + 1 == f || (spare_successor && slot.frame == target + 1))) continue;
+      if (pick == nullptr || slot.used < pick->used) pick = &slot;
+    }
+  }
+  return *pick;  // two slots or more: one holds neither the frame before nor, failing that, that successor
+}
+
+// Decodes up to `frame`, keeping the frames decoded last. A read that needs bytes not fetched yet
+// throws NeedBytes before the decoder's state changes, so a call again resumes.
 void decode(std::uint64_t frame) {
-  if (slot_of(frame) != nullptr) return;
+  if (Slot* held = slot_of(frame)) {
+    held->used = ++g->clock;
+    return;
+  }
   const format::Metadata& m = g->reader->metadata();
   for (std::uint64_t f = first_to_decode(frame); f <= frame; ++f) {
     const std::uint64_t size = format::frame_packet(m, f).size;
     g->reader->read_packet(f, g->packet, g->chunk);
-    const int into = g->slots[g->last].frame + 1 == f ? g->last ^ 1 : g->last;
-    Slot& slot = g->slots[into];
-    Slot& prev = g->slots[into ^ 1];
+    Slot& slot = slot_for(f, frame);
     slot.frame = UINT64_MAX;  // a failed decode leaves nothing behind
     slot.runs = g->decoder->decode(f, std::span(g->packet).first(size), slot.records, slot.matching);
-    if (slot.runs == format::kNoMatching && prev.frame + 1 == f) {
+    ++g->frames_decoded;
+    const Slot* prev = f == 0 ? nullptr : slot_of(f - 1);
+    if (slot.runs == format::kNoMatching && prev != nullptr) {
       slot.runs =
-          format::match_by_id(m, prev.records, m.frames[f - 1].count, slot.records, m.frames[f].count, slot.matching);
+          format::match_by_id(m, prev->records, m.frames[f - 1].count, slot.records, m.frames[f].count, slot.matching);
     }
     slot.frame = f;
-    g->last = into;
+    slot.used = ++g->clock;
   }
 }
 
@@ -187,6 +215,9 @@ EMSCRIPTEN_KEEPALIVE int pw_open(double size, const char* name) {
     for (std::uint64_t f = 0; f < m.frame_count(); ++f) largest = std::max(largest, format::frame_packet(m, f).size);
     g->packet.resize(largest);
     g->chunk.resize(std::min(m.chunk_size, m.stream_size()));
+    const std::uint64_t slot_bytes = m.max_count * (m.record_size + 2 * sizeof(format::MatchRun));
+    g->slots.resize(
+        std::clamp<std::uint64_t>(kKeptFramesBudget / std::max<std::uint64_t>(slot_bytes, 1), 2, kMostKeptFrames));
     for (Slot& slot : g->slots) {
       slot.records = format::frame_buffer(m, name);
       slot.matching.resize(2 * m.max_count + 2);
@@ -217,8 +248,8 @@ EMSCRIPTEN_KEEPALIVE double pw_last_chunk(double frame) {
   return static_cast<double>(g->reader->metadata().frame_chunks(static_cast<std::uint64_t>(frame)).second);
 }
 
-// Decodes frame `frame` (forward from its keyframe, or on from the frame decoded last), keeping
-// the frame before it and the matching between the two, as the native stream does.
+// Decodes frame `frame` (kept already, on from the frame decoded last, or forward from its
+// keyframe), with the matching to the frame before it, as the native stream does.
 EMSCRIPTEN_KEEPALIVE int pw_decode(double frame) {
   return guarded([&] {
     const auto target = static_cast<std::uint64_t>(frame);
@@ -234,14 +265,19 @@ EMSCRIPTEN_KEEPALIVE const std::byte* pw_records() { return g->records; }
 // The frames pw_show(time) decodes: from pw_first_needed() to the frame after `time`'s (or its own).
 EMSCRIPTEN_KEEPALIVE double pw_first_needed(double time) {
   const format::Metadata& m = g->reader->metadata();
-  const std::uint64_t a = m.frame_between(time).first;
-  return static_cast<double>(first_to_decode(a));
+  const auto [a, fraction] = m.frame_between(time);
+  std::uint64_t first = first_to_decode(a);
+  // With `a` kept, its successor is decoded on from the frame decoded last, or from its keyframe.
+  if (fraction > 0 && a + 1 < m.frame_count() && first == a) first = std::min(first, first_to_decode(a + 1));
+  return static_cast<double>(first);
 }
 EMSCRIPTEN_KEEPALIVE double pw_last_needed(double time) {
   const format::Metadata& m = g->reader->metadata();
   const auto [a, fraction] = m.frame_between(time);
   return static_cast<double>(fraction > 0 && a + 1 < m.frame_count() ? a + 1 : a);
 }
+// The frames decoded since open, those on the way to the frames shown included.
+EMSCRIPTEN_KEEPALIVE double pw_frames_decoded() { return static_cast<double>(g->frames_decoded); }
 
 // The particles at `time` (seconds from the clip's first frame's time): the cached frame there, or
 // between the two around it, interpolated as the native player interpolates (playback.hpp:
