@@ -35,6 +35,62 @@ using namespace pstream;
 
 namespace {
 
+// A frame handed over as a dict of arrays (cook_particles, FrameSpool.add_frame): 'time' and
+// 'position', and optionally 'width', 'velocity', 'id' and 'color'. The arrays it views are made
+// C-contiguous float32 (uint64 for ids), converted where they are not, and kept alive in `keep`.
+cook::MemoryFrame memory_frame(const py::handle& item, const std::string& name, std::size_t index,
+                               std::vector<py::array>& keep) {
+  if (!py::isinstance<py::dict>(item))
+    throw Error(fmt::format("{}: frame {} is not a dict (time, position, and optionally width, velocity, id, color)",
+                            name, index));
+  const py::dict f = item.cast<py::dict>();
+  if (!f.contains("time") || !f.contains("position"))
+    throw Error(fmt::format("{}: frame {} needs 'time' (seconds) and 'position' (N x 3)", name, index));
+  const auto floats = [&](const char* key) -> std::span<const float> {
+    if (!f.contains(key) || f[key].is_none()) return {};
+    auto a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(f[key]);
+    if (!a) throw Error(fmt::format("{}: frame {}: '{}' is not an array of numbers", name, index, key));
+    keep.push_back(a);
+    return {a.data(), static_cast<std::size_t>(a.size())};
+  };
+  cook::MemoryFrame mf;
+  mf.time = f["time"].cast<double>();
+  mf.position = floats("position");
+  mf.count = mf.position.size() / 3;
+  mf.width = floats("width");
+  mf.velocity = floats("velocity");
+  mf.color = floats("color");
+  if (f.contains("id") && !f["id"].is_none()) {
+    auto a = py::array_t<std::uint64_t, py::array::c_style | py::array::forcecast>::ensure(f["id"]);
+    if (!a) throw Error(fmt::format("{}: frame {}: 'id' is not an array of whole numbers", name, index));
+    keep.push_back(a);
+    mf.id = {a.data(), static_cast<std::size_t>(a.size())};
+  }
+  return mf;
+}
+
+// cook::FrameSpool for Python: frames added one at a time, kept on disk until cook_particles().
+class PyFrameSpool {
+ public:
+  PyFrameSpool(const std::string& name, const std::optional<std::filesystem::path>& folder)
+      : name_(name), spool_(std::in_place, name, folder.value_or(std::filesystem::path{})) {}
+  cook::FrameSpool& spool() {
+    if (!spool_) throw Error(fmt::format("{}: the frame spool is closed", name_));
+    return *spool_;
+  }
+  void add(const py::object& frame) {
+    std::vector<py::array> keep;
+    const cook::MemoryFrame f = memory_frame(frame, name_, spool().frames(), keep);
+    py::gil_scoped_release release;  // the arrays stay alive in `keep`
+    spool().add(f);
+  }
+  void close() { spool_.reset(); }
+
+ private:
+  std::string name_;
+  std::optional<cook::FrameSpool> spool_;
+};
+
 // Names and messages as Python text: a name in a file need not be valid UTF-8, and an invalid
 // byte shows as \xNN instead of raising UnicodeDecodeError.
 py::str text(std::string_view s) {
@@ -375,10 +431,36 @@ PYBIND11_MODULE(particlestream, m) {
       "(--store-velocity: store the source's instead of deriving it from particles with ids). Returns the "
       "report (frames, particles, file_bytes, seconds).");
 
+  py::class_<PyFrameSpool>(
+      m, "FrameSpool",
+      "Frames added one at a time and kept on disk, not in memory, until cook_particles(spool, ...) cooks them: "
+      "for simulations larger than memory (the Blender add-on exports through one). The frames' arrays go to an "
+      "unnamed temporary file in `folder` (default: the system's temporary folder), which leaves nothing behind, "
+      "even when the process is killed; the spool itself holds 40 bytes a frame. Use it as a context manager, or "
+      "call close().")
+      .def(py::init<const std::string&, const std::optional<std::filesystem::path>&>(), py::arg("name") = "particles",
+           py::arg("folder") = py::none(),
+           "name: for messages about the frames; folder: where the temporary file lives (a disk with room for "
+           "about 40 bytes a particle a frame).")
+      .def("add_frame", &PyFrameSpool::add, py::arg("frame"),
+           "Checks and writes one frame: a dict as cook_particles takes ('time', 'position', and optionally "
+           "'width', 'velocity', 'id', 'color'), with the same attributes as the frames before it and a later "
+           "time. A refused frame leaves the spool as it was.")
+      .def(
+          "drop_ids", [](PyFrameSpool& s) { s.spool().drop_ids(); },
+          "Cook without the ids added (a mesh whose vertex count changes has vertex indices, not ids).")
+      .def_property_readonly("frames", [](PyFrameSpool& s) { return s.spool().frames(); })
+      .def_property_readonly(
+          "bytes", [](PyFrameSpool& s) { return s.spool().bytes(); }, "Bytes written to the temporary file so far.")
+      .def("close", &PyFrameSpool::close, "Releases the temporary file (its disk space).")
+      .def(
+          "__enter__", [](PyFrameSpool& s) -> PyFrameSpool& { return s; }, py::return_value_policy::reference)
+      .def("__exit__", [](PyFrameSpool& s, const py::args&) { s.close(); });
+
   m.def(
       "cook_particles",
       [cook_options, run_cook](
-          const py::sequence& frames, const std::filesystem::path& output, double fps, const std::string& name,
+          const py::object& frames, const std::filesystem::path& output, double fps, const std::string& name,
           const std::string& object, const std::string& codec, std::vector<std::string> attributes,
           const std::function<void(std::uint64_t, std::uint64_t)>& progress, const std::string& error,
           const std::string& scale_error, const std::string& attribute_error, const std::string& frame_range,
@@ -388,43 +470,16 @@ PYBIND11_MODULE(particlestream, m) {
             cook_options(output, 0.0, codec, std::move(attributes), error, scale_error, attribute_error, frame_range,
                          scale_from, color_from, velocity, keyframe_interval, drop_invalid, store_velocity);
         cook::MemoryClip clip;
-        clip.name = name;
-        clip.object = object;
-        clip.fps = fps;
-        // The arrays as C-contiguous float32 / uint64 (converted where they are not), kept alive here.
-        std::vector<py::array> keep;
-        const auto floats = [&](const py::dict& f, const char* key, std::size_t index) -> std::span<const float> {
-          if (!f.contains(key) || f[key].is_none()) return {};
-          auto a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(f[key]);
-          if (!a) throw Error(fmt::format("{}: frame {}: '{}' is not an array of numbers", name, index, key));
-          keep.push_back(a);
-          return {a.data(), static_cast<std::size_t>(a.size())};
-        };
-        for (std::size_t i = 0; i < frames.size(); ++i) {
-          const py::object item = frames[i];
-          if (!py::isinstance<py::dict>(item))
-            throw Error(
-                fmt::format("{}: frame {} is not a dict (time, position, and optionally width, velocity, id, "
-                            "color)",
-                            name, i));
-          const py::dict f = item.cast<py::dict>();
-          if (!f.contains("time") || !f.contains("position"))
-            throw Error(fmt::format("{}: frame {} needs 'time' (seconds) and 'position' (N x 3)", name, i));
-          cook::MemoryFrame mf;
-          mf.time = f["time"].cast<double>();
-          mf.position = floats(f, "position", i);
-          mf.count = mf.position.size() / 3;
-          mf.width = floats(f, "width", i);
-          mf.velocity = floats(f, "velocity", i);
-          mf.color = floats(f, "color", i);
-          if (f.contains("id") && !f["id"].is_none()) {
-            auto a = py::array_t<std::uint64_t, py::array::c_style | py::array::forcecast>::ensure(f["id"]);
-            if (!a) throw Error(fmt::format("{}: frame {}: 'id' is not an array of whole numbers", name, i));
-            keep.push_back(a);
-            mf.id = {a.data(), static_cast<std::size_t>(a.size())};
-          }
-          clip.frames.push_back(mf);
+        std::vector<py::array> keep;  // the arrays the frames view, converted where they had to be
+        if (py::isinstance<PyFrameSpool>(frames)) {
+          clip = frames.cast<PyFrameSpool&>().spool().clip(object, fps);
+        } else {
+          const py::sequence list = frames.cast<py::sequence>();
+          for (std::size_t i = 0; i < list.size(); ++i) clip.frames.push_back(memory_frame(list[i], name, i, keep));
+          clip.object = object;
+          clip.fps = fps;
         }
+        clip.name = name;
         return run_cook([&](const auto& report) { return cook::cook(o, clip, report); }, progress);
       },
       py::arg("frames"), py::arg("output"), py::arg("fps") = 24.0, py::arg("name") = "particles",
@@ -435,7 +490,8 @@ PYBIND11_MODULE(particlestream, m) {
       py::arg("keyframe_interval") = format::kDefaultKeyframeInterval, py::arg("drop_invalid") = false,
       py::arg("store_velocity") = false,
       "Cooks particles held in memory (a DCC's evaluated particles, a script's simulation) into a .pstream, as "
-      "cook() cooks a file. frames: a sequence of dicts, one per frame in increasing time, each with 'time' "
+      "cook() cooks a file. frames: a FrameSpool, or a sequence of dicts, one per frame in increasing time, each with "
+      "'time' "
       "(seconds) and 'position' (N x 3), and optionally 'width' (N, diameters: the record's scale is half), "
       "'velocity' (N x 3, units per second), 'id' (N, stable across frames: matching and derived velocity need "
       "them) and 'color' (N x 4, linear RGBA in 0..1); an attribute is in every frame with particles or in none. "

@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 #include <hwy/targets.h>
 
+#include "alloc_counter.hpp"
 #include "cook/source.hpp"  // to_unorm8: the colour rule every source keeps
 #include "particlestream/alembic.hpp"
 #include "particlestream/alembic_writer.hpp"
@@ -608,33 +609,46 @@ namespace {
 // Particles handed over in memory (cook.hpp: MemoryClip) cook as a file does: every record equals
 // what was handed over (raw records: positions exact, scale half the width, colours as RGBA8, ids),
 // births and deaths included; inconsistent arrays are refused naming the frame and the array.
-TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
-  constexpr std::size_t kFrames = 12;
-  std::vector<std::vector<float>> position(kFrames), width(kFrames), velocity(kFrames), color(kFrames);
-  std::vector<std::vector<std::uint64_t>> id(kFrames);
+// Twelve frames of particles whose ids come and go (births and deaths), every array filled; the
+// clip's spans view the arrays held here.
+struct MemoryTestClip {
+  static constexpr std::size_t kFrames = 12;
+  std::vector<std::vector<float>> position{kFrames}, width{kFrames}, velocity{kFrames}, color{kFrames};
+  std::vector<std::vector<std::uint64_t>> id{kFrames};
   pstream::cook::MemoryClip clip;
-  clip.name = "memory test";
-  clip.fps = 24;
-  for (std::size_t f = 0; f < kFrames; ++f) {
-    const std::uint64_t first = f * 10, n = 50 + f * 5;  // ids [first, first + n): births and deaths
-    for (std::uint64_t i = first; i < first + n; ++i) {
-      const float t = float(f) / 24.0f, a = float(i) * 0.37f;
-      position[f].insert(position[f].end(), {std::cos(a) + t, std::sin(a) - t * t, float(i % 7) * 0.1f});
-      width[f].push_back(0.01f + float(i % 5) * 0.002f);
-      velocity[f].insert(velocity[f].end(), {1.0f, -2.0f * t, 0.0f});
-      color[f].insert(color[f].end(), {float(i % 3) / 2.0f, 0.5f, 1.0f, 1.0f});
-      id[f].push_back(i);
+  MemoryTestClip() {
+    clip.name = "memory test";
+    clip.fps = 24;
+    for (std::size_t f = 0; f < kFrames; ++f) {
+      const std::uint64_t first = f * 10, n = 50 + f * 5;  // ids [first, first + n): births and deaths
+      for (std::uint64_t i = first; i < first + n; ++i) {
+        const float t = float(f) / 24.0f, a = float(i) * 0.37f;
+        position[f].insert(position[f].end(), {std::cos(a) + t, std::sin(a) - t * t, float(i % 7) * 0.1f});
+        width[f].push_back(0.01f + float(i % 5) * 0.002f);
+        velocity[f].insert(velocity[f].end(), {1.0f, -2.0f * t, 0.0f});
+        color[f].insert(color[f].end(), {float(i % 3) / 2.0f, 0.5f, 1.0f, 1.0f});
+        id[f].push_back(i);
+      }
+      pstream::cook::MemoryFrame mf;
+      mf.time = double(f + 1) / 24.0;
+      mf.count = n;
+      mf.position = position[f];
+      mf.width = width[f];
+      mf.velocity = velocity[f];
+      mf.id = id[f];
+      mf.color = color[f];
+      clip.frames.push_back(mf);
     }
-    pstream::cook::MemoryFrame mf;
-    mf.time = double(f + 1) / 24.0;
-    mf.count = n;
-    mf.position = position[f];
-    mf.width = width[f];
-    mf.velocity = velocity[f];
-    mf.id = id[f];
-    mf.color = color[f];
-    clip.frames.push_back(mf);
   }
+  MemoryTestClip(const MemoryTestClip&) = delete;  // the spans view this object's arrays
+};
+
+TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
+  const MemoryTestClip source;
+  constexpr std::size_t kFrames = MemoryTestClip::kFrames;
+  const pstream::cook::MemoryClip& clip = source.clip;
+  const auto &position = source.position, &width = source.width, &velocity = source.velocity, &color = source.color;
+  const auto& id = source.id;
   const auto dir = pstream::test::fresh_dir();
   pstream::cook::Options o;
   o.output = dir / "memory.pstream";
@@ -698,6 +712,118 @@ TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
   backwards.frames[7].time = backwards.frames[6].time;
   refused(backwards, "memory test: frame 7 is at time");
   refused(pstream::cook::MemoryClip{"nothing", "", 24.0, {}}, "nothing: no frames to cook");
+}
+
+// The particle codec encodes a keyframe group a thread; Options::group_memory bounds how many
+// groups' frames are held at once. One group at a time (a budget smaller than a group) or one a
+// thread, the clip is the same bytes.
+TEST(Cook, GroupsInFlightFitTheMemoryGivenAndTheClipIsTheSame) {
+  const auto dir = pstream::test::fresh_dir();
+  pstream::cook::Options o;
+  o.input = pstream::test::data_path("sims/blender_sparks.abc");
+  o.threads = 2;
+  o.particle.keyframe_interval = 8;  // 6 groups of the 48 frames
+  o.output = dir / "threads.pstream";
+  const pstream::cook::Report wide = pstream::cook::cook(o);
+  EXPECT_EQ(wide.groups_in_flight, 2u);
+  o.group_memory = 1;  // less than one group: one at a time
+  o.output = dir / "one.pstream";
+  const pstream::cook::Report narrow = pstream::cook::cook(o);
+  EXPECT_EQ(narrow.groups_in_flight, 1u);
+  EXPECT_EQ(pstream::test::read_bytes((dir / "one.pstream").string()),
+            pstream::test::read_bytes((dir / "threads.pstream").string()));
+  EXPECT_EQ(narrow.keyframes, 6u);
+}
+
+// Frames spooled to disk one at a time (cook.hpp: FrameSpool) cook into the very bytes the same
+// frames cook into from memory; the spool holds none of a frame's arrays in memory (one
+// allocation at most for a million particles), leaves no file in its folder at any time, refuses
+// a frame that does not fit those before it without changing, and can leave the ids out.
+TEST(Cook, FromASpoolTheSameBytesAsFromMemoryAndNoFileLeft) {
+  const MemoryTestClip source;
+  const auto dir = pstream::test::fresh_dir();
+  const auto spool_dir = dir / "spool";
+  std::filesystem::create_directories(spool_dir);
+  const auto files_in = [](const std::filesystem::path& folder) {
+    return std::distance(std::filesystem::directory_iterator(folder), std::filesystem::directory_iterator{});
+  };
+  pstream::cook::Options o;
+  o.output = dir / "memory.pstream";
+  o.attributes = {"id"};
+  pstream::cook::cook(o, source.clip);
+  {
+    pstream::cook::FrameSpool spool("memory test", spool_dir);
+    for (const pstream::cook::MemoryFrame& f : source.clip.frames) spool.add(f);
+    EXPECT_EQ(spool.frames(), MemoryTestClip::kFrames);
+    EXPECT_EQ(files_in(spool_dir), 0) << "the spool's temporary has a name in its folder";
+    o.output = dir / "spool.pstream";
+    pstream::cook::cook(o, spool.clip("", 24.0));
+    EXPECT_EQ(pstream::test::read_bytes((dir / "spool.pstream").string()),
+              pstream::test::read_bytes((dir / "memory.pstream").string()));
+
+    // Refused: named, and the spool is as it was (the next frame still fits).
+    const auto refused = [&](pstream::cook::MemoryFrame bad, const std::string& expected) {
+      const std::uint64_t frames = spool.frames(), bytes = spool.bytes();
+      try {
+        spool.add(bad);
+        ADD_FAILURE() << "accepted; expected: " << expected;
+      } catch (const pstream::Error& e) {
+        EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+      }
+      EXPECT_EQ(spool.frames(), frames);
+      EXPECT_EQ(spool.bytes(), bytes);
+    };
+    pstream::cook::MemoryFrame next = source.clip.frames.back();
+    next.time += 1.0 / 24.0;
+    auto no_color = next;
+    no_color.color = {};
+    refused(no_color, "memory test: frame 12 has no color array, but other frames have one");
+    auto early = next;
+    early.time = 0.0;
+    refused(early, "memory test: frame 12 is at time 0 s, after frame 11 at 0.5 s: times must increase");
+    auto short_width = next;
+    short_width.width = short_width.width.first(3);
+    refused(short_width, "memory test: frame 12: the width array holds 3 values, expected 105 (105 particles x 1)");
+    spool.add(next);
+    EXPECT_EQ(spool.frames(), MemoryTestClip::kFrames + 1);
+
+    // Without ids: the clip made from the spool has none, so the cook orders nothing by them.
+    spool.drop_ids();
+    const pstream::cook::MemoryClip without = spool.clip("", 24.0);
+    for (const pstream::cook::MemoryFrame& f : without.frames) EXPECT_TRUE(f.id.empty());
+    o.output = dir / "no_ids.pstream";
+    o.attributes = {};
+    pstream::cook::cook(o, without);
+    EXPECT_EQ(pstream::format::Reader::open(o.output).metadata().find("id"), nullptr);
+  }
+  EXPECT_EQ(files_in(spool_dir), 0);
+
+  // A million particles a frame: written, not kept.
+  {
+    constexpr std::uint64_t kCount = 1'000'000;
+    std::vector<float> big(kCount * 3, 0.5f);
+    pstream::cook::MemoryFrame f;
+    f.count = kCount;
+    f.position = big;
+    pstream::cook::FrameSpool spool("big", spool_dir);
+    spool.add(f);  // the entries' first room
+    f.time = 1.0;
+    const std::uint64_t before = pstream::test::allocation_count();
+    spool.add(f);
+    EXPECT_LE(pstream::test::allocation_count() - before, 1u);
+    EXPECT_EQ(spool.bytes(), 2 * kCount * 12);
+  }
+  EXPECT_EQ(files_in(spool_dir), 0);
+
+  // A folder that is not there.
+  try {
+    pstream::cook::FrameSpool spool("x", dir / "missing");
+    ADD_FAILURE() << "a spool in a missing folder";
+  } catch (const pstream::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("missing: cannot make the frame spool's temporary file there"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 }  // namespace

@@ -102,6 +102,7 @@ int run_cook(const CookCli& cli) {
       j["keyframes"] = r.keyframes;
       j["bytes_per_particle"] = r.particles ? double(r.file_bytes) / double(r.particles) : 0.0;
       j["match_rate"] = r.predictable ? double(r.matched) / double(r.predictable) : 1.0;
+      j["groups_in_flight"] = r.groups_in_flight;
     }
     fmt::print("{}\n", j.dump());
     return 0;

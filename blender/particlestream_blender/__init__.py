@@ -122,10 +122,14 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
     fps = scene.render.fps / scene.render.fps_base
     wm = context.window_manager
     total = frame_end - frame_start + 1
-    frames, counts = [], set()
+    counts = set()
     # Vertices (no particle systems): their indices are ids only while the count holds.
     from_particles = len(obj.particle_systems) > 0
     current = scene.frame_current
+    name = f"Blender {os.path.basename(bpy.data.filepath) or 'untitled'}: {obj.name}"
+    # Each frame goes to disk as it is read (an unnamed temporary beside the clip), so a long,
+    # large simulation needs disk for its frames, not memory.
+    spool = ps.FrameSpool(name, os.path.dirname(os.path.abspath(filepath)))
     wm.progress_begin(0, 2 * total)
     try:
         for k, f in enumerate(range(frame_start, frame_end + 1)):
@@ -138,23 +142,22 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             if "velocity" in frame:
                 frame["velocity"] = to_y_up(frame["velocity"])
             counts.add(len(frame["position"]))
-            frames.append(frame)
+            spool.add_frame(frame)
             wm.progress_update(k + 1)
             if report:
                 report(k + 1, total, "frames read")
         if not from_particles and len(counts) > 1:
-            for frame in frames:
-                frame.pop("id", None)
+            spool.drop_ids()
 
         def progress(done, count):
             wm.progress_update(total + done)
             if report:
                 report(done, count, "frames cooked")
 
-        name = f"Blender {os.path.basename(bpy.data.filepath) or 'untitled'}: {obj.name}"
-        return ps.cook_particles(frames, filepath, fps=fps, name=name, object=obj.name, codec=codec, error=error,
+        return ps.cook_particles(spool, filepath, fps=fps, name=name, object=obj.name, codec=codec, error=error,
                                  attributes=["id"] if ids else [], progress=progress)
     finally:
+        spool.close()
         wm.progress_end()
         scene.frame_set(current)
 

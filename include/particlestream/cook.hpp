@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -50,6 +51,10 @@ struct Options {
   std::uint64_t max_particles = 64ull << 20;     // per frame; a larger frame is refused before it is read
   std::uint64_t max_frames = kDefaultMaxFrames;  // a plan of more output frames is refused (a wrong fps?)
   unsigned threads = 0;                          // chunk encoders; 0: one per core
+  // The particle codec encodes a keyframe group at a time, one a thread, each holding its frames'
+  // records and ids: no more groups at once than fit in this many bytes (one at least). 0: half
+  // the machine's memory.
+  std::uint64_t group_memory = 0;
 };
 
 // Sets how frames are stored from a spec: "particle[:LEVEL]" or "particle-lossless[:LEVEL]" (the
@@ -104,6 +109,9 @@ struct Report {
   double error = 0.0;
   std::uint64_t keyframes = 0, matched = 0, predictable = 0;
   format::FrameOrder order = format::FrameOrder::Source;
+  // Keyframe groups encoded at once: one a thread, fewer where their frames would take more than
+  // half the machine's memory (each holds keyframe_interval frames of records and ids).
+  unsigned groups_in_flight = 0;
 };
 
 // Cooks `options.input` into `options.output`. Throws pstream::Error naming the input, the
@@ -152,6 +160,45 @@ struct MemoryClip {
 // merge and interpolate applies). Throws pstream::Error naming the clip, the frame and the array
 // that is wrong (a size that is not count × components, a NaN, an attribute in some frames only).
 Report cook(const Options& options, const MemoryClip& clip, const std::function<void(const Progress&)>& progress = {});
+
+// Frames handed over one at a time and kept on disk, not in memory, until they are cooked: for a
+// clip larger than memory (the Blender add-on exports through one). Each frame's arrays go to an
+// unnamed temporary file in `folder` (O_TMPFILE; on a file system without it, a file removed as
+// soon as it is made), which the system reclaims when the spool ends, even when the process is
+// killed: nothing is left behind. The spool's memory is 40 bytes a frame; clip() maps the file.
+//
+//   cook::FrameSpool spool("my sim", output.parent_path());
+//   for (...) spool.add(frame);      // the frame's arrays are free again once add() returns
+//   cook::cook(options, spool.clip("particles", 24.0));
+class FrameSpool {
+ public:
+  // `name` names the frames in add()'s errors and the clip; `folder` empty: the system's temporary
+  // folder ($TMPDIR, else /tmp). Throws pstream::Error naming the folder when no file can be made
+  // there.
+  explicit FrameSpool(std::string name = "particles", const std::filesystem::path& folder = {});
+  ~FrameSpool();
+  FrameSpool(FrameSpool&& other) noexcept;
+  FrameSpool& operator=(FrameSpool&& other) noexcept;
+  FrameSpool(const FrameSpool&) = delete;
+  FrameSpool& operator=(const FrameSpool&) = delete;
+
+  // Checks `frame` as cook() checks a MemoryClip's frames (each array count x components values,
+  // the attributes of the frames before it that hold particles, a time after theirs), then writes
+  // its arrays. Every write is checked: a full disk throws, naming the folder. A refused frame
+  // leaves the spool as it was.
+  void add(const MemoryFrame& frame);
+  // Leaves the ids out of clip(): a mesh whose vertex count changes has vertex indices, not ids.
+  void drop_ids();
+  std::uint64_t frames() const;
+  std::uint64_t bytes() const;  // written to the temporary so far
+  // The frames as a MemoryClip whose arrays are views of the mapped temporary: valid until the
+  // next add() or the spool's end.
+  MemoryClip clip(std::string object = {}, double fps = 24.0);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
 
 // Whether cook() reads `path` as a PLY sequence (its extension is .ply, in any case) rather than
 // an Alembic archive.

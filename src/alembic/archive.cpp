@@ -1,7 +1,5 @@
 // Opening an archive: the root group, archive metadata, time samplings, the indexed-metadata
 // table and the object hierarchy with every property header.
-#include <unistd.h>
-
 #include <algorithm>
 #include <cstdlib>
 #include <limits>
@@ -11,15 +9,10 @@
 
 #include "alembic/archive_data.hpp"
 #include "alembic/layout.hpp"
+#include "base/memory.hpp"
 
 namespace pstream::alembic {
 namespace {
-
-// The machine's memory in bytes (the most when it cannot be told).
-std::uint64_t physical_memory() {
-  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
-  return pages > 0 && page > 0 ? std::uint64_t(pages) * std::uint64_t(page) : UINT64_MAX;
-}
 
 using detail::ArchiveData;
 using detail::ObjectNode;
@@ -289,10 +282,10 @@ Archive Archive::open(std::unique_ptr<io::ByteSource> source, const Fetched& fet
   // One allocation, not filled first: its pages are taken as the reads fill them, so a source
   // that claims more than it delivers costs the bytes that came.
   const std::uint64_t size = source->size();
-  const std::uint64_t memory = physical_memory();
-  if (size > memory) {
+  const std::uint64_t machine = memory::physical_memory();
+  if (size > machine) {
     throw Error(fmt::format("{}: the archive is {} bytes; it is read whole into memory, and this machine has {}",
-                            source->name(), size, memory));
+                            source->name(), size, machine));
   }
   std::unique_ptr<std::byte[]> bytes = std::make_unique_for_overwrite<std::byte[]>(size);
   constexpr std::uint64_t kPiece = std::uint64_t{8} << 20;

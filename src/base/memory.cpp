@@ -6,6 +6,8 @@
 #include <cstring>
 #include <mutex>
 
+#include <unistd.h>
+
 namespace pstream::memory {
 namespace {
 
@@ -83,5 +85,10 @@ void deallocate(void* block) noexcept {
 }
 
 std::uint64_t live_blocks() noexcept { return g_live.load(std::memory_order_relaxed); }
+
+std::uint64_t physical_memory() noexcept {
+  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && page > 0 ? std::uint64_t(pages) * std::uint64_t(page) : UINT64_MAX;
+}
 
 }  // namespace pstream::memory

@@ -32,4 +32,8 @@ void deallocate(void* block) noexcept;  // null is ignored
 // What the current process has allocated through here and not freed (blocks), for tests.
 std::uint64_t live_blocks() noexcept;
 
+// The machine's memory in bytes (UINT64_MAX when it cannot be told): what work that would hold
+// more than the machine has is measured against.
+std::uint64_t physical_memory() noexcept;
+
 }  // namespace pstream::memory

@@ -10,6 +10,7 @@
 
 #include <fmt/format.h>
 
+#include "base/memory.hpp"
 #include "base/output_file.hpp"
 #include "cook/chunk_cutter.hpp"
 #include "cook/direct_pack.hpp"
@@ -402,10 +403,12 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   state.stage = Stage::Scan;
   format::ClipStats stats(plan.layout);
   const std::uint64_t dropped_before = report.dropped_invalid;  // counted by the encoding pass
+  std::uint64_t most = 0;                                       // particles in the largest frame
   for (std::uint64_t k = 0; k < frames; ++k) {
     read(k, frame);
     hold(frame, plan, held);
     stats.add(held.records, held.count);
+    most = std::max(most, held.count);
     state.frames_done = k + 1;
     if (progress) progress(state);
   }
@@ -421,6 +424,13 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   format::Writer writer(options.output, meta, source.files());
   SpaceCheck space(options.output, frames);
   const std::uint64_t K = meta.codec.keyframe_interval;
+  // A group in flight holds its frames' records and ids: as many groups at once as threads, but no
+  // more than fit in Options::group_memory (one at least: the codec encodes a group whole).
+  const std::uint64_t group_bytes = K * most * (plan.record_size + sizeof(std::uint64_t));
+  const std::uint64_t budget = options.group_memory ? options.group_memory : memory::physical_memory() / 2;
+  threads =
+      static_cast<unsigned>(std::clamp<std::uint64_t>(budget / std::max<std::uint64_t>(group_bytes, 1), 1, threads));
+  report.groups_in_flight = threads;
   std::vector<std::vector<HeldFrame>> groups;
   std::vector<std::uint64_t> starts;  // each group's first frame
   std::vector<HeldFrame> tail;        // the last two frames before a batch, oldest first

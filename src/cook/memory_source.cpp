@@ -24,26 +24,19 @@ class MemorySource final : public Source {
     // An attribute is in the clip when a frame with particles has it; then every such frame must.
     for (const MemoryFrame& f : clip.frames) {
       if (f.count == 0) continue;
-      has_width_ = has_width_ || !f.width.empty();
-      has_velocity_ = has_velocity_ || !f.velocity.empty();
-      has_id_ = has_id_ || !f.id.empty();
-      has_color_ = has_color_ || !f.color.empty();
+      const MemoryAttributes a = attributes_of(f);
+      has_.width = has_.width || a.width;
+      has_.velocity = has_.velocity || a.velocity;
+      has_.id = has_.id || a.id;
+      has_.color = has_.color || a.color;
     }
     for (std::size_t i = 0; i < clip.frames.size(); ++i) {
       const MemoryFrame& f = clip.frames[i];
-      if (!std::isfinite(f.time) || (i > 0 && !(f.time > clip.frames[i - 1].time))) {
-        throw Error(fmt::format("{}: frame {} is at time {} s, after frame {} at {} s: times must increase", name, i,
-                                f.time, i - 1, i > 0 ? clip.frames[i - 1].time : 0.0));
-      }
+      check_memory_frame(name, i, f, has_, i > 0 ? clip.frames[i - 1].time : std::nan(""));
       if (f.count > options.max_particles) {
         throw OptionError("max_particles", fmt::format("{}: frame {} has {} particles, more than `max_particles`, {}",
                                                        name, i, f.count, options.max_particles));
       }
-      check(i, "position", f.position.size(), 3, true);
-      check(i, "width", f.width.size(), 1, has_width_);
-      check(i, "velocity", f.velocity.size(), 3, has_velocity_);
-      check(i, "id", f.id.size(), 1, has_id_);
-      check(i, "color", f.color.size(), 4, has_color_);
       bytes_ += (f.position.size() + f.width.size() + f.velocity.size() + f.color.size()) * 4 + f.id.size() * 8;
     }
   }
@@ -54,10 +47,10 @@ class MemorySource final : public Source {
   double start_time() const override { return clip_.frames.front().time; }
   double end_time() const override { return clip_.frames.back().time; }
   std::uint64_t input_bytes() const override { return bytes_; }
-  bool has_widths() const override { return has_width_; }
-  bool has_color() const override { return has_color_; }
-  bool has_velocity() const override { return has_velocity_; }
-  bool has_ids() const override { return has_id_; }
+  bool has_widths() const override { return has_.width; }
+  bool has_color() const override { return has_.color; }
+  bool has_velocity() const override { return has_.velocity; }
+  bool has_ids() const override { return has_.id; }
   std::string why_no_ids() const override { return clip_.name + " has no particle ids"; }
   bool can_interpolate() const override { return false; }
   std::string why_no_interpolation() const override {
@@ -95,7 +88,7 @@ class MemorySource final : public Source {
     ensure_size(out.scale, out.count);
     for (std::uint64_t i = 0; i < n; ++i) {
       out.scale[base + i] =
-          request.scale_from == ScaleFrom::Widths && has_width_ ? scale_from_width(f.width[i]) : request.scale_constant;
+          request.scale_from == ScaleFrom::Widths && has_.width ? scale_from_width(f.width[i]) : request.scale_constant;
     }
     if (request.color) {
       ensure_size(out.color, out.count * 4);
@@ -112,20 +105,6 @@ class MemorySource final : public Source {
   }
 
  private:
-  void check(std::size_t frame, const char* what, std::size_t size, std::size_t components, bool present) const {
-    const MemoryFrame& f = clip_.frames[frame];
-    const std::size_t want = present ? f.count * components : 0;
-    if (size == want) return;
-    if (present && size == 0) {
-      throw Error(
-          fmt::format("{}: frame {} has no {} array, but other frames have one: an attribute must be in "
-                      "every frame with particles or in none",
-                      clip_.name, frame, what));
-    }
-    throw Error(fmt::format("{}: frame {}: the {} array holds {} values, expected {} ({} particles x {})", clip_.name,
-                            frame, what, size, want, f.count, components));
-  }
-
   // The frame nearest `time` (the earlier one on a tie).
   std::size_t nearest(double time) const {
     const auto& frames = clip_.frames;
@@ -138,11 +117,50 @@ class MemorySource final : public Source {
   }
 
   const MemoryClip& clip_;
-  bool has_width_ = false, has_velocity_ = false, has_id_ = false, has_color_ = false;
+  MemoryAttributes has_;
   std::uint64_t bytes_ = 0;
 };
 
+// One array's size against count x components (none when the clip lacks the attribute).
+void check_array(const std::string& name, std::size_t index, const MemoryFrame& f, const char* what, std::size_t size,
+                 std::size_t components, bool present) {
+  const std::size_t want = present ? f.count * components : 0;
+  if (size == want) return;
+  if (present && size == 0) {
+    throw Error(
+        fmt::format("{}: frame {} has no {} array, but other frames have one: an attribute must be in "
+                    "every frame with particles or in none",
+                    name, index, what));
+  }
+  if (!present && f.count > 0) {
+    throw Error(
+        fmt::format("{}: frame {} has a {} array, but the frames before it with particles have none: an "
+                    "attribute must be in every frame with particles or in none",
+                    name, index, what));
+  }
+  throw Error(fmt::format("{}: frame {}: the {} array holds {} values, expected {} ({} particles x {})", name, index,
+                          what, size, want, f.count, components));
+}
+
 }  // namespace
+
+MemoryAttributes attributes_of(const MemoryFrame& frame) {
+  return {!frame.width.empty(), !frame.velocity.empty(), !frame.id.empty(), !frame.color.empty()};
+}
+
+void check_memory_frame(const std::string& name, std::size_t index, const MemoryFrame& f, const MemoryAttributes& has,
+                        double previous_time) {
+  if (!std::isfinite(f.time) || (index > 0 && !(f.time > previous_time))) {
+    throw Error(index == 0 ? fmt::format("{}: frame 0 is at time {} s: times are finite seconds", name, f.time)
+                           : fmt::format("{}: frame {} is at time {} s, after frame {} at {} s: times must increase",
+                                         name, index, f.time, index - 1, previous_time));
+  }
+  check_array(name, index, f, "position", f.position.size(), 3, true);
+  check_array(name, index, f, "width", f.width.size(), 1, has.width);
+  check_array(name, index, f, "velocity", f.velocity.size(), 3, has.velocity);
+  check_array(name, index, f, "id", f.id.size(), 1, has.id);
+  check_array(name, index, f, "color", f.color.size(), 4, has.color);
+}
 
 std::unique_ptr<Source> open_memory(const Options& options, const MemoryClip& clip) {
   return std::make_unique<MemorySource>(options, clip);

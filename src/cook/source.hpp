@@ -99,6 +99,17 @@ class Source {
   virtual bool read_direct(double /*time*/, const Request& /*request*/, DirectFrame& /*out*/) { return false; }
 };
 
+// Which of a MemoryFrame's optional arrays a clip holds: those of its frames with particles.
+struct MemoryAttributes {
+  bool width = false, velocity = false, id = false, color = false;
+};
+MemoryAttributes attributes_of(const MemoryFrame& frame);  // its non-empty arrays
+// Throws pstream::Error naming `name`, frame `index` and what is wrong when the frame's time is
+// not finite or not after `previous_time` (NaN for the first frame), or an array does not hold
+// count x components values for an attribute of `has` (none for the others).
+void check_memory_frame(const std::string& name, std::size_t index, const MemoryFrame& frame,
+                        const MemoryAttributes& has, double previous_time);
+
 // `progress` hears of a URL's fetch (Stage::Fetch).
 std::unique_ptr<Source> open_alembic(const Options& options, const std::function<void(const Progress&)>& progress = {});
 std::unique_ptr<Source> open_ply_sequence(const Options& options);

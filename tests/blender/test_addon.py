@@ -64,6 +64,8 @@ settings.use_rotations = False
 clip_path = str(work / "sparks.pstream")
 result = bpy.ops.pstream.export(filepath=clip_path, frame_start=1, frame_end=30, ids=True)
 check(result == {"FINISHED"}, f"export: {result}")
+# The frames went through a spool on disk beside the clip: nothing of it is left.
+check(sorted(os.listdir(work)) == ["sparks.pstream"], f"the export's folder holds {sorted(os.listdir(work))}")
 clip = ps.Clip(clip_path)
 check(clip.frame_count == 30, f"{clip.frame_count} frames, expected 30")
 check(abs(clip.fps - 24) < 1e-9, f"fps {clip.fps}")

@@ -548,6 +548,53 @@ def test_cook_particles_cooks_arrays_as_a_file_and_names_what_is_wrong(tmp_path)
         ps.cook_particles([{"position": frames[0]["position"]}], tmp_path / "bad.pstream")
 
 
+def test_frame_spool_cooks_the_same_clip_and_leaves_no_file(tmp_path):
+    """FrameSpool: frames added one at a time go to disk, not memory, and cook_particles(spool)
+    writes the very bytes cook_particles(list) writes from the same frames; nothing appears in
+    the spool's folder while it lives or after; a bad frame is refused by name and the spool goes
+    on; drop_ids() cooks without the ids."""
+    frames = []
+    for f in range(10):
+        ids = np.arange(f * 3, f * 3 + 40, dtype=np.uint64)
+        pos = np.stack([np.cos(ids * 0.3), np.sin(ids * 0.3) + f * 0.01, ids * 0.001], axis=1).astype(np.float32)
+        frames.append({"time": (f + 1) / 24, "position": pos, "id": ids, "width": np.full(len(ids), 0.04),
+                       "velocity": np.tile([0.0, 0.24, 0.0], (len(ids), 1))})
+    folder = tmp_path / "spool"
+    folder.mkdir()
+    ps.cook_particles(frames, tmp_path / "list.pstream", fps=24, name="sim", attributes=["id"])
+    with ps.FrameSpool("sim", folder) as spool:
+        for frame in frames:
+            spool.add_frame(frame)
+        assert spool.frames == 10
+        # position, width and velocity as float32, ids as uint64, each padded to 8 bytes
+        assert spool.bytes == sum(40 * 12 + 40 * 4 + 40 * 12 + 40 * 8 for _ in frames)
+        assert list(folder.iterdir()) == []
+        report = ps.cook_particles(spool, tmp_path / "spool.pstream", fps=24, name="sim", attributes=["id"])
+        assert report["frames"] == 10
+        assert (tmp_path / "spool.pstream").read_bytes() == (tmp_path / "list.pstream").read_bytes()
+        late = dict(frames[-1], time=0.0)
+        with pytest.raises(ps.Error, match="sim: frame 10 is at time 0 s, after frame 9 at"):
+            spool.add_frame(late)
+        no_width = dict(frames[-1], time=1.0)
+        del no_width["width"]
+        with pytest.raises(ps.Error, match="sim: frame 10 has no width array, but other frames have one"):
+            spool.add_frame(no_width)
+        assert spool.frames == 10
+        # Ids not stored still order the frames and give the velocity; dropped, they do neither.
+        ps.cook_particles(spool, tmp_path / "ids.pstream", fps=24, name="sim")
+        spool.drop_ids()
+        ps.cook_particles(spool, tmp_path / "no_ids.pstream", fps=24, name="sim")
+        assert (tmp_path / "no_ids.pstream").read_bytes() != (tmp_path / "ids.pstream").read_bytes()
+        ps.cook_particles([{k: v for k, v in f.items() if k != "id"} for f in frames], tmp_path / "list_no_ids.pstream",
+                          fps=24, name="sim")
+        assert (tmp_path / "no_ids.pstream").read_bytes() == (tmp_path / "list_no_ids.pstream").read_bytes()
+    assert list(folder.iterdir()) == []
+    with pytest.raises(ps.Error, match="closed"):
+        spool.add_frame(frames[0])
+    with pytest.raises(ps.Error, match="cannot make the frame spool's temporary file there"):
+        ps.FrameSpool("sim", tmp_path / "missing")
+
+
 def run_bench_script(script, *args):
     """Runs bench/SCRIPT with ARGS under this Python; returns the finished process (output as text)."""
     import subprocess
