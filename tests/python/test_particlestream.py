@@ -504,6 +504,7 @@ def test_type_stubs_describe_the_module():
             continue
         cls = getattr(ps, name)
         runtime = {m for m in dir(cls) if not m.startswith("_")} | {"__init__"}
+        runtime |= {m for m in ("__enter__", "__exit__") if hasattr(cls, m)}  # a context manager's
         assert runtime == members, (name, runtime ^ members)
         for node in next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name).body:
             if not isinstance(node, ast.FunctionDef) or node.decorator_list or node.name == "__init__":
