@@ -253,8 +253,37 @@ def _on_frame_change(scene, depsgraph=None):
                 print(f"ParticleStream: {obj.name}: {e}")
 
 
+_POINTS_GROUP = "ParticleStream points"
+def _points_group():
+    """Geometry Nodes that draw the preview's vertices as points: Mesh to Points, each point's radius
+    the 'radius' attribute (the clip's scale). One group, shared by the previews."""
+    tree = bpy.data.node_groups.get(_POINTS_GROUP)
+    if tree is not None:
+        return tree
+    tree = bpy.data.node_groups.new(_POINTS_GROUP, "GeometryNodeTree")
+    if hasattr(tree, "interface"):  # Blender 4
+        tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+        tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    else:
+        tree.inputs.new("NodeSocketGeometry", "Geometry")
+        tree.outputs.new("NodeSocketGeometry", "Geometry")
+    nodes, links = tree.nodes, tree.links
+    given, result = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    radius = nodes.new("GeometryNodeInputNamedAttribute")
+    radius.data_type = "FLOAT"
+    radius.inputs["Name"].default_value = "radius"
+    points = nodes.new("GeometryNodeMeshToPoints")
+    links.new(given.outputs[0], points.inputs["Mesh"])
+    links.new(next(o for o in radius.outputs if o.type == "VALUE" and o.enabled), points.inputs["Radius"])
+    links.new(points.outputs["Points"], result.inputs[0])
+    for k, node in enumerate((given, radius, points, result)):
+        node.location = (200 * k, 0)
+    return tree
+
+
 def import_clip(context, filepath):
-    """A mesh object previewing the clip at `filepath`; returns it."""
+    """A mesh object previewing the clip at `filepath`, its vertices drawn as points of the clip's
+    sizes by a Geometry Nodes modifier; returns it and the clip."""
     clip = _clip(filepath)
     name = os.path.splitext(os.path.basename(filepath))[0]
     mesh = bpy.data.meshes.new(name)
@@ -262,6 +291,10 @@ def import_clip(context, filepath):
     obj["pstream_path"] = filepath
     context.collection.objects.link(obj)
     update_preview(obj, context.scene)
+    names = [a[0] for a in clip.layout]
+    if "scale" in names:
+        modifier = obj.modifiers.new(_POINTS_GROUP, "NODES")
+        modifier.node_group = _points_group()
     return obj, clip
 
 

@@ -134,6 +134,20 @@ for k in range(30):
     mesh.attributes["radius"].data.foreach_get("value", radius)
     check(np.array_equal(radius, records["scale"]), f"frame {k + 1}: radius differs from the clip's scale")
 print("import: the preview mesh equals the clip at all 30 frames")
+# Drawn as points: the Geometry Nodes modifier turns the vertices into a point cloud whose radii are
+# the clip's scales.
+scene.frame_set(20)
+records = clip.read_frame(19)
+depsgraph = bpy.context.evaluated_depsgraph_get()
+clouds = [i.object.data for i in depsgraph.object_instances
+          if i.object.original == preview and type(i.object.data).__name__ == "PointCloud"]
+check(len(clouds) == 1, f"{len(clouds)} point clouds from the preview, expected 1")
+cloud = clouds[0]
+check(len(cloud.points) == len(records), f"{len(cloud.points)} points, clip {len(records)}")
+radius = np.empty(len(cloud.points), np.float32)
+cloud.attributes["radius"].data.foreach_get("value", radius)
+check(np.array_equal(radius, records["scale"]), "the points' radii differ from the clip's scale")
+print(f"import: drawn as {len(cloud.points)} points whose radii are the clip's scales (frame 20)")
 # Upright: the emitter sits at z = 1 in Blender and gravity pulls along -z; in the clip that is
 # +y up, so the particles' mean height falls over the clip.
 heights = [float(clip.read_frame(k)["position"][:, 1].mean()) for k in (2, 12)]
