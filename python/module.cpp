@@ -66,6 +66,21 @@ cook::MemoryFrame memory_frame(const py::handle& item, const std::string& name, 
     keep.push_back(a);
     mf.id = {a.data(), static_cast<std::size_t>(a.size())};
   }
+  // Float attributes of the cook's `attributes`: {"age": (N,), "uvw": (N, 3)}.
+  if (f.contains("attributes") && !f["attributes"].is_none()) {
+    if (!py::isinstance<py::dict>(f["attributes"]))
+      throw Error(fmt::format("{}: frame {}: 'attributes' is not a dict of arrays (name: N or N x k)", name, index));
+    for (const auto& [key, value] : f["attributes"].cast<py::dict>()) {
+      const std::string attribute = py::str(key);
+      auto a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(value);
+      if (!a || a.ndim() > 2)
+        throw Error(
+            fmt::format("{}: frame {}: attribute '{}' is not an array of numbers, N or N x k", name, index, attribute));
+      keep.push_back(a);
+      const auto components = static_cast<std::uint32_t>(a.ndim() == 2 ? a.shape(1) : 1);
+      mf.floats.push_back({attribute, components, {a.data(), static_cast<std::size_t>(a.size())}});
+    }
+  }
   return mf;
 }
 
@@ -494,7 +509,8 @@ PYBIND11_MODULE(particlestream, m) {
       "'time' "
       "(seconds) and 'position' (N x 3), and optionally 'width' (N, diameters: the record's scale is half), "
       "'velocity' (N x 3, units per second), 'id' (N, stable across frames: matching and derived velocity need "
-      "them) and 'color' (N x 4, linear RGBA in 0..1); an attribute is in every frame with particles or in none. "
+      "them), 'color' (N x 4, linear RGBA in 0..1) and 'attributes' (a dict of float arrays, N or N x k, stored "
+      "when `attributes` names them); an attribute is in every frame with particles or in none. "
       "fps is the frames' rate; name and object are recorded as the clip's source. The other options are cook()'s "
       "(frame_range is its `frames`). Returns the report (frames, particles, file_bytes, seconds).");
 

@@ -613,7 +613,8 @@ namespace {
 // clip's spans view the arrays held here.
 struct MemoryTestClip {
   static constexpr std::size_t kFrames = 12;
-  std::vector<std::vector<float>> position{kFrames}, width{kFrames}, velocity{kFrames}, color{kFrames};
+  std::vector<std::vector<float>> position{kFrames}, width{kFrames}, velocity{kFrames}, color{kFrames}, age{kFrames},
+      uvw{kFrames};
   std::vector<std::vector<std::uint64_t>> id{kFrames};
   pstream::cook::MemoryClip clip;
   MemoryTestClip() {
@@ -627,6 +628,8 @@ struct MemoryTestClip {
         width[f].push_back(0.01f + float(i % 5) * 0.002f);
         velocity[f].insert(velocity[f].end(), {1.0f, -2.0f * t, 0.0f});
         color[f].insert(color[f].end(), {float(i % 3) / 2.0f, 0.5f, 1.0f, 1.0f});
+        age[f].push_back(float(f + 1 - i / 10) / 24.0f);
+        uvw[f].insert(uvw[f].end(), {float(i) * 0.01f, -float(f), 0.25f});
         id[f].push_back(i);
       }
       pstream::cook::MemoryFrame mf;
@@ -637,6 +640,7 @@ struct MemoryTestClip {
       mf.velocity = velocity[f];
       mf.id = id[f];
       mf.color = color[f];
+      mf.floats = {{"age", 1, age[f]}, {"uvw", 3, uvw[f]}};
       clip.frames.push_back(mf);
     }
   }
@@ -648,11 +652,12 @@ TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
   constexpr std::size_t kFrames = MemoryTestClip::kFrames;
   const pstream::cook::MemoryClip& clip = source.clip;
   const auto &position = source.position, &width = source.width, &velocity = source.velocity, &color = source.color;
+  const auto &age = source.age, &uvw = source.uvw;
   const auto& id = source.id;
   const auto dir = pstream::test::fresh_dir();
   pstream::cook::Options o;
   o.output = dir / "memory.pstream";
-  o.attributes = {"id"};
+  o.attributes = {"id", "age", "uvw"};
   pstream::cook::set_codec(o, "raw");
   const pstream::cook::Report r = pstream::cook::cook(o, clip);
   EXPECT_EQ(r.frames, kFrames);
@@ -665,7 +670,10 @@ TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
   const auto* col = m.find("color");
   const auto* vel = m.find("velocity");
   const auto* ids = m.find("id");
-  ASSERT_TRUE(pos && scale && col && vel && ids);
+  const auto* ages = m.find("age");
+  const auto* uvws = m.find("uvw");
+  ASSERT_TRUE(pos && scale && col && vel && ids && ages && uvws);
+  EXPECT_EQ(uvws->components, 3);
   std::vector<std::byte> records = pstream::format::frame_buffer(m, reader.name());
   for (std::size_t f = 0; f < kFrames; ++f) {
     reader.read_frame(f, records);
@@ -688,6 +696,11 @@ TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
       }
       EXPECT_EQ(s, width[f][j] * 0.5f);
       for (int a = 0; a < 4; ++a) EXPECT_EQ(c[a], pstream::cook::to_unorm8(color[f][j * 4 + a]));
+      float g, u[3];
+      std::memcpy(&g, rec + ages->offset, 4);
+      std::memcpy(u, rec + uvws->offset, 12);
+      EXPECT_EQ(g, age[f][j]);
+      for (int a = 0; a < 3; ++a) EXPECT_EQ(u[a], uvw[f][j * 3 + a]);
     }
   }
   // What is refused, by name.
@@ -711,6 +724,26 @@ TEST(Cook, FromMemoryEveryRecordEqualsWhatWasHandedOver) {
   auto backwards = clip;
   backwards.frames[7].time = backwards.frames[6].time;
   refused(backwards, "memory test: frame 7 is at time");
+  auto no_age = clip;
+  no_age.frames[4].floats.erase(no_age.frames[4].floats.begin());
+  refused(no_age, "memory test: frame 4 has no 'age' array, but other frames have one");
+  auto flat_uvw = clip;
+  flat_uvw.frames[2].floats[1].components = 1;
+  refused(flat_uvw, "memory test: frame 2: float attribute 'uvw' has 1 components, the other frames 3");
+  auto builtin = clip;
+  for (auto& f : builtin.frames) f.floats[0].name = "scale";
+  refused(builtin, "memory test: frame 0: a float attribute named 'scale': that name is a built-in attribute's");
+  auto unknown = o;
+  unknown.attributes = {"temperature"};
+  unknown.output = dir / "bad.pstream";
+  try {
+    pstream::cook::cook(unknown, clip);
+    ADD_FAILURE() << "an attribute the clip lacks was stored";
+  } catch (const pstream::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("`attributes` has temperature, but the source has no such attribute"),
+              std::string::npos)
+        << e.what();
+  }
   refused(pstream::cook::MemoryClip{"nothing", "", 24.0, {}}, "nothing: no frames to cook");
 }
 
@@ -749,11 +782,14 @@ TEST(Cook, FromASpoolTheSameBytesAsFromMemoryAndNoFileLeft) {
   };
   pstream::cook::Options o;
   o.output = dir / "memory.pstream";
-  o.attributes = {"id"};
+  o.attributes = {"id", "uvw", "age"};
   pstream::cook::cook(o, source.clip);
   {
     pstream::cook::FrameSpool spool("memory test", spool_dir);
-    for (const pstream::cook::MemoryFrame& f : source.clip.frames) spool.add(f);
+    for (pstream::cook::MemoryFrame f : source.clip.frames) {
+      if (f.time > 0.2) std::swap(f.floats[0], f.floats[1]);  // a frame may list its floats in any order
+      spool.add(f);
+    }
     EXPECT_EQ(spool.frames(), MemoryTestClip::kFrames);
     EXPECT_EQ(files_in(spool_dir), 0) << "the spool's temporary has a name in its folder";
     o.output = dir / "spool.pstream";
@@ -792,7 +828,7 @@ TEST(Cook, FromASpoolTheSameBytesAsFromMemoryAndNoFileLeft) {
     const pstream::cook::MemoryClip without = spool.clip("", 24.0);
     for (const pstream::cook::MemoryFrame& f : without.frames) EXPECT_TRUE(f.id.empty());
     o.output = dir / "no_ids.pstream";
-    o.attributes = {};
+    o.attributes = {"age"};
     pstream::cook::cook(o, without);
     EXPECT_EQ(pstream::format::Reader::open(o.output).metadata().find("id"), nullptr);
   }

@@ -843,7 +843,7 @@ TEST(RenderCommand, TheAutomaticCameraFramesEveryDemoPreset) {
     }
     for (std::size_t f = 0; f < states.size(); ++f) {
       const demo::ParticleState& s = states[f];
-      clip.frames.push_back({double(f + 1) / so.fps, s.size(), s.position, s.width, s.velocity, s.id, s.color});
+      clip.frames.push_back({double(f + 1) / so.fps, s.size(), s.position, s.width, s.velocity, s.id, s.color, {}});
     }
     cook::Options co;
     co.output = dir / (preset + ".pstream");

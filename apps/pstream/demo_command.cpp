@@ -124,7 +124,7 @@ std::filesystem::path showcase(const DemoCli& cli, const std::string& preset, st
   clip.name = fmt::format("pstream demo --preset {}", preset);
   clip.object = preset;
   clip.fps = cli.fps;
-  clip.frames.push_back({sim.time(), s.size(), s.position, s.width, s.velocity, s.id, s.color});
+  clip.frames.push_back({sim.time(), s.size(), s.position, s.width, s.velocity, s.id, s.color, {}});
   cook::Options co;
   co.output = dir / (preset + ".pstream");
   cook::cook(co, clip);

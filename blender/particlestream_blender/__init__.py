@@ -56,12 +56,14 @@ def _module():
 
 # ---- export -------------------------------------------------------------------------------------
 
-def particle_frame(obj, depsgraph):
+def particle_frame(obj, depsgraph, ages=None):
     """The object's particles in the evaluated scene as arrays (world space), or None when it has
     neither particle systems nor vertices. Particle systems: the alive particles of each, ids from
     their index (stable in Blender) offset per system, sizes as widths (2 x size: Blender's size is
-    a radius), velocities. Vertices: positions through the object's matrix, ids from the vertex index
-    when the count never changes (the caller checks), the 'velocity' attribute when there is one."""
+    a radius), velocities, and with `ages` = (scene frame, fps) their 'age' and 'life' in seconds
+    (since birth, and the lifetime). Vertices: positions through the object's matrix, ids from the
+    vertex index when the count never changes (the caller checks), the 'velocity' attribute when
+    there is one."""
     evaluated = obj.evaluated_get(depsgraph)
     if len(evaluated.particle_systems):
         parts, offset = [], 0
@@ -80,16 +82,29 @@ def particle_frame(obj, depsgraph):
             particles.foreach_get("size", size)
             alive = state == _ALIVE
             ids = np.nonzero(alive)[0].astype(np.uint64) + np.uint64(offset)
-            parts.append((location.reshape(-1, 3)[alive], velocity.reshape(-1, 3)[alive], 2.0 * size[alive], ids))
+            age = life = None
+            if ages is not None:  # Blender keeps birth and lifetime in frames
+                birth = np.empty(n, np.float32)
+                particles.foreach_get("birth_time", birth)
+                lifetime = np.empty(n, np.float32)
+                particles.foreach_get("lifetime", lifetime)
+                age = (np.float32(ages[0]) - birth[alive]) / np.float32(ages[1])
+                life = lifetime[alive] / np.float32(ages[1])
+            parts.append((location.reshape(-1, 3)[alive], velocity.reshape(-1, 3)[alive], 2.0 * size[alive], ids,
+                          age, life))
             offset += n
         if not parts:
             return {"position": np.zeros((0, 3), np.float32)}
-        return {
+        frame = {
             "position": np.concatenate([p[0] for p in parts]),
             "velocity": np.concatenate([p[1] for p in parts]),
             "width": np.concatenate([p[2] for p in parts]).astype(np.float32),
             "id": np.concatenate([p[3] for p in parts]),
         }
+        if ages is not None:
+            frame["attributes"] = {"age": np.concatenate([p[4] for p in parts]),
+                                   "life": np.concatenate([p[5] for p in parts])}
+        return frame
     data = getattr(evaluated, "data", None)
     points = getattr(data, "vertices", None) if isinstance(data, bpy.types.Mesh) else getattr(data, "points", None)
     if points is None:
@@ -114,9 +129,11 @@ def particle_frame(obj, depsgraph):
     return frame
 
 
-def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle", error="1e-4", ids=False, report=None):
+def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle", error="1e-4", ids=False, report=None,
+                ages=False):
     """Cooks `obj`'s particles over [frame_start, frame_end] into `filepath`; returns the cook's
-    report. `report(done, total, what)` follows the progress."""
+    report. `report(done, total, what)` follows the progress. `ages`: keep particle systems' age
+    and life (seconds) as the clip's 'age' and 'life' attributes."""
     ps = _module()
     scene = context.scene
     fps = scene.render.fps / scene.render.fps_base
@@ -134,7 +151,7 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
     try:
         for k, f in enumerate(range(frame_start, frame_end + 1)):
             scene.frame_set(f)
-            frame = particle_frame(obj, context.evaluated_depsgraph_get())
+            frame = particle_frame(obj, context.evaluated_depsgraph_get(), (f, fps) if ages and from_particles else None)
             if frame is None:
                 raise RuntimeError(f"{obj.name} has no particle systems, mesh vertices or points to export")
             frame["time"] = f / fps
@@ -154,8 +171,9 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             if report:
                 report(done, count, "frames cooked")
 
+        attributes = (["id"] if ids else []) + (["age", "life"] if ages and from_particles else [])
         return ps.cook_particles(spool, filepath, fps=fps, name=name, object=obj.name, codec=codec, error=error,
-                                 attributes=["id"] if ids else [], progress=progress)
+                                 attributes=attributes, progress=progress)
     finally:
         spool.close()
         wm.progress_end()
@@ -168,6 +186,8 @@ _CODECS = [
     ("zstd", "zstd", "The records as they are, chunk-compressed")]
 _ERROR_HELP = "Position bound: a fraction of the clip's bounds diagonal (1e-4), or abs:0.001 in scene units"
 _IDS_HELP = "Keep each particle's id in the clip (frames are ordered by id either way)"
+_AGES_HELP = ("Keep each particle's age and lifetime in seconds as the clip's 'age' and 'life' attributes "
+              "(colour ramps: pstream render --color-by attribute --ramp-attribute age)")
 
 
 class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
@@ -182,6 +202,7 @@ class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
     codec: EnumProperty(name="Codec", default="particle", items=_CODECS)
     error: StringProperty(name="Error", default="1e-4", description=_ERROR_HELP)
     ids: BoolProperty(name="Store ids", default=False, description=_IDS_HELP)
+    ages: BoolProperty(name="Store ages", default=False, description=_AGES_HELP)
 
     def execute(self, context):
         obj = context.active_object
@@ -192,7 +213,7 @@ class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
         start = self.frame_start or scene.frame_start
         end = self.frame_end or scene.frame_end
         try:
-            r = export_clip(context, obj, self.filepath, start, end, self.codec, self.error, self.ids)
+            r = export_clip(context, obj, self.filepath, start, end, self.codec, self.error, self.ids, ages=self.ages)
         except Exception as e:  # the module's messages name the frame and what is wrong
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
@@ -324,6 +345,7 @@ class PSTREAM_settings(bpy.types.PropertyGroup):
     codec: EnumProperty(name="Codec", default="particle", items=_CODECS)
     error: StringProperty(name="Error", default="1e-4", description=_ERROR_HELP)
     ids: BoolProperty(name="Store ids", default=False, description=_IDS_HELP)
+    ages: BoolProperty(name="Store ages", default=False, description=_AGES_HELP)
 
 
 class PSTREAM_PT_panel(bpy.types.Panel):
@@ -347,12 +369,13 @@ class PSTREAM_PT_panel(bpy.types.Panel):
         if settings.codec == "particle":
             col.prop(settings, "error")
         col.prop(settings, "ids")
+        col.prop(settings, "ages")
         row = layout.row(align=True)
         row.prop(context.scene, "frame_start", text="Start")
         row.prop(context.scene, "frame_end", text="End")
         op = layout.operator(PSTREAM_OT_export.bl_idname, text="Export", icon="EXPORT")
         op.filepath = bpy.path.abspath(settings.filepath)
-        op.codec, op.error, op.ids = settings.codec, settings.error, settings.ids
+        op.codec, op.error, op.ids, op.ages = settings.codec, settings.error, settings.ids, settings.ages
         layout.operator(PSTREAM_OT_import.bl_idname, text="Import a clip", icon="IMPORT")
 
 

@@ -141,6 +141,14 @@ std::uint64_t read_frames(const Options& options, const FrameVisitor& visit);
 // particle's components (3 for position and velocity, 4 for colour), or is empty where the clip
 // has none of that attribute; an attribute is in every frame or in none. The caller keeps the
 // arrays alive during cook(); nothing is copied.
+// A float attribute handed over with a frame (an age, a temperature): `values` holds count x
+// components numbers. The clip stores it when Options::attributes names it, as it stores an
+// Alembic cache's.
+struct MemoryFloats {
+  std::string name;
+  std::uint32_t components = 1;  // 1 to 16
+  std::span<const float> values;
+};
 struct MemoryFrame {
   double time = 0.0;  // seconds; frames in increasing time, on the clip's frame grid
   std::uint64_t count = 0;
@@ -149,6 +157,7 @@ struct MemoryFrame {
   std::span<const float> velocity;    // scene units per second
   std::span<const std::uint64_t> id;  // stable across frames: what the codec and interpolation match
   std::span<const float> color;       // linear RGBA in [0, 1]
+  std::vector<MemoryFloats> floats;   // the same names and components in every frame with particles
 };
 struct MemoryClip {
   std::string name;    // for messages and the header's source (say where the particles came from)

@@ -47,10 +47,10 @@ int unnamed_file(const std::filesystem::path& folder) {
 }  // namespace
 
 struct FrameSpool::Impl {
+  // A frame's arrays start at `offset`: those of `has` when it holds particles, none otherwise.
   struct Entry {
     double time = 0.0;
-    std::uint64_t count = 0, offset = 0;  // the frame's arrays start at `offset`
-    MemoryAttributes has;
+    std::uint64_t count = 0, offset = 0;
   };
   std::string name;
   std::filesystem::path folder;
@@ -114,20 +114,28 @@ void FrameSpool::add(const MemoryFrame& frame) {
   const std::size_t index = d.entries.size();
   // The attributes are the first frame with particles' (cook() takes those of any frame with
   // particles: the same answer, or an error naming a frame).
-  const MemoryAttributes has = d.with_particles || frame.count == 0 ? d.has : attributes_of(frame);
-  check_memory_frame(d.name, index, frame, has, index > 0 ? d.entries.back().time : std::nan(""));
+  if (!d.with_particles && frame.count > 0) {
+    const MemoryAttributes has = attributes_of(frame);
+    check_memory_frame(d.name, index, frame, has, index > 0 ? d.entries.back().time : std::nan(""));
+    d.has = has;
+  } else {
+    check_memory_frame(d.name, index, frame, d.has, index > 0 ? d.entries.back().time : std::nan(""));
+  }
   // Room for the entry before anything is written. A write that fails leaves the end where it
   // was: the next frame is written over what it wrote.
   if (d.entries.size() == d.entries.capacity()) d.entries.reserve(2 * d.entries.capacity() + 64);
-  const Impl::Entry e{frame.time, frame.count, d.size, has};
+  const Impl::Entry e{frame.time, frame.count, d.size};
   std::uint64_t at = d.size;
   d.write(at, std::as_bytes(frame.position));
   d.write(at, std::as_bytes(frame.width));
   d.write(at, std::as_bytes(frame.velocity));
   d.write(at, std::as_bytes(frame.color));
+  for (const auto& [name, components] : d.has.floats) {  // in the spool's order, whatever the frame's
+    for (const MemoryFloats& a : frame.floats)
+      if (frame.count > 0 && a.name == name) d.write(at, std::as_bytes(a.values));
+  }
   d.write(at, std::as_bytes(frame.id));
   d.size = at;
-  d.has = has;
   d.with_particles = d.with_particles || frame.count > 0;
   d.entries.push_back(e);
 }
@@ -167,10 +175,14 @@ MemoryClip FrameSpool::clip(std::string object, double fps) {
       return s;
     };
     f.position = floats(true, 3);
-    f.width = floats(e.has.width, 1);
-    f.velocity = floats(e.has.velocity, 3);
-    f.color = floats(e.has.color, 4);
-    if (e.has.id && e.count > 0 && !d.drop_ids) f.id = {reinterpret_cast<const std::uint64_t*>(at), e.count};
+    f.width = floats(d.has.width, 1);
+    f.velocity = floats(d.has.velocity, 3);
+    f.color = floats(d.has.color, 4);
+    if (e.count > 0) {
+      for (const auto& [name, components] : d.has.floats)
+        f.floats.push_back({name, components, floats(true, components)});
+    }
+    if (d.has.id && e.count > 0 && !d.drop_ids) f.id = {reinterpret_cast<const std::uint64_t*>(at), e.count};
     clip.frames.push_back(f);
   }
   return clip;

@@ -14,6 +14,12 @@
 namespace pstream::cook {
 namespace {
 
+const MemoryFloats* floats_named(const MemoryFrame& f, const std::string& name) {
+  for (const MemoryFloats& a : f.floats)
+    if (a.name == name) return &a;
+  return nullptr;
+}
+
 class MemorySource final : public Source {
  public:
   MemorySource(const Options& options, const MemoryClip& clip) : clip_(clip) {
@@ -23,12 +29,7 @@ class MemorySource final : public Source {
       throw Error(fmt::format("{}: fps {} must be a positive number", name, clip.fps));
     // An attribute is in the clip when a frame with particles has it; then every such frame must.
     for (const MemoryFrame& f : clip.frames) {
-      if (f.count == 0) continue;
-      const MemoryAttributes a = attributes_of(f);
-      has_.width = has_.width || a.width;
-      has_.velocity = has_.velocity || a.velocity;
-      has_.id = has_.id || a.id;
-      has_.color = has_.color || a.color;
+      if (f.count > 0) has_.add(attributes_of(f));
     }
     for (std::size_t i = 0; i < clip.frames.size(); ++i) {
       const MemoryFrame& f = clip.frames[i];
@@ -38,6 +39,7 @@ class MemorySource final : public Source {
                                                        name, i, f.count, options.max_particles));
       }
       bytes_ += (f.position.size() + f.width.size() + f.velocity.size() + f.color.size()) * 4 + f.id.size() * 8;
+      for (const MemoryFloats& a : f.floats) bytes_ += a.values.size_bytes();
     }
   }
 
@@ -60,7 +62,11 @@ class MemorySource final : public Source {
   }
   std::vector<std::filesystem::path> files() const override { return {}; }
   void check_intact() const override {}
-  std::uint32_t float_components(const std::string&) const override { return 0; }
+  std::uint32_t float_components(const std::string& name) const override {
+    for (const auto& [n, components] : has_.floats)
+      if (n == name) return components;
+    return 0;
+  }
   std::uint64_t content_hash() const override {
     XXH3_state_t state;
     XXH3_64bits_reset(&state);
@@ -69,6 +75,11 @@ class MemorySource final : public Source {
       XXH3_64bits_update(&state, &f.time, sizeof f.time);
       XXH3_64bits_update(&state, &f.count, sizeof f.count);
       add(f.position), add(f.width), add(f.velocity), add(f.id), add(f.color);
+      for (const MemoryFloats& a : f.floats) {
+        XXH3_64bits_update(&state, a.name.data(), a.name.size() + 1);  // with its terminator: names stay apart
+        XXH3_64bits_update(&state, &a.components, sizeof a.components);
+        add(a.values);
+      }
     }
     return XXH3_64bits_digest(&state);
   }
@@ -101,6 +112,12 @@ class MemorySource final : public Source {
     if (request.id) {
       ensure_size(out.id, out.count);
       std::copy(f.id.begin(), f.id.end(), out.id.begin() + static_cast<std::ptrdiff_t>(base));
+    }
+    for (std::size_t e = 0; e < request.floats.size() && n > 0; ++e) {
+      const MemoryFloats* a = floats_named(f, request.floats[e]);  // checked at open: there
+      ensure_size(out.extra[e], out.count * a->components);
+      std::copy(a->values.begin(), a->values.end(),
+                out.extra[e].begin() + static_cast<std::ptrdiff_t>(base * a->components));
     }
   }
 
@@ -145,7 +162,20 @@ void check_array(const std::string& name, std::size_t index, const MemoryFrame& 
 }  // namespace
 
 MemoryAttributes attributes_of(const MemoryFrame& frame) {
-  return {!frame.width.empty(), !frame.velocity.empty(), !frame.id.empty(), !frame.color.empty()};
+  MemoryAttributes a{!frame.width.empty(), !frame.velocity.empty(), !frame.id.empty(), !frame.color.empty(), {}};
+  for (const MemoryFloats& f : frame.floats) a.floats.emplace_back(f.name, f.components);
+  return a;
+}
+
+void MemoryAttributes::add(const MemoryAttributes& other) {
+  width = width || other.width;
+  velocity = velocity || other.velocity;
+  id = id || other.id;
+  color = color || other.color;
+  for (const auto& f : other.floats) {
+    if (std::none_of(floats.begin(), floats.end(), [&](const auto& g) { return g.first == f.first; }))
+      floats.push_back(f);
+  }
 }
 
 void check_memory_frame(const std::string& name, std::size_t index, const MemoryFrame& f, const MemoryAttributes& has,
@@ -160,6 +190,33 @@ void check_memory_frame(const std::string& name, std::size_t index, const Memory
   check_array(name, index, f, "velocity", f.velocity.size(), 3, has.velocity);
   check_array(name, index, f, "id", f.id.size(), 1, has.id);
   check_array(name, index, f, "color", f.color.size(), 4, has.color);
+  for (std::size_t k = 0; k < f.floats.size(); ++k) {
+    const MemoryFloats& a = f.floats[k];
+    const char* const builtin[] = {"position", "width", "scale", "velocity", "id", "color"};
+    if (std::find(std::begin(builtin), std::end(builtin), a.name) != std::end(builtin) || a.name.empty()) {
+      throw Error(fmt::format("{}: frame {}: a float attribute named '{}': that name is {}", name, index, a.name,
+                              a.name.empty() ? "empty" : "a built-in attribute's, handed over in its own array"));
+    }
+    if (a.components < 1 || a.components > 16) {
+      throw Error(fmt::format("{}: frame {}: float attribute '{}' has {} components; 1 to 16 are taken", name, index,
+                              a.name, a.components));
+    }
+    for (std::size_t j = 0; j < k; ++j)
+      if (f.floats[j].name == a.name)
+        throw Error(fmt::format("{}: frame {}: float attribute '{}' is handed over twice", name, index, a.name));
+  }
+  for (const auto& [attribute, components] : has.floats) {
+    const MemoryFloats* a = floats_named(f, attribute);
+    if (a != nullptr && a->components != components) {
+      throw Error(fmt::format("{}: frame {}: float attribute '{}' has {} components, the other frames {}", name, index,
+                              attribute, a->components, components));
+    }
+    check_array(name, index, f, fmt::format("'{}'", attribute).c_str(), a ? a->values.size() : 0, components, true);
+  }
+  for (const MemoryFloats& a : f.floats) {
+    if (std::none_of(has.floats.begin(), has.floats.end(), [&](const auto& h) { return h.first == a.name; }))
+      check_array(name, index, f, fmt::format("'{}'", a.name).c_str(), a.values.size(), a.components, false);
+  }
 }
 
 std::unique_ptr<Source> open_memory(const Options& options, const MemoryClip& clip) {

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "particlestream/cook.hpp"
@@ -102,11 +103,15 @@ class Source {
 // Which of a MemoryFrame's optional arrays a clip holds: those of its frames with particles.
 struct MemoryAttributes {
   bool width = false, velocity = false, id = false, color = false;
+  std::vector<std::pair<std::string, std::uint32_t>> floats;  // name and components, in the frames' order
+  void add(const MemoryAttributes& other);                    // the union (a float's first components kept)
 };
 MemoryAttributes attributes_of(const MemoryFrame& frame);  // its non-empty arrays
 // Throws pstream::Error naming `name`, frame `index` and what is wrong when the frame's time is
-// not finite or not after `previous_time` (NaN for the first frame), or an array does not hold
-// count x components values for an attribute of `has` (none for the others).
+// not finite or not after `previous_time` (NaN for the first frame), an array does not hold
+// count x components values for an attribute of `has` (none for the others), or a float
+// attribute is not one of `has`'s with its components (1 to 16), named once and not as a
+// built-in one.
 void check_memory_frame(const std::string& name, std::size_t index, const MemoryFrame& frame,
                         const MemoryAttributes& has, double previous_time);
 

@@ -62,7 +62,7 @@ settings.particle_size, settings.size_random = 0.03, 0.5
 settings.use_rotations = False
 
 clip_path = str(work / "sparks.pstream")
-result = bpy.ops.pstream.export(filepath=clip_path, frame_start=1, frame_end=30, ids=True)
+result = bpy.ops.pstream.export(filepath=clip_path, frame_start=1, frame_end=30, ids=True, ages=True)
 check(result == {"FINISHED"}, f"export: {result}")
 # The frames went through a spool on disk beside the clip: nothing of it is left.
 check(sorted(os.listdir(work)) == ["sparks.pstream"], f"the export's folder holds {sorted(os.listdir(work))}")
@@ -70,7 +70,7 @@ clip = ps.Clip(clip_path)
 check(clip.frame_count == 30, f"{clip.frame_count} frames, expected 30")
 check(abs(clip.fps - 24) < 1e-9, f"fps {clip.fps}")
 names = [a[0] for a in clip.layout]
-check({"position", "scale", "velocity", "id"} <= set(names), f"layout {names}")
+check({"position", "scale", "velocity", "id", "age", "life"} <= set(names), f"layout {names}")
 
 all_points = np.concatenate([clip.read_frame(k)["position"] for k in range(30) if clip.count(k)])
 diagonal = float(np.linalg.norm(all_points.max(axis=0) - all_points.min(axis=0)))
@@ -104,6 +104,22 @@ speed = np.array([blender_velocity[int(i)] for i in records["id"]])
 rms = float(np.sqrt((diff ** 2).sum(axis=1).mean() / (speed ** 2).sum(axis=1).mean()))
 check(rms < 0.08, f"derived velocity RMS error {rms:.3%} of Blender's speed")
 print(f"velocity: derived within {rms:.2%} RMS of Blender's (units per second)")
+
+# Ages and lifetimes (seconds) against Blender's birth and lifetime (frames), within the codec's
+# bound for float attributes: 1e-3 of their range over the clip.
+scene.frame_set(12)
+evaluated = emitter.evaluated_get(bpy.context.evaluated_depsgraph_get())
+alive = {i: p for i, p in enumerate(evaluated.particle_systems[0].particles) if p.alive_state == "ALIVE"}
+records = clip.read_frame(11)
+errors = []
+for name, want in (("age", [(12 - alive[int(i)].birth_time) / 24 for i in records["id"]]),
+                   ("life", [alive[int(i)].lifetime / 24 for i in records["id"]])):
+    values = np.concatenate([clip.read_frame(k)[name] for k in range(30) if clip.count(k)])
+    bound_s = 1e-3 * float(values.max() - values.min()) * 1.01
+    error = float(np.abs(records[name] - np.array(want)).max())
+    check(len(records) > 100 and error <= bound_s, f"{name}: error {error} s > {bound_s} over {len(records)}")
+    errors.append(f"{name} within {error:.3g} s (bound {bound_s:.3g})")
+print(f"ages of {len(records)} particles at frame 12: " + ", ".join(errors))
 
 # Sizes: the record's scale is Blender's particle size (a radius).
 scene.frame_set(20)

@@ -540,6 +540,18 @@ def test_cook_particles_cooks_arrays_as_a_file_and_names_what_is_wrong(tmp_path)
         assert np.array_equal(records["position"], frame["position"])
         assert np.allclose(records["scale"], 0.02)
         assert (records["color"] == [255, 128, 0, 255]).all()
+    # Float attributes ride along in 'attributes' and are stored when `attributes` names them.
+    for f, frame in enumerate(frames):
+        frame["attributes"] = {"age": np.full(len(frame["id"]), f / 24, np.float32),
+                               "uvw": np.tile([0.5, f, -1.0], (len(frame["id"]), 1)).astype(np.float32)}
+    ps.cook_particles(frames, tmp_path / "floats.pstream", fps=24, codec="raw", attributes=["age", "uvw"])
+    floats = ps.Clip(tmp_path / "floats.pstream")
+    for f, frame in enumerate(frames):
+        records = floats.read_frame(f)
+        assert np.array_equal(records["age"], frame["attributes"]["age"])
+        assert np.array_equal(records["uvw"], frame["attributes"]["uvw"])
+    with pytest.raises(ps.Error, match="attribute 'age' is not an array of numbers"):
+        ps.cook_particles([dict(frames[0], attributes={"age": "old"})], tmp_path / "bad.pstream")
     bad = [dict(frames[0]), dict(frames[1])]
     bad[1]["id"] = bad[1]["id"][:5]
     with pytest.raises(ps.Error, match="arrays: frame 1: the id array holds 5 values, expected 40"):
