@@ -29,6 +29,9 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, PointerProperty, 
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 _ALIVE = 3  # Particle.alive_state's value for 'ALIVE' (DEAD 1, UNBORN 2, ALIVE 3, DYING 4)
+# A mesh's or point cloud's float point attributes: components, and the field foreach_get reads.
+_FLOAT_ATTRIBUTES = {"FLOAT": (1, "value"), "FLOAT2": (2, "vector"), "FLOAT_VECTOR": (3, "vector"),
+                     "FLOAT_COLOR": (4, "color")}
 
 
 # Blender is Z-up; .pstream clips, Alembic and the engines they go to are Y-up. Export turns
@@ -126,20 +129,38 @@ def particle_frame(obj, depsgraph, ages=None):
         radius.data.foreach_get("value", r)
         frame["width"] = 2.0 * r
     frame["id"] = np.arange(n, dtype=np.uint64)
+    # The other point attributes: a colour named 'color' (linear RGBA), and every float one (as it is
+    # stored: vectors stay in the object's space) for the cook's `attributes`.
+    extra = {}
+    for a in getattr(data, "attributes", []):
+        if a.domain != "POINT" or a.name.startswith(".") or a.name in ("position", "radius", "velocity", "id"):
+            continue
+        if a.name == "color" and a.data_type in ("FLOAT_COLOR", "BYTE_COLOR"):
+            color = np.empty(n * 4, np.float32)
+            a.data.foreach_get("color", color)
+            frame["color"] = color.reshape(-1, 4)
+        elif a.data_type in _FLOAT_ATTRIBUTES:
+            k, field = _FLOAT_ATTRIBUTES[a.data_type]
+            values = np.empty(n * k, np.float32)
+            a.data.foreach_get(field, values)
+            extra[a.name] = values.reshape(n, k) if k > 1 else values
+    if extra:
+        frame["attributes"] = extra
     return frame
 
 
 def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle", error="1e-4", ids=False, report=None,
-                ages=False):
+                ages=False, attributes=False):
     """Cooks `obj`'s particles over [frame_start, frame_end] into `filepath`; returns the cook's
     report. `report(done, total, what)` follows the progress. `ages`: keep particle systems' age
-    and life (seconds) as the clip's 'age' and 'life' attributes."""
+    and life (seconds) as the clip's 'age' and 'life' attributes. `attributes`: keep a mesh's or
+    point cloud's float point attributes (those of its first frame with points)."""
     ps = _module()
     scene = context.scene
     fps = scene.render.fps / scene.render.fps_base
     wm = context.window_manager
     total = frame_end - frame_start + 1
-    counts = set()
+    counts, extra = set(), None
     # Vertices (no particle systems): their indices are ids only while the count holds.
     from_particles = len(obj.particle_systems) > 0
     current = scene.frame_current
@@ -159,6 +180,10 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             if "velocity" in frame:
                 frame["velocity"] = to_y_up(frame["velocity"])
             counts.add(len(frame["position"]))
+            if not from_particles and not attributes:
+                frame.pop("attributes", None)  # not stored: not spooled either
+            if extra is None and len(frame["position"]) and not from_particles:
+                extra = list(frame.get("attributes", {}))  # stored: those of the first frame with points
             spool.add_frame(frame)
             wm.progress_update(k + 1)
             if report:
@@ -171,9 +196,9 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             if report:
                 report(done, count, "frames cooked")
 
-        attributes = (["id"] if ids else []) + (["age", "life"] if ages and from_particles else [])
+        stored = (["id"] if ids else []) + (["age", "life"] if ages and from_particles else []) + (extra or [])
         return ps.cook_particles(spool, filepath, fps=fps, name=name, object=obj.name, codec=codec, error=error,
-                                 attributes=attributes, progress=progress)
+                                 attributes=stored, progress=progress)
     finally:
         spool.close()
         wm.progress_end()
@@ -186,6 +211,8 @@ _CODECS = [
     ("zstd", "zstd", "The records as they are, chunk-compressed")]
 _ERROR_HELP = "Position bound: a fraction of the clip's bounds diagonal (1e-4), or abs:0.001 in scene units"
 _IDS_HELP = "Keep each particle's id in the clip (frames are ordered by id either way)"
+_ATTRIBUTES_HELP = ("Keep a mesh's or point cloud's float point attributes (temperature, ...) in the clip, "
+                    "for colour ramps: pstream render --color-by attribute --ramp-attribute NAME")
 _AGES_HELP = ("Keep each particle's age and lifetime in seconds as the clip's 'age' and 'life' attributes "
               "(colour ramps: pstream render --color-by attribute --ramp-attribute age)")
 
@@ -203,6 +230,7 @@ class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
     error: StringProperty(name="Error", default="1e-4", description=_ERROR_HELP)
     ids: BoolProperty(name="Store ids", default=False, description=_IDS_HELP)
     ages: BoolProperty(name="Store ages", default=False, description=_AGES_HELP)
+    attributes: BoolProperty(name="Store attributes", default=False, description=_ATTRIBUTES_HELP)
 
     def execute(self, context):
         obj = context.active_object
@@ -213,7 +241,8 @@ class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
         start = self.frame_start or scene.frame_start
         end = self.frame_end or scene.frame_end
         try:
-            r = export_clip(context, obj, self.filepath, start, end, self.codec, self.error, self.ids, ages=self.ages)
+            r = export_clip(context, obj, self.filepath, start, end, self.codec, self.error, self.ids, ages=self.ages,
+                            attributes=self.attributes)
         except Exception as e:  # the module's messages name the frame and what is wrong
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
@@ -346,6 +375,7 @@ class PSTREAM_settings(bpy.types.PropertyGroup):
     error: StringProperty(name="Error", default="1e-4", description=_ERROR_HELP)
     ids: BoolProperty(name="Store ids", default=False, description=_IDS_HELP)
     ages: BoolProperty(name="Store ages", default=False, description=_AGES_HELP)
+    attributes: BoolProperty(name="Store attributes", default=False, description=_ATTRIBUTES_HELP)
 
 
 class PSTREAM_PT_panel(bpy.types.Panel):
@@ -370,12 +400,14 @@ class PSTREAM_PT_panel(bpy.types.Panel):
             col.prop(settings, "error")
         col.prop(settings, "ids")
         col.prop(settings, "ages")
+        col.prop(settings, "attributes")
         row = layout.row(align=True)
         row.prop(context.scene, "frame_start", text="Start")
         row.prop(context.scene, "frame_end", text="End")
         op = layout.operator(PSTREAM_OT_export.bl_idname, text="Export", icon="EXPORT")
         op.filepath = bpy.path.abspath(settings.filepath)
-        op.codec, op.error, op.ids, op.ages = settings.codec, settings.error, settings.ids, settings.ages
+        op.codec, op.error, op.ids = settings.codec, settings.error, settings.ids
+        op.ages, op.attributes = settings.ages, settings.attributes
         layout.operator(PSTREAM_OT_import.bl_idname, text="Import a clip", icon="IMPORT")
 
 

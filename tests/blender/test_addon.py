@@ -175,9 +175,20 @@ grid = bpy.context.active_object
 texture = bpy.data.textures.new("wave", "WOOD")
 wave = grid.modifiers.new("wave", "WAVE")
 wave.height = 0.3
+# Point attributes ride along: a float ('heat') stored on request, a colour named 'color' always.
+heat = grid.data.attributes.new("heat", "FLOAT", "POINT")
+heat.data.foreach_set("value", np.arange(len(grid.data.vertices), dtype=np.float32) * 0.01)
+tint = grid.data.attributes.new("color", "FLOAT_COLOR", "POINT")
+tint.data.foreach_set("color", np.tile(np.array([1.0, 0.5, 0.25, 1.0], np.float32), len(grid.data.vertices)))
 mesh_path = str(work / "grid.pstream")
-check(bpy.ops.pstream.export(filepath=mesh_path, frame_start=1, frame_end=12, ids=True) == {"FINISHED"}, "mesh export")
+check(bpy.ops.pstream.export(filepath=mesh_path, frame_start=1, frame_end=12, ids=True, attributes=True) == {"FINISHED"},
+      "mesh export")
 grid_clip = ps.Clip(mesh_path)
+stored = grid_clip.read_frame(6)
+heat_error = float(np.abs(stored["heat"] - stored["id"].astype(np.float32) * 0.01).max())
+check(heat_error <= 1e-3 * 4.4 * 1.01, f"heat error {heat_error}")
+check((stored["color"] == [255, 128, 64, 255]).all(), f"colours {np.unique(stored['color'], axis=0)}")
+print(f"mesh attributes: 'heat' within {heat_error:.3g} (bound {1e-3 * 4.4:.3g}), 'color' exact")
 scene.frame_set(7)
 evaluated = grid.evaluated_get(bpy.context.evaluated_depsgraph_get())
 want = np.array([(lambda w: (w.x, w.z, -w.y))(evaluated.matrix_world @ v.co) for v in evaluated.data.vertices],
