@@ -65,8 +65,9 @@ def particle_frame(obj, depsgraph, ages=None):
     their index (stable in Blender) offset per system, sizes as widths (2 x size: Blender's size is
     a radius), velocities, and with `ages` = (scene frame, fps) their 'age' and 'life' in seconds
     (since birth, and the lifetime). Vertices: positions through the object's matrix, ids from the
-    vertex index when the count never changes (the caller checks), the 'velocity' attribute when
-    there is one."""
+    'id' point attribute, or the vertex index when the count never changes (the caller checks:
+    'ids_are_indices'), the 'velocity', 'radius' and 'color' attributes, and the float ones in
+    'attributes'."""
     evaluated = obj.evaluated_get(depsgraph)
     if len(evaluated.particle_systems):
         parts, offset = [], 0
@@ -128,7 +129,16 @@ def particle_frame(obj, depsgraph, ages=None):
         r = np.empty(n, np.float32)
         radius.data.foreach_get("value", r)
         frame["width"] = 2.0 * r
-    frame["id"] = np.arange(n, dtype=np.uint64)
+    # Ids: an integer point attribute named 'id' (Geometry Nodes makes one, stable across frames),
+    # else the vertex index, which the caller keeps only while the count holds.
+    id_attribute = data.attributes.get("id") if hasattr(data, "attributes") else None
+    if id_attribute is not None and id_attribute.data_type == "INT" and id_attribute.domain == "POINT":
+        ids = np.empty(n, np.int32)
+        id_attribute.data.foreach_get("value", ids)
+        frame["id"] = ids.view(np.uint32).astype(np.uint64)  # negative ids (hashes) stay distinct
+    else:
+        frame["id"] = np.arange(n, dtype=np.uint64)
+        frame["ids_are_indices"] = True
     # The other point attributes: a colour named 'color' (linear RGBA), and every float one (as it is
     # stored: vectors stay in the object's space) for the cook's `attributes`.
     extra = {}
@@ -160,7 +170,7 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
     fps = scene.render.fps / scene.render.fps_base
     wm = context.window_manager
     total = frame_end - frame_start + 1
-    counts, extra = set(), None
+    counts, extra, indices = set(), None, False
     # Vertices (no particle systems): their indices are ids only while the count holds.
     from_particles = len(obj.particle_systems) > 0
     current = scene.frame_current
@@ -180,6 +190,7 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             if "velocity" in frame:
                 frame["velocity"] = to_y_up(frame["velocity"])
             counts.add(len(frame["position"]))
+            indices = frame.pop("ids_are_indices", False) or indices
             if not from_particles and not attributes:
                 frame.pop("attributes", None)  # not stored: not spooled either
             if extra is None and len(frame["position"]) and not from_particles:
@@ -188,7 +199,7 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             wm.progress_update(k + 1)
             if report:
                 report(k + 1, total, "frames read")
-        if not from_particles and len(counts) > 1:
+        if indices and len(counts) > 1:
             spool.drop_ids()
 
         def progress(done, count):

@@ -178,6 +178,9 @@ wave.height = 0.3
 # Point attributes ride along: a float ('heat') stored on request, a colour named 'color' always.
 heat = grid.data.attributes.new("heat", "FLOAT", "POINT")
 heat.data.foreach_set("value", np.arange(len(grid.data.vertices), dtype=np.float32) * 0.01)
+# Ids from an integer 'id' point attribute (as Geometry Nodes makes), not the vertex index.
+vertex_ids = grid.data.attributes.new("id", "INT", "POINT")
+vertex_ids.data.foreach_set("value", 5000 - np.arange(len(grid.data.vertices), dtype=np.int32))
 tint = grid.data.attributes.new("color", "FLOAT_COLOR", "POINT")
 tint.data.foreach_set("color", np.tile(np.array([1.0, 0.5, 0.25, 1.0], np.float32), len(grid.data.vertices)))
 mesh_path = str(work / "grid.pstream")
@@ -185,7 +188,9 @@ check(bpy.ops.pstream.export(filepath=mesh_path, frame_start=1, frame_end=12, id
       "mesh export")
 grid_clip = ps.Clip(mesh_path)
 stored = grid_clip.read_frame(6)
-heat_error = float(np.abs(stored["heat"] - stored["id"].astype(np.float32) * 0.01).max())
+index = 5000 - stored["id"].astype(np.int64)  # the vertex each particle is
+check(sorted(index) == list(range(len(grid.data.vertices))), "the clip's ids are not the 'id' attribute's")
+heat_error = float(np.abs(stored["heat"] - index.astype(np.float32) * 0.01).max())
 check(heat_error <= 1e-3 * 4.4 * 1.01, f"heat error {heat_error}")
 check((stored["color"] == [255, 128, 64, 255]).all(), f"colours {np.unique(stored['color'], axis=0)}")
 print(f"mesh attributes: 'heat' within {heat_error:.3g} (bound {1e-3 * 4.4:.3g}), 'color' exact")
@@ -194,7 +199,7 @@ evaluated = grid.evaluated_get(bpy.context.evaluated_depsgraph_get())
 want = np.array([(lambda w: (w.x, w.z, -w.y))(evaluated.matrix_world @ v.co) for v in evaluated.data.vertices],
                 np.float64)
 got = grid_clip.read_frame(6)
-order = np.argsort(got["id"])
+order = np.argsort(5000 - got["id"].astype(np.int64))  # vertex order (ids from the 'id' attribute)
 error = float(np.abs(got["position"][order].astype(np.float64) - want).max())
 check(grid_clip.count(6) == len(want), f"{grid_clip.count(6)} vertices, expected {len(want)}")
 check(error <= 1e-4 * 3.0, f"vertex error {error}")
