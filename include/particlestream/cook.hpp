@@ -196,6 +196,8 @@ class FrameSpool {
   // its arrays. Every write is checked: a full disk throws, naming the folder. A refused frame
   // leaves the spool as it was.
   void add(const MemoryFrame& frame);
+  // Throws what add() would for this frame's contents, and writes nothing.
+  void check(const MemoryFrame& frame) const;
   // Leaves the ids out of clip(): a mesh whose vertex count changes has vertex indices, not ids.
   void drop_ids();
   std::uint64_t frames() const;

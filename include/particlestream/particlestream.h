@@ -190,6 +190,51 @@ PSTREAM_API void pstream_cook_options_init(pstream_cook_options* options);
 /* `report` may be NULL. */
 PSTREAM_API pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_report* report);
 
+/* ---- Cooking particles handed over frame by frame (a DCC's exporter) ------------------ */
+
+/* A spool takes a simulation's frames one at a time, as an exporter evaluates them, and keeps them
+ * on disk until pstream_spool_cook() cooks them (the same cook as pstream_cook's): memory stays a
+ * frame's, whatever the simulation's length. The frames go to an unnamed temporary file, which
+ * the system reclaims when the spool closes, even when the process is killed. */
+typedef struct pstream_spool pstream_spool;
+
+/* A float attribute handed over with a frame (an age, a temperature). */
+typedef struct pstream_float_attribute {
+  const char* name;    /* stored when pstream_cook_options.attributes names it */
+  uint32_t components; /* 1 to 16 */
+  const float* values; /* count x components */
+} pstream_float_attribute;
+
+/* One frame. An attribute is in every frame with particles or in none; a frame with no particles
+ * has no arrays. The arrays are the caller's again once pstream_spool_add() returns. */
+typedef struct pstream_spool_frame {
+  size_t struct_size;                    /* sizeof(pstream_spool_frame) */
+  double time;                           /* seconds; after the frame before's */
+  uint64_t count;                        /* particles */
+  const float* position;                 /* count x 3 (x y z); required when count > 0 */
+  const float* width;                    /* count diameters (the record's scale is half), or NULL */
+  const float* velocity;                 /* count x 3, scene units per second, or NULL */
+  const uint64_t* id;                    /* count ids, stable across frames (matching and derived velocity), or NULL */
+  const float* color;                    /* count x 4, linear RGBA in [0, 1], or NULL */
+  const pstream_float_attribute* floats; /* float_count of them, or NULL */
+  uint32_t float_count;
+} pstream_spool_frame;
+
+/* `folder`: where the temporary lives (room for every frame's arrays); NULL: $TMPDIR, else /tmp.
+ * `name` names the frames in messages and the clip's source; NULL: "particles". */
+PSTREAM_API pstream_result pstream_spool_open(const char* folder, const char* name, pstream_spool** out);
+/* Checks the frame (sizes, times, the attributes of the frames before it with particles; a
+ * refused frame leaves the spool as it was) and writes it: PSTREAM_ERROR_ARGUMENT names the frame
+ * and what is wrong, PSTREAM_ERROR_IO a failed write (a full disk). */
+PSTREAM_API pstream_result pstream_spool_add(pstream_spool* spool, const pstream_spool_frame* frame);
+/* Cooks the frames added so far into options->output, as pstream_cook() cooks a file: options->input
+ * and interpolate must be unset, options->fps is the frames' rate (0: 24), options->object the
+ * clip's source object (NULL: "particles"). More frames may follow, and another cook. */
+PSTREAM_API pstream_result pstream_spool_cook(pstream_spool* spool, const pstream_cook_options* options,
+                                              pstream_cook_report* report);
+/* Closes the spool and releases its temporary. NULL is ignored. */
+PSTREAM_API pstream_result pstream_spool_close(pstream_spool* spool);
+
 /* ---- Reading a .pstream directly ------------------------------------------------------ */
 
 typedef struct pstream_clip pstream_clip;

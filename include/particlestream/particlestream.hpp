@@ -146,10 +146,12 @@ struct CookOptions {
   Progress progress;
 };
 
-inline pstream_cook_report cook(const CookOptions& options) {
+namespace detail {
+// `options` as the C API's struct; its strings and callback stay `options`'s.
+inline pstream_cook_options to_c(const CookOptions& options) {
   pstream_cook_options o;
   pstream_cook_options_init(&o);
-  o.input = options.input.c_str();
+  o.input = options.input.empty() ? nullptr : options.input.c_str();
   o.output = options.output.c_str();
   o.object = options.object.empty() ? nullptr : options.object.c_str();
   o.attributes = options.attributes.empty() ? nullptr : options.attributes.c_str();
@@ -163,10 +165,68 @@ inline pstream_cook_report cook(const CookOptions& options) {
     };
     o.progress_user = const_cast<void*>(static_cast<const void*>(&options.progress));
   }
+  return o;
+}
+}  // namespace detail
+
+inline pstream_cook_report cook(const CookOptions& options) {
+  const pstream_cook_options o = detail::to_c(options);
   pstream_cook_report report{};
   check(pstream_cook(&o, &report));
   return report;
 }
+
+// One frame handed to a Spool: `count` particles; each array count x components (position 3,
+// width 1, velocity 3, color 4, id 1), or null where the clip has none of it. The arrays are the
+// caller's again once add() returns.
+struct SpoolFrame {
+  double time = 0;  // seconds, after the frame before's
+  std::uint64_t count = 0;
+  const float* position = nullptr;
+  const float* width = nullptr;
+  const float* velocity = nullptr;
+  const std::uint64_t* id = nullptr;
+  const float* color = nullptr;
+  std::vector<pstream_float_attribute> floats;  // {name, components, values}
+};
+
+// A simulation handed over frame by frame (a DCC's exporter) and kept on disk until cook()
+// (pstream_spool_*): memory stays a frame's, and the temporary goes with the spool.
+class Spool {
+ public:
+  // `folder`: where the temporary lives (empty: $TMPDIR, else /tmp); `name` names the frames.
+  explicit Spool(const std::string& folder = {}, const std::string& name = "particles") {
+    pstream_spool* h = nullptr;
+    check(pstream_spool_open(folder.empty() ? nullptr : folder.c_str(), name.c_str(), &h));
+    h_ = Handle(h);
+  }
+  void add(const SpoolFrame& frame) {
+    pstream_spool_frame f{};
+    f.struct_size = sizeof f;
+    f.time = frame.time;
+    f.count = frame.count;
+    f.position = frame.position;
+    f.width = frame.width;
+    f.velocity = frame.velocity;
+    f.id = frame.id;
+    f.color = frame.color;
+    f.floats = frame.floats.empty() ? nullptr : frame.floats.data();
+    f.float_count = static_cast<std::uint32_t>(frame.floats.size());
+    check(pstream_spool_add(h_.get(), &f));
+  }
+  // As ::cook(), from the frames added: options.input stays empty, options.fps is their rate (0: 24).
+  pstream_cook_report cook(const CookOptions& options) {
+    const pstream_cook_options o = detail::to_c(options);
+    pstream_cook_report report{};
+    check(pstream_spool_cook(h_.get(), &o, &report));
+    return report;
+  }
+  pstream_spool* get() const { return h_.get(); }
+
+ private:
+  using Handle = detail::Handle<pstream_spool, pstream_spool_close>;
+  Handle h_;
+};
 
 // ---- Reading a .pstream directly -------------------------------------------------------------
 

@@ -127,6 +127,80 @@ void fill_info(const format::Metadata& m, pstream_clip_info* out) {
   for (int i = 0; i < 6; ++i) out->bounds[i] = m.bounds[static_cast<std::size_t>(i)];
 }
 
+// `options` as this release's struct: older callers' structs end before the fields added since,
+// which keep their defaults.
+pstream_result cook_options_given(const pstream_cook_options* options, pstream_cook_options& given) {
+  if (options == nullptr) return null_argument("options");
+  if (options->struct_size < offsetof(pstream_cook_options, scale_error))
+    return fail(PSTREAM_ERROR_ARGUMENT, "pstream_cook_options.struct_size is smaller than any release's");
+  pstream_cook_options_init(&given);
+  std::memcpy(&given, options, std::min(options->struct_size, sizeof given));
+  return PSTREAM_OK;
+}
+
+// The options every cook shares (attributes, codec and bounds), as the library's.
+pstream_result to_cook_options(const pstream_cook_options& options, cook::Options& o) {
+  o.output = options.output;
+  if (options.attributes) {
+    const std::string list = options.attributes;
+    for (std::size_t at = 0; at <= list.size();) {
+      const std::size_t comma = std::min(list.find(',', at), list.size());
+      if (comma > at) o.attributes.push_back(list.substr(at, comma - at));
+      at = comma + 1;
+    }
+  }
+  switch (options.codec) {  // the command line's names, so that both choose the same codec
+    case PSTREAM_CODEC_RAW: cook::set_codec(o, "raw"); break;
+    case PSTREAM_CODEC_LZ4: cook::set_codec(o, "lz4"); break;
+    case PSTREAM_CODEC_ZSTD: cook::set_codec(o, "zstd"); break;
+    case PSTREAM_CODEC_PARTICLE:
+    case PSTREAM_CODEC_PARTICLE_LOSSLESS:
+      cook::set_codec(o, options.codec == PSTREAM_CODEC_PARTICLE ? "particle" : "particle-lossless");
+      // The same rules as the command line's --error, --scale-error and --attribute-error; a
+      // bound they refuse is the caller's argument.
+      try {
+        if (options.error != 0) {
+          cook::set_error_bound(o, fmt::format("{}:{}", options.error_in_scene_units ? "abs" : "rel", options.error),
+                                "error");
+        }
+        cook::set_scale_error(o, fmt::format("{}", options.scale_error), "scale_error");
+        cook::set_attribute_error(o, fmt::format("{}", options.attribute_error), "attribute_error");
+      } catch (const Error& e) {
+        return fail(PSTREAM_ERROR_ARGUMENT, e.what());
+      }
+      o.particle.derive_velocity = options.store_velocity == 0;
+      break;
+    default: return fail(PSTREAM_ERROR_ARGUMENT, "unknown codec " + std::to_string(options.codec));
+  }
+  return PSTREAM_OK;
+}
+
+// Runs `cook` with the caller's progress callback (non-zero cancels: PSTREAM_ERROR_STATE) and fills
+// `report` (may be NULL). `what` names the cook in the cancellation's message.
+template <class Cook>
+pstream_result run_cook(const pstream_cook_options& options, const char* what, pstream_cook_report* report,
+                        const Cook& cook) {
+  bool cancelled = false;
+  std::function<void(const cook::Progress&)> progress;
+  if (options.progress) {
+    progress = [&](const cook::Progress& p) {
+      if (p.stage == cook::Stage::Fetch) return;  // bytes, not frames
+      if (options.progress(options.progress_user, p.frames_done, p.frame_count) != 0) {
+        cancelled = true;
+        throw Error(std::string(what) + ": the cook was cancelled by its progress callback");
+      }
+    };
+  }
+  try {
+    const cook::Report r = cook(progress);
+    if (report) *report = {r.frames, r.particles, r.file_bytes, r.seconds};
+  } catch (const Error& e) {
+    if (cancelled) return fail(PSTREAM_ERROR_STATE, e.what());
+    throw;
+  }
+  return PSTREAM_OK;
+}
+
 }  // namespace
 
 struct pstream_archive {
@@ -136,6 +210,10 @@ struct pstream_archive {
 
 struct pstream_clip {
   format::Reader reader;
+};
+
+struct pstream_spool {
+  cook::FrameSpool spool;
 };
 
 struct pstream_player {
@@ -264,75 +342,98 @@ void pstream_cook_options_init(pstream_cook_options* options) {
 }
 
 pstream_result pstream_cook(const pstream_cook_options* options, pstream_cook_report* report) {
-  if (options == nullptr) return null_argument("options");
-  // Older callers' structs end before the fields added since: what they have, then defaults.
-  if (options->struct_size < offsetof(pstream_cook_options, scale_error))
-    return fail(PSTREAM_ERROR_ARGUMENT, "pstream_cook_options.struct_size is smaller than any release's");
   pstream_cook_options given;
-  pstream_cook_options_init(&given);
-  std::memcpy(&given, options, std::min(options->struct_size, sizeof given));
-  options = &given;
-  if (options->output == nullptr) return null_argument("options->output");
-  if (const pstream_result r = check_readable(options->input); r != PSTREAM_OK) return r;
+  if (const pstream_result r = cook_options_given(options, given); r != PSTREAM_OK) return r;
+  if (given.output == nullptr) return null_argument("options->output");
+  if (const pstream_result r = check_readable(given.input); r != PSTREAM_OK) return r;
   return guarded(PSTREAM_ERROR_FORMAT, [&] {
     cook::Options o;
-    o.input = options->input;
-    o.output = options->output;
-    if (options->object) o.object = options->object;
-    if (options->attributes) {
-      std::string list = options->attributes;
-      for (std::size_t at = 0; at <= list.size();) {
-        const std::size_t comma = std::min(list.find(',', at), list.size());
-        if (comma > at) o.attributes.push_back(list.substr(at, comma - at));
-        at = comma + 1;
-      }
+    if (const pstream_result r = to_cook_options(given, o); r != PSTREAM_OK) return r;
+    o.input = given.input;
+    if (given.object) o.object = given.object;
+    o.fps = given.fps;
+    o.interpolate = given.interpolate != 0;
+    return run_cook(given, given.input, report, [&](const auto& progress) { return cook::cook(o, progress); });
+  });
+}
+
+// ---- Spools -------------------------------------------------------------------------------
+
+pstream_result pstream_spool_open(const char* folder, const char* name, pstream_spool** out) {
+  if (out == nullptr) return null_argument("out");
+  *out = nullptr;
+  return guarded(PSTREAM_ERROR_IO, [&] {
+    *out = opened(new pstream_spool{cook::FrameSpool(name ? name : "particles", folder ? folder : "")});
+    return PSTREAM_OK;
+  });
+}
+
+pstream_result pstream_spool_add(pstream_spool* spool, const pstream_spool_frame* frame) {
+  if (!is_open(spool)) return not_open("the spool", spool);
+  if (frame == nullptr) return null_argument("frame");
+  if (frame->struct_size < sizeof(pstream_spool_frame))
+    return fail(PSTREAM_ERROR_ARGUMENT, "pstream_spool_frame.struct_size is smaller than any release's");
+  if (frame->count > 0 && frame->position == nullptr) return null_argument("frame->position");
+  if (frame->float_count > 0 && frame->floats == nullptr) return null_argument("frame->floats");
+  return guarded(PSTREAM_ERROR_ARGUMENT, [&] {
+    // Sizes are the frame's own: count x components, each array checked for presence only.
+    const std::uint64_t n = frame->count;
+    const auto floats = [n](const float* p, std::size_t k) {
+      return p == nullptr || n == 0 ? std::span<const float>{} : std::span<const float>(p, n * k);
+    };
+    cook::MemoryFrame f;
+    f.time = frame->time;
+    f.count = n;
+    f.position = floats(frame->position, 3);
+    f.width = floats(frame->width, 1);
+    f.velocity = floats(frame->velocity, 3);
+    f.color = floats(frame->color, 4);
+    if (frame->id != nullptr && n > 0) f.id = {frame->id, n};
+    for (std::uint32_t k = 0; k < frame->float_count; ++k) {
+      const pstream_float_attribute& a = frame->floats[k];
+      if (a.name == nullptr) return null_argument("a float attribute's name");
+      if (a.values == nullptr && n > 0) return null_argument("a float attribute's values");
+      // The components are checked (1 to 16) before any span is made from them.
+      f.floats.push_back(
+          {a.name, a.components,
+           a.components < 1 || a.components > 16 ? std::span<const float>{} : floats(a.values, a.components)});
     }
-    o.fps = options->fps;
-    o.interpolate = options->interpolate != 0;
-    switch (options->codec) {
-      case PSTREAM_CODEC_RAW: o.codec = format::Codec::Raw; break;
-      case PSTREAM_CODEC_LZ4: o.codec = format::Codec::Lz4; break;
-      case PSTREAM_CODEC_ZSTD: o.codec = format::Codec::Zstd; break;
-      case PSTREAM_CODEC_PARTICLE:
-      case PSTREAM_CODEC_PARTICLE_LOSSLESS:
-        o.frame_codec = format::FrameCodec::Particle;
-        o.particle.lossless = options->codec == PSTREAM_CODEC_PARTICLE_LOSSLESS;
-        // The same rules as the command line's --error, --scale-error and --attribute-error; a
-        // bound they refuse is the caller's argument.
-        try {
-          if (options->error != 0) {
-            cook::set_error_bound(
-                o, fmt::format("{}:{}", options->error_in_scene_units ? "abs" : "rel", options->error), "error");
-          }
-          cook::set_scale_error(o, fmt::format("{}", options->scale_error), "scale_error");
-          cook::set_attribute_error(o, fmt::format("{}", options->attribute_error), "attribute_error");
-        } catch (const Error& e) {
-          return fail(PSTREAM_ERROR_ARGUMENT, e.what());
-        }
-        o.particle.derive_velocity = options->store_velocity == 0;
-        break;
-      default: return fail(PSTREAM_ERROR_ARGUMENT, "unknown codec " + std::to_string(options->codec));
-    }
-    bool cancelled = false;
-    std::function<void(const cook::Progress&)> progress;
-    if (options->progress) {
-      progress = [&](const cook::Progress& p) {
-        if (p.stage == cook::Stage::Fetch) return;  // bytes, not frames
-        if (options->progress(options->progress_user, p.frames_done, p.frame_count) != 0) {
-          cancelled = true;
-          throw Error(std::string(options->input) + ": the cook was cancelled by its progress callback");
-        }
-      };
-    }
+    spool->spool.check(f);  // what the frame holds is the caller's argument (the guard's code) ...
     try {
-      const cook::Report r = cook::cook(o, progress);
-      if (report) *report = {r.frames, r.particles, r.file_bytes, r.seconds};
+      spool->spool.add(f);
     } catch (const Error& e) {
-      if (cancelled) return fail(PSTREAM_ERROR_STATE, e.what());
-      throw;
+      return fail(PSTREAM_ERROR_IO, e.what());  // ... and a write that failed, the disk's
     }
     return PSTREAM_OK;
   });
+}
+
+pstream_result pstream_spool_cook(pstream_spool* spool, const pstream_cook_options* options,
+                                  pstream_cook_report* report) {
+  if (!is_open(spool)) return not_open("the spool", spool);
+  pstream_cook_options given;
+  if (const pstream_result r = cook_options_given(options, given); r != PSTREAM_OK) return r;
+  if (given.output == nullptr) return null_argument("options->output");
+  if (given.input != nullptr)
+    return fail(PSTREAM_ERROR_ARGUMENT, "a spool's cook reads its frames: options->input must be NULL");
+  if (given.interpolate != 0)
+    return fail(PSTREAM_ERROR_ARGUMENT,
+                "a spool's frames are cooked each from the nearest: options->interpolate must be 0");
+  return guarded(PSTREAM_ERROR_ARGUMENT, [&] {
+    cook::Options o;
+    if (const pstream_result r = to_cook_options(given, o); r != PSTREAM_OK) return r;
+    const cook::MemoryClip clip =
+        spool->spool.clip(given.object ? given.object : "particles", given.fps > 0 ? given.fps : 24.0);
+    return run_cook(given, clip.name.c_str(), report,
+                    [&](const auto& progress) { return cook::cook(o, clip, progress); });
+  });
+}
+
+pstream_result pstream_spool_close(pstream_spool* spool) {
+  if (spool == nullptr) return PSTREAM_OK;  // as free(NULL)
+  if (!forget(spool)) return not_open("the spool", spool);
+  delete spool;
+  return PSTREAM_OK;
 }
 
 // ---- Clips --------------------------------------------------------------------------------

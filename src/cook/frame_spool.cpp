@@ -109,18 +109,19 @@ FrameSpool& FrameSpool::operator=(FrameSpool&& other) noexcept {
   return *this;
 }
 
-void FrameSpool::add(const MemoryFrame& frame) {
-  Impl& d = *impl_;
+void FrameSpool::check(const MemoryFrame& frame) const {
+  const Impl& d = *impl_;
   const std::size_t index = d.entries.size();
   // The attributes are the first frame with particles' (cook() takes those of any frame with
   // particles: the same answer, or an error naming a frame).
-  if (!d.with_particles && frame.count > 0) {
-    const MemoryAttributes has = attributes_of(frame);
-    check_memory_frame(d.name, index, frame, has, index > 0 ? d.entries.back().time : std::nan(""));
-    d.has = has;
-  } else {
-    check_memory_frame(d.name, index, frame, d.has, index > 0 ? d.entries.back().time : std::nan(""));
-  }
+  check_memory_frame(d.name, index, frame, !d.with_particles && frame.count > 0 ? attributes_of(frame) : d.has,
+                     index > 0 ? d.entries.back().time : std::nan(""));
+}
+
+void FrameSpool::add(const MemoryFrame& frame) {
+  Impl& d = *impl_;
+  check(frame);
+  if (!d.with_particles && frame.count > 0) d.has = attributes_of(frame);
   // Room for the entry before anything is written. A write that fails leaves the end where it
   // was: the next frame is written over what it wrote.
   if (d.entries.size() == d.entries.capacity()) d.entries.reserve(2 * d.entries.capacity() + 64);

@@ -50,6 +50,13 @@ LD_LIBRARY_PATH=$libdir "$work/cmake-build/play_clip" "$work/clip.pstream" >"$wo
 cmake -S "$source/examples/cpp" -B "$work/cmake-build-cpp" -DCMAKE_PREFIX_PATH="$prefix" >/dev/null
 cmake --build "$work/cmake-build-cpp" >/dev/null
 LD_LIBRARY_PATH=$libdir "$work/cmake-build-cpp/play_clip_cpp" "$work/clip.pstream" >"$work/cmake-cpp.out"
+# The exporter's loop (a Spool): its clip holds every frame it handed over, and its temporary is gone.
+mkdir "$work/export"
+LD_LIBRARY_PATH=$libdir "$work/cmake-build-cpp/export_sim" "$work/export/fountain.pstream" >"$work/export.out"
+grep -q '^48 frames, 43800 particles' "$work/export.out" || { echo "export_sim:"; cat "$work/export.out"; exit 1; }
+grep -q '^read back: 48 frames at 24 fps, at most 1200 particles a frame' "$work/export.out" ||
+  { echo "export_sim:"; cat "$work/export.out"; exit 1; }
+[ "$(ls -A "$work/export")" = "fountain.pstream" ] || { echo "export_sim left: $(ls -A "$work/export")"; exit 1; }
 
 # pkg-config: the same sources
 pc() { PKG_CONFIG_PATH=$libdir/pkgconfig pkg-config "$@"; }
