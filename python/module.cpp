@@ -451,7 +451,7 @@ PYBIND11_MODULE(particlestream, m) {
       "Frames added one at a time and kept on disk, not in memory, until cook_particles(spool, ...) cooks them: "
       "for simulations larger than memory (the Blender add-on exports through one). The frames' arrays go to an "
       "unnamed temporary file in `folder` (default: the system's temporary folder), which leaves nothing behind, "
-      "even when the process is killed; the spool itself holds 40 bytes a frame. Use it as a context manager, or "
+      "even when the process is killed; the spool itself holds 24 bytes a frame. Use it as a context manager, or "
       "call close().")
       .def(py::init<const std::string&, const std::optional<std::filesystem::path>&>(), py::arg("name") = "particles",
            py::arg("folder") = py::none(),

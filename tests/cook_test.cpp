@@ -768,6 +768,27 @@ TEST(Cook, GroupsInFlightFitTheMemoryGivenAndTheClipIsTheSame) {
   EXPECT_EQ(narrow.keyframes, 6u);
 }
 
+// The particle cook's progress: each frame of the scan, then the writing's start, then once a
+// batch of keyframe groups (encoded together, so that a front end's rate is the batch's pace and
+// not a burst of frames written at once).
+TEST(Cook, ProgressCountsTheScanThenEachBatchOfGroups) {
+  const auto dir = pstream::test::fresh_dir();
+  pstream::cook::Options o;
+  o.input = pstream::test::data_path("sims/blender_sparks.abc");
+  o.output = dir / "progress.pstream";
+  o.threads = 2;
+  o.particle.keyframe_interval = 8;  // batches of 2 groups: 16 frames
+  std::vector<std::uint64_t> scan, write;
+  pstream::cook::cook(o, [&](const pstream::cook::Progress& p) {
+    (p.stage == pstream::cook::Stage::Scan ? scan : write).push_back(p.frames_done);
+    EXPECT_TRUE(write.empty() || p.stage == pstream::cook::Stage::Write) << "a scan after the writing began";
+  });
+  std::vector<std::uint64_t> frames(48);
+  std::iota(frames.begin(), frames.end(), 1);
+  EXPECT_EQ(scan, frames);
+  EXPECT_EQ(write, (std::vector<std::uint64_t>{0, 16, 32, 48}));
+}
+
 // Frames spooled to disk one at a time (cook.hpp: FrameSpool) cook into the very bytes the same
 // frames cook into from memory; the spool holds none of a frame's arrays in memory (one
 // allocation at most for a million particles), leaves no file in its folder at any time, refuses

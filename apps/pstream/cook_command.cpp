@@ -70,24 +70,7 @@ int run_cook(const CookCli& cli) {
   o.max_frames = cli.max_frames;
 
   const bool show = !cli.quiet && !cli.json;
-  std::optional<ProgressBar> scan;   // the particle codec's first pass
-  std::optional<ProgressBar> fetch;  // an Alembic cache at a URL, read into memory first
-  ProgressBar bar("cook", show);
-  const cook::Report r = cook::cook(o, [&](const cook::Progress& p) {
-    if (p.stage == cook::Stage::Fetch) {
-      if (!fetch) fetch.emplace("cook: fetch", show);
-      fetch->update_bytes(p.bytes_in, p.bytes_total);
-      return;
-    }
-    fetch.reset();
-    if (p.stage == cook::Stage::Scan) {
-      if (!scan) scan.emplace("cook: scan", show);
-      scan->update(p.frames_done, p.frame_count, "frames");
-      return;
-    }
-    scan.reset();  // done: its line ends
-    bar.update(p.frames_done, p.frame_count, fmt::format("frames, {:.1f} MiB written", p.bytes_out / 1048576.0));
-  });
+  const cook::Report r = cook::cook(o, CookProgress("cook", show));
   const double ratio = r.file_bytes ? double(r.stream_bytes) / double(r.file_bytes) : 0.0;
   if (cli.json) {
     nlohmann::ordered_json j{{"output", cli.output},         {"object", r.object},

@@ -191,9 +191,7 @@ int run_demo(const DemoCli& cli) {
   co.output = dir / "demo.pstream";
   co.frame_codec = format::FrameCodec::Particle;  // error-bounded, predicted over time
   co.particle.zstd_level = 9;  // the demo's time budget: ~5x faster cook than the default 16, ~9% larger
-  ProgressBar cook_bar("cook", !cli.quiet);
-  const cook::Report cr =
-      cook::cook(co, [&](const cook::Progress& p) { cook_bar.update(p.frames_done, p.frame_count, "frames"); });
+  const cook::Report cr = cook::cook(co, CookProgress("cook", !cli.quiet));
   const double per_particle = cr.particles ? double(cr.file_bytes) / double(cr.particles) : 0.0;
   report["cook"] = {{"ms", cr.seconds * 1000},
                     {"codec", "particle"},

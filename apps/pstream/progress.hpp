@@ -6,9 +6,12 @@
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
+#include <optional>
 #include <string>
 
 #include <fmt/format.h>
+
+#include "particlestream/cook.hpp"
 
 namespace pstream::app {
 
@@ -57,6 +60,36 @@ class ProgressBar {
   int last_decile_ = -1;
   std::chrono::steady_clock::time_point last_{};
   std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+};
+
+// A cook's progress: one bar a stage (the fetch of a URL, the particle codec's scan, the writing),
+// each with its own clock, so that a stage's rate and time left are its own and not the stages'
+// before it.
+class CookProgress {
+ public:
+  CookProgress(std::string label, bool enabled) : label_(std::move(label)), enabled_(enabled) {}
+  void operator()(const cook::Progress& p) {
+    if (p.stage != stage_ || !bar_) {
+      stage_ = p.stage;
+      bar_.reset();  // the last stage's line ends
+      bar_.emplace(p.stage == cook::Stage::Fetch  ? label_ + ": fetch"
+                   : p.stage == cook::Stage::Scan ? label_ + ": scan"
+                                                  : label_,
+                   enabled_);
+    }
+    if (p.stage == cook::Stage::Fetch)
+      bar_->update_bytes(p.bytes_in, p.bytes_total);
+    else if (p.stage == cook::Stage::Scan)
+      bar_->update(p.frames_done, p.frame_count, "frames");
+    else
+      bar_->update(p.frames_done, p.frame_count, fmt::format("frames, {:.1f} MiB written", p.bytes_out / 1048576.0));
+  }
+
+ private:
+  std::string label_;
+  bool enabled_;
+  cook::Stage stage_ = cook::Stage::Fetch;
+  std::optional<ProgressBar> bar_;
 };
 
 }  // namespace pstream::app

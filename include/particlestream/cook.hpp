@@ -174,7 +174,7 @@ Report cook(const Options& options, const MemoryClip& clip, const std::function<
 // clip larger than memory (the Blender add-on exports through one). Each frame's arrays go to an
 // unnamed temporary file in `folder` (O_TMPFILE; on a file system without it, a file removed as
 // soon as it is made), which the system reclaims when the spool ends, even when the process is
-// killed: nothing is left behind. The spool's memory is 40 bytes a frame; clip() maps the file.
+// killed: nothing is left behind. The spool holds 24 bytes a frame in memory; clip() maps the file.
 //
 //   cook::FrameSpool spool("my sim", output.parent_path());
 //   for (...) spool.add(frame);      // the frame's arrays are free again once add() returns

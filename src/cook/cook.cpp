@@ -415,6 +415,7 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
   report.dropped_invalid = dropped_before;
   state.stage = Stage::Write;
   state.frames_done = 0;
+  if (progress) progress(state);  // the writing starts (its first frames come after a batch's encode)
   const format::FrameCodecEncoding* encoder = format::find_frame_codec_encoder(options.frame_codec);
   if (encoder == nullptr) throw Error(fmt::format("unknown frame codec {}", static_cast<int>(options.frame_codec)));
   meta.codec =
@@ -482,9 +483,11 @@ void cook_particle(const Options& options, const Plan& plan, format::Metadata me
         state.bytes_out += e.packet.size();
         ++state.frames_done;
         space(state.frames_done, state.bytes_out);
-        if (progress) progress(state);
       }
     }
+    // Once a batch: its frames were encoded together, so a rate counted frame by frame while they
+    // are written would understate the pace, and the time left overstate it.
+    if (progress) progress(state);
     std::vector<HeldFrame> next_tail;
     for (HeldFrame* h : two_before(groups, groups.size(), tail)) next_tail.push_back(std::move(*h));
     tail = std::move(next_tail);
