@@ -199,7 +199,8 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             wm.progress_update(k + 1)
             if report:
                 report(k + 1, total, "frames read")
-        if indices and len(counts) > 1:
+        no_ids = indices and len(counts) > 1  # vertex indices, and the count changes: not ids
+        if no_ids:
             spool.drop_ids()
 
         def progress(done, count):
@@ -207,9 +208,14 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
             if report:
                 report(done, count, "frames cooked")
 
-        stored = (["id"] if ids else []) + (["age", "life"] if ages and from_particles else []) + (extra or [])
-        return ps.cook_particles(spool, filepath, fps=fps, name=name, object=obj.name, codec=codec, error=error,
-                                 attributes=stored, progress=progress)
+        stored = (["id"] if ids and not no_ids else []) + (["age", "life"] if ages and from_particles else []) + (
+            extra or [])
+        result = ps.cook_particles(spool, filepath, fps=fps, name=name, object=obj.name, codec=codec, error=error,
+                                   attributes=stored, progress=progress)
+        if ids and no_ids:
+            result["note"] = (f"{obj.name}'s vertex count changes and it has no integer 'id' point attribute, so its "
+                              "vertex indices are not ids: the clip stores none")
+        return result
     finally:
         spool.close()
         wm.progress_end()
@@ -257,6 +263,8 @@ class PSTREAM_OT_export(bpy.types.Operator, ExportHelper):
         except Exception as e:  # the module's messages name the frame and what is wrong
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        if "note" in r:
+            self.report({"WARNING"}, r["note"])
         self.report({"INFO"}, f"{self.filepath}: {r['frames']} frames, {r['particles']} particles, "
                               f"{r['file_bytes']} bytes")
         return {"FINISHED"}

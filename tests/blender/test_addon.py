@@ -205,5 +205,24 @@ check(grid_clip.count(6) == len(want), f"{grid_clip.count(6)} vertices, expected
 check(error <= 1e-4 * 3.0, f"vertex error {error}")
 print(f"mesh vertices: {len(want)} per frame, worst error {error:.3g}")
 
+# A mesh whose vertex count changes (a Build modifier revealing its faces) and has no 'id'
+# attribute: vertex indices are not ids then, so the clip has none even with "Store ids".
+bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=3, location=(4, 0, 0))
+sphere = bpy.context.active_object
+build = sphere.modifiers.new("build", "BUILD")
+build.frame_start, build.frame_duration = 1, 10
+counts = []
+for f in (2, 6, 11):
+    scene.frame_set(f)
+    counts.append(len(sphere.evaluated_get(bpy.context.evaluated_depsgraph_get()).data.vertices))
+check(counts[0] < counts[1] < counts[2], f"the built sphere's vertex counts {counts} should grow")
+built_path = str(work / "built.pstream")
+check(bpy.ops.pstream.export(filepath=built_path, frame_start=1, frame_end=12, ids=True) == {"FINISHED"},
+      "built sphere export")
+built = ps.Clip(built_path)
+check("id" not in [a[0] for a in built.layout], f"a growing mesh's clip has ids: {[a[0] for a in built.layout]}")
+check(built.count(10) == counts[2], f"{built.count(10)} points at frame 11, Blender {counts[2]}")
+print(f"a growing mesh ({counts[0]} -> {counts[2]} vertices): exported without ids")
+
 addon.unregister()
 print("blender add-on: all checks passed")
