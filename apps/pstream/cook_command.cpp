@@ -46,14 +46,7 @@ int run_cook(const CookCli& cli) {
   o.interpolate = cli.interpolate;
   cook::set_scale_from(o, cli.scale_from, "--scale-from");
   o.color_from = cli.color_from;
-  for (std::size_t start = 0; start < cli.attributes.size();) {
-    const auto comma = cli.attributes.find(',', start);
-    const std::string name =
-        cli.attributes.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
-    if (!name.empty()) o.attributes.push_back(name);
-    if (comma == std::string::npos) break;
-    start = comma + 1;
-  }
+  cook::add_attributes(o, cli.attributes);
   o.chunk_size = parse_size(cli.chunk_size);
   cook::set_codec(o, cli.codec);
   o.keep_velocity = !cli.no_velocity;

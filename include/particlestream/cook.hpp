@@ -77,6 +77,9 @@ void set_attribute_error(Options& options, std::string_view spec, std::string_vi
 // (output frames from A up to but not including B; either may be left out).
 void set_scale_from(Options& options, std::string_view spec, std::string_view what = "scale_from");
 void set_frames(Options& options, std::string_view spec, std::string_view what = "frames");
+// Appends the names of a comma-separated list ("velocity,id,age"; empty names skipped) to
+// options.attributes: the command line's --attributes and the C API's `attributes`.
+void add_attributes(Options& options, std::string_view list);
 
 // What the file records about how it was made (its "cooked with" string): every setting that
 // changes the bytes, as key=value words, and the input's name and content hash. No paths, so

@@ -141,14 +141,7 @@ pstream_result cook_options_given(const pstream_cook_options* options, pstream_c
 // The options every cook shares (attributes, codec and bounds), as the library's.
 pstream_result to_cook_options(const pstream_cook_options& options, cook::Options& o) {
   o.output = options.output;
-  if (options.attributes) {
-    const std::string list = options.attributes;
-    for (std::size_t at = 0; at <= list.size();) {
-      const std::size_t comma = std::min(list.find(',', at), list.size());
-      if (comma > at) o.attributes.push_back(list.substr(at, comma - at));
-      at = comma + 1;
-    }
-  }
+  if (options.attributes) cook::add_attributes(o, options.attributes);
   switch (options.codec) {  // the command line's names, so that both choose the same codec
     case PSTREAM_CODEC_RAW: cook::set_codec(o, "raw"); break;
     case PSTREAM_CODEC_LZ4: cook::set_codec(o, "lz4"); break;

@@ -1,5 +1,6 @@
 // Codec specs ("particle:9", "zstd:5", "raw"): the names the cook's users write, read into
 // Options in one place for the command line and the bindings.
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <optional>
@@ -128,6 +129,14 @@ void set_scale_from(Options& o, std::string_view spec, std::string_view what) {
   } else {
     throw Error(fmt::format("{} '{}': expected widths, constant:X or attr:NAME{}", what, text,
                             did_you_mean(text, {"widths", "constant:", "attr:"})));
+  }
+}
+
+void add_attributes(Options& o, std::string_view list) {
+  for (std::size_t at = 0; at <= list.size();) {
+    const std::size_t comma = std::min(list.find(',', at), list.size());
+    if (comma > at) o.attributes.emplace_back(list.substr(at, comma - at));
+    at = comma + 1;
   }
 }
 

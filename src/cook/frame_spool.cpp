@@ -132,8 +132,8 @@ void FrameSpool::add(const MemoryFrame& frame) {
   d.write(at, std::as_bytes(frame.velocity));
   d.write(at, std::as_bytes(frame.color));
   for (const auto& [name, components] : d.has.floats) {  // in the spool's order, whatever the frame's
-    for (const MemoryFloats& a : frame.floats)
-      if (frame.count > 0 && a.name == name) d.write(at, std::as_bytes(a.values));
+    if (const MemoryFloats* a = floats_named(frame, name); a != nullptr && frame.count > 0)
+      d.write(at, std::as_bytes(a->values));
   }
   d.write(at, std::as_bytes(frame.id));
   d.size = at;

@@ -12,13 +12,14 @@
 #include "cook/source.hpp"
 
 namespace pstream::cook {
-namespace {
 
 const MemoryFloats* floats_named(const MemoryFrame& f, const std::string& name) {
   for (const MemoryFloats& a : f.floats)
     if (a.name == name) return &a;
   return nullptr;
 }
+
+namespace {
 
 class MemorySource final : public Source {
  public:

@@ -107,6 +107,8 @@ struct MemoryAttributes {
   void add(const MemoryAttributes& other);                    // the union (a float's first components kept)
 };
 MemoryAttributes attributes_of(const MemoryFrame& frame);  // its non-empty arrays
+// The frame's float attribute named `name`, or null.
+const MemoryFloats* floats_named(const MemoryFrame& frame, const std::string& name);
 // Throws pstream::Error naming `name`, frame `index` and what is wrong when the frame's time is
 // not finite or not after `previous_time` (NaN for the first frame), an array does not hold
 // count x components values for an attribute of `has` (none for the others), or a float
