@@ -1,6 +1,8 @@
 // Cooking real files: every frame of every fixture must come back exactly as the source holds it
 // (positions, scale = width / 2), whatever the codec and however frames straddle chunks.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -876,6 +878,34 @@ TEST(Cook, FromASpoolTheSameBytesAsFromMemoryAndNoFileLeft) {
   try {
     pstream::cook::FrameSpool spool("x", dir / "missing");
     ADD_FAILURE() << "a spool in a missing folder";
+  } catch (const pstream::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("missing: cannot make the frame spool's temporary file there"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
+// The spool's fallback for file systems without O_TMPFILE (some network and FUSE ones), which
+// this machine's file systems never take: the file it makes works, has no name in its folder
+// from the moment it returns (no link at all), and a folder that is not there is named.
+TEST(Cook, SpoolFallbackFileHasNoNameOnceMade) {
+  const auto dir = pstream::test::fresh_dir();
+  const int fd = pstream::cook::named_then_unlinked_file(dir);
+  ASSERT_GE(fd, 0);
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator{}), 0);
+  struct stat st {};
+  ASSERT_EQ(::fstat(fd, &st), 0);
+  EXPECT_EQ(st.st_nlink, 0u);
+  EXPECT_EQ(st.st_mode & 0777, 0600u);
+  const std::string bytes = "frames written and read back";
+  EXPECT_EQ(::pwrite(fd, bytes.data(), bytes.size(), 4096), static_cast<ssize_t>(bytes.size()));
+  std::string back(bytes.size(), '\0');
+  EXPECT_EQ(::pread(fd, back.data(), back.size(), 4096), static_cast<ssize_t>(back.size()));
+  EXPECT_EQ(back, bytes);
+  ::close(fd);
+  try {
+    pstream::cook::named_then_unlinked_file(dir / "missing");
+    ADD_FAILURE() << "a file in a missing folder";
   } catch (const pstream::Error& e) {
     EXPECT_NE(std::string(e.what()).find("missing: cannot make the frame spool's temporary file there"),
               std::string::npos)

@@ -18,17 +18,21 @@ namespace {
 
 std::uint64_t padded(std::uint64_t bytes) { return (bytes + 7) / 8 * 8; }  // ids stay 8-byte aligned
 
-// An unnamed file in `folder`: O_TMPFILE, or where the file system has none (some network and
-// FUSE file systems), a named one unlinked at once. Either way no name is left once this returns.
+}  // namespace
+
 int unnamed_file(const std::filesystem::path& folder) {
-  int fd = ::open(folder.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
+  const int fd = ::open(folder.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
   if (fd >= 0) return fd;
   if (errno != EOPNOTSUPP && errno != EISDIR && errno != EINVAL) {
     throw Error(fmt::format("{}: cannot make the frame spool's temporary file there: {}", folder.string(),
                             std::strerror(errno)));
   }
+  return named_then_unlinked_file(folder);
+}
+
+int named_then_unlinked_file(const std::filesystem::path& folder) {
   std::string path = (folder / ".pstream-spool-XXXXXX").string();
-  fd = ::mkostemp(path.data(), O_CLOEXEC);
+  const int fd = ::mkostemp(path.data(), O_CLOEXEC);
   if (fd < 0) {
     throw Error(fmt::format("{}: cannot make the frame spool's temporary file there: {}", folder.string(),
                             std::strerror(errno)));
@@ -43,8 +47,6 @@ int unnamed_file(const std::filesystem::path& folder) {
   }
   return fd;
 }
-
-}  // namespace
 
 struct FrameSpool::Impl {
   // A frame's arrays start at `offset`: those of `has` when it holds particles, none otherwise.

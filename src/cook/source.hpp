@@ -117,6 +117,13 @@ const MemoryFloats* floats_named(const MemoryFrame& frame, const std::string& na
 void check_memory_frame(const std::string& name, std::size_t index, const MemoryFrame& frame,
                         const MemoryAttributes& has, double previous_time);
 
+// A read-write file in `folder` that no name refers to (the frame spool's): O_TMPFILE where the
+// file system has it, else named_then_unlinked_file(). Throws pstream::Error naming the folder.
+int unnamed_file(const std::filesystem::path& folder);
+// The fallback for file systems without O_TMPFILE (some network and FUSE ones): a file made under
+// a fresh name in `folder` and unlinked at once, so that no name is left once this returns.
+int named_then_unlinked_file(const std::filesystem::path& folder);
+
 // `progress` hears of a URL's fetch (Stage::Fetch).
 std::unique_ptr<Source> open_alembic(const Options& options, const std::function<void(const Progress&)>& progress = {});
 std::unique_ptr<Source> open_ply_sequence(const Options& options);
