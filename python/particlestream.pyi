@@ -185,7 +185,7 @@ def export(
 ) -> dict:
     """Writes a .pstream (a path or URL) back out for a DCC, as `pstream export` does: NAME.abc an
     Alembic points cache, NAME.ply a binary PLY sequence (NAME.0001.ply ...); frames 'A:B' exports
-    the clip's frames from A up to but not including B. Returns the report:
+    the clip's frames from A up to but not including B, 'N' frame N alone. Returns the report:
     format ('alembic' or 'ply'), frames, first (the file or the sequence's first), bytes_written."""
 
 def verify(clip: str, against: str = "") -> dict:

@@ -204,6 +204,12 @@ TEST(Cli, ExportRoundTripsEmptyFramesAndTheExtensionChoosesTheFormat) {
   EXPECT_EQ(nlohmann::json::parse(r.output)["frames"], 2);
   EXPECT_TRUE(fs::exists(dir / "part" / "p.0002.ply") && fs::exists(dir / "part" / "p.0003.ply"));
   EXPECT_FALSE(fs::exists(dir / "part" / "p.0001.ply") || fs::exists(dir / "part" / "p.0004.ply"));
+  // --frames N: frame N alone.
+  r = run_cli("export --json --frames 2 " + q(clip) + " -o " + q(dir / "one" / "p.ply"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(nlohmann::json::parse(r.output)["frames"], 1);
+  EXPECT_TRUE(fs::exists(dir / "one" / "p.0003.ply"));
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir / "one"), fs::directory_iterator{}), 1);
   // A file where the sequence's folder would be is named, and nothing is written.
   std::ofstream(dir / "taken") << "a file";
   r = run_cli("export -q " + q(clip) + " -o " + q(dir / "taken" / "f.ply"));

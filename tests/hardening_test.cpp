@@ -423,6 +423,8 @@ TEST(Hardening, BadValuesGetMessagesThatSayWhatIsWanted) {
       {"cook " + abc + out + " --frames a:b", "--frames 'a:b': expected A:B"},
       {"cook " + abc + out + " --frames 99999999999999999999:", "--frames '99999999999999999999:': expected A:B"},
       {"cook " + abc + out + " --frames 5:3", "the frame range --frames 5:3 selects no frames"},
+      {"cook " + abc + out + " --frames 2-4", "or N for frame N alone (a range takes a colon, not a dash)"},
+      {"cook " + abc + out + " --frames 9223372036854775807", "--frames '9223372036854775807': expected A:B"},
       {"cook " + abc + out + " --scale-from constant:abc", "expected constant:X with X a positive number"},
       {"cook " + abc + out + " --chunk-size 17592186044417M", "--chunk-size '17592186044417M': too large"},
       {"cook " + abc + out + " --chunk-size 3", "--chunk-size 3 must be a power of two"},

@@ -291,7 +291,9 @@ int main(int argc, char** argv) {
                      "particle codec: store the source's velocities (within --attribute-error, about 2.3 bytes per "
                      "particle) instead of deriving them from the positions of particles with ids (docs/"
                      "compression.md: the derived one's error)");
-  cook_cmd->add_option("--frames", cook.frames, "Output frames A:B (from A up to but not including B)");
+  cook_cmd->add_option(
+      "--frames", cook.frames,
+      "Output frames A:B (from A up to but not including B; either may be left out), or N for frame N alone");
   cook_cmd->add_flag("--keep-order", cook.keep_order,
                      "Keep each frame's particles in the source's order (records codec). By default a clip with "
                      "ids is written in ascending id order, so players match particles between frames by a "
@@ -326,7 +328,8 @@ int main(int argc, char** argv) {
                          "The file to write; its extension chooses the format: NAME.abc (an Alembic cache) or "
                          "NAME.ply (a PLY sequence NAME.0001.ply ...)");
   export_cmd->add_option("--frames", export_cli.frames,
-                         "Clip frames A:B (from A up to but not including B); a PLY file keeps its frame's number");
+                         "Clip frames A:B (from A up to but not including B; either may be left out), or N for frame N "
+                         "alone; a PLY file keeps its frame's number");
   export_cmd->add_flag("-q,--quiet", export_cli.quiet, "No progress or summary");
   export_cmd->add_flag("--json", export_cli.json,
                        "Print what was written as JSON (format, frames, first file, bytes_written)");
@@ -497,7 +500,9 @@ int main(int argc, char** argv) {
           "--out", render_cli.out,
           "Folder for frame_NNNNN.png, numbered by source frame (a cache from frame 1 starts at frame_00001.png)")
       ->capture_default_str();
-  render_cmd->add_option("--frames", render_cli.frames, "Clip frames A:B (from A up to but not including B)");
+  render_cmd->add_option(
+      "--frames", render_cli.frames,
+      "Clip frames A:B (from A up to but not including B; either may be left out), or N for frame N alone");
   render_cmd->add_option("--size", render_cli.size, "Image size WIDTHxHEIGHT")->capture_default_str();
   render_cmd
       ->add_option("--camera", render_cli.camera,

@@ -55,22 +55,23 @@ std::string did_you_mean(std::string_view word, std::initializer_list<std::strin
 std::pair<std::int64_t, std::int64_t> parse_frame_range(std::string_view text, std::string_view flag) {
   const auto colon = text.find(':');
   const auto number = [&](std::string_view part, std::int64_t open) {
-    if (part.empty()) return open;
+    if (part.empty() && colon != std::string_view::npos) return open;
     std::int64_t v = 0;
     const auto [ptr, ec] = std::from_chars(part.data(), part.data() + part.size(), v);
-    if (ec != std::errc() || ptr != part.data() + part.size() || v < 0) {
+    if (ec != std::errc() || ptr != part.data() + part.size() || v < 0 || v == INT64_MAX) {
+      const bool dash = colon == std::string_view::npos && text.find('-') != std::string_view::npos;
       throw Error(
           fmt::format("{} '{}': expected A:B, frame numbers from 0 (A:B is from A up to but not including B; "
-                      "either may be left out)",
-                      flag, text));
+                      "either may be left out), or N for frame N alone{}",
+                      flag, text, dash ? " (a range takes a colon, not a dash)" : ""));
     }
     return v;
   };
-  if (colon == std::string::npos) {
-    throw Error(fmt::format("{} '{}': expected A:B (from frame A up to but not including B)", flag, text));
+  if (colon == std::string_view::npos) {
+    const std::int64_t frame = number(text, 0);
+    return {frame, frame + 1};
   }
-  const std::string_view all = text;
-  return {number(all.substr(0, colon), 0), number(all.substr(colon + 1), -1)};
+  return {number(text.substr(0, colon), 0), number(text.substr(colon + 1), -1)};
 }
 
 }  // namespace pstream

@@ -19,6 +19,7 @@ std::string did_you_mean(std::string_view word, std::span<const std::string_view
 std::string did_you_mean(std::string_view word, std::initializer_list<std::string_view> names);
 
 // "A:B", "A:" or ":B" -> {A, B} (from A up to but not including B); B is -1 when left open.
+// "N" -> {N, N + 1}, frame N alone.
 // Throws pstream::Error naming `what` (the flag or argument).
 std::pair<std::int64_t, std::int64_t> parse_frame_range(std::string_view text, std::string_view what = "--frames");
 

@@ -470,7 +470,7 @@ def test_cook_takes_every_option_of_the_cli_with_its_messages(tmp_path):
     # The same words as the command line's, after the option's name.
     cli = os.environ.get("PSTREAM_CLI")
     for kwargs, flag_args, tail in [
-        ({"frames": "7"}, ["--frames", "7"], "'7': expected A:B"),
+        ({"frames": "7-9"}, ["--frames", "7-9"], "or N for frame N alone (a range takes a colon, not a dash)"),
         ({"scale_from": "wdths"}, ["--scale-from", "wdths"], "'wdths': expected widths, constant:X or attr:NAME"),
         ({"scale_error": "0"}, ["--scale-error", "0"], "'0': expected the bound on each particle's scale"),
     ]:
