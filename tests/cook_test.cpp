@@ -392,7 +392,7 @@ TEST(CookBadInput, MissingObjectNoPointsZeroFramesTooMany) {
   o.object = "/nope";
   expect_cook_error(o, "no object '/nope'");
   o.object.clear();
-  o.input = test::data_path("alembic/mesh_vertices.abc");
+  o.input = test::data_path("alembic/times_singles_only.abc");
   expect_cook_error(o, "holds no points objects");
   o.input = test::data_path("alembic/points_multi.abc");
   expect_cook_error(o, "cook them together with `merge`");
@@ -410,6 +410,41 @@ TEST(CookBadInput, MissingObjectNoPointsZeroFramesTooMany) {
   o.chunk_size = format::kMinChunkSize;
   o.attributes = {"velocity"};
   expect_cook_error(o, "`attributes` has velocity, but the source has no velocities");
+}
+
+// An archive without points objects but with one mesh cooks that mesh's vertices, as --object
+// naming it does, and says so in the report; a mesh beside points objects is left alone.
+TEST(Cook, TheOnlyMeshOfAnArchiveWithoutPointsCooksAsItsVertices) {
+  const fs::path dir = test::fresh_dir();
+  cook::Options o;
+  o.input = test::data_path("alembic/mesh_vertices.abc");
+  o.output = dir / "auto.pstream";
+  const cook::Report automatic = cook::cook(o);
+  EXPECT_EQ(automatic.object, "/grid");
+  EXPECT_TRUE(automatic.mesh_vertices);
+  o.object = "/grid";
+  o.output = dir / "named.pstream";
+  const cook::Report named = cook::cook(o);
+  EXPECT_TRUE(named.mesh_vertices);
+  EXPECT_EQ(automatic.particles, 24u * 400u);
+  EXPECT_EQ(named.particles, automatic.particles);
+  const auto a = format::Reader::open(dir / "auto.pstream");
+  const auto b = format::Reader::open(dir / "named.pstream");
+  ASSERT_EQ(a.metadata().frame_count(), 24u);
+  const std::size_t bytes = 400 * a.metadata().record_size;
+  std::vector<std::byte> from_a(bytes), from_b(bytes);
+  for (std::uint64_t f = 0; f < 24; ++f) {
+    a.read_frame(f, from_a);
+    b.read_frame(f, from_b);
+    EXPECT_EQ(from_a, from_b) << "frame " << f;
+  }
+
+  o.object.clear();
+  o.input = test::data_path("alembic/strings_attributes.abc");  // points and a mesh
+  o.output = dir / "points.pstream";
+  const cook::Report points = cook::cook(o);
+  EXPECT_EQ(points.object, "/sparks_geo/sparks");
+  EXPECT_FALSE(points.mesh_vertices);
 }
 
 void write_ply(const fs::path& path, const std::vector<std::array<float, 4>>& points, bool binary) {

@@ -90,6 +90,9 @@ int run_cook(const CookCli& cli) {
                  "spacing (choose with --scale-from)\n",
                  r.default_scale);
     }
+    if (r.mesh_vertices && o.object.empty()) {
+      fmt::print(stderr, "note: the archive holds no points objects; cooked the vertices of its mesh {}\n", r.object);
+    }
     if (r.dropped_invalid)
       fmt::print(stderr, "note: dropped {} particles with NaN or infinite positions\n", r.dropped_invalid);
     fmt::print("{} -> {}: {}, {}, {}, {:.1f} MiB ({:.2f}x of the {:.1f} MiB record stream) in {:.2f} s\n", r.object,

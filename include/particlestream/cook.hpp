@@ -107,6 +107,9 @@ struct Report {
   // nearest-neighbour spacing of the middle frame (0.01 when that cannot be measured).
   double default_scale = 0.0;
   std::string object;
+  // An object cooked is a mesh, whose vertices became the particles: the one named by
+  // Options::object, or the archive's only mesh where it holds no points objects.
+  bool mesh_vertices = false;
   // The particle codec: the positions' bound (absolute), keyframes, and how many particles were
   // predicted from the frame before out of how many could have been.
   double error = 0.0;

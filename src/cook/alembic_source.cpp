@@ -118,7 +118,21 @@ class AlembicSource final : public Source {
       for (const Object& o : archive_.objects()) {
         if (Points::matches(o)) objects_.push_back({o, Points(o), std::nullopt});
       }
-      if (objects_.empty()) throw Error(fmt::format("{}: the archive holds no points objects{}", file, object_list()));
+      if (objects_.empty()) {
+        // No points: a mesh's vertices, as some exporters write particles (Blender's Alembic
+        // exporter among them), when there is exactly one mesh to choose.
+        std::vector<Object> meshes;
+        for (const Object& o : archive_.objects()) {
+          if (PolyMesh::matches(o)) meshes.push_back(o);
+        }
+        if (meshes.empty()) throw Error(fmt::format("{}: the archive holds no points objects{}", file, object_list()));
+        if (meshes.size() > 1) {
+          throw OptionError("object", fmt::format("{}: the archive holds no points objects, and {} meshes; choose "
+                                                  "one with `object` (its full name) to cook its vertices{}",
+                                                  file, meshes.size(), object_list()));
+        }
+        objects_.push_back({meshes.front(), std::nullopt, PolyMesh(meshes.front())});
+      }
       if (objects_.size() > 1 && !options.merge) {
         throw OptionError("object",
                           fmt::format("{}: {} points objects; choose one with `object` (its full name), or cook "
@@ -132,6 +146,9 @@ class AlembicSource final : public Source {
   }
 
   std::string name() const override { return archive_.name(); }
+  bool mesh_vertices() const override {
+    return std::any_of(objects_.begin(), objects_.end(), [](const Cooked& c) { return c.mesh.has_value(); });
+  }
   std::string object() const override {
     std::string s;
     for (const Cooked& c : objects_) s += (s.empty() ? "" : ",") + c.object.full_name();

@@ -659,6 +659,7 @@ Report cook_source(const Options& options, Source& opened, const std::function<v
   Source* const source = &opened;
   Report report;
   report.object = source->object();
+  report.mesh_vertices = source->mesh_vertices();
   const Prepared prepared = prepare(options, *source, report);
   const Plan& plan = prepared.plan;
   const FramePlan& frames = prepared.frames;

@@ -55,8 +55,9 @@ struct Request {
 class Source {
  public:
   virtual ~Source() = default;
-  virtual std::string name() const = 0;    // file and object, for messages and the header
-  virtual std::string object() const = 0;  // what was cooked
+  virtual std::string name() const = 0;                 // file and object, for messages and the header
+  virtual std::string object() const = 0;               // what was cooked
+  virtual bool mesh_vertices() const { return false; }  // an object cooked is a mesh: its vertices
   virtual double default_fps() const = 0;
   virtual double start_time() const = 0;
   virtual double end_time() const = 0;
