@@ -408,6 +408,8 @@ PYBIND11_MODULE(particlestream, m) {
     d["particles"] = r.particles;
     d["file_bytes"] = r.file_bytes;
     d["seconds"] = r.seconds;
+    d["object"] = r.object;
+    d["mesh_vertices"] = r.mesh_vertices;
     return d;
   };
 
@@ -444,7 +446,8 @@ PYBIND11_MODULE(particlestream, m) {
       "'constant:X', 'attr:NAME'), color_from ('auto', 'Cd', 'none'), attributes, velocity (give the clip a "
       "velocity: --no-velocity is velocity=False), keyframe_interval, drop_invalid, store_velocity "
       "(--store-velocity: store the source's instead of deriving it from particles with ids). Returns the "
-      "report (frames, particles, file_bytes, seconds).");
+      "report (frames, particles, file_bytes, seconds, object: what was cooked, mesh_vertices: whether it is a "
+      "mesh's vertices, as an archive without points objects and with one mesh cooks).");
 
   py::class_<PyFrameSpool>(
       m, "FrameSpool",

@@ -131,7 +131,9 @@ def cook(
     store_velocity: bool = False,
 ) -> dict:
     """Cooks an Alembic archive (or a PLY sequence) into a .pstream with the options of
-    `pstream cook`; returns the report (frames, particles, file_bytes, seconds)."""
+    `pstream cook`; returns the report (frames, particles, file_bytes, seconds, object: what was
+    cooked, mesh_vertices: whether it is a mesh's vertices, as an archive without points objects
+    and with one mesh cooks)."""
 
 class FrameSpool:
     """Frames added one at a time and kept on disk (an unnamed temporary file in `folder`) until
@@ -170,7 +172,7 @@ def cook_particles(
     """Cooks particles held in memory into a .pstream, as cook() cooks a file. Each frame is a dict
     with 'time' (seconds) and 'position' (N x 3), and optionally 'width' (N diameters), 'velocity'
     (N x 3, per second), 'id' (N, stable) and 'color' (N x 4, linear RGBA in 0..1). Returns the
-    report (frames, particles, file_bytes, seconds)."""
+    report (frames, particles, file_bytes, seconds, object, mesh_vertices)."""
 
 def describe_ply(file: PathLike) -> dict:
     """Describes the numbered PLY sequence `file` belongs to, as `pstream info frame.0001.ply`

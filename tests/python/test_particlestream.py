@@ -83,7 +83,10 @@ def test_cook_clip_and_player_as_numpy(tmp_path):
     report = ps.cook(abc, tmp_path / "v.pstream", attributes=["velocity", "id"], codec="raw",  # exact values
                      progress=lambda done, total: calls.append((done, total)))
     assert report["frames"] == 60 and report["particles"] > 0 and report["file_bytes"] > 0
+    assert report["object"] == "/particles" and not report["mesh_vertices"], report
     assert calls[-1] == (60, 60)
+    mesh = ps.cook(DATA / "alembic" / "mesh_vertices.abc", tmp_path / "m.pstream")  # no points: the one mesh
+    assert mesh["object"] == "/grid" and mesh["mesh_vertices"] and mesh["particles"] == 24 * 400, mesh
 
     clip = ps.Clip(tmp_path / "v.pstream")
     assert clip.frame_count == 60
