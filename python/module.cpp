@@ -260,6 +260,15 @@ struct PyClip {
   py::dtype dtype;  // made once: building a structured dtype costs more than decoding a small frame
   explicit PyClip(const std::filesystem::path& path)
       : reader(format::Reader::open(path)), dtype(record_dtype(reader.metadata())) {}
+  // Frame f's entry; throws naming the clip and its frames when there is no frame f.
+  const format::FrameEntry& frame(std::uint64_t f) const {
+    const format::Metadata& meta = reader.metadata();
+    if (f >= meta.frame_count()) {
+      throw Error(fmt::format("{}: no frame {} (the clip's frames are 0 to {})", reader.name(), f,
+                              static_cast<std::int64_t>(meta.frame_count()) - 1));
+    }
+    return meta.frames[f];
+  }
 };
 
 struct PyPlayer {
@@ -655,27 +664,14 @@ PYBIND11_MODULE(particlestream, m) {
           "The frames read_frame() has decoded so far, those decoded on the way to the ones asked for "
           "included (a predicted frame decodes on from its keyframe or a frame before it).")
       .def(
-          "count",
-          [](const PyClip& c, std::uint64_t f) {
-            if (f >= c.reader.metadata().frame_count())
-              throw Error(c.reader.name() + ": no frame " + std::to_string(f));
-            return c.reader.metadata().frames[f].count;
-          },
-          py::arg("frame"))
+          "count", [](const PyClip& c, std::uint64_t f) { return c.frame(f).count; }, py::arg("frame"))
       .def(
-          "time",
-          [](const PyClip& c, std::uint64_t f) {
-            if (f >= c.reader.metadata().frame_count())
-              throw Error(c.reader.name() + ": no frame " + std::to_string(f));
-            return c.reader.metadata().frames[f].time;
-          },
-          py::arg("frame"))
+          "time", [](const PyClip& c, std::uint64_t f) { return c.frame(f).time; }, py::arg("frame"))
       .def(
           "read_frame",
           [](PyClip& c, std::uint64_t f, const py::object& out) -> py::array {
             const format::Metadata& meta = c.reader.metadata();
-            if (f >= meta.frame_count()) throw Error(c.reader.name() + ": no frame " + std::to_string(f));
-            const std::uint64_t n = meta.frames[f].count;
+            const std::uint64_t n = c.frame(f).count;
             const std::size_t bytes = static_cast<std::size_t>(n * meta.record_size);
             if (out.is_none()) {  // decoded straight into the array it returns
               py::array records(c.dtype, std::vector<py::ssize_t>{py::ssize_t(n)});

@@ -90,6 +90,9 @@ def test_cook_clip_and_player_as_numpy(tmp_path):
 
     clip = ps.Clip(tmp_path / "v.pstream")
     assert clip.frame_count == 60
+    for past_the_end in (lambda: clip.count(60), lambda: clip.time(60), lambda: clip.read_frame(60)):
+        with pytest.raises(ps.Error, match=r"v.pstream: no frame 60 \(the clip's frames are 0 to 59\)"):
+            past_the_end()
     assert [a[0] for a in clip.layout] == ["position", "scale", "color", "velocity", "id"]
     archive = ps.Archive(abc)
     for f in (5, 30, 59):
