@@ -396,15 +396,20 @@ PYBIND11_MODULE(particlestream, m) {
     cook::set_codec(o, codec);
     return o;
   };
-  // Runs a cook with the GIL released, reporting progress(frames_done, frame_count) from it.
+  // Runs a cook with the GIL released, reporting progress(done, total) from it: the cook's work in
+  // frames, each frame counted once for each pass over it (the particle codec's scan for its
+  // statistics, then the write), so that `done` only grows and ends at `total`.
   const auto run_cook = [](const std::function<cook::Report(const std::function<void(const cook::Progress&)>&)>& cook,
                            const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
     std::function<void(const cook::Progress&)> report;
+    bool scanned = false;  // a scan came first: two passes
     if (progress) {
       report = [&](const cook::Progress& p) {
         if (p.stage == cook::Stage::Fetch) return;  // bytes, not frames
+        scanned = scanned || p.stage == cook::Stage::Scan;
+        const std::uint64_t before = scanned && p.stage == cook::Stage::Write ? p.frame_count : 0;
         py::gil_scoped_acquire gil;
-        progress(p.frames_done, p.frame_count);
+        progress(before + p.frames_done, (scanned ? 2 : 1) * p.frame_count);
       };
     }
     cook::Report r;
@@ -447,8 +452,10 @@ PYBIND11_MODULE(particlestream, m) {
       py::arg("scale_from") = "widths", py::arg("color_from") = "auto", py::arg("velocity") = true,
       py::arg("keyframe_interval") = format::kDefaultKeyframeInterval, py::arg("drop_invalid") = false,
       py::arg("store_velocity") = false,
-      "Cooks an Alembic archive (or a PLY sequence) into a .pstream. progress(frames_done, frame_count) is "
-      "called after each frame. The particle codec's bounds are the command line's --error (a fraction of the "
+      "Cooks an Alembic archive (or a PLY sequence) into a .pstream. progress(done, total) is "
+      "called after each frame of each pass over the frames: total counts every frame once a pass (twice with "
+      "the particle codec, which reads the frames for their statistics before it encodes them), so done only "
+      "grows and ends at total. The particle codec's bounds are the command line's --error (a fraction of the "
       "bounds diagonal, 'rel:1e-4', or 'abs:0.001' in scene units) and --scale-error (each scale relative to "
       "itself: '1%') and --attribute-error (velocity and other floats, a fraction of their range: '1e-3'). The "
       "other options are the command line's too: frames ('A:B'), object, merge, scale_from ('widths', "

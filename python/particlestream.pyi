@@ -133,7 +133,9 @@ def cook(
     """Cooks an Alembic archive (or a PLY sequence) into a .pstream with the options of
     `pstream cook`; returns the report (frames, particles, file_bytes, seconds, object: what was
     cooked, mesh_vertices: whether it is a mesh's vertices, as an archive without points objects
-    and with one mesh cooks)."""
+    and with one mesh cooks). progress(done, total) follows the whole cook: each frame counts once
+    for each pass over the frames (twice with the particle codec, whose first pass gathers the
+    statistics its grids need), so done only grows and ends at total."""
 
 class FrameSpool:
     """Frames added one at a time and kept on disk (an unnamed temporary file in `folder`) until
@@ -172,7 +174,8 @@ def cook_particles(
     """Cooks particles held in memory into a .pstream, as cook() cooks a file. Each frame is a dict
     with 'time' (seconds) and 'position' (N x 3), and optionally 'width' (N diameters), 'velocity'
     (N x 3, per second), 'id' (N, stable) and 'color' (N x 4, linear RGBA in 0..1). Returns the
-    report (frames, particles, file_bytes, seconds, object, mesh_vertices)."""
+    report (frames, particles, file_bytes, seconds, object, mesh_vertices); progress(done, total)
+    as cook()'s."""
 
 def describe_ply(file: PathLike) -> dict:
     """Describes the numbered PLY sequence `file` belongs to, as `pstream info frame.0001.ply`

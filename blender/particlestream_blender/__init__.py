@@ -203,8 +203,8 @@ def export_clip(context, obj, filepath, frame_start, frame_end, codec="particle"
         if no_ids:
             spool.drop_ids()
 
-        def progress(done, count):
-            wm.progress_update(total + done)
+        def progress(done, count):  # the cook's passes over the frames: the second half of the bar
+            wm.progress_update(total + total * done / max(count, 1))
             if report:
                 report(done, count, "frames cooked")
 

@@ -84,7 +84,13 @@ def test_cook_clip_and_player_as_numpy(tmp_path):
                      progress=lambda done, total: calls.append((done, total)))
     assert report["frames"] == 60 and report["particles"] > 0 and report["file_bytes"] > 0
     assert report["object"] == "/particles" and not report["mesh_vertices"], report
-    assert calls[-1] == (60, 60)
+    assert calls[-1] == (60, 60)  # the records codec: one pass over the frames
+    assert [d for d, _ in calls] == sorted(d for d, _ in calls) and {t for _, t in calls} == {60}
+    calls.clear()
+    ps.cook(abc, tmp_path / "p.pstream", progress=lambda done, total: calls.append((done, total)))
+    # The particle codec reads the frames twice (statistics, then encoding): one bar that only grows.
+    assert calls[-1] == (120, 120) and {t for _, t in calls} == {120}, calls
+    assert [d for d, _ in calls] == sorted(d for d, _ in calls) and calls[59] == (60, 120), calls
     mesh = ps.cook(DATA / "alembic" / "mesh_vertices.abc", tmp_path / "m.pstream")  # no points: the one mesh
     assert mesh["object"] == "/grid" and mesh["mesh_vertices"] and mesh["particles"] == 24 * 400, mesh
 
@@ -260,8 +266,8 @@ def test_default_cook_is_the_particle_codec_with_its_bounds(tmp_path):
     abc = DATA / "sims" / "blender_sparks.abc"
     calls = []
     ps.cook(abc, tmp_path / "d.pstream", progress=lambda done, total: calls.append((done, total)))
-    # Two stages (scan, write), each counting the clip's 48 frames, never more.
-    assert calls[-1] == (48, 48) and max(total for _, total in calls) == 48
+    # Two passes (scan, write) over the clip's 48 frames, as one count that only grows.
+    assert calls[-1] == (96, 96) and {total for _, total in calls} == {96}
     clip = ps.Clip(tmp_path / "d.pstream")
     names = [a[0] for a in clip.layout]
     assert "velocity" in names  # the source's velocities are kept by default
