@@ -79,4 +79,15 @@ TEST(OgawaFixtureText, InfoSummarisesPointsObjects) {
   EXPECT_NE(result.output.find("uniform, 0.0333333 s per sample (30 fps)"), std::string::npos) << result.output;
 }
 
+TEST(OgawaFixtureText, InfoSummarisesMeshesWhoseVerticesCook) {
+  const auto result = test::run_cli("info '" + test::data_path("alembic/mesh_vertices.abc") + "'");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  EXPECT_NE(result.output.find("/grid  [AbcGeom_PolyMesh_v1]\n"
+                               "    24 samples, 0.0416667 s .. 1 s (time sampling 1)\n"
+                               "    vertices per sample: min 400 / avg 400.0 / max 400\n"
+                               "    attributes (its vertices cook as particles):\n"),
+            std::string::npos)
+      << result.output;
+}
+
 }  // namespace

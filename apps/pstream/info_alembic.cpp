@@ -41,21 +41,30 @@ void print_param(const GeomParam& p) {
              p.indexed() ? " indexed" : "", interp.empty() ? "" : " (" + interp + ")");
 }
 
-void print_points(const Object& o) {
-  const Points points(o);
-  const std::uint32_t n = points.num_samples();
+// "N samples, T0 s .. T1 s (time sampling K)" and the least, mean and most of count(sample), for
+// points and meshes alike.
+template <typename Count>
+void print_samples(std::uint32_t n, const TimeSampling& ts, std::uint32_t ts_index, std::string_view suffix,
+                   std::string_view what, const Count& count) {
   std::uint64_t lo = UINT64_MAX, hi = 0, total = 0;
   for (std::uint32_t i = 0; i < n; ++i) {
-    const std::uint64_t c = points.count(i);
+    const std::uint64_t c = count(i);
     lo = std::min(lo, c);
     hi = std::max(hi, c);
     total += c;
   }
   if (n == 0) lo = 0;
-  fmt::print("    {} samples", n);
-  if (n > 0) fmt::print(", {:.6g} s .. {:.6g} s", points.sample_time(0), points.sample_time(n - 1));
-  fmt::print(" (time sampling {}){}\n", points.time_sampling_index(), points.is_constant() ? ", constant" : "");
-  fmt::print("    particles per sample: min {} / avg {:.1f} / max {}\n", lo, n ? double(total) / n : 0.0, hi);
+  fmt::print("    {}", count_of(n, "sample"));
+  if (n > 0) fmt::print(", {:.6g} s .. {:.6g} s", ts.sample_time(0), ts.sample_time(n - 1));
+  fmt::print(" (time sampling {}){}\n", ts_index, suffix);
+  fmt::print("    {} per sample: min {} / avg {:.1f} / max {}\n", what, lo, n ? double(total) / n : 0.0, hi);
+}
+
+void print_points(const Object& o) {
+  const Points points(o);
+  const std::uint32_t n = points.num_samples();
+  print_samples(n, points.time_sampling(), points.time_sampling_index(), points.is_constant() ? ", constant" : "",
+                "particles", [&](std::uint32_t i) { return points.count(i); });
   fmt::print("    attributes:\n");
   fmt::print("      {:<14} {:<11} {:<8}\n", "P", "float32x3", "varying");
   if (points.has_ids()) {
@@ -76,6 +85,18 @@ void print_points(const Object& o) {
   if (points.has_velocities()) fmt::print("      {:<14} {:<11} {:<8}\n", ".velocities", "float32x3", "varying");
   if (points.widths()) print_param(*points.widths());
   for (const GeomParam& p : points.arb_geom_params()) print_param(p);
+}
+
+// A mesh's vertices cook as particles (`cook --object`, or on their own in an archive without
+// points objects and with one mesh).
+void print_mesh(const Object& o) {
+  const PolyMesh mesh(o);
+  print_samples(mesh.num_samples(), mesh.time_sampling(), mesh.time_sampling_index(), "", "vertices",
+                [&](std::uint32_t i) { return mesh.positions(i).size(); });
+  fmt::print("    attributes (its vertices cook as particles):\n");
+  fmt::print("      {:<14} {:<11} {:<8}\n", "P", "float32x3", "varying");
+  if (mesh.has_velocities()) fmt::print("      {:<14} {:<11} {:<8}\n", ".velocities", "float32x3", "varying");
+  for (const GeomParam& p : mesh.arb_geom_params()) print_param(p);
 }
 
 }  // namespace
@@ -112,6 +133,7 @@ int info_alembic(const InfoOptions& options) {
     fmt::print("  {}{}  [{}]\n", std::string(2 * (depth - 1), ' '), o.full_name(),
                schema.empty() ? "no schema" : schema);
     if (Points::matches(o)) print_points(o);
+    if (PolyMesh::matches(o)) print_mesh(o);
   }
   return 0;
 }
