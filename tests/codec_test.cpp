@@ -19,6 +19,7 @@
 
 #include "format/entropy.hpp"
 #include "format/particle_common.hpp"  // the decoder's derived-velocity rule, checked against the spec's
+#include "particlestream/alembic.hpp"
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
@@ -1494,6 +1495,59 @@ TEST(ParticleCodecCli, VerifyAgainstTheSourceAndExportRoundTrips) {
   o.attributes = {"velocity"};
   cook::cook(o);
   EXPECT_EQ(format::Reader::open(o.output).metadata().frame_count(), a.metadata().frame_count());
+}
+
+// A default cook keeps no ids but matches the sparks by theirs: exported to PLY as to Alembic,
+// every particle gets the id the codec's matching keeps, one per particle of the source, the same
+// in both formats, and the PLY sequence cooks back matched by id.
+TEST(ParticleCodecCli, ExportGivesADefaultCookWithIdsTheMatchingsIdsInBothFormats) {
+  const fs::path dir = test::fresh_dir();
+  const std::string sparks = test::data_path("sims/blender_sparks.abc");
+  const fs::path clip = dir / "sparks.pstream";
+  ASSERT_EQ(test::run_cli(fmt::format("cook {} -o {} -q", sparks, clip.string())).exit_code, 0);
+  ASSERT_EQ(format::Reader::open(clip).metadata().find("id"), nullptr);
+  ASSERT_EQ(test::run_cli(fmt::format("export {} -o {} -q", clip.string(), (dir / "back.abc").string())).exit_code, 0);
+  ASSERT_EQ(test::run_cli(fmt::format("export {} --out {} -q", clip.string(), (dir / "ply").string())).exit_code, 0);
+  const auto cooked = [&](const fs::path& input, const std::string& name) {
+    cook::Options o;
+    o.frame_codec = format::FrameCodec::Records;
+    o.input = input;
+    o.output = dir / name;
+    o.fps = 24;
+    o.attributes = {"id", "velocity"};
+    cook::cook(o);
+    return format::Reader::open(o.output);
+  };
+  const auto from_abc = cooked(dir / "back.abc", "abc.pstream");
+  const auto from_ply = cooked(dir / "ply" / "frame.0001.ply", "ply.pstream");
+  const format::Metadata& m = from_ply.metadata();
+  ASSERT_EQ(m.frame_count(), 48u);
+  ASSERT_EQ(from_abc.metadata().record_size, m.record_size);
+  const format::Attribute* id = m.find("id");
+  ASSERT_NE(id, nullptr);
+  std::vector<std::byte> a(m.max_count * m.record_size), b(a.size());
+  std::set<std::uint64_t> ids;
+  for (std::uint64_t f = 0; f < m.frame_count(); ++f) {
+    from_abc.read_frame(f, a);
+    from_ply.read_frame(f, b);
+    ASSERT_EQ(from_abc.metadata().frames[f].count, m.frames[f].count);
+    EXPECT_EQ(std::memcmp(a.data(), b.data(), m.frames[f].count * m.record_size), 0) << "frame " << f;
+    for (std::uint64_t i = 0; i < m.frames[f].count; ++i) {
+      std::uint64_t v = 0;
+      std::memcpy(&v, b.data() + i * m.record_size + id->offset, id->type == format::AttributeType::Uint64 ? 8 : 4);
+      ids.insert(v);
+    }
+  }
+  std::set<std::uint64_t> source_ids;
+  const auto archive = alembic::Archive::open(sparks);
+  const alembic::Points points(*archive.find("/Emitter/Sparks"));
+  for (std::uint32_t s = 0; s < points.num_samples(); ++s) {
+    const alembic::SampleView v = points.ids(s);
+    for (std::uint64_t i = 0; i < v.scalar_count(); ++i) source_ids.insert(v.value_u64(i));
+  }
+  EXPECT_EQ(ids.size(), source_ids.size());
+  const auto r = test::run_cli(fmt::format("info {}", (dir / "ply" / "frame.0001.ply").string()));
+  EXPECT_NE(r.output.find("ids from 'id' (particles matched by id)"), std::string::npos) << r.output;
 }
 
 }  // namespace

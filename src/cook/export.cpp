@@ -85,10 +85,15 @@ const std::string& ply_word(const std::string& name, const std::string& input) {
 
 // A binary little-endian PLY of one frame, complete or not at all (never over `input`). Returns
 // its size.
-std::uint64_t write_ply(const fs::path& path, const Metadata& m, const Columns& c, std::uint64_t n,
+// A PLY sequence's ids: whether it has them, whether every one fits a PLY uint (else all are
+// doubles, exact to 2^53) — the same in every file — and this frame's.
+struct PlyIds {
+  bool present = false, fit32 = true;
+  std::span<const std::uint64_t> values;
+};
+
+std::uint64_t write_ply(const fs::path& path, const Metadata& m, const Columns& c, const PlyIds& ids, std::uint64_t n,
                         const std::string& input) {
-  bool ids32 = true;
-  for (std::uint64_t v : c.id) ids32 = ids32 && v <= 0xffffffffu;
   std::string header = fmt::format(
       "ply\nformat binary_little_endian 1.0\ncomment pstream export of {} {}\n"
       "element vertex {}\nproperty float x\nproperty float y\nproperty float z\n"
@@ -96,10 +101,10 @@ std::uint64_t write_ply(const fs::path& path, const Metadata& m, const Columns& 
       format::escaped_name(m.source_file), format::escaped_name(m.source_object), n);
   // The clip's attributes decide the properties, so that every file of the sequence (an empty
   // frame's too) has the same ones.
-  const bool velocity = m.find("velocity") != nullptr, color = m.find("color") != nullptr, id = m.find("id") != nullptr;
+  const bool velocity = m.find("velocity") != nullptr, color = m.find("color") != nullptr, id = ids.present;
   if (velocity) header += "property float vx\nproperty float vy\nproperty float vz\n";
   if (color) header += "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n";
-  if (id) header += ids32 ? "property uint id\n" : "property double id\n";
+  if (id) header += ids.fit32 ? "property uint id\n" : "property double id\n";
   for (const Attribute* a : c.float_attributes) {
     for (std::size_t k = 0; k < a->components; ++k)
       header += a->components == 1 ? fmt::format("property float {}\n", ply_word(a->name, input))
@@ -120,10 +125,10 @@ std::uint64_t write_ply(const fs::path& path, const Metadata& m, const Columns& 
     if (color)
       for (int k = 0; k < 4; ++k) put(c.color[i * 4 + k]);
     if (id) {
-      if (ids32)
-        put(static_cast<std::uint32_t>(c.id[i]));
+      if (ids.fit32)
+        put(static_cast<std::uint32_t>(ids.values[i]));
       else
-        put(static_cast<double>(c.id[i]));
+        put(static_cast<double>(ids.values[i]));
     }
     for (std::size_t e = 0; e < c.floats.size(); ++e)
       for (std::size_t k = 0; k < c.float_attributes[e]->components; ++k)
@@ -218,11 +223,31 @@ ExportReport export_clip(const ExportOptions& options,
     for (const Attribute* a : c.float_attributes) ply_word(a->name, input);  // before anything is written
     fs::create_directories(folder);
     report.first = folder / fmt::format("{}.{:04}.ply", stem, first + 1);
+    // Ids: those the clip stores, or, where the cook ordered and matched its particles by the
+    // source's ids without storing them, the ids the codec's matching keeps (as the Alembic export
+    // writes). A clip matched by position has none: the source had none.
+    PlyIds ids;
+    std::optional<MatchedIds> matched;
+    if (const Attribute* a = m.find("id")) {
+      ids.present = true;
+      for (std::uint64_t f = first; a->type == AttributeType::Uint64 && ids.fit32 && f < end; ++f) {
+        reader.read_frame(f, records);
+        split(m, records, m.frames[f].count, c);
+        ids.fit32 = std::all_of(c.id.begin(), c.id.end(), [](std::uint64_t v) { return v <= 0xffffffffu; });
+      }
+    } else if (m.codec.order == FrameOrder::Id) {
+      ids.present = true;
+      matched.emplace(m);
+      std::uint64_t particles = 0;  // the most ids the matching can hand out
+      for (std::uint64_t f = first; f < end; ++f) particles += m.frames[f].count;
+      ids.fit32 = particles <= 0xffffffffu;
+    }
     for (std::uint64_t f = first; f < end; ++f) {
-      reader.read_frame(f, records);
-      split(m, records, m.frames[f].count, c);
-      report.bytes_written +=
-          write_ply(folder / fmt::format("{}.{:04}.ply", stem, f + 1), m, c, m.frames[f].count, input);
+      const std::size_t runs = reader.read_frame(f, records, matched ? matched->runs() : std::span<MatchRun>{});
+      const std::uint64_t n = m.frames[f].count;
+      split(m, records, n, c);
+      ids.values = matched ? matched->next(n, runs) : std::span<const std::uint64_t>(c.id);
+      report.bytes_written += write_ply(folder / fmt::format("{}.{:04}.ply", stem, f + 1), m, c, ids, n, input);
       if (progress) progress(f - first + 1, report.frames);
     }
     return report;
