@@ -384,15 +384,19 @@ def test_export_writes_the_clip_back_as_alembic_and_ply(tmp_path):
     assert [p.name for p in files] == [f"sparks.{f + 1:04}.ply" for f in range(clip.frame_count)]
     assert r["bytes_written"] == sum(p.stat().st_size for p in files)
     assert [a[0] for a in clip.layout] == ["position", "scale", "color", "velocity"]
-    vertex = np.dtype([("position", "<f4", 3), ("scale", "<f4"), ("velocity", "<f4", 3), ("color", "u1", 4)])
+    # The PLY sequence gets the same ids as the Alembic export: the clip's particles were matched by
+    # the source's ids.
+    vertex = np.dtype([("position", "<f4", 3), ("scale", "<f4"), ("velocity", "<f4", 3), ("color", "u1", 4),
+                       ("id", "<u4")])
     for f in (0, clip.frame_count // 2, clip.frame_count - 1):
         data = files[f].read_bytes()
         head, body = data.split(b"end_header\n", 1)
         records = clip.read_frame(f)
-        assert f"element vertex {len(records)}\n".encode() in head
+        assert f"element vertex {len(records)}\n".encode() in head and b"property uint id\n" in head
         got = np.frombuffer(body, dtype=vertex)
         for field in ("position", "scale", "velocity", "color"):
             np.testing.assert_array_equal(got[field], records[field])
+        np.testing.assert_array_equal(got["id"], archive.ids(name, f))
     # A part of the clip: its frames, at their times; PLY files keep their frames' numbers.
     r = ps.export(str(clip_path), tmp_path / "part.abc", frames="10:20")
     assert r["frames"] == 10
@@ -410,7 +414,7 @@ def test_export_writes_the_clip_back_as_alembic_and_ply(tmp_path):
     assert [f["count"] for f in d["files"]] == [clip.count(f) for f in range(clip.frame_count)]
     assert d["bytes"] == sum(p.stat().st_size for p in files)
     assert [p[0] for p in d["properties"]][:4] == ["x", "y", "z", "pscale"]
-    assert (d["scale_from"], d["color"], d["velocity"], d["ids"]) == ("pscale", True, True, False)
+    assert (d["scale_from"], d["color"], d["velocity"], d["ids"]) == ("pscale", True, True, True)
     (tmp_path / "tail" / "t.0042.ply").unlink()
     with pytest.raises(ps.Error, match="frame 42 is missing"):
         ps.describe_ply(tmp_path / "tail" / "t.0041.ply")
