@@ -323,13 +323,41 @@ def _on_frame_change(scene, depsgraph=None):
 
 
 _POINTS_GROUP = "ParticleStream points"
-def _points_group():
+_COLOURED_POINTS_GROUP = "ParticleStream coloured points"
+_POINTS_MATERIAL = "ParticleStream points"
+# The points' colour as Cycles reads it. Cycles in Blender 3.4 renders the attributes Mesh to Points
+# carries over from the mesh as black; an attribute the group stores on the points itself reaches
+# the material.
+_POINT_COLOR = "pstream_color"
+
+
+def _points_material():
+    """The material of coloured previews: each point's base colour is its clip colour."""
+    material = bpy.data.materials.get(_POINTS_MATERIAL)
+    if material is not None:
+        return material
+    material = bpy.data.materials.new(_POINTS_MATERIAL)
+    material.use_nodes = True
+    nodes, links = material.node_tree.nodes, material.node_tree.links
+    shader = next(n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    color = nodes.new("ShaderNodeAttribute")
+    color.attribute_type = "GEOMETRY"
+    color.attribute_name = _POINT_COLOR
+    color.location = (shader.location.x - 250, shader.location.y)
+    links.new(color.outputs["Color"], shader.inputs["Base Color"])
+    return material
+
+
+def _points_group(coloured):
     """Geometry Nodes that draw the preview's vertices as points: Mesh to Points, each point's radius
-    the 'radius' attribute (the clip's scale). One group, shared by the previews."""
-    tree = bpy.data.node_groups.get(_POINTS_GROUP)
+    the 'radius' attribute (the clip's scale); `coloured`: the 'color' attribute stored on the points
+    and the points given the preview material, which shows it. One group of each kind, shared by
+    the previews."""
+    name = _COLOURED_POINTS_GROUP if coloured else _POINTS_GROUP
+    tree = bpy.data.node_groups.get(name)
     if tree is not None:
         return tree
-    tree = bpy.data.node_groups.new(_POINTS_GROUP, "GeometryNodeTree")
+    tree = bpy.data.node_groups.new(name, "GeometryNodeTree")
     if hasattr(tree, "interface"):  # Blender 4
         tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
         tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
@@ -337,15 +365,34 @@ def _points_group():
         tree.inputs.new("NodeSocketGeometry", "Geometry")
         tree.outputs.new("NodeSocketGeometry", "Geometry")
     nodes, links = tree.nodes, tree.links
+
+    def named(data_type, attribute, socket_type):
+        node = nodes.new("GeometryNodeInputNamedAttribute")
+        node.data_type = data_type
+        node.inputs["Name"].default_value = attribute
+        return node, next(o for o in node.outputs if o.type == socket_type and o.enabled)
+
     given, result = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
-    radius = nodes.new("GeometryNodeInputNamedAttribute")
-    radius.data_type = "FLOAT"
-    radius.inputs["Name"].default_value = "radius"
+    radius, radius_value = named("FLOAT", "radius", "VALUE")
     points = nodes.new("GeometryNodeMeshToPoints")
     links.new(given.outputs[0], points.inputs["Mesh"])
-    links.new(next(o for o in radius.outputs if o.type == "VALUE" and o.enabled), points.inputs["Radius"])
-    links.new(points.outputs["Points"], result.inputs[0])
-    for k, node in enumerate((given, radius, points, result)):
+    links.new(radius_value, points.inputs["Radius"])
+    chain = [given, radius, points]
+    geometry = points.outputs["Points"]
+    if coloured:
+        color, color_value = named("FLOAT_COLOR", "color", "RGBA")
+        store = nodes.new("GeometryNodeStoreNamedAttribute")
+        store.data_type, store.domain = "FLOAT_COLOR", "POINT"
+        store.inputs["Name"].default_value = _POINT_COLOR
+        links.new(geometry, store.inputs["Geometry"])
+        links.new(color_value, next(i for i in store.inputs if i.type == "RGBA" and i.enabled))
+        material = nodes.new("GeometryNodeSetMaterial")
+        material.inputs["Material"].default_value = _points_material()
+        links.new(store.outputs["Geometry"], material.inputs["Geometry"])
+        geometry = material.outputs["Geometry"]
+        chain += [color, store, material]
+    links.new(geometry, result.inputs[0])
+    for k, node in enumerate(chain + [result]):
         node.location = (200 * k, 0)
     return tree
 
@@ -362,8 +409,9 @@ def import_clip(context, filepath):
     update_preview(obj, context.scene)
     names = [a[0] for a in clip.layout]
     if "scale" in names:
-        modifier = obj.modifiers.new(_POINTS_GROUP, "NODES")
-        modifier.node_group = _points_group()
+        group = _points_group("color" in names)
+        modifier = obj.modifiers.new(group.name, "NODES")
+        modifier.node_group = group
     return obj, clip
 
 

@@ -205,6 +205,54 @@ check(grid_clip.count(6) == len(want), f"{grid_clip.count(6)} vertices, expected
 check(error <= 1e-4 * 3.0, f"vertex error {error}")
 print(f"mesh vertices: {len(want)} per frame, worst error {error:.3g}")
 
+# The grid's clip imported: coloured, its points carry the clip's colours where Cycles reads them
+# ('pstream_color', stored on the points by the coloured group) and take the add-on's material,
+# which Cycles renders in those colours.
+grid.hide_render = True
+check(bpy.ops.pstream.import_clip(filepath=mesh_path) == {"FINISHED"}, "import the grid's clip")
+grid_preview = bpy.context.scene.objects["grid"]
+check([m.node_group.name for m in grid_preview.modifiers] == ["ParticleStream coloured points"],
+      f"the grid's preview modifiers: {[m.name for m in grid_preview.modifiers]}")
+check([m.node_group.name for m in preview.modifiers] == ["ParticleStream points"],
+      "an uncoloured clip's preview takes the plain points group")
+scene.frame_set(7)
+depsgraph = bpy.context.evaluated_depsgraph_get()
+clouds = [i.object.data for i in depsgraph.object_instances
+          if i.object.original == grid_preview and type(i.object.data).__name__ == "PointCloud"]
+check(len(clouds) == 1, f"{len(clouds)} point clouds from the grid's preview")
+stored_color = np.empty(len(clouds[0].points) * 4, np.float32)
+clouds[0].attributes["pstream_color"].data.foreach_get("color", stored_color)
+want_color = grid_clip.read_frame(6)["color"].astype(np.float32) / 255.0
+check(np.array_equal(stored_color.reshape(-1, 4), want_color), "the points' pstream_color is not the clip's colour")
+check([m.name for m in clouds[0].materials] == ["ParticleStream points"], f"materials {list(clouds[0].materials)}")
+# Rendered in Cycles (the other objects hidden, a sun above): the grid's points are orange, red
+# over green over blue as the clip's (255, 128, 64), not the black the colour came out as before.
+for o in scene.objects:
+    o.hide_render = o is not grid_preview
+sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+sun.data.energy = 3.0
+scene.collection.objects.link(sun)
+camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+scene.collection.objects.link(camera)
+camera.location = (0.0, 0.0, 4.0)  # above the grid, looking down -z
+scene.camera = camera
+scene.render.engine = "CYCLES"
+scene.cycles.samples, scene.cycles.use_denoising = 4, False
+scene.view_settings.view_transform = "Standard"  # Filmic would wash the colour out
+scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 96, 96, 100
+scene.render.filepath = str(work / "grid_cycles.png")
+bpy.ops.render.render(write_still=True)
+image = bpy.data.images.load(scene.render.filepath)
+pixels = np.array(image.pixels[:], np.float32).reshape(-1, 4)[:, :3]
+background = np.median(pixels, axis=0)
+covered = pixels[np.abs(pixels - background).sum(1) > 0.05]
+check(len(covered) > 200, f"{len(covered)} pixels of the grid's points in the Cycles render")
+mean = covered.mean(0)
+check(mean[0] > 1.15 * mean[1] and mean[1] > 1.15 * mean[2], f"the points' mean colour in Cycles {mean}: not orange")
+print(f"import: coloured points in Cycles, {len(covered)} pixels of mean colour {np.round(mean, 3)}")
+for o in scene.objects:
+    o.hide_render = False
+
 # A mesh whose vertex count changes (a Build modifier revealing its faces) and has no 'id'
 # attribute: vertex indices are not ids then, so the clip has none even with "Store ids".
 bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=3, location=(4, 0, 0))
