@@ -63,6 +63,9 @@ for codec in raw lz4 zstd particle particle-lossless; do
         -o "$work/pstream-seeds/$fixture-$codec.pstream"
   done
 done
+# Keyframes linked to the frame before (version 6, id order): the sparks' first 12 frames, a keyframe every 4.
+build-check/apps/pstream/pstream cook -q tests/data/sims/blender_sparks.abc --frames 0:12 --keyframe-interval 4 \
+  -o "$work/pstream-seeds/sparks-linked-keyframes.pstream"
 # and the committed clips: version 1, 2 and 3 (a relative scale word), records and particle codec.
 add_target fuzz_pstream "$work"/pstream-seeds/*.pstream tests/data/pstream/*.pstream tests/data/pstream_v1/*.pstream
 

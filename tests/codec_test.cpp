@@ -1103,6 +1103,81 @@ TEST(ParticleCodec, TheZstdStreamsSavedStateContinuesItExactly) {
 // stream included), gives the same records and the same matching, bit for bit, as one forward pass,
 // for every codec layout the fixtures give and every format version with a particle codec. And it
 // decodes far fewer frames than starting each one at its keyframe.
+// Keyframes link their particles to the frame before (format version 6, id order): the matching
+// a keyframe gives is the one its ids give, exactly, in a clip that keeps the ids and in a default
+// cook that keeps none (whose export then keeps every particle's id across the keyframes); a
+// version 5 clip's keyframes give none, as before.
+TEST(ParticleCodec, KeyframesLinkTheirParticlesToTheFrameBefore) {
+  const fs::path dir = test::fresh_dir();
+  const std::string sparks = test::data_path("sims/blender_sparks.abc");
+  const auto runs_of = [](const format::Reader& reader, std::uint64_t f, std::vector<std::byte>& out) {
+    std::vector<format::MatchRun> runs(2 * reader.metadata().max_count + 1);
+    const std::size_t n = reader.read_frame(f, out, runs);
+    return n == format::kNoMatching ? std::vector<format::MatchRun>{}
+                                    : std::vector<format::MatchRun>(runs.begin(), runs.begin() + n);
+  };
+  const auto same = [](const std::vector<format::MatchRun>& a, const std::vector<format::MatchRun>& b) {
+    return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](const auto& x, const auto& y) {
+             return x.keep == y.keep && x.drop == y.drop && x.insert == y.insert;
+           });
+  };
+  for (const char* attributes : {"id", ""}) {
+    SCOPED_TRACE(attributes);
+    const fs::path clip = dir / (*attributes ? "k8_ids.pstream" : "k8.pstream");
+    const fs::path with_ids = dir / "k8_ids.pstream";
+    ASSERT_EQ(test::run_cli(fmt::format("cook {} -o {} -q --keyframe-interval 8{}", sparks, clip.string(),
+                                        *attributes ? " --attributes id" : ""))
+                  .exit_code,
+              0);
+    const auto reader = format::Reader::open(clip);
+    const auto ids = format::Reader::open(with_ids);  // made first: ids to check against
+    const format::Metadata& m = reader.metadata();
+    ASSERT_EQ(m.version, 6u);
+    ASSERT_EQ(m.codec.order, format::FrameOrder::Id);
+    std::vector<std::byte> prev(ids.metadata().max_count * ids.metadata().record_size), cur(prev.size()),
+        out(m.max_count * m.record_size);
+    std::vector<format::MatchRun> expected(2 * m.max_count + 1);
+    int keyframes = 0;
+    for (std::uint64_t f = 1; f < m.frame_count(); ++f) {
+      ids.read_frame(f - 1, prev);
+      ids.read_frame(f, cur);
+      const std::size_t n = format::match_by_id(ids.metadata(), prev, ids.metadata().frames[f - 1].count, cur,
+                                                ids.metadata().frames[f].count, expected);
+      ASSERT_NE(n, format::kNoMatching);
+      const auto got = runs_of(reader, f, out);
+      EXPECT_TRUE(same(got, std::vector<format::MatchRun>(expected.begin(), expected.begin() + n))) << "frame " << f;
+      keyframes += m.frames[f].keyframe ? 1 : 0;
+    }
+    EXPECT_EQ(keyframes, 5);  // frames 8, 16, 24, 32 and 40 are linked; frame 0 has nothing before it
+    std::vector<std::byte> first(m.max_count * m.record_size);
+    EXPECT_TRUE(runs_of(reader, 0, first).empty());
+  }
+  // The default cook's export: one id a source particle, across all five linked keyframes.
+  ASSERT_EQ(test::run_cli(fmt::format("export {} -o {} -q", (dir / "k8.pstream").string(), (dir / "k8.abc").string()))
+                .exit_code,
+            0);
+  const auto exported = alembic::Archive::open((dir / "k8.abc").string());
+  const alembic::Points points(*exported.find("/particles"));
+  std::set<std::uint64_t> distinct;
+  for (std::uint32_t s = 0; s < points.num_samples(); ++s) {
+    const alembic::SampleView v = points.ids(s);
+    for (std::uint64_t i = 0; i < v.scalar_count(); ++i) distinct.insert(v.value_u64(i));
+  }
+  EXPECT_EQ(distinct.size(), 10000u);
+  // A version 5 clip (sparks, keyframes every 5 frames in its cook): no links, no matching there.
+  const auto v5 = format::Reader::open(test::data_path("pstream/sparks_particle_v5.pstream"));
+  ASSERT_EQ(v5.metadata().version, 5u);
+  std::vector<std::byte> out5(v5.metadata().max_count * v5.metadata().record_size);
+  int v5_keyframes = 0;
+  for (std::uint64_t f = 1; f < v5.metadata().frame_count(); ++f) {
+    if (v5.metadata().frames[f].keyframe) {
+      EXPECT_TRUE(runs_of(v5, f, out5).empty()) << "frame " << f;
+      ++v5_keyframes;
+    }
+  }
+  EXPECT_EQ(v5_keyframes, 2);
+}
+
 TEST(ParticleCodec, SavedStatesResumeBitForBitGoingBackwards) {
   const fs::path dir = test::fresh_dir();
   std::vector<fs::path> files;

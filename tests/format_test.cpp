@@ -92,8 +92,8 @@ TEST(FormatCorruption, WrongMagicAndVersion) {
   b[0] = std::byte{'X'};
   expect_error(b, "not a .pstream file");
   b = cooked_bytes();
-  put<std::uint32_t>(b, 8, 6);
-  expect_error(b, "unsupported format version 6 (this build reads versions 1 to 5)");
+  put<std::uint32_t>(b, 8, 7);
+  expect_error(b, "unsupported format version 7 (this build reads versions 1 to 6)");
   b = cooked_bytes();
   b[30] ^= std::byte{1};  // inside fps
   expect_error(b, "header checksum mismatch");

@@ -19,7 +19,7 @@
 
 namespace pstream::format {
 
-inline constexpr std::uint32_t kVersion = 5;  // what the writer writes; the reader takes 1 to 5
+inline constexpr std::uint32_t kVersion = 6;  // what the writer writes; the reader takes 1 to 6
 inline constexpr std::size_t kHeaderSizeV1 = 160;
 inline constexpr std::size_t kHeaderSize = 192;  // versions 2 to 5
 inline constexpr std::uint32_t kDefaultKeyframeInterval = 64;
@@ -154,6 +154,7 @@ struct CodecInfo {
   std::uint32_t keyframe_interval = 1;
   int zstd_level = kDefaultParticleZstdLevel;  // encoder only; not stored
   bool nibbles = true;                 // encoder only: false packs no word as nibbles, as versions before 5 read
+  bool keyframe_links = true;          // encoder only: false links no keyframe to the frame before (before 6)
   double error = 0.0;                  // the positions' bound, absolute; 0 when lossless
   std::vector<WordCodingEntry> words;  // record_size / 4 entries (particle codec only)
   // Encoder only, for frames matched by position: the record word of a stored velocity's x (y and

@@ -37,6 +37,11 @@ constexpr std::uint32_t kZstdMagic = 0xFD2FB528;  // little-endian in the packet
 // planes. zstd then makes half the bytes and the encoder's optimal parser runs on half the input.
 constexpr std::uint32_t kFirstNibbleVersion = 5;
 constexpr std::uint32_t kNibbleEscape = 15;
+// Version 6: a keyframe of a clip in id order may link its particles to the frame before with
+// operations, as a predicted frame does: they decode nothing (every particle is still new) but
+// give the matching across the keyframe, so that playback interpolates through it and an export
+// keeps each particle's id there.
+constexpr std::uint32_t kFirstKeyframeLinksVersion = 6;
 enum Packing : std::uint8_t { kBytePlanes = 0, kNibbles = 1 };
 
 enum Predictor : std::uint8_t { kPrevious = 0, kLinear = 1 };
@@ -492,7 +497,11 @@ struct Body {
   };
   std::span<Word> words;
   unsigned id_bytes = 0;
-  const std::byte* ops = nullptr;
+  const std::byte* ops = nullptr;  // op_count operations; a keyframe has none (its links are below)
+  // A keyframe's links to the frame before (version 6 on): link_count operations at `links`
+  // pairing link_prev_count particles there with this frame's; 0 when it has none.
+  const std::byte* links = nullptr;
+  std::uint32_t link_count = 0, link_prev_count = 0;
   const std::byte* ids = nullptr;
 };
 

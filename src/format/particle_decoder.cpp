@@ -494,10 +494,14 @@ class ParticleUnit final : public FrameUnit {
     cur_ ^= 1;
     // The operations pair survivors with the particles they continue (in id or matched order;
     // in source order particle i is only predicted from particle i, which may be another one).
-    if (b.keyframe || meta_.codec.order == FrameOrder::Source || b.op_count > matching.size()) return kNoMatching;
+    // A keyframe's links do the same where it has them.
+    const std::byte* const runs = b.keyframe ? b.links : b.ops;
+    const std::uint32_t run_count = b.keyframe ? b.link_count : b.op_count;
+    if ((b.keyframe && run_count == 0) || meta_.codec.order == FrameOrder::Source || run_count > matching.size())
+      return kNoMatching;
     static_assert(sizeof(Op) == sizeof(MatchRun));
-    if (b.op_count != 0) std::memcpy(matching.data(), b.ops, std::size_t(b.op_count) * kOpSize);
-    return b.op_count;
+    if (run_count != 0) std::memcpy(matching.data(), runs, std::size_t(run_count) * kOpSize);
+    return run_count;
   }
 
  private:
@@ -566,8 +570,26 @@ class ParticleUnit final : public FrameUnit {
     const FrameEntry& entry = meta_.frames[frame];
     if (b.count != entry.count)
       fail(frame, fmt::format("{} particles, the frame index says {}", b.count, entry.count), 0);
-    if (keyframe && (b.prev_count != 0 || b.op_count != 0 || b.new_count != b.count))
-      fail(frame, "a keyframe must code every particle as new, with no operations", 4);
+    // A keyframe codes every particle as new. From version 6, in id order, it may also link them
+    // to the frame before with operations (whose count it takes from the frame index: a keyframe
+    // decodes without that frame).
+    if (keyframe) {
+      const bool may_link =
+          meta_.version >= kFirstKeyframeLinksVersion && meta_.codec.order == FrameOrder::Id && frame > 0;
+      const bool links = b.op_count != 0 || b.prev_count != 0;
+      if (b.new_count != b.count || (links && !may_link)) {
+        fail(frame,
+             may_link ? "a keyframe must code every particle as new (and may link them to the previous frame)"
+                      : "a keyframe must code every particle as new, with no operations",
+             4);
+      }
+      if (links && (b.op_count == 0 || b.prev_count != meta_.frames[frame - 1].count)) {
+        fail(frame,
+             fmt::format("a keyframe's {} links to {} particles of the previous frame, which has {}", b.op_count,
+                         b.prev_count, meta_.frames[frame - 1].count),
+             4);
+      }
+    }
     if (!keyframe && b.prev_count != count_[cur_ ^ 1]) {
       fail(frame,
            fmt::format("predicted from {} particles, but the previous frame has {}", b.prev_count, count_[cur_ ^ 1]),
@@ -622,12 +644,20 @@ class ParticleUnit final : public FrameUnit {
     }
     at += std::size_t(b.op_count) * kOpSize;
     const std::size_t start_of_planes = at;
-    if (!keyframe && (keep + drop != b.prev_count || keep + insert != b.count || insert != b.new_count)) {
+    if ((!keyframe || b.op_count != 0) &&
+        (keep + drop != b.prev_count || keep + insert != b.count || (!keyframe && insert != b.new_count))) {
       fail(frame,
            fmt::format("the operations keep {}, drop {} and insert {} particles; the frame needs {} kept + dropped "
                        "and {} in all, {} new",
-                       keep, drop, insert, b.prev_count, b.count, b.new_count),
+                       keep, drop, insert, b.prev_count, b.count, keyframe ? b.count - keep : b.new_count),
            at);
+    }
+    if (keyframe) {  // links, not operations: every particle decodes as new
+      b.links = b.ops;
+      b.link_count = b.op_count;
+      b.link_prev_count = b.prev_count;
+      b.op_count = 0;
+      b.prev_count = 0;
     }
     b.keep_total = static_cast<std::uint32_t>(keyframe ? 0 : keep);
     const std::uint64_t blocks = (std::uint64_t(b.keep_total) + kBlock - 1) >> kBlockShift;

@@ -244,6 +244,7 @@ class GroupEncoder {
     out.predictable = std::min(n, state_.count);
     for (std::uint32_t j = 0; j < n; ++j) out.matched += match[j] >= 0 ? 1 : 0;
     std::vector<std::byte> body = keyframe ? keyframe_body(order, match) : predicted_body(order, match);
+    follows_a_frame_ = true;
     // A keyframe starts a zstd frame, and so does a large body: continuing a frame paid 1.4-8 %
     // for bodies up to 512 KiB and cost 1.5-2.3 % above (the demo fountain's frames, each
     // against a frame of its own). Every packet ends with a flush, at a block boundary, so the
@@ -1031,6 +1032,52 @@ class GroupEncoder {
     return bytes_for(m);
   }
 
+  // The operations that take the previous frame (the state) to the output `order`: walking the
+  // output, a survivor of previous index i drops what lies before it, a new particle is inserted.
+  struct Operations {
+    std::vector<Op> ops;
+    std::vector<std::uint8_t> is_new;          // per output particle
+    std::vector<std::uint32_t> survivor_prev;  // per kept particle, in output order
+  };
+  Operations operations_of(const std::vector<std::uint32_t>& order, const std::vector<std::int64_t>& match) const {
+    const auto n = static_cast<std::uint32_t>(order.size());
+    Operations out;
+    std::vector<Op>& ops = out.ops;
+    out.is_new.assign(n, 0);
+    std::uint32_t cursor = 0;
+    const auto add = [&](std::uint32_t keep, std::uint32_t drop, std::uint32_t insert) {
+      if (ops.empty() || (keep && (ops.back().drop || ops.back().insert)) || (drop && ops.back().insert))
+        ops.push_back({});
+      ops.back().keep += keep;
+      ops.back().drop += drop;
+      ops.back().insert += insert;
+    };
+    for (std::uint32_t j = 0; j < n; ++j) {
+      const std::int64_t i = match[order[j]];
+      if (i < 0) {
+        out.is_new[j] = 1;
+        add(0, 0, 1);
+        continue;
+      }
+      const auto ui = static_cast<std::uint32_t>(i);
+      if (ui < cursor) throw Error("particle codec: survivors out of the previous frame's order (internal)");
+      if (ui > cursor) add(0, ui - cursor, 0);
+      add(1, 0, 0);
+      out.survivor_prev.push_back(ui);
+      cursor = ui + 1;
+    }
+    if (cursor < state_.count) add(0, state_.count - cursor, 0);
+    return out;
+  }
+
+  void put_ops(std::vector<std::byte>& body, const std::vector<Op>& ops) {
+    for (const Op& op : ops) {
+      put(body, op.keep);
+      put(body, op.drop);
+      put(body, op.insert);
+    }
+  }
+
   std::vector<std::byte> keyframe_body(const std::vector<std::uint32_t>& order,
                                        const std::vector<std::int64_t>& match) {
     const auto n = static_cast<std::uint32_t>(order.size());
@@ -1085,8 +1132,13 @@ class GroupEncoder {
       for (std::uint32_t j = 0; j < n; ++j)
         next.steps[j] = moving[j] ? (two[j] ? kTwoSteps : kOneStep) : seeded[j] ? kSeeded : kNoStep;
     }
+    // Links to the frame before (version 6, id order): its matching, for playback and export; the
+    // particles still decode as new. The clip's first frame has none before it.
+    std::vector<Op> links;
+    if (info_.keyframe_links && info_.order == FrameOrder::Id && follows_a_frame_)
+      links = operations_of(order, match).ops;
     std::vector<std::byte> body;
-    header(body, n, 0, 0, n);
+    header(body, n, links.empty() ? 0 : state_.count, static_cast<std::uint32_t>(links.size()), n);
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
       put(body, std::uint8_t{kPrevious});
       put(body, std::uint8_t{0});
@@ -1097,6 +1149,7 @@ class GroupEncoder {
       put(body, std::uint16_t{0});
     }
     if (plan_.id_word >= 0) put(body, std::uint32_t{0});
+    put_ops(body, links);
     std::vector<std::uint64_t> id_residual = ids_for(order, next, std::vector<std::uint8_t>(n, 1));
     for (std::size_t k = 0; k < plan_.coded.size(); ++k) {
       write_planes(body, fresh[k], width(fresh[k]));
@@ -1143,33 +1196,10 @@ class GroupEncoder {
   std::vector<std::byte> predicted_body(const std::vector<std::uint32_t>& order,
                                         const std::vector<std::int64_t>& match) {
     const auto n = static_cast<std::uint32_t>(order.size());
-    // Operations: walk the output; a survivor of previous index i drops what lies before it.
-    std::vector<Op> ops;
-    std::vector<std::uint8_t> is_new(n, 0);
-    std::uint32_t cursor = 0;
-    const auto add = [&](std::uint32_t keep, std::uint32_t drop, std::uint32_t insert) {
-      if (ops.empty() || (keep && (ops.back().drop || ops.back().insert)) || (drop && ops.back().insert))
-        ops.push_back({});
-      ops.back().keep += keep;
-      ops.back().drop += drop;
-      ops.back().insert += insert;
-    };
-    std::vector<std::uint32_t> survivor_prev;  // per kept particle, in output order
-    for (std::uint32_t j = 0; j < n; ++j) {
-      const std::int64_t i = match[order[j]];
-      if (i < 0) {
-        is_new[j] = 1;
-        add(0, 0, 1);
-        continue;
-      }
-      const auto ui = static_cast<std::uint32_t>(i);
-      if (ui < cursor) throw Error("particle codec: survivors out of the previous frame's order (internal)");
-      if (ui > cursor) add(0, ui - cursor, 0);
-      add(1, 0, 0);
-      survivor_prev.push_back(ui);
-      cursor = ui + 1;
-    }
-    if (cursor < state_.count) add(0, state_.count - cursor, 0);
+    const Operations operations = operations_of(order, match);
+    const std::vector<Op>& ops = operations.ops;
+    const std::vector<std::uint8_t>& is_new = operations.is_new;
+    const std::vector<std::uint32_t>& survivor_prev = operations.survivor_prev;
     std::uint32_t new_count = 0;
     for (std::uint8_t v : is_new) new_count += v;
 
@@ -1330,11 +1360,7 @@ class GroupEncoder {
     }
     std::vector<std::uint64_t> id_residual = ids_for(order, next, is_new);
     if (plan_.id_word >= 0) put(body, std::uint32_t{0});
-    for (const Op& op : ops) {
-      put(body, op.keep);
-      put(body, op.drop);
-      put(body, op.insert);
-    }
+    put_ops(body, ops);
     for (std::size_t k = 0; k < choices.size(); ++k) {
       const Choice& ch = choices[k];
       write_planes(body, ch.bias, width(ch.bias));
@@ -1385,6 +1411,7 @@ class GroupEncoder {
   int position_k_[3] = {-1, -1, -1};
   int velocity_k_[3] = {-1, -1, -1};  // a stored velocity's coded words, for frames matched by position
   EncoderState state_;
+  bool follows_a_frame_ = false;  // state_ is the frame before the one being encoded
   std::vector<std::vector<std::uint32_t>> source_;
   std::vector<std::vector<std::uint32_t>> raw_;    // per Relative word and source particle: the float's bits
   std::vector<std::vector<std::uint32_t>> birth_;  // per coded word and source particle (or empty)

@@ -31,9 +31,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const format::Metadata meta = fuzz::particle_clip(data[0], count_of(a), count_of(b));
   try {
     format::FrameDecoder decoder(meta, "fuzz.pstream");
-    // The packets of the two bodies: one zstd stream (version 4 on) or a frame each (version 3).
+    // The packets of the two bodies: one zstd stream (version 4 on) or a frame each (version 3, or
+    // two keyframes: each starts a frame).
     const std::span<const std::byte> bodies[2] = {std::as_bytes(a), std::as_bytes(b)};
-    const auto packets = test::compress_packets(bodies, meta.version >= format::particle::kFirstStreamedVersion, 1);
+    const auto packets = test::compress_packets(
+        bodies, meta.version >= format::particle::kFirstStreamedVersion && !meta.frames[1].keyframe, 1);
     std::vector<std::byte> out0(meta.frames[0].count * meta.record_size);
     decoder.decode(0, packets[0], out0);
     std::vector<std::byte> out1(meta.frames[1].count * meta.record_size);

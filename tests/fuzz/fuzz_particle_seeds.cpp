@@ -11,11 +11,12 @@
 int main(int argc, char** argv) {
   using namespace pstream;
   if (argc != 2) return 2;
-  for (std::uint8_t selector = 0; selector < 16; ++selector) {
+  for (std::uint8_t selector = 0; selector < 32; ++selector) {
     for (std::uint64_t n0 : {1u, 20u, 64u}) {
       const std::uint64_t n1 = n0 > 10 ? n0 - 7 : n0 + 3;  // deaths or births
       format::Metadata meta = fuzz::particle_clip(selector, n0, n1);
       meta.codec.nibbles = meta.version >= format::particle::kFirstNibbleVersion;  // older bodies: byte planes
+      meta.codec.keyframe_links = meta.version >= format::particle::kFirstKeyframeLinksVersion;
       std::vector<std::vector<std::byte>> records(2);
       std::vector<std::vector<std::uint64_t>> ids(2);
       for (int f = 0; f < 2; ++f) {
@@ -45,9 +46,19 @@ int main(int argc, char** argv) {
       const bool by_id = meta.codec.order == format::FrameOrder::Id;
       const format::SourceFrame frames[2] = {{records[0], by_id ? std::span(ids[0]) : std::span<std::uint64_t>{}, n0},
                                              {records[1], by_id ? std::span(ids[1]) : std::span<std::uint64_t>{}, n1}};
-      const auto encoded = format::encode_group(meta.codec, frames, {}, 0);
-      const std::span<const std::byte> packets[2] = {encoded[0].packet, encoded[1].packet};
-      const auto bodies = test::decompress_packets(packets, 1 << 16);  // the packets are one zstd stream
+      // Two keyframes (selector bit 4): the second a group of its own after the first, which links it.
+      const bool two_keyframes = meta.frames[1].keyframe;
+      const auto encoded = two_keyframes ? format::encode_group(meta.codec, std::span(frames, 1), {}, 0)
+                                         : format::encode_group(meta.codec, frames, {}, 0);
+      const auto second = two_keyframes
+                              ? format::encode_group(meta.codec, std::span(frames + 1, 1), std::span(frames, 1), 1)
+                              : std::vector<format::EncodedFrame>{};
+      const std::span<const std::byte> packets[2] = {encoded[0].packet,
+                                                     two_keyframes ? second[0].packet : encoded[1].packet};
+      // The packets are one zstd stream, or with two keyframes each the start of a frame of its own.
+      const auto bodies = two_keyframes ? std::vector{test::decompress_packets(std::span(packets, 1), 1 << 16)[0],
+                                                      test::decompress_packets(std::span(packets + 1, 1), 1 << 16)[0]}
+                                        : test::decompress_packets(packets, 1 << 16);
       std::ofstream out(std::string(argv[1]) + "/seed-" + std::to_string(selector) + "-" + std::to_string(n0),
                         std::ios::binary);
       const auto size = static_cast<std::uint32_t>(bodies[0].size());

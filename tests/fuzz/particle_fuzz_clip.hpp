@@ -2,9 +2,11 @@
 // A fuzz input is: [selector][u32 size of the keyframe body][keyframe body][predicted frame body],
 // bodies uncompressed (the target compresses them, so mutations land in the body, not in zstd's
 // framing). The selector picks the layout (bit 0), the frame order (bit 1), a relative scale and,
-// with bit 0, a derived velocity (bit 2), and the version: the current one (5: survivors'
+// with bit 0, a derived velocity (bit 2), and the version: the current one (6: survivors'
 // residuals may be packed as nibbles, the second packet continues the first one's zstd frame),
 // or with bit 3 an older one: 3 with bit 2 (a zstd frame a packet), else 4 (byte planes only).
+// Bit 4, in the current version: the second frame is a keyframe too (each packet its own zstd
+// frame), which in id order links its particles to the first's (version 6).
 #pragma once
 
 #include <cstring>
@@ -46,10 +48,12 @@ inline format::Metadata particle_clip(std::uint8_t selector, std::uint64_t count
   }
   for (std::uint32_t c = 0; derived && c < 3; ++c)
     m.codec.words[7 + c] = {WordCoding::Derived, 0.01f * 24 / 2, 0.0f, c};
+  const bool two_keyframes = (selector & 16) != 0 && (selector & 8) == 0;
+  if (two_keyframes) m.codec.keyframe_interval = 1;
   for (std::uint64_t f = 0; f < 2; ++f) {
     FrameEntry e;
     e.count = f == 0 ? count0 : count1;
-    e.keyframe = f == 0;
+    e.keyframe = f == 0 || two_keyframes;
     m.frames.push_back(e);
   }
   m.max_count = std::max(count0, count1);

@@ -246,6 +246,12 @@ class _ParticleDecoder:
             ops.append(struct.unpack_from("<III", body, at))
             at += 12
         if keyframe:
+            if O or prev_count:
+                # Links (version 6 on, id order): which particles continue the frame before's. They
+                # decode nothing: every particle of a keyframe is new.
+                if r.version < 6 or r.order != 1:
+                    raise SpecError("a keyframe with operations (links need version 6 and id order)")
+                ops, prev_count = [], 0
             self.P = 0
         if prev_count != self.P:
             raise SpecError(f"prev_count {prev_count}, the state holds {self.P}")

@@ -735,7 +735,7 @@ def test_bound_sweep_costs_fewer_bytes_at_each_looser_bound_within_each_bound(tm
 def test_a_reader_written_from_the_spec_decodes_every_frame_as_the_library_does(tmp_path):
     # tests/python/spec_reader.py decodes .pstream files from docs/format.md alone (no code shared
     # with the library): every version, both frame codecs, every word coding, nibbles, keyframes
-    # with prior steps, derived and stored velocity, ids, chunk codecs. Each frame's records must be
+    # with prior steps and links, derived and stored velocity, ids, chunk codecs. Each frame's records must be
     # the library's, byte for byte.
     from spec_reader import SpecReader
 
@@ -743,7 +743,7 @@ def test_a_reader_written_from_the_spec_decodes_every_frame_as_the_library_does(
     varying = DATA / "alembic" / "points_varying.abc"
     cooks = {
         "sparks": (sparks, {}),  # relative scale, colours, derived velocity, nibbles
-        "sparks_k8": (sparks, dict(keyframe_interval=8, attributes=["id", "age"])),  # ids, priors
+        "sparks_k8": (sparks, dict(keyframe_interval=8, attributes=["id", "age"])),  # ids, priors, links
         "sparks_stored": (sparks, dict(store_velocity=True, attributes=["id32"])),
         "flip": (flip, {}),  # matched order, stored velocity
         "flip_k5": (flip, dict(keyframe_interval=5)),
@@ -767,4 +767,4 @@ def test_a_reader_written_from_the_spec_decodes_every_frame_as_the_library_does(
             assert records == clip.read_frame(f).tobytes(), (path.name, f)
             frames += 1
         assert frames == clip.frame_count > 0, path.name
-    assert {(1, 0), (2, 0), (2, 1), (3, 1), (4, 1), (5, 0), (5, 1)} <= seen
+    assert {(1, 0), (2, 0), (2, 1), (3, 1), (4, 1), (5, 1), (6, 0), (6, 1)} <= seen
