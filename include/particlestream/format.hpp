@@ -21,7 +21,7 @@ namespace pstream::format {
 
 inline constexpr std::uint32_t kVersion = 6;  // what the writer writes; the reader takes 1 to 6
 inline constexpr std::size_t kHeaderSizeV1 = 160;
-inline constexpr std::size_t kHeaderSize = 192;  // versions 2 to 5
+inline constexpr std::size_t kHeaderSize = 192;  // versions 2 to 6
 inline constexpr std::uint32_t kDefaultKeyframeInterval = 64;
 inline constexpr int kDefaultParticleZstdLevel = 16;         // lossy, with ids: the optimal parser pays off
 inline constexpr int kDefaultMatchedParticleZstdLevel = 12;  // lossy, without ids: see default_particle_zstd_level

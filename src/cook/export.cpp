@@ -83,8 +83,6 @@ const std::string& ply_word(const std::string& name, const std::string& input) {
   return name;
 }
 
-// A binary little-endian PLY of one frame, complete or not at all (never over `input`). Returns
-// its size.
 // A PLY sequence's ids: whether it has them, whether every one fits a PLY uint (else all are
 // doubles, exact to 2^53) — the same in every file — and this frame's.
 struct PlyIds {
@@ -92,6 +90,8 @@ struct PlyIds {
   std::span<const std::uint64_t> values;
 };
 
+// A binary little-endian PLY of one frame, complete or not at all (never over `input`). Returns
+// its size.
 std::uint64_t write_ply(const fs::path& path, const Metadata& m, const Columns& c, const PlyIds& ids, std::uint64_t n,
                         const std::string& input) {
   std::string header = fmt::format(

@@ -499,9 +499,9 @@ struct Body {
   unsigned id_bytes = 0;
   const std::byte* ops = nullptr;  // op_count operations; a keyframe has none (its links are below)
   // A keyframe's links to the frame before (version 6 on): link_count operations at `links`
-  // pairing link_prev_count particles there with this frame's; 0 when it has none.
+  // pairing its particles with this frame's; 0 when it has none.
   const std::byte* links = nullptr;
-  std::uint32_t link_count = 0, link_prev_count = 0;
+  std::uint32_t link_count = 0;
   const std::byte* ids = nullptr;
 };
 

@@ -655,7 +655,6 @@ class ParticleUnit final : public FrameUnit {
     if (keyframe) {  // links, not operations: every particle decodes as new
       b.links = b.ops;
       b.link_count = b.op_count;
-      b.link_prev_count = b.prev_count;
       b.op_count = 0;
       b.prev_count = 0;
     }
