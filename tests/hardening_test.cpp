@@ -429,7 +429,11 @@ TEST(Hardening, BadValuesGetMessagesThatSayWhatIsWanted) {
       {"cook " + abc + out + " --chunk-size 17592186044417M", "--chunk-size '17592186044417M': too large"},
       {"cook " + abc + out + " --chunk-size 3", "--chunk-size 3 must be a power of two"},
       {"cook " + abc + out + " --codec raw:5", "--codec 'raw:5': raw has no level"},
-      {"render " + abc + " --sort sideways", "--sort: sideways not in {back,front,none}"},
+      {"render " + abc + " --sort sideways", "--sort: 'sideways' is not one of back, front, none"},
+      {"render " + abc + " --preset spark",
+       "--preset: 'spark' is not one of sprites, smoke, sparks, liquid-sprites, liquid, debug (did you mean "
+       "'sparks'?)"},
+      {"render " + abc + " --ramp fir", "--ramp: 'fir' is not one of fire, ice, viridis, grey (did you mean 'fire'?)"},
       {"render " + abc + " --size-multiplier nan", "--size-multiplier: 'nan' is not a positive number"},
       {"render " + abc + " --fps -3", "--fps: '-3' is not a positive number"},
       {"play " + abc, "is an Alembic archive, not a cooked clip; cook it first: pstream cook"},

@@ -1,9 +1,12 @@
 #include "cli_terms.hpp"
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <vector>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "particlestream/error.hpp"
 
@@ -21,6 +24,17 @@ CLI::Validator positive_number_up_to(double max) {
         return {};
       },
       fmt::format("POSITIVE (up to {:g})", max));
+}
+
+CLI::Validator one_of(std::initializer_list<std::string_view> names) {
+  std::vector<std::string> list(names.begin(), names.end());
+  return CLI::Validator(
+      [list](std::string& value) -> std::string {
+        if (std::find(list.begin(), list.end(), value) != list.end()) return {};
+        const std::vector<std::string_view> views(list.begin(), list.end());
+        return fmt::format("'{}' is not one of {}{}", value, fmt::join(list, ", "), did_you_mean(value, views));
+      },
+      fmt::format("{{{}}}", fmt::join(list, ",")));
 }
 
 CLI::Validator positive_number() {

@@ -21,6 +21,9 @@ using pstream::parse_frame_range;
 CLI::Validator positive_number();
 // A finite number > 0, at most `max`.
 CLI::Validator positive_number_up_to(double max);
+// One of `names`, exactly; anything else is refused with the list and the nearest name ("'spark'
+// is not one of sprites, smoke, sparks (did you mean 'sparks'?)").
+CLI::Validator one_of(std::initializer_list<std::string_view> names);
 
 // "512 B", "3.4 KiB", "9.2 MiB", "3.1 GiB".
 std::string human_bytes(double bytes);

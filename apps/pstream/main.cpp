@@ -36,7 +36,7 @@ void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
   cmd.add_option("--preset", look.preset,
                  "A look: sprites, smoke (self-shadowed), sparks (additive, motion-blurred), liquid-sprites "
                  "(coloured by speed), liquid, debug (flat, stored colours). Flags given with it override its parts")
-      ->check(CLI::IsMember({"sprites", "smoke", "sparks", "liquid-sprites", "liquid", "debug"}));
+      ->check(pstream::app::one_of({"sprites", "smoke", "sparks", "liquid-sprites", "liquid", "debug"}));
   cmd.add_flag("--shadows", look.sprites.shadows,
                "Volumetric self-shadowing (half-angle slices) and shadows on the ground");
   cmd.add_option("--slices", look.sprites.slices, "Shadow slices: more is smoother and slower")
@@ -47,9 +47,9 @@ void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
       ->check(CLI::NonNegativeNumber);
   cmd.add_option("--color-by", look.color_by,
                  "stored (the cache's colours), speed (a ramp over |velocity|) or attribute (--ramp-attribute)")
-      ->check(CLI::IsMember({"stored", "speed", "attribute"}));
+      ->check(pstream::app::one_of({"stored", "speed", "attribute"}));
   cmd.add_option("--ramp", look.ramp, "The ramp's colours: fire, ice, viridis or grey")
-      ->check(CLI::IsMember({"fire", "ice", "viridis", "grey"}));
+      ->check(pstream::app::one_of({"fire", "ice", "viridis", "grey"}));
   cmd.add_option("--ramp-range", look.ramp_range,
                  "LOW,HIGH: the values the ramp spans (speeds in units/s); by default what the clip holds: speeds "
                  "from 0 to their 99th percentile, an attribute from its 1st to 99th percentile");
@@ -81,7 +81,7 @@ void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
       ->default_val(defaults.bloom_radius)
       ->check(CLI::Range(0.001, 0.25));
   cmd.add_option("--tone-map", look.tone_map, "filmic (bright light keeps its hue) or linear (clamps)")
-      ->check(CLI::IsMember({"filmic", "linear"}));
+      ->check(pstream::app::one_of({"filmic", "linear"}));
 }
 
 // Which flags the command line gave (a preset's parts they override).
@@ -448,7 +448,7 @@ int main(int argc, char** argv) {
       ->add_option("--codec", bench_stream_opts.codec,
                    "The generated clip's frames: records (raw chunks) or particle (decoded on the IO worker)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"records", "particle"}));
+      ->check(pstream::app::one_of({"records", "particle"}));
   bench_stream_cmd->add_flag(
       "--json", bench_stream_opts.json,
       R"(Print {"frame_ms_median":…, "memcpy_ms_median":…, "ratio":…, "stalls":…, "requests":…, "bytes_fetched":…} (a URL: also "file_backend": {…} and "unmerged": {…}))");
@@ -465,7 +465,7 @@ int main(int argc, char** argv) {
   bench_playback_cmd->add_option("--particles", bench_playback_opts.particles,
                                  "Particles per generated frame (repeatable)");
   bench_playback_cmd->add_option("--path", bench_playback_opts.paths, "gpu or cpu (repeatable; default both)")
-      ->check(CLI::IsMember({"gpu", "cpu"}));
+      ->check(pstream::app::one_of({"gpu", "cpu"}));
   bench_playback_cmd->add_option("--frames", bench_playback_opts.frames, "Frames per generated clip")
       ->capture_default_str();
   bench_playback_cmd->add_option("--host-hz", bench_playback_opts.host_hz, "Host frame rate")
@@ -520,23 +520,23 @@ int main(int argc, char** argv) {
       ->add_option("--interpolation", render_cli.interpolation,
                    "Images between cached frames: hermite (along velocities), linear, or none (the nearest frame)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"hermite", "linear", "none"}));
+      ->check(pstream::app::one_of({"hermite", "linear", "none"}));
   render_cmd
       ->add_option(
           "--playback", render_cli.playback,
           "Where interpolation between cached frames and the depth sort run: gpu (compute shaders; each cached frame "
           "uploaded once, the host thread's cost flat at any particle count) or cpu (the reference path)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"gpu", "cpu"}));
+      ->check(pstream::app::one_of({"gpu", "cpu"}));
   render_cmd->add_option("--max-frames", render_cli.max_frames, "Largest number of images a render may write")
       ->capture_default_str();
   render_cmd->add_option("--video", render_cli.video, "Also write an MP4 through ffmpeg");
   render_cmd->add_option("--blend", render_cli.blend, "alpha (sorted), additive or alphatest")
       ->capture_default_str()
-      ->check(CLI::IsMember({"alpha", "additive", "alphatest"}));
+      ->check(pstream::app::one_of({"alpha", "additive", "alphatest"}));
   render_cmd->add_option("--sort", render_cli.sort, "back (back to front), front, or none")
       ->capture_default_str()
-      ->check(CLI::IsMember({"back", "front", "none"}));
+      ->check(pstream::app::one_of({"back", "front", "none"}));
   render_cmd->add_option("--size-multiplier", render_cli.size_multiplier, "Scale every particle")
       ->capture_default_str()
       ->check(positive_number());
@@ -627,14 +627,14 @@ int main(int argc, char** argv) {
                      "Start with the panel and the timeline hidden (H shows them); scripted runs print where they "
                      "would be");
   play_cmd->add_option("--look", viewer.look, "sprites or liquid (a screen-space surface; its settings in the panel)")
-      ->check(CLI::IsMember({"sprites", "liquid"}));
+      ->check(pstream::app::one_of({"sprites", "liquid"}));
   play_cmd
       ->add_option(
           "--playback", viewer.playback,
           "Where interpolation between cached frames and the depth sort run: gpu (compute shaders; each cached frame "
           "uploaded once, the host thread's cost flat at any particle count) or cpu (the reference path)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"gpu", "cpu"}));
+      ->check(pstream::app::one_of({"gpu", "cpu"}));
   add_look_flags(*play_cmd, viewer.sprite_look);
 
   DemoCli demo;
@@ -659,7 +659,7 @@ int main(int argc, char** argv) {
           "Where interpolation between cached frames and the depth sort run: gpu (compute shaders; each cached frame "
           "uploaded once, the host thread's cost flat at any particle count) or cpu (the reference path)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"gpu", "cpu"}));
+      ->check(pstream::app::one_of({"gpu", "cpu"}));
   demo_cmd->add_flag("--window", demo.window, "Open the viewer after cooking");
   demo_cmd->add_flag("--headless", demo.headless, "Render frames even when a display is available");
   demo_cmd->add_flag("-q,--quiet", demo.quiet, "No progress or summary");
