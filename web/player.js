@@ -7,11 +7,16 @@
 //                                 clip's framing, as `pstream render` and the viewer frame it
 //           &speed=S              clip seconds per second (default 1)
 //           &size=WxH             the canvas size in pixels (default: the window's)
-//           &flat=1               flat colours, no lighting (as `pstream render --preset debug`)
+//           &preset=NAME          the look, as `pstream render --preset`: sprites (default), sparks,
+//                                 smoke (without its self-shadowing), liquid-sprites, debug
+//           &color-by=stored|speed|attribute, &ramp=NAME, &ramp-range=LOW,HIGH, &ramp-attribute=NAME
+//                                 the colouring, as `pstream render`'s flags of those names
 //           &bench=1              steps through every cached frame once and reports, per frame, the
 //                                 worker's decode and sort times and this thread's draw time, then
 //                                 steps back to the first frame and reports the decodes
 //                                 (window.player.bench; bench/web/run.sh compares them with native)
+import { shaders } from './shaders.js';
+
 const params = new URLSearchParams(location.search);
 const canvas = document.getElementById('view');
 const status = document.getElementById('status');
@@ -20,7 +25,8 @@ const errorBox = document.getElementById('error');
 const state = {
   ready: false, error: null, playing: !params.has('frame'), speed: Number(params.get('speed') || 1),
   time: 0, frame: -1, shown: 0, distinctShown: 0, stalls: 0, meta: null,
-  timing: { decodeMs: 0, sortMs: 0, drawMs: 0, fetchMs: 0 }, cache: null, count: 0, framesDecoded: 0
+  timing: { decodeMs: 0, sortMs: 0, drawMs: 0, fetchMs: 0 }, cache: null, count: 0, framesDecoded: 0,
+  lookNote: ''
 };
 window.player = { state };
 
@@ -110,44 +116,41 @@ canvas.addEventListener('wheel', (e) => {
 // ---- WebGL2 sprites ---------------------------------------------------------------------------
 
 const gl = canvas.getContext('webgl2', { antialias: false, premultipliedAlpha: true, preserveDrawingBuffer: true });
-const kVertex = `#version 300 es
-layout(location = 0) in vec4 a_center;   // xyz, radius (world units)
-layout(location = 1) in vec4 a_color;    // RGBA8, normalised
-uniform mat4 u_view, u_projection;
-uniform vec4 u_default_color;
-uniform bool u_has_color;
-out vec2 v_local;
+
+// The native sprite pass (src/render/sprites.cpp) in WebGL2, with its shaders (shaders.js: the
+// files of src/render/shaders/, which the native renderer embeds): camera-facing quads, or
+// streaks along their screen-space velocity over the look's shutter, with the soft round profile
+// and the key, fill and rim lights, accumulated in a half-float buffer; then bloom, exposure and
+// the tone map over the background. The look's settings come from the library's presets (the
+// worker's chooseLook); the colours arrive ramped where the look colours by speed or an attribute.
+const kVertexPrelude = '#version 300 es\n', kFragmentPrelude = '#version 300 es\nprecision highp float;\n';
+const kVertex = `${kVertexPrelude}
+layout(location = 0) in vec4 a_center;    // xyz, radius (world units)
+layout(location = 1) in vec4 a_color;     // RGBA8, normalised
+layout(location = 2) in vec3 a_velocity;  // world units per second (looks that streak; else 0)
+uniform mat4 u_view;
+uniform vec4 u_tint;
+uniform float u_opacity;
 out vec4 v_color;
+out vec2 v_light_uv;                      // no light buffer: sprite.frag's shadows are off
+${shaders['sprite_corner.glsl']}
 void main() {
   vec2 corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
   vec4 view = u_view * vec4(a_center.xyz, 1.0);
-  view.xy += corner * a_center.w;        // a camera-facing square of the particle's radius
-  v_local = corner;
-  v_color = u_has_color ? a_color : u_default_color;
-  gl_Position = u_projection * view;
+  float radius = a_center.w;
+  v_color = a_color * u_tint;
+  v_color.a *= u_opacity;
+  v_light_uv = vec2(-1.0);
+  floor_size(sprite_pixels(radius, view.z), radius, v_color.a);
+  gl_Position = sprite_corner(view, mat3(u_view) * a_velocity, radius, corner, v_color.a);
 }`;
-// The native sprite's profile and lights (src/render/sprites.cpp): a soft round coverage, and a
-// sphere under the sprite lit by a key (wrapped diffuse), a fill and a rim light over an ambient,
-// in view space. No shadows, no tone map. u_lit off: flat colours (`pstream render --preset debug`).
-const kFragment = `#version 300 es
-precision mediump float;
-in vec2 v_local;
-in vec4 v_color;
-uniform bool u_lit;
-out vec4 o_color;
-const vec3 kKey = vec3(0.45, 0.65, 0.61), kFill = vec3(-0.62, -0.2, 0.76);
+const kFragment = kFragmentPrelude + shaders['sprite.frag'];
+const kFullScreen = `${kVertexPrelude}
 void main() {
-  float r2 = dot(v_local, v_local);
-  if (r2 > 1.0) discard;
-  float a = v_color.a * (1.0 - smoothstep(0.55, 1.0, sqrt(r2)));
-  float light = 1.0;
-  if (u_lit) {
-    vec3 n = vec3(v_local, sqrt(1.0 - r2));
-    float key = clamp(dot(n, kKey) * 0.6 + 0.4, 0.0, 1.0);
-    light = 0.16 + 0.84 * key + 0.12 * max(dot(n, kFill), 0.0) + 0.2 * pow(1.0 - n.z, 3.0);
-  }
-  o_color = vec4(v_color.rgb * light * a, a);   // premultiplied
+  gl_Position = vec4(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0, 0.0, 1.0);
 }`;
+const kComposite = kFragmentPrelude + shaders['composite.frag'];
+const kBloom = kFragmentPrelude + shaders['bloom.frag'];
 
 function compile(type, source) {
   const s = gl.createShader(type);
@@ -156,31 +159,69 @@ function compile(type, source) {
   if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
   return s;
 }
-let program, instanceBuffer, vao, uniforms;
+function link(vertex, fragment, names) {
+  const program = gl.createProgram();
+  gl.attachShader(program, compile(gl.VERTEX_SHADER, vertex));
+  gl.attachShader(program, compile(gl.FRAGMENT_SHADER, fragment));
+  gl.linkProgram(program);
+  if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(program));
+  return { program, u: Object.fromEntries(names.map((n) => [n, gl.getUniformLocation(program, n)])) };
+}
+let sprites, composite, bloomBlur, instanceBuffer, vao, look;
+// Render targets: the accumulated light at the canvas's size, and the bloom's two buffers at half
+// of it (across, then down), made once at start.
+const targets = {};
+function target(width, height) {
+  const texture = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, texture);
+  gl.texStorage2D(gl.TEXTURE_2D, 1, targets.format, width, height);
+  for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
+    [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_2D, k, v);
+  const framebuffer = gl.createFramebuffer();
+  gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
+  gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, texture, 0);
+  if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) throw new Error('a render target is not renderable');
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  return { texture, framebuffer, width, height };
+}
 // The instance buffer at the clip's largest (twice max_count: between two frames the dying and
 // the newborn are both drawn), made once; each image updates it in place.
 function sizeInstanceBuffer(maxCount) {
+  const bytes = look.instanceBytes;
+  gl.bindVertexArray(vao);
   gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
-  gl.bufferData(gl.ARRAY_BUFFER, Math.max(20, 2 * maxCount * 20), gl.DYNAMIC_DRAW);
+  gl.bufferData(gl.ARRAY_BUFFER, Math.max(bytes, 2 * maxCount * bytes), gl.DYNAMIC_DRAW);
+  gl.vertexAttribPointer(0, 4, gl.FLOAT, false, bytes, 0);
+  gl.vertexAttribPointer(1, 4, gl.UNSIGNED_BYTE, true, bytes, 16);
+  if (bytes >= 32) {
+    gl.enableVertexAttribArray(2);
+    gl.vertexAttribPointer(2, 3, gl.FLOAT, false, bytes, 20);
+    gl.vertexAttribDivisor(2, 1);
+  } else {
+    gl.disableVertexAttribArray(2);
+    gl.vertexAttrib3f(2, 0, 0, 0);
+  }
 }
 function setupGl() {
   if (!gl) throw new Error('this browser has no WebGL2');
-  program = gl.createProgram();
-  gl.attachShader(program, compile(gl.VERTEX_SHADER, kVertex));
-  gl.attachShader(program, compile(gl.FRAGMENT_SHADER, kFragment));
-  gl.linkProgram(program);
-  if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(program));
-  uniforms = Object.fromEntries(['u_view', 'u_projection', 'u_default_color', 'u_has_color', 'u_lit']
-    .map((n) => [n, gl.getUniformLocation(program, n)]));
+  sprites = link(kVertex, kFragment, ['u_view', 'u_projection', 'u_tint', 'u_opacity', 'u_shutter', 'u_min_pixels',
+    'u_viewport_height', 'u_lit', 'u_mode', 'u_key', 'u_fill', 'u_sprite', 'u_light_buffer']);
+  composite = link(kFullScreen, kComposite, ['u_hdr', 'u_bloom', 'u_bloom_strength', 'u_exposure', 'u_tone_map']);
+  bloomBlur = link(kFullScreen, kBloom, ['u_source', 'u_step', 'u_size', 'u_sigma', 'u_taps']);
+  // Half floats where the browser renders to them (EXT_color_buffer_float: nearly all); else
+  // 8 bits, which clamps the light before the tone map (the status line says so).
+  targets.hdr = !!gl.getExtension('EXT_color_buffer_float');
+  targets.format = targets.hdr ? gl.RGBA16F : gl.RGBA8;
+  targets.light = target(canvas.width, canvas.height);
+  const w = Math.max(1, (canvas.width + 1) >> 1), h = Math.max(1, (canvas.height + 1) >> 1);
+  targets.bloom = [target(w, h), target(w, h)];
   vao = gl.createVertexArray();
   gl.bindVertexArray(vao);
   instanceBuffer = gl.createBuffer();
   gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
   gl.enableVertexAttribArray(0);
-  gl.vertexAttribPointer(0, 4, gl.FLOAT, false, 20, 0);
   gl.vertexAttribDivisor(0, 1);
   gl.enableVertexAttribArray(1);
-  gl.vertexAttribPointer(1, 4, gl.UNSIGNED_BYTE, true, 20, 16);
   gl.vertexAttribDivisor(1, 1);
 }
 
@@ -190,24 +231,82 @@ const onePixel = new Uint8Array(4);
 // The background: the native renderer's (`pstream render`'s clear colour).
 const kBackground = [0.02, 0.025, 0.035, 1];
 
+// A world direction in view space, normalised (frame.hpp's view_direction).
+function viewDirection(view, d) {
+  return normalize([0, 1, 2].map((i) => view[i] * d[0] + view[4 + i] * d[1] + view[8 + i] * d[2]));
+}
+
+// Blurs the accumulated light into targets.bloom[1]: a Gaussian of `radius` image heights, across
+// (halving the resolution through bilinear taps), then down; the weights sum to one.
+function blur(radius) {
+  const [a, b] = targets.bloom, sigma = Math.max(0.5, radius * a.height);
+  gl.useProgram(bloomBlur.program);
+  gl.uniform1i(bloomBlur.u.u_source, 0);
+  gl.uniform1f(bloomBlur.u.u_sigma, sigma);
+  gl.uniform1i(bloomBlur.u.u_taps, Math.min(96, Math.max(1, Math.ceil(3 * sigma))));
+  gl.uniform2f(bloomBlur.u.u_size, a.width, a.height);
+  gl.viewport(0, 0, a.width, a.height);
+  gl.disable(gl.BLEND);
+  gl.activeTexture(gl.TEXTURE0);
+  for (const [to, from, step] of [[a, targets.light, [1 / a.width, 0]], [b, a, [0, 1 / a.height]]]) {
+    gl.bindFramebuffer(gl.FRAMEBUFFER, to.framebuffer);
+    gl.bindTexture(gl.TEXTURE_2D, from.texture);
+    gl.uniform2f(bloomBlur.u.u_step, ...step);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+  }
+}
+
 function draw(reply) {
   const start = performance.now();
-  const w = canvas.width, h = canvas.height;
+  const w = canvas.width, h = canvas.height, view = reply.view;
+  // The sprites' light, accumulated back to front.
+  gl.bindFramebuffer(gl.FRAMEBUFFER, targets.light.framebuffer);
+  gl.viewport(0, 0, w, h);
+  gl.clearColor(0, 0, 0, 0);
+  gl.clear(gl.COLOR_BUFFER_BIT);
+  gl.useProgram(sprites.program);
+  gl.bindVertexArray(vao);
+  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+  gl.bufferSubData(gl.ARRAY_BUFFER, 0, new Uint8Array(reply.instances, 0, reply.count * look.instanceBytes));
+  const u = sprites.u, l = normalize(look.light);
+  gl.uniformMatrix4fv(u.u_view, false, view);
+  gl.uniformMatrix4fv(u.u_projection, false, perspective(camera.fov, w / h, camera.near, camera.far));
+  gl.uniform4fv(u.u_tint, look.tint);
+  gl.uniform1f(u.u_opacity, look.opacity);
+  gl.uniform1f(u.u_shutter, Math.max(look.shutter, 0));
+  gl.uniform1f(u.u_min_pixels, Math.max(look.minPixels, 0));
+  gl.uniform1f(u.u_viewport_height, h);
+  gl.uniform1i(u.u_lit, look.lit ? 1 : 0);
+  gl.uniform1i(u.u_mode, look.blend === 1 ? 1 : 0);
+  // Its samplers (no texture, no light buffer) on units nothing is bound to: never the target's.
+  gl.uniform1i(u.u_sprite, 2);
+  gl.uniform1i(u.u_light_buffer, 3);
+  gl.uniform3fv(u.u_key, viewDirection(view, l));
+  gl.uniform3fv(u.u_fill, viewDirection(view, [-l[0], 0.35, -l[2]]));
+  gl.enable(gl.BLEND);
+  if (look.blend === 1) gl.blendFunc(gl.ONE, gl.ONE);
+  else gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
+  gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, reply.count);
+  // Bloom, exposure and the tone map, over the background.
+  const bloom = look.bloom > 0 && look.bloomRadius > 0;
+  if (bloom) blur(look.bloomRadius);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
   gl.viewport(0, 0, w, h);
   gl.clearColor(...kBackground);
   gl.clear(gl.COLOR_BUFFER_BIT);
-  gl.useProgram(program);
-  gl.bindVertexArray(vao);
-  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
-  gl.bufferSubData(gl.ARRAY_BUFFER, 0, new Uint8Array(reply.instances, 0, reply.count * 20));
-  gl.uniformMatrix4fv(uniforms.u_view, false, reply.view);
-  gl.uniformMatrix4fv(uniforms.u_projection, false, perspective(camera.fov, w / h, camera.near, camera.far));
-  gl.uniform4fv(uniforms.u_default_color, [0.45, 0.65, 0.95, 0.9]);
-  gl.uniform1i(uniforms.u_lit, params.has('flat') ? 0 : 1);
-  gl.uniform1i(uniforms.u_has_color, state.meta.attributes.some((a) => a.name === 'color') ? 1 : 0);
+  gl.useProgram(composite.program);
+  gl.activeTexture(gl.TEXTURE0);
+  gl.bindTexture(gl.TEXTURE_2D, targets.light.texture);
+  gl.activeTexture(gl.TEXTURE1);
+  gl.bindTexture(gl.TEXTURE_2D, targets.bloom[1].texture);
+  gl.uniform1i(composite.u.u_hdr, 0);
+  gl.uniform1i(composite.u.u_bloom, 1);
+  gl.uniform1f(composite.u.u_bloom_strength, bloom ? Math.min(look.bloom, 1) : 0);
+  gl.uniform1f(composite.u.u_exposure, Math.max(look.exposure, 0));
+  gl.uniform1i(composite.u.u_tone_map, look.toneMap);
   gl.enable(gl.BLEND);
-  gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
-  gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, reply.count);
+  gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
+  gl.drawArrays(gl.TRIANGLES, 0, 3);
   // Chrome's finish() need not wait for the GPU process; reading a pixel back does (the benchmark
   // pays that to time the draw; playback does not).
   if (benchmarking) gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, onePixel);
@@ -314,7 +413,8 @@ function updateControls() {
   status.textContent = `frame ${state.frame + 1}/${state.meta.frames} · ${state.count.toLocaleString()} particles · ` +
     `decode ${state.timing.decodeMs.toFixed(1)} ms · sort ${state.timing.sortMs.toFixed(1)} ms · ` +
     `draw ${state.timing.drawMs.toFixed(1)} ms · ${(c.bytes / 1e6 || 0).toFixed(1)} MB in ${c.requests || 0} ` +
-    `requests at ${(c.bandwidth || 0).toFixed(1)} MB/s · ${c.retries || 0} retries · ${state.stalls} stalls`;
+    `requests at ${(c.bandwidth || 0).toFixed(1)} MB/s · ${c.retries || 0} retries · ${state.stalls} stalls` +
+    (state.lookNote ? ` · ${state.lookNote}` : '');
 }
 
 // Chunk states: fetched (blue), on their way (amber), not fetched (grey); the playhead in white.
@@ -337,6 +437,18 @@ function drawCacheView() {
 
 // ---- start ------------------------------------------------------------------------------------
 
+// The look's parameters, as `pstream render`'s flags: preset, color-by, ramp, ramp-range, ramp-attribute.
+function lookParams() {
+  const look = { preset: params.get('preset') || '', colorBy: params.get('color-by') || '',
+    ramp: params.get('ramp') || '', rampAttribute: params.get('ramp-attribute') || '' };
+  if (params.has('ramp-range')) {
+    const m = /^(-?[\d.e+-]+),(-?[\d.e+-]+)$/.exec(params.get('ramp-range'));
+    if (!m) throw new Error(`ramp-range=${params.get('ramp-range')}: expected LOW,HIGH`);
+    look.rampRange = [Number(m[1]), Number(m[2])];
+  }
+  return look;
+}
+
 async function start() {
   const url = params.get('url');
   if (!url) {
@@ -349,8 +461,11 @@ async function start() {
   if (size) { canvas.style.width = `${size[1]}px`; canvas.style.height = `${size[2]}px`; }
   try {
     setupGl();
-    const opened = await ask('open', { url, aspect: canvas.width / canvas.height });
+    const opened = await ask('open', { url, aspect: canvas.width / canvas.height, look: lookParams() });
     state.meta = opened.meta;
+    look = opened.style;
+    const missing = [...look.unsupported, ...(targets.hdr ? [] : ['half-float light (clamped to 8 bits)'])];
+    state.lookNote = missing.length ? `not in the browser: ${missing.join(', ')}` : '';
     sizeInstanceBuffer(state.meta.max_count);
     Object.assign(camera, opened.meta.camera);
     if (params.has('camera')) setCameraFromParam(params.get('camera'));

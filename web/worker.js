@@ -220,7 +220,7 @@ let chunkSpans = [];     // [offset, end) of each chunk
 let viewPtr = 0;         // the view matrix's 16 floats in the module's heap, allocated at open
 const spares = [];       // particle buffers the page has handed back
 let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
-const kInstanceBytes = 20;  // a drawn particle: x, y, z, radius, RGBA8 (pstream_wasm.cpp)
+let instanceBytes = 20;  // a drawn particle: x, y, z, radius, RGBA8, and velocity where the look streaks (pstream_wasm.cpp)
 // zstddec's streaming build (zstd's own decoder in WebAssembly). Its exports, which _init is
 // handed, give the one stream a particle clip's keyframe group is (format version 4 on).
 let zx = null;
@@ -349,8 +349,27 @@ async function decodeFrames(from, to, decoder) {
   return { fetchMs, decodeMs: performance.now() - decodeStart, framesDecoded: M._pw_frames_decoded() };
 }
 
+// The look (`preset`, `color-by`, `ramp`, `ramp-range`, `ramp-attribute`: the page's parameters,
+// `pstream render`'s flags) through the library's presets and checks; what the page draws with it.
+function chooseLook(look = {}) {
+  const strings = [look.preset, look.colorBy, look.ramp, look.rampAttribute].map((text) => {
+    const n = M.lengthBytesUTF8(text || '') + 1, ptr = M._malloc(n);
+    M.stringToUTF8(text || '', ptr, n);
+    return ptr;
+  });
+  const range = look.rampRange || null;
+  try {
+    const status = M._pw_style(strings[0], strings[1], strings[2], range ? 1 : 0, range ? range[0] : 0,
+      range ? range[1] : 0, strings[3]);
+    if (status !== 0) throw new FatalError(M.UTF8ToString(M._pw_error()));
+  } finally {
+    strings.forEach((ptr) => M._free(ptr));
+  }
+  return JSON.parse(M.UTF8ToString(M._pw_style_json()));
+}
+
 const handlers = {
-  async open({ url, aspect }) {
+  async open({ url, aspect, look }) {
     await zstd.init();
     M = await createDecoder({ readFetched, zstdDecompress, zstdStream });
     cache = new RangeCache(new URL(url, self.location.href).href);
@@ -363,6 +382,8 @@ const handlers = {
       M._free(ptr);
     }
     meta = JSON.parse(M.UTF8ToString(M._pw_metadata()));
+    const style = chooseLook(look);
+    instanceBytes = style.instanceBytes;
     viewPtr = M._malloc(64);
     chunkSpans = [];
     for (let i = 0; i < meta.chunks.length; i += 2) chunkSpans.push([meta.chunks[i], meta.chunks[i] + meta.chunks[i + 1]]);
@@ -372,7 +393,7 @@ const handlers = {
     const c = Array.from(M.HEAPF32.subarray(cam >> 2, (cam >> 2) + 12));
     M._free(cam);
     const camera = { eye: c.slice(0, 3), target: c.slice(3, 6), up: c.slice(6, 9), fov: c[9], near: c[10], far: c[11] };
-    return { meta: { ...meta, url: cache.url, size: cache.size, camera } };
+    return { meta: { ...meta, url: cache.url, size: cache.size, camera }, style };
   },
 
   // The particles at clip time `time` (seconds; interpolated between the cached frames around it,
@@ -390,10 +411,10 @@ const handlers = {
     const ptr = M._pw_instances();
     let instances = spares.pop();
     if (!instances) {
-      instances = new ArrayBuffer(kInstanceBytes * 2 * meta.max_count);
+      instances = new ArrayBuffer(instanceBytes * 2 * meta.max_count);
       buffersMade++;
     }
-    new Uint8Array(instances, 0, count * kInstanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * kInstanceBytes));
+    new Uint8Array(instances, 0, count * instanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * instanceBytes));
     const s = cache.stats;
     const at = M._pw_frame_at(time);
     return {

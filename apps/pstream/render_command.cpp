@@ -92,19 +92,14 @@ void apply_look(const LookCli& cli, playback::DrawStyle& style) {
   if (set("--flat")) s.lit = !cli.flat;
   if (cli.tint_clips) style.clip_tints = playback::DrawStyle::distinct_tints();
   if (cli.bounds_box) style.bounds_box = true;
-  if (!cli.color_by.empty()) s.color_by = render::parse_color_by(cli.color_by);
-  if (!cli.ramp_attribute.empty()) {
-    style.ramp_attribute = cli.ramp_attribute;
-    if (cli.color_by.empty()) s.color_by = render::ColorBy::Attribute;
+  playback::Colouring colouring{cli.color_by, cli.ramp, std::nullopt, cli.ramp_attribute};
+  if (!cli.ramp_range.empty()) {
+    float low = 0.0f, high = 0.0f;
+    if (std::sscanf(cli.ramp_range.c_str(), "%f,%f", &low, &high) != 2 || !(low < high))
+      throw Error(fmt::format("--ramp-range '{}': expected LOW,HIGH with LOW < HIGH", cli.ramp_range));
+    colouring.range = {low, high};
   }
-  float low = s.ramp.low, high = s.ramp.high;
-  if (!cli.ramp_range.empty() && (std::sscanf(cli.ramp_range.c_str(), "%f,%f", &low, &high) != 2 || !(low < high)))
-    throw Error(fmt::format("--ramp-range '{}': expected LOW,HIGH with LOW < HIGH", cli.ramp_range));
-  if (!cli.ramp.empty()) {
-    s.ramp = render::Ramp::named(cli.ramp, low, high);
-  } else {
-    s.ramp.low = low, s.ramp.high = high;
-  }
+  playback::apply_colouring(colouring, style);
   if (!cli.tone_map.empty()) s.tone_map = render::parse_tone_map(cli.tone_map);
   if (!cli.tint.empty()) {
     const render::Vec3 t = parse_vec3(cli.tint);

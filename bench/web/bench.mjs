@@ -8,7 +8,7 @@ const base = process.env.PSTREAM_TEST_URL_BASE;
 const browser = await launch(site);
 try {
   const page = await browser.newPage();
-  await page.goto(`${base}${site}/index.html?url=${encodeURIComponent(clip)}&size=1280x720&bench=1`);
+  await page.goto(`${base}${site}/index.html?url=${encodeURIComponent(clip)}&size=1280x720&preset=debug&bench=1`);
   await page.waitForFunction(() => window.player.bench || window.player.state.error, { timeout: 600000, polling: 200 });
   const result = await page.evaluate(() => ({ bench: window.player.bench, error: window.player.state.error,
     renderer: (() => {

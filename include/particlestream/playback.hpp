@@ -107,6 +107,30 @@ SortPlan sort_plan(const DrawStyle& style, const render::Mat4& camera_view, cons
 // the choices for another name.
 DrawStyle look_preset(std::string_view name);
 
+// How sprites are coloured, by name, as `pstream render --color-by/--ramp/--ramp-range/
+// --ramp-attribute` and the browser player's parameters give it; each empty is left as the look
+// has it. A `ramp_attribute` alone colours by that attribute. Throws pstream::Error for an
+// unknown name (with "did you mean") or a range whose low end is not below its high end.
+struct Colouring {
+  std::string color_by;  // "stored", "speed", "attribute"
+  std::string ramp;      // "fire", "ice", "viridis", "grey"
+  std::optional<std::array<float, 2>> range;
+  std::string ramp_attribute;
+};
+void apply_colouring(const Colouring& colouring, DrawStyle& style);
+
+// Throws OptionError naming the setting when `style` asks for what the clip `clip` (named `name`
+// in the message) lacks: colouring by speed or motion blur without velocities (the message names
+// the cook flag that adds them), a `ramp_attribute` that is not one of its float attributes (the
+// message lists the ones it has), or colouring by attribute with none named. Player::check_style
+// asks it of every clip; the browser player of its one.
+void check_style(const DrawStyle& style, const format::Metadata& clip, std::string_view name);
+
+// The automatic colour-ramp range of sampled `values` (reordered): speeds (`speeds` true) from 0
+// to their 99th percentile, an attribute from its 1st to its 99th percentile; {0, 1} for fewer
+// than two values, and LOW + 1 as the top when the values are all one.
+std::array<float, 2> ramp_range_of(std::span<float> values, bool speeds);
+
 // The automatic camera, one rule for `pstream render`, the viewer and the demo: a track over the
 // seconds shown (by default the whole clip) that follows the effect.
 //

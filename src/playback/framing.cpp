@@ -296,15 +296,7 @@ std::array<float, 2> ramp_range(std::span<const std::filesystem::path> files, co
         const float x = attribute.empty() ? std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) : v[0];
         if (std::isfinite(x)) values.push_back(x);
       });
-  if (values.size() < 2) return {0.0f, 1.0f};
-  const auto at = [&](double q) {
-    const auto it = values.begin() + std::ptrdiff_t(q * double(values.size() - 1));
-    std::nth_element(values.begin(), it, values.end());
-    return *it;
-  };
-  // Speeds from rest (0) to the 99th percentile; an attribute from its 1st to 99th percentile.
-  const float low = attribute.empty() ? 0.0f : at(0.01), high = at(0.99);
-  return high > low ? std::array<float, 2>{low, high} : std::array<float, 2>{low, low + 1.0f};
+  return ramp_range_of(values, attribute.empty());
 }
 
 }  // namespace pstream::playback

@@ -1,8 +1,11 @@
 // Looks as a whole: the presets a user picks by name, and the sort order a look needs.
+#include <algorithm>
+
 #include <fmt/format.h>
 
 #include "base/names.hpp"
 #include "particlestream/playback.hpp"
+#include "playback/interpolate.hpp"
 
 namespace pstream::playback {
 
@@ -73,6 +76,69 @@ DrawStyle look_preset(std::string_view name) {
   }
   throw Error(fmt::format("look preset '{}': expected sprites, smoke, sparks, liquid-sprites, liquid or debug{}", name,
                           did_you_mean(name, {"sprites", "smoke", "sparks", "liquid-sprites", "liquid", "debug"})));
+}
+
+void apply_colouring(const Colouring& c, DrawStyle& style) {
+  render::SpriteStyle& s = style.sprites;
+  if (!c.color_by.empty()) s.color_by = render::parse_color_by(c.color_by);
+  if (!c.ramp_attribute.empty()) {
+    style.ramp_attribute = c.ramp_attribute;
+    if (c.color_by.empty()) s.color_by = render::ColorBy::Attribute;
+  }
+  if (c.range && !(c.range->at(0) < c.range->at(1)))
+    throw OptionError("ramp_range", fmt::format("ramp range {},{}: expected LOW,HIGH with LOW < HIGH", c.range->at(0),
+                                                c.range->at(1)));
+  const float low = c.range ? c.range->at(0) : s.ramp.low, high = c.range ? c.range->at(1) : s.ramp.high;
+  if (!c.ramp.empty()) {
+    s.ramp = render::Ramp::named(c.ramp, low, high);
+  } else {
+    s.ramp.low = low, s.ramp.high = high;
+  }
+}
+
+void check_style(const DrawStyle& style, const format::Metadata& clip, std::string_view name) {
+  const bool sprites = style.look == render::Look::Sprites;
+  if (sprites && style.sprites.color_by == render::ColorBy::Attribute && style.ramp_attribute.empty()) {
+    throw OptionError("ramp_attribute",
+                      "colouring by attribute needs a `ramp_attribute`: the float attribute to colour by");
+  }
+  // What needs velocities: colouring by speed, and motion blur (sprites stretched along their
+  // velocity). Without them the speed is 0 everywhere (a black or flat picture) and nothing
+  // streaks: say so, and how to get them, instead of drawing that.
+  const char* needs = !sprites                                           ? nullptr
+                      : style.sprites.color_by == render::ColorBy::Speed ? "colouring by speed"
+                      : style.sprites.shutter > 0.0f                     ? "motion blur (a shutter)"
+                                                                         : nullptr;
+  if (needs != nullptr && velocity_offset(clip) < 0) {
+    throw OptionError("velocity", fmt::format("{}: {} needs velocities, and the clip has none: cook it again with "
+                                              "`--attributes velocity` (without `--no-velocity`; the source must "
+                                              "have velocities)",
+                                              name, needs));
+  }
+  if (style.ramp_attribute.empty()) return;
+  std::string floats;
+  bool found = false;
+  for (const format::Attribute& a : clip.layout) {
+    if (a.type != format::AttributeType::Float32 || a.components != 1) continue;
+    found = found || a.name == style.ramp_attribute;
+    floats += (floats.empty() ? "" : ", ") + a.name;
+  }
+  if (!found) {
+    throw OptionError("ramp_attribute", fmt::format("{}: `ramp_attribute` '{}' is not one of its float attributes ({})",
+                                                    name, style.ramp_attribute, floats));
+  }
+}
+
+std::array<float, 2> ramp_range_of(std::span<float> values, bool speeds) {
+  if (values.size() < 2) return {0.0f, 1.0f};
+  const auto at = [&](double q) {
+    const auto it = values.begin() + std::ptrdiff_t(q * double(values.size() - 1));
+    std::nth_element(values.begin(), it, values.end());
+    return *it;
+  };
+  // Speeds from rest (0) to the 99th percentile; an attribute from its 1st to 99th percentile.
+  const float low = speeds ? 0.0f : at(0.01), high = at(0.99);
+  return high > low ? std::array<float, 2>{low, high} : std::array<float, 2>{low, low + 1.0f};
 }
 
 }  // namespace pstream::playback

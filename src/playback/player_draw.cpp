@@ -65,43 +65,7 @@ const render::DrawData& Player::draw_data(const DrawStyle& style) {
 }
 
 void Player::check_style(const DrawStyle& style) const {
-  if (style.sprites.color_by == render::ColorBy::Attribute && style.ramp_attribute.empty() &&
-      style.look == render::Look::Sprites) {
-    throw OptionError("ramp_attribute",
-                      "colouring by attribute needs a `ramp_attribute`: the float attribute to colour by");
-  }
-  // What needs velocities: colouring by speed, and motion blur (sprites stretched along their
-  // velocity). Without them the speed is 0 everywhere (a black or flat picture) and nothing
-  // streaks: say so, and how to get them, instead of drawing that.
-  const bool sprites = style.look == render::Look::Sprites;
-  const char* needs = !sprites                                           ? nullptr
-                      : style.sprites.color_by == render::ColorBy::Speed ? "colouring by speed"
-                      : style.sprites.shutter > 0.0f                     ? "motion blur (a shutter)"
-                                                                         : nullptr;
-  for (std::size_t i = 0; i < clip_count() && needs != nullptr; ++i) {
-    if (velocity_offset(clip(i).metadata()) < 0) {
-      throw OptionError("velocity",
-                        fmt::format("{}: {} needs velocities, and the clip has none: cook it again with `--attributes "
-                                    "velocity` (without `--no-velocity`; the source must have velocities)",
-                                    clip(i).name(), needs));
-    }
-  }
-  if (style.ramp_attribute.empty()) return;
-  for (std::size_t i = 0; i < clip_count(); ++i) {
-    const stream::ParticleStream& c = clip(i);
-    std::string floats;
-    bool found = false;
-    for (const format::Attribute& a : c.layout()) {
-      if (a.type != format::AttributeType::Float32 || a.components != 1) continue;
-      found = found || a.name == style.ramp_attribute;
-      floats += (floats.empty() ? "" : ", ") + a.name;
-    }
-    if (!found) {
-      throw OptionError("ramp_attribute",
-                        fmt::format("{}: `ramp_attribute` '{}' is not one of its float attributes ({})", c.name(),
-                                    style.ramp_attribute, floats));
-    }
-  }
+  for (std::size_t i = 0; i < clip_count(); ++i) playback::check_style(style, clip(i).metadata(), clip(i).name());
 }
 
 }  // namespace pstream::playback

@@ -11,6 +11,7 @@
 
 #include "gl_program.hpp"
 #include "passes.hpp"
+#include "sprite_shaders.hpp"
 
 namespace pstream::render::detail {
 namespace {
@@ -18,13 +19,17 @@ namespace {
 // What the sprite shader shares with the C++ side, written once (frame.hpp).
 std::string sprite_vertex_source();
 
-// After the prelude (sprite_vertex_source()): kBatches, kMergedIndexBits, kScaleWord.
+// The first line of the shaders shared with the browser (shaders/README.md), which start without one.
+constexpr const char* kGlslVersion = "#version 450 core\n";
+
+// After the prelude (sprite_vertex_source()): kBatches, kMergedIndexBits, kScaleWord, and the
+// corner placing shared with the browser (shaders/sprite_corner.glsl: u_projection, u_shutter,
+// u_min_pixels, u_viewport_height, v_local, v_half, v_axis).
 constexpr const char* kVertexShader = R"(
 layout(std430, binding = 0) readonly buffer Records { uint words[]; };
 layout(std430, binding = 1) readonly buffer Order { uint order[]; };
 uniform mat4 u_model_view[kBatches];
 uniform mat4 u_light_model_view[kBatches];  // object -> the light's view
-uniform mat4 u_projection;
 uniform mat4 u_light_projection;
 uniform uint u_stride_words[kBatches];
 uniform uint u_base_words[kBatches];     // where each batch's records start in the buffer
@@ -39,20 +44,14 @@ uniform bool u_merged;                   // order entries are (batch << kMergedI
 uniform uint u_first;                    // the slice's first entry
 uniform bool u_points;
 uniform int u_pass;                      // 0: the eye, 1: the light buffer
-uniform float u_viewport_height;
 uniform int u_color_by;                  // 0 stored, 1 speed, 2 attribute
 uniform vec3 u_ramp[8];
 uniform int u_ramp_count;
 uniform vec2 u_ramp_range;
 uniform vec4 u_tint;
 uniform float u_opacity;
-uniform float u_shutter;                 // seconds of motion a sprite is stretched over
-uniform float u_min_pixels;
 uniform bool u_cull_below;
 uniform vec4 u_ground_view;              // the ground plane in view space: under it, dot(n, p) + d < 0
-out vec2 v_local;                        // in radii: along the streak, across it
-flat out float v_half;                   // half the streak's straight part, in radii
-flat out vec2 v_axis;                    // the streak's direction on screen
 out vec4 v_color;
 out vec2 v_light_uv;
 
@@ -104,167 +103,25 @@ void main() {
   }
   vec4 light_clip = u_light_projection * (u_light_model_view[b] * vec4(p, 1.0));
   v_light_uv = light_clip.xy * 0.5 + 0.5;
-  // Below min_pixels of radius: drawn at min_pixels, fainter by the area it lost.
-  float pixels = radius * u_projection[1][1] * u_viewport_height * 0.5 / max(-view.z, 1e-6);
-  if (pixels < u_min_pixels && pixels > 0.0) {
-    float k = pixels / u_min_pixels;
-    v_color.a *= k * k;
-    radius /= k;
-  }
+  float pixels = sprite_pixels(radius, view.z);
+  floor_size(pixels, radius, v_color.a);
   if (u_points) {
     gl_Position = u_projection * view;
     gl_PointSize = max(1.0, 2.0 * pixels);
     v_local = vec2(0.0);
     return;
   }
-  // A streak: the disc swept along the screen-space motion of `shutter` seconds, as bright in
-  // total as the disc (its alpha shrinks by the area it gained).
-  if (u_shutter > 0.0) {
-    vec2 d = velocity.xy * u_shutter;
-    float len = length(d);
-    if (len > 1e-4 * radius) {
-      v_axis = d / len;
-      v_half = 0.5 * len / radius;
-      // The soft disc's coverage integrates to 1.9187 (in radii squared); each radius of straight
-      // part adds 2 x 0.775 (its cross-section's integral).
-      v_color.a *= 1.0 / (1.0 + 1.6157 * v_half);
-    }
-  }
-  v_local = vec2(corner.x * (1.0 + v_half), corner.y);
-  view.xy += (v_axis * v_local.x + vec2(-v_axis.y, v_axis.x) * v_local.y) * radius;
-  gl_Position = u_projection * view;
+  gl_Position = sprite_corner(view, velocity, radius, corner, v_color.a);
 }
 )";
 
 std::string sprite_vertex_source() {
   return fmt::format(
-             "#version 450 core\nconst int kBatches = {};\nconst uint kMergedIndexBits = {}u;\n"
+             "{}const int kBatches = {};\nconst uint kMergedIndexBits = {}u;\n"
              "const uint kScaleWord = {}u;\n",
-             kMaxMergedBatches, kMergedIndexBits, kScaleOffset / 4) +
-         kVertexShader;
+             kGlslVersion, kMaxMergedBatches, kMergedIndexBits, kScaleOffset / 4) +
+         kShader_sprite_corner_glsl + kVertexShader;
 }
-
-constexpr const char* kFragmentShader = R"(#version 450 core
-in vec2 v_local;
-flat in float v_half;
-flat in vec2 v_axis;
-in vec4 v_color;
-in vec2 v_light_uv;
-uniform int u_mode;          // 0 alpha (premultiplied), 1 additive, 2 alpha-tested
-uniform int u_pass;          // 0: the eye, 1: the light buffer
-uniform bool u_points;
-uniform bool u_textured;
-uniform sampler2D u_sprite;
-uniform sampler2D u_light_buffer;
-uniform bool u_shadows;
-uniform bool u_shadow_blur;
-uniform float u_light_texel;
-uniform float u_shadow_density;
-uniform bool u_lit;
-uniform vec3 u_key;          // view space, towards the key light
-uniform vec3 u_fill;         // view space, towards the fill light
-out vec4 o_color;
-
-// How much of the key light reaches here: 1 - the opacity the slices before laid down.
-float transmittance(vec2 uv) {
-  if (!u_shadows || any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-  float o = texture(u_light_buffer, uv).r;
-  if (u_shadow_blur) {
-    float t = 1.5 * u_light_texel;
-    o = (2.0 * o + texture(u_light_buffer, uv + vec2(t, 0.0)).r + texture(u_light_buffer, uv - vec2(t, 0.0)).r +
-         texture(u_light_buffer, uv + vec2(0.0, t)).r + texture(u_light_buffer, uv - vec2(0.0, t)).r) / 6.0;
-  }
-  return 1.0 - clamp(o, 0.0, 1.0);
-}
-
-void main() {
-  vec2 c = u_points ? gl_PointCoord * 2.0 - 1.0 : v_local;
-  c.x = sign(c.x) * max(abs(c.x) - v_half, 0.0);  // the streak's straight part is the disc's middle
-  float r2 = dot(c, c);
-  if (r2 > 1.0) discard;
-  vec4 base = v_color;
-  float coverage = 1.0 - smoothstep(0.55, 1.0, sqrt(r2));  // a soft round sprite
-  if (u_textured) {
-    base *= texture(u_sprite, c * 0.5 + 0.5);
-    coverage = 1.0;
-  }
-  float a = base.a * coverage;
-  if (u_pass == 1) {
-    float o = clamp(a * u_shadow_density, 0.0, 1.0);
-    o_color = vec4(o, 0.0, 0.0, o);
-    return;
-  }
-  float light = 1.0;
-  if (u_lit) {  // a sphere under the sprite: key (shadowed), fill and rim lights over an ambient
-    vec2 xy = u_points ? vec2(c.x, -c.y) : v_axis * c.x + vec2(-v_axis.y, v_axis.x) * c.y;
-    vec3 n = vec3(xy, sqrt(1.0 - r2));
-    float t = transmittance(v_light_uv);
-    // Wrapped diffuse: a particle of a volume scatters some light past its terminator.
-    float key = clamp(dot(n, u_key) * 0.6 + 0.4, 0.0, 1.0);
-    float fill = max(dot(n, u_fill), 0.0);
-    float rim = pow(1.0 - n.z, 3.0);
-    light = 0.16 + 0.84 * key * t + 0.12 * fill + 0.2 * rim * t;
-  }
-  if (u_mode == 2) {
-    if (base.a < 0.5) discard;
-    o_color = vec4(base.rgb * light, 1.0);
-    return;
-  }
-  // Additive light covers nothing: it adds, with no alpha to hide what is behind.
-  o_color = vec4(base.rgb * light * a, u_mode == 1 ? 0.0 : a);
-}
-)";
-
-// The accumulated sprites over the scene: bloom, exposure and tone map, premultiplied.
-constexpr const char* kCompositeFragment = R"(#version 450 core
-uniform sampler2D u_hdr;
-uniform sampler2D u_bloom;   // the HDR light blurred at half resolution
-uniform float u_bloom_strength;
-uniform float u_exposure;
-uniform int u_tone_map;      // 0 filmic, 1 linear
-out vec4 o_color;
-float filmic(float x) {      // a fitted ACES curve, on 1.4 x so that white comes out near 87 %
-  x *= 1.4;
-  return clamp(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
-}
-void main() {
-  vec4 h = texelFetch(u_hdr, ivec2(gl_FragCoord.xy), 0);
-  // Bloom moves a share of the light into its blur: what glows spreads, and the light's total
-  // stays what it was.
-  if (u_bloom_strength > 0.0) h = mix(h, texture(u_bloom, gl_FragCoord.xy / vec2(textureSize(u_hdr, 0))), u_bloom_strength);
-  vec3 c = max(h.rgb, vec3(0.0)) * u_exposure;
-  if (u_tone_map == 0) {
-    float m = max(max(c.r, c.g), c.b);
-    c = m > 0.0 ? c * (filmic(m) / m) : vec3(0.0);
-  } else {
-    c = clamp(c, 0.0, 1.0);
-  }
-  o_color = vec4(c, clamp(h.a, 0.0, 1.0));
-}
-)";
-
-// One axis of the bloom's Gaussian, into a half-resolution buffer: read through bilinear
-// filtering, a tap between texels averages them, so the first pass also halves the full-size
-// buffer. The weights sum to one: the blur keeps the light's total.
-constexpr const char* kBloomFragment = R"(#version 450 core
-uniform sampler2D u_source;
-uniform vec2 u_step;        // one destination texel along the axis, in the source's uv
-uniform float u_sigma;      // in destination texels
-uniform int u_taps;         // each side
-uniform vec2 u_size;        // the destination's size
-out vec4 o_color;
-void main() {
-  vec2 uv = gl_FragCoord.xy / u_size;
-  vec4 sum = texture(u_source, uv);
-  float weights = 1.0;
-  for (int i = 1; i <= u_taps; ++i) {
-    float w = exp(-0.5 * float(i * i) / (u_sigma * u_sigma));
-    sum += w * (texture(u_source, uv + float(i) * u_step) + texture(u_source, uv - float(i) * u_step));
-    weights += 2.0 * w;
-  }
-  o_color = sum / weights;
-}
-)";
 
 // The ground under the light buffer: each pixel's view ray meets the ground plane; where that
 // point is in the light buffer, the scene there darkens by the opacity above it.
@@ -408,7 +265,7 @@ struct SpritePass::Impl {
 
 SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
-  d.program = link_program(sprite_vertex_source().c_str(), kFragmentShader);
+  d.program = link_program(sprite_vertex_source().c_str(), (kGlslVersion + std::string(kShader_sprite_frag)).c_str());
   const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
   d.u = Uniforms{loc("u_model_view"),   loc("u_light_model_view"),
                  loc("u_projection"),   loc("u_light_projection"),
@@ -430,19 +287,19 @@ SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
                  loc("u_light_texel"),  loc("u_shadow_density"),
                  loc("u_lit"),          loc("u_key"),
                  loc("u_fill")};
-  d.composite = link_program(kFullScreenVertexShader, kCompositeFragment);
+  d.composite = link_program(kFullScreenVertexShader, (kGlslVersion + std::string(kShader_composite_frag)).c_str());
   d.c_hdr = glGetUniformLocation(d.composite, "u_hdr");
   d.c_exposure = glGetUniformLocation(d.composite, "u_exposure");
   d.c_tone_map = glGetUniformLocation(d.composite, "u_tone_map");
   d.c_bloom = glGetUniformLocation(d.composite, "u_bloom");
   d.c_bloom_strength = glGetUniformLocation(d.composite, "u_bloom_strength");
-  d.bloom = link_program(kFullScreenVertexShader, kBloomFragment);
+  d.bloom = link_program(kFullScreenVertexShader, (kGlslVersion + std::string(kShader_bloom_frag)).c_str());
   d.b_source = glGetUniformLocation(d.bloom, "u_source");
   d.b_step = glGetUniformLocation(d.bloom, "u_step");
   d.b_sigma = glGetUniformLocation(d.bloom, "u_sigma");
   d.b_taps = glGetUniformLocation(d.bloom, "u_taps");
   d.b_size = glGetUniformLocation(d.bloom, "u_size");
-  const std::string ground_shadow = std::string("#version 450 core\n") + kGroundRayFunction + kGroundShadowFragment;
+  const std::string ground_shadow = std::string(kGlslVersion) + kGroundRayFunction + kGroundShadowFragment;
   d.ground_shadow = link_program(kFullScreenVertexShader, ground_shadow.c_str());
   const auto gloc = [&](const char* name) { return glGetUniformLocation(d.ground_shadow, name); };
   d.g_view = gloc("u_view");

@@ -24,6 +24,43 @@ const kMinCoverageIoU = 0.8;      // intersection over union of the covered pixe
 const kMaxCentroidShift = 0.01;   // of the image width
 const kMaxCoverageRatio = 1.25;   // covered pixels, web / native, either way
 const kMaxMeanColorError = 16;    // mean |web - native| of R, G and B (of 255) where both cover
+// Streaks (the sparks preset): the mean coherence of the image's local structure tensors.
+const kMinStreakCoherence = 0.4;
+const kMaxCoherenceError = 0.1;
+let roundCoherence = NaN;         // the debug preset's round sprites, measured on the way
+
+// How much the image's edges run one way locally: the structure tensor of the luminance's
+// gradient, summed over 5 x 5 windows, gives (l1 - l2) / (l1 + l2) at each pixel (0 for a round
+// sprite's edge seen whole, 1 for a straight one); the mean over the image weighs each by its
+// window's gradient energy.
+function streakCoherence({ width, height, data }) {
+  const lum = new Float32Array(width * height);
+  for (let p = 0; p < lum.length; ++p) lum[p] = 0.3 * data[4 * p] + 0.59 * data[4 * p + 1] + 0.11 * data[4 * p + 2];
+  const xx = new Float32Array(lum.length), yy = new Float32Array(lum.length), xy = new Float32Array(lum.length);
+  for (let y = 1; y < height - 1; ++y) {
+    for (let x = 1; x < width - 1; ++x) {
+      const p = y * width + x, gx = (lum[p + 1] - lum[p - 1]) / 2, gy = (lum[p + width] - lum[p - width]) / 2;
+      xx[p] = gx * gx; yy[p] = gy * gy; xy[p] = gx * gy;
+    }
+  }
+  let num = 0, den = 0;
+  for (let y = 2; y < height - 2; y += 2) {
+    for (let x = 2; x < width - 2; x += 2) {
+      let a = 0, b = 0, c = 0;
+      for (let dy = -2; dy <= 2; ++dy) {
+        for (let dx = -2; dx <= 2; ++dx) {
+          const q = (y + dy) * width + x + dx;
+          a += xx[q]; b += yy[q]; c += xy[q];
+        }
+      }
+      const trace = a + b;
+      if (trace <= 0) continue;
+      num += Math.sqrt((a - b) * (a - b) + 4 * c * c);
+      den += trace;
+    }
+  }
+  return den > 0 ? num / den : 0;
+}
 
 const browser = await launch(env.WEB_SITE);
 const failures = [];
@@ -168,35 +205,86 @@ if (mode === 'playback') {
   });
   await back.close();
 
-  const still = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}&flat=1`);
-  await check(`frame ${frame}'s image matches the native renderer's (same camera)`, async () => {
-    await waitFor(still, () => window.player.state.error || window.player.state.shown >= 1, 30000);
-    await still.evaluate((f) => window.player.show(f), frame);
-    const webPixels = await canvasPixels(still);
-    const nativePixels = await nativeImage(still, env.WEB_NATIVE_PNG);
-    const web = coverage(webPixels), native = coverage(nativePixels);
-    assert.equal(web.width, native.width);
-    let inter = 0, union = 0;
-    for (let p = 0; p < web.mask.length; ++p) { inter += web.mask[p] & native.mask[p]; union += web.mask[p] | native.mask[p]; }
-    const iou = inter / Math.max(union, 1);
-    const shift = Math.hypot(web.cx - native.cx, web.cy - native.cy) / web.width;
-    const ratio = Math.max(web.n / native.n, native.n / web.n);
-    let colorError = 0;
-    for (let p = 0; p < web.mask.length; ++p) {
-      if (!(web.mask[p] & native.mask[p])) continue;
-      for (let c = 0; c < 3; ++c) colorError += Math.abs(webPixels.data[4 * p + c] - nativePixels.data[4 * p + c]);
-    }
-    colorError /= 3 * Math.max(inter, 1);
-    console.log(`  coverage IoU ${iou.toFixed(3)} (>= ${kMinCoverageIoU}), centroid shift ${(shift * 100).toFixed(2)}% ` +
-      `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}, ` +
-      `mean colour error ${colorError.toFixed(1)}/255 where both cover (<= ${kMaxMeanColorError})`);
-    await still.screenshot({ path: path.join(env.WEB_OUT, 'web_frame.png') });
-    assert.ok(iou >= kMinCoverageIoU, `coverage IoU ${iou}`);
-    assert.ok(shift <= kMaxCentroidShift, `centroid shift ${shift}`);
-    assert.ok(ratio <= kMaxCoverageRatio, `coverage ratio ${ratio}`);
-    assert.ok(colorError <= kMaxMeanColorError, `mean colour error ${colorError}`);
-  });
-  await still.close();
+  // The looks, each against the native renderer's image of the same frame and camera: the debug
+  // preset (flat stored colours), the sparks (additive, streaked along their motion, bloom) and the
+  // default sprites coloured by speed (lit, tone-mapped).
+  for (const [name, extra, png, checkMore] of [
+    ['the debug preset', '&preset=debug', env.WEB_NATIVE_PNG, null],
+    ['the sparks preset', '&preset=sparks', env.WEB_NATIVE_SPARKS_PNG, (web, native) => {
+      // Streaks: the sprites' edges line up along their motion. Round sprites score about
+      // kRoundCoherence here (the debug image); the native sparks well above it.
+      const w = streakCoherence(web), n = streakCoherence(native);
+      console.log(`  streak coherence web ${w.toFixed(3)}, native ${n.toFixed(3)} (round sprites ` +
+        `${roundCoherence.toFixed(3)}; >= ${kMinStreakCoherence} and within ${kMaxCoherenceError} of native)`);
+      assert.ok(w >= kMinStreakCoherence, `streak coherence ${w}: the sparks are not streaked`);
+      assert.ok(Math.abs(w - n) <= kMaxCoherenceError, `streak coherence ${w} against native ${n}`);
+    }],
+    ['colour by speed', '&color-by=speed&ramp=fire&ramp-range=0,4', env.WEB_NATIVE_SPEED_PNG, (web, native, mask) => {
+      // Not black: the ramp's colours (fire: red to yellow), where particles are drawn.
+      let sum = [0, 0, 0], n = 0;
+      for (let p = 0; p < mask.length; ++p) {
+        if (!mask[p]) continue;
+        for (let c = 0; c < 3; ++c) sum[c] += web.data[4 * p + c];
+        n++;
+      }
+      // Black sprites would hardly differ from the background (5, 6, 9): few pixels would count.
+      const mean = sum.map((v) => v / Math.max(n, 1));
+      console.log(`  ${n} pixels drawn, of mean colour (${mean.map((v) => v.toFixed(0)).join(', ')})`);
+      assert.ok(n >= 500, `${n} pixels drawn: black sprites?`);
+      assert.ok(mean[0] >= 40 && mean[0] > mean[2] * 1.5, `mean colour ${mean}: not the fire ramp's reds and yellows`);
+    }]
+  ]) {
+    const still = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}${extra}`);
+    await check(`frame ${frame}'s image matches the native renderer's (same camera), ${name}`, async () => {
+      await waitFor(still, () => window.player.state.error || window.player.state.shown >= 1, 30000);
+      assert.equal((await playerState(still)).error, null);
+      await still.evaluate((f) => window.player.show(f), frame);
+      const webPixels = await canvasPixels(still);
+      const nativePixels = await nativeImage(still, png);
+      const web = coverage(webPixels), native = coverage(nativePixels);
+      assert.equal(web.width, native.width);
+      let inter = 0, union = 0;
+      for (let p = 0; p < web.mask.length; ++p) { inter += web.mask[p] & native.mask[p]; union += web.mask[p] | native.mask[p]; }
+      const iou = inter / Math.max(union, 1);
+      const shift = Math.hypot(web.cx - native.cx, web.cy - native.cy) / web.width;
+      const ratio = Math.max(web.n / native.n, native.n / web.n);
+      let colorError = 0;
+      for (let p = 0; p < web.mask.length; ++p) {
+        if (!(web.mask[p] & native.mask[p])) continue;
+        for (let c = 0; c < 3; ++c) colorError += Math.abs(webPixels.data[4 * p + c] - nativePixels.data[4 * p + c]);
+      }
+      colorError /= 3 * Math.max(inter, 1);
+      console.log(`  coverage IoU ${iou.toFixed(3)} (>= ${kMinCoverageIoU}), centroid shift ${(shift * 100).toFixed(2)}% ` +
+        `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}, ` +
+        `mean colour error ${colorError.toFixed(1)}/255 where both cover (<= ${kMaxMeanColorError})`);
+      const file = name === 'the debug preset' ? 'web_frame.png' : `web_frame_${extra.split('=')[1].split('&')[0]}.png`;
+      await still.screenshot({ path: path.join(env.WEB_OUT, file) });
+      if (name === 'the debug preset') roundCoherence = streakCoherence(webPixels);
+      assert.ok(iou >= kMinCoverageIoU, `coverage IoU ${iou}`);
+      assert.ok(shift <= kMaxCentroidShift, `centroid shift ${shift}`);
+      assert.ok(ratio <= kMaxCoverageRatio, `coverage ratio ${ratio}`);
+      assert.ok(colorError <= kMaxMeanColorError, `mean colour error ${colorError}`);
+      if (checkMore) checkMore(webPixels, nativePixels, web.mask);
+    });
+    await still.close();
+  }
+
+  // A look the browser cannot draw, or one the clip lacks what for, is refused with the library's message.
+  for (const [extra, expect] of [
+    ['&preset=liquid', /the browser draws sprites; the liquid's surface needs the native renderer/],
+    ['&preset=spark', /look preset 'spark'.*did you mean 'sparks'/],
+    ['&color-by=speed', /colouring by speed needs velocities, and the clip has none: cook it again with `--attributes velocity`/]
+  ]) {
+    const clip = extra === '&color-by=speed' ? env.WEB_EMPTY_CLIP : env.WEB_CLIP;
+    const page = await open(clip, `&size=320x180${extra}`);
+    await check(`${extra.slice(1)} is refused with a message`, async () => {
+      await waitFor(page, () => window.player.state.error, 30000);
+      const s = await playerState(page);
+      assert.match(s.error, expect);
+      console.log(`  ${s.error}`);
+    });
+    await page.close();
+  }
 
   // A valid clip whose frames hold no particles plays (nothing to draw), with no error.
   const empty = await open(env.WEB_EMPTY_CLIP, '&size=320x180');

@@ -20,9 +20,16 @@ camera=2.6,2.4,4.2:0,0.9,0
 "$cli" render "$work/sparks.pstream" --frames $frame:$((frame + 1)) --size 480x270 --camera $camera \
   --preset debug --out "$work/native" -q
 native=$(ls "$work"/native/*.png)
+# The looks the browser draws from the library's presets: the sparks (additive, streaked, bloom)
+# and sprites coloured by speed, as the native renderer draws them.
+"$cli" render "$work/sparks.pstream" --frames $frame:$((frame + 1)) --size 480x270 --camera $camera \
+  --preset sparks --out "$work/native_sparks" -q
+"$cli" render "$work/sparks.pstream" --frames $frame:$((frame + 1)) --size 480x270 --camera $camera \
+  --color-by speed --ramp fire --ramp-range 0,4 --out "$work/native_speed" -q
 
 export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
   WEB_EMPTY_CLIP=$data/pstream/empty_frames.pstream \
-  WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_OUT=${PSTREAM_WEB_OUT:-$work}
+  WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_NATIVE_SPARKS_PNG=$(ls "$work"/native_sparks/*.png) \
+  WEB_NATIVE_SPEED_PNG=$(ls "$work"/native_speed/*.png) WEB_OUT=${PSTREAM_WEB_OUT:-$work}
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults

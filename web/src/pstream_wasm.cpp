@@ -22,6 +22,8 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/format.hpp"
 #include "particlestream/frame.hpp"
+#include "particlestream/playback.hpp"
+#include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
 #include "playback/interpolate.hpp"
 
@@ -36,9 +38,10 @@ using namespace pstream;
 
 constexpr int kOk = 0, kError = 1, kNeedBytes = 2;
 
-// A drawn particle: position x, y, z and radius (float32), colour (RGBA8; the page's default
-// where the clip has none).
-constexpr std::size_t kInstanceBytes = 20;
+// A drawn particle: position x, y, z and radius (float32), colour (RGBA8: the stored colour, the
+// ramp's where the look colours by speed or an attribute, else the native batch's default), and,
+// where the look streaks its sprites, velocity x, y, z (float32, units per second).
+constexpr std::size_t kInstanceBytes = 20, kStreakInstanceBytes = 32;
 
 struct NeedBytes {
   std::uint64_t offset, size;
@@ -93,8 +96,14 @@ struct Player {
   std::vector<float> depths;  // the draw order's buffers, allocated at open
   std::vector<std::uint64_t> pairs, scratch;
   std::vector<std::uint32_t> order;
-  std::vector<std::byte> instances;                    // what the page draws: 20 bytes a particle, back to front
+  std::vector<std::byte> instances;                    // what the page draws, back to front
   std::int32_t scale = -1, color = -1, velocity = -1;  // record offsets, or -1
+  std::int32_t scalar = -1;                            // the float attribute the look colours by, or -1
+  playback::DrawStyle style;                           // the look (pw_style)
+  std::size_t instance_bytes = kInstanceBytes;
+  bool ramp_from_first_image = false;  // the ramp's range is taken from the first image's particles
+  std::vector<float> ramp_values;      // those particles' speeds or attribute values, allocated at open
+  std::string style_json;
   playback::PairCurves curves;  // whether a pair of frames blends along curves, decided once a pair
 };
 
@@ -229,7 +238,8 @@ EMSCRIPTEN_KEEPALIVE int pw_open(double size, const char* name) {
     g->pairs.resize(most);
     g->scratch.resize(most);
     g->order.resize(most);
-    g->instances.resize(most * kInstanceBytes);
+    g->instances.resize(most * kStreakInstanceBytes);
+    g->ramp_values.resize(most);
     if (const format::Attribute* a = m.find("scale"); a && a->type == format::AttributeType::Float32)
       g->scale = static_cast<std::int32_t>(a->offset);
     g->color = playback::color_offset(m);
@@ -239,6 +249,55 @@ EMSCRIPTEN_KEEPALIVE int pw_open(double size, const char* name) {
 }
 
 EMSCRIPTEN_KEEPALIVE const char* pw_metadata() { return g->metadata_json.c_str(); }
+
+// The look the page asked for (docs/web.md, "Looks"): a preset by name (playback::look_preset, as
+// `pstream render --preset`), then its colouring (`--color-by`, `--ramp`, `--ramp-range` when
+// `has_range`, `--ramp-attribute`; empty strings leave the preset's), checked against the clip as
+// the native player checks it. A ramp without a range spans the first image's particles (the
+// native renderer samples the clip's frames, which a browser would have to fetch first).
+// pw_style_json() then says what the page draws.
+EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, const char* ramp, int has_range, double low,
+                                  double high, const char* ramp_attribute) {
+  return guarded([&] {
+    const format::Metadata& m = g->reader->metadata();
+    playback::DrawStyle style = playback::look_preset(*preset != 0 ? preset : "sprites");
+    if (style.look != render::Look::Sprites)
+      throw Error(
+          fmt::format("look '{}': the browser draws sprites; the liquid's surface needs the native renderer "
+                      "(pstream render --look liquid)",
+                      preset));
+    playback::Colouring colouring{color_by, ramp, std::nullopt, ramp_attribute};
+    if (has_range != 0) colouring.range = {float(low), float(high)};
+    playback::apply_colouring(colouring, style);
+    playback::check_style(style, m, g->reader->name());
+    const render::SpriteStyle& s = style.sprites;
+    g->scalar = -1;
+    if (const format::Attribute* a = m.find(style.ramp_attribute); a && !style.ramp_attribute.empty())
+      g->scalar = static_cast<std::int32_t>(a->offset);
+    g->ramp_from_first_image = s.color_by != render::ColorBy::Stored && has_range == 0;
+    g->instance_bytes = s.shutter > 0.0f ? kStreakInstanceBytes : kInstanceBytes;
+    g->style = style;
+    nlohmann::json unsupported = nlohmann::json::array();
+    if (s.shadows) unsupported.push_back("self-shadowing");
+    if (!style.texture.empty()) unsupported.push_back("sprite textures");
+    nlohmann::json page;  // what the page's shaders and passes take (web/player.js: draw)
+    page["blend"] = static_cast<int>(style.blend);
+    page["lit"] = s.lit;
+    page["opacity"] = s.opacity;
+    page["tint"] = s.tint;
+    page["shutter"] = s.shutter;
+    page["minPixels"] = s.min_pixels;
+    page["exposure"] = s.exposure;
+    page["toneMap"] = static_cast<int>(s.tone_map);
+    page["bloom"] = s.bloom;
+    page["bloomRadius"] = s.bloom_radius;
+    page["instanceBytes"] = g->instance_bytes;
+    page["light"] = render::RendererOptions{}.light_direction;
+    page["unsupported"] = unsupported;
+    g->style_json = page.dump();
+  });
+}
+EMSCRIPTEN_KEEPALIVE const char* pw_style_json() { return g->style_json.c_str(); }
 
 // The chunks holding frame `frame`'s packet: first and last index.
 EMSCRIPTEN_KEEPALIVE double pw_first_chunk(double frame) {
@@ -331,15 +390,49 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
   } else {
     for (std::size_t i = 0; i < n; ++i) g->order[i] = static_cast<std::uint32_t>(i);
   }
+  const render::SpriteStyle& look = g->style.sprites;
+  const bool by_speed = look.color_by == render::ColorBy::Speed && g->velocity >= 0;
+  const bool by_scalar = look.color_by == render::ColorBy::Attribute && g->scalar >= 0;
+  // The value a ramp colours by: the speed or the attribute.
+  const auto ramp_value = [&](const std::byte* r) {
+    float v[3] = {0, 0, 0};
+    std::memcpy(v, r + (by_speed ? g->velocity : g->scalar), by_speed ? 12 : 4);
+    return by_speed ? std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) : v[0];
+  };
+  render::Ramp& ramp = g->style.sprites.ramp;
+  if (g->ramp_from_first_image && (by_speed || by_scalar) && n > 0) {
+    std::size_t k = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const float v = ramp_value(records + i * stride);
+      if (std::isfinite(v)) g->ramp_values[k++] = v;
+    }
+    const std::array<float, 2> range = playback::ramp_range_of(std::span(g->ramp_values).first(k), by_speed);
+    ramp.low = range[0], ramp.high = range[1];
+    g->ramp_from_first_image = false;
+  }
+  const std::array<float, 4> fallback = render::ParticleBatch{}.color;
+  std::array<std::uint8_t, 4> default_color;
+  for (std::size_t c = 0; c < 4; ++c) default_color[c] = static_cast<std::uint8_t>(std::lround(fallback[c] * 255.0f));
+  const std::size_t bytes = g->instance_bytes;
   std::byte* out = g->instances.data();
-  for (std::size_t k = 0; k < n; ++k, out += kInstanceBytes) {
+  for (std::size_t k = 0; k < n; ++k, out += bytes) {
     const std::byte* r = records + std::size_t(g->order[k]) * stride;
     std::memcpy(out, r, 12);  // position at offset 0 (format.md: every layout starts with it)
     float radius = 0.05f;
     if (g->scale >= 0) std::memcpy(&radius, r + g->scale, 4);
     std::memcpy(out + 12, &radius, 4);
-    const std::uint32_t none = 0;
-    std::memcpy(out + 16, g->color >= 0 ? static_cast<const void*>(r + g->color) : &none, 4);
+    std::array<std::uint8_t, 4> rgba = default_color;
+    if (g->color >= 0) std::memcpy(rgba.data(), r + g->color, 4);
+    if (by_speed || by_scalar) {  // the ramp's colour, the alpha kept (the vertex shader's rule)
+      const std::array<float, 3> c = ramp.at(ramp_value(r));
+      for (std::size_t i = 0; i < 3; ++i)
+        rgba[i] = static_cast<std::uint8_t>(std::lround(std::clamp(c[i], 0.0f, 1.0f) * 255.0f));
+    }
+    std::memcpy(out + 16, rgba.data(), 4);
+    if (bytes == kStreakInstanceBytes) {
+      const float none[3] = {0, 0, 0};
+      std::memcpy(out + 20, g->velocity >= 0 ? static_cast<const void*>(r + g->velocity) : none, 12);
+    }
   }
   return static_cast<double>(n);
 }
@@ -356,5 +449,6 @@ EMSCRIPTEN_KEEPALIVE void pw_framing(double aspect, float* out) {
 }
 
 EMSCRIPTEN_KEEPALIVE std::byte* pw_instances() { return g->instances.data(); }
+EMSCRIPTEN_KEEPALIVE double pw_instance_bytes() { return static_cast<double>(g->instance_bytes); }
 
 }  // extern "C"
