@@ -123,24 +123,30 @@ const gl = canvas.getContext('webgl2', { antialias: false, premultipliedAlpha: t
 // and the key, fill and rim lights, accumulated in a half-float buffer; then bloom, exposure and
 // the tone map over the background. The look's settings come from the library's presets (the
 // worker's chooseLook); the colours arrive ramped where the look colours by speed or an attribute.
-const kVertexPrelude = '#version 300 es\n', kFragmentPrelude = '#version 300 es\nprecision highp float;\n';
+const kVertexPrelude = '#version 300 es\n', kFragmentPrelude = '#version 300 es\nprecision highp float;\nprecision highp int;\n';
 const kVertex = `${kVertexPrelude}
 layout(location = 0) in vec4 a_center;    // xyz, radius (world units)
 layout(location = 1) in vec4 a_color;     // RGBA8, normalised
 layout(location = 2) in vec3 a_velocity;  // world units per second (looks that streak; else 0)
-uniform mat4 u_view;
+uniform mat4 u_view, u_light_view;
 uniform vec4 u_tint;
 uniform float u_opacity;
+uniform int u_pass;                       // 0: the image, 1: the light buffer (self-shadowing looks)
 out vec4 v_color;
-out vec2 v_light_uv;                      // no light buffer: sprite.frag's shadows are off
+out vec2 v_light_uv;                      // where the sprite's centre falls in the light buffer
 ${shaders['sprite_corner.glsl']}
 void main() {
   vec2 corner = vec2(float(gl_VertexID & 1) * 2.0 - 1.0, float(gl_VertexID >> 1) * 2.0 - 1.0);
-  vec4 view = u_view * vec4(a_center.xyz, 1.0);
+  vec4 p = vec4(a_center.xyz, 1.0), view = u_view * p;
   float radius = a_center.w;
   v_color = a_color * u_tint;
   v_color.a *= u_opacity;
   v_light_uv = vec2(-1.0);
+  if (u_pass == 1) {
+    gl_Position = light_corner(u_light_view * p, radius, corner);
+    return;
+  }
+  v_light_uv = (u_light_projection * (u_light_view * p)).xy * 0.5 + 0.5;
   floor_size(sprite_pixels(radius, view.z), radius, v_color.a);
   gl_Position = sprite_corner(view, mat3(u_view) * a_velocity, radius, corner, v_color.a);
 }`;
@@ -171,10 +177,10 @@ let sprites, composite, bloomBlur, instanceBuffer, vao, look;
 // Render targets: the accumulated light at the canvas's size, and the bloom's two buffers at half
 // of it (across, then down), made once at start.
 const targets = {};
-function target(width, height) {
+function target(width, height, format = targets.format) {
   const texture = gl.createTexture();
   gl.bindTexture(gl.TEXTURE_2D, texture);
-  gl.texStorage2D(gl.TEXTURE_2D, 1, targets.format, width, height);
+  gl.texStorage2D(gl.TEXTURE_2D, 1, format, width, height);
   for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
     [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_2D, k, v);
   const framebuffer = gl.createFramebuffer();
@@ -191,21 +197,29 @@ function sizeInstanceBuffer(maxCount) {
   gl.bindVertexArray(vao);
   gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
   gl.bufferData(gl.ARRAY_BUFFER, Math.max(bytes, 2 * maxCount * bytes), gl.DYNAMIC_DRAW);
-  gl.vertexAttribPointer(0, 4, gl.FLOAT, false, bytes, 0);
-  gl.vertexAttribPointer(1, 4, gl.UNSIGNED_BYTE, true, bytes, 16);
   if (bytes >= 32) {
     gl.enableVertexAttribArray(2);
-    gl.vertexAttribPointer(2, 3, gl.FLOAT, false, bytes, 20);
     gl.vertexAttribDivisor(2, 1);
   } else {
     gl.disableVertexAttribArray(2);
     gl.vertexAttrib3f(2, 0, 0, 0);
   }
+  pointInstances(0);
+}
+// The instanced attributes from particle `first` on (WebGL2 has no base instance: a slice of a
+// self-shadowing look starts its attributes there).
+function pointInstances(first) {
+  const bytes = look.instanceBytes, at = first * bytes;
+  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+  gl.vertexAttribPointer(0, 4, gl.FLOAT, false, bytes, at);
+  gl.vertexAttribPointer(1, 4, gl.UNSIGNED_BYTE, true, bytes, at + 16);
+  if (bytes >= 32) gl.vertexAttribPointer(2, 3, gl.FLOAT, false, bytes, at + 20);
 }
 function setupGl() {
   if (!gl) throw new Error('this browser has no WebGL2');
   sprites = link(kVertex, kFragment, ['u_view', 'u_projection', 'u_tint', 'u_opacity', 'u_shutter', 'u_min_pixels',
-    'u_viewport_height', 'u_lit', 'u_mode', 'u_key', 'u_fill', 'u_sprite', 'u_light_buffer']);
+    'u_viewport_height', 'u_lit', 'u_mode', 'u_key', 'u_fill', 'u_sprite', 'u_light_buffer', 'u_pass', 'u_light_view',
+    'u_light_projection', 'u_shadows', 'u_shadow_blur', 'u_light_texel', 'u_shadow_density']);
   composite = link(kFullScreen, kComposite, ['u_hdr', 'u_bloom', 'u_bloom_strength', 'u_exposure', 'u_tone_map']);
   bloomBlur = link(kFullScreen, kBloom, ['u_source', 'u_step', 'u_size', 'u_sigma', 'u_taps']);
   // Half floats where the browser renders to them (EXT_color_buffer_float: nearly all); else
@@ -283,10 +297,46 @@ function draw(reply) {
   gl.uniform1i(u.u_light_buffer, 3);
   gl.uniform3fv(u.u_key, viewDirection(view, l));
   gl.uniform3fv(u.u_fill, viewDirection(view, [-l[0], 0.35, -l[2]]));
+  // Self-shadowing (the worker sorted front to back along the half-angle): slices drawn into the
+  // image, each lit by the light buffer the slices before laid down, then into the light buffer.
+  const shadows = look.shadows && reply.shadow, slices = shadows ? look.slices : 1;
+  gl.uniform1i(u.u_shadows, shadows ? 1 : 0);
+  if (shadows) {
+    gl.uniformMatrix4fv(u.u_light_view, false, reply.shadow.slice(0, 16));
+    gl.uniformMatrix4fv(u.u_light_projection, false, reply.shadow.slice(16, 32));
+    gl.uniform1i(u.u_shadow_blur, look.shadowBlur ? 1 : 0);
+    gl.uniform1f(u.u_light_texel, 1 / look.shadowResolution);
+    gl.uniform1f(u.u_shadow_density, look.shadowDensity);
+    if (!targets.shadow) targets.shadow = target(look.shadowResolution, look.shadowResolution, targets.hdr ? gl.R16F : gl.RGBA8);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, targets.shadow.framebuffer);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+  }
+  const underFirst = shadows && reply.shadow[32] === 1;
   gl.enable(gl.BLEND);
-  if (look.blend === 1) gl.blendFunc(gl.ONE, gl.ONE);
-  else gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
-  gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, reply.count);
+  for (let k = 0; k < slices; ++k) {
+    const first = Math.floor((reply.count * k) / slices), end = Math.floor((reply.count * (k + 1)) / slices);
+    if (end === first) continue;
+    if (slices > 1) pointInstances(first);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, targets.light.framebuffer);
+    gl.viewport(0, 0, w, h);
+    gl.activeTexture(gl.TEXTURE3);
+    gl.bindTexture(gl.TEXTURE_2D, shadows ? targets.shadow.texture : null);
+    if (look.blend === 1) gl.blendFunc(gl.ONE, gl.ONE);
+    else if (underFirst) gl.blendFunc(gl.ONE_MINUS_DST_ALPHA, gl.ONE);  // "under": each slice behind the ones before
+    else gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
+    gl.uniform1i(u.u_pass, 0);
+    gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, end - first);
+    if (!shadows || k + 1 === slices) continue;  // the last slice shadows nothing after it
+    gl.bindTexture(gl.TEXTURE_2D, null);  // the light buffer is the target now: no sampler may read it
+    gl.bindFramebuffer(gl.FRAMEBUFFER, targets.shadow.framebuffer);
+    gl.viewport(0, 0, look.shadowResolution, look.shadowResolution);
+    gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
+    gl.uniform1i(u.u_pass, 1);
+    gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, end - first);
+  }
+  if (slices > 1) pointInstances(0);
+  gl.activeTexture(gl.TEXTURE3);
+  gl.bindTexture(gl.TEXTURE_2D, null);
   // Bloom, exposure and the tone map, over the background.
   const bloom = look.bloom > 0 && look.bloomRadius > 0;
   if (bloom) blur(look.bloomRadius);

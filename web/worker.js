@@ -220,6 +220,7 @@ let chunkSpans = [];     // [offset, end) of each chunk
 let viewPtr = 0;         // the view matrix's 16 floats in the module's heap, allocated at open
 const spares = [];       // particle buffers the page has handed back
 let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
+let lookStyle = {};     // the look's settings (chooseLook)
 let instanceBytes = 20;  // a drawn particle: x, y, z, radius, RGBA8, and velocity where the look streaks (pstream_wasm.cpp)
 // zstddec's streaming build (zstd's own decoder in WebAssembly). Its exports, which _init is
 // handed, give the one stream a particle clip's keyframe group is (format version 4 on).
@@ -383,6 +384,7 @@ const handlers = {
     }
     meta = JSON.parse(M.UTF8ToString(M._pw_metadata()));
     const style = chooseLook(look);
+    lookStyle = style;
     instanceBytes = style.instanceBytes;
     viewPtr = M._malloc(64);
     chunkSpans = [];
@@ -415,10 +417,12 @@ const handlers = {
       buffersMade++;
     }
     new Uint8Array(instances, 0, count * instanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * instanceBytes));
+    // A self-shadowing look: the light's view and projection, and the eye's blending order.
+    const shadow = lookStyle.shadows ? Array.from(M.HEAPF32.subarray(M._pw_shadow() >> 2, (M._pw_shadow() >> 2) + 33)) : null;
     const s = cache.stats;
     const at = M._pw_frame_at(time);
     return {
-      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs,
+      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs, shadow,
       cache: { states: chunkStates(), requests: s.requests, bytes: s.bytes, retries: s.retries, inFlight: s.inFlight,
         bandwidth: s.ms > 0 ? s.bytes / 1e3 / s.ms : 0 },
       transfer: [instances]

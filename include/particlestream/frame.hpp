@@ -155,6 +155,15 @@ struct HalfAngle {
 };
 HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction);
 
+// The light buffer's view for self-shadowed sprites: an orthographic box around the world box
+// `bounds` (lo xyz, hi xyz), or, where it is empty or not finite, around what `camera_view` looks
+// at, seen along `light_direction` (world, towards the light, unit length).
+struct ShadowLight {
+  Mat4 view = identity();
+  Mat4 projection = identity();
+};
+ShadowLight shadow_light(const std::array<float, 6>& bounds, const Mat4& camera_view, const Vec3& light_direction);
+
 // How a draw shows its particles: each as a lit round sprite, or the surface of a liquid made
 // from them in screen space (below).
 enum class Look { Sprites, Liquid };

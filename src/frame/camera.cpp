@@ -167,4 +167,37 @@ HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction) {
   return h;
 }
 
+namespace {
+
+Mat4 orthographic(float half_width, float near, float far) {
+  Mat4 m{};
+  m[0] = 1.0f / half_width;
+  m[5] = 1.0f / half_width;
+  m[10] = -2.0f / (far - near);
+  m[14] = -(far + near) / (far - near);
+  m[15] = 1.0f;
+  return m;
+}
+
+}  // namespace
+
+ShadowLight shadow_light(const std::array<float, 6>& bounds, const Mat4& camera_view, const Vec3& light_direction) {
+  const Vec3 lo{bounds[0], bounds[1], bounds[2]}, hi{bounds[3], bounds[4], bounds[5]};
+  Vec3 center{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
+  float radius = 0.5f * std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                                  (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  if (!(radius > 0) || !std::isfinite(radius)) {  // no bounds: around what the camera looks at
+    const Mat4& v = camera_view;
+    const Vec3 eye{-(v[0] * v[12] + v[1] * v[13] + v[2] * v[14]), -(v[4] * v[12] + v[5] * v[13] + v[6] * v[14]),
+                   -(v[8] * v[12] + v[9] * v[13] + v[10] * v[14])};
+    const float dist = std::sqrt(eye[0] * eye[0] + eye[1] * eye[1] + eye[2] * eye[2]);
+    radius = std::max(dist * 0.5f, 1e-3f);
+    center = {eye[0] - v[2] * dist, eye[1] - v[6] * dist, eye[2] - v[10] * dist};
+  }
+  const Vec3& ld = light_direction;
+  const Vec3 light_eye{center[0] + ld[0] * 2 * radius, center[1] + ld[1] * 2 * radius, center[2] + ld[2] * 2 * radius};
+  const Vec3 up = std::abs(ld[1]) > 0.9f ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+  return {look_at(light_eye, center, up), orthographic(radius * 1.05f, radius * 0.5f, radius * 3.5f)};
+}
+
 }  // namespace pstream::render

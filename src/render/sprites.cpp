@@ -23,14 +23,13 @@ std::string sprite_vertex_source();
 constexpr const char* kGlslVersion = "#version 450 core\n";
 
 // After the prelude (sprite_vertex_source()): kBatches, kMergedIndexBits, kScaleWord, and the
-// corner placing shared with the browser (shaders/sprite_corner.glsl: u_projection, u_shutter,
-// u_min_pixels, u_viewport_height, v_local, v_half, v_axis).
+// corner placing shared with the browser (shaders/sprite_corner.glsl: u_projection,
+// u_light_projection, u_shutter, u_min_pixels, u_viewport_height, v_local, v_half, v_axis).
 constexpr const char* kVertexShader = R"(
 layout(std430, binding = 0) readonly buffer Records { uint words[]; };
 layout(std430, binding = 1) readonly buffer Order { uint order[]; };
 uniform mat4 u_model_view[kBatches];
 uniform mat4 u_light_model_view[kBatches];  // object -> the light's view
-uniform mat4 u_light_projection;
 uniform uint u_stride_words[kBatches];
 uniform uint u_base_words[kBatches];     // where each batch's records start in the buffer
 uniform int u_color_word[kBatches];
@@ -90,10 +89,7 @@ void main() {
   v_color = color;
   v_light_uv = vec2(-1.0);
   if (u_pass == 1) {  // the light buffer: a disc facing the light
-    vec4 lv = u_light_model_view[b] * vec4(p, 1.0);
-    lv.xy += corner * radius;
-    v_local = corner;
-    gl_Position = u_light_projection * lv;
+    gl_Position = light_corner(u_light_model_view[b] * vec4(p, 1.0), radius, corner);
     return;
   }
   vec4 view = u_model_view[b] * vec4(p, 1.0);
@@ -145,16 +141,6 @@ void main() {
   o_color = vec4(vec3(1.0 - u_strength * clamp(o / 9.0, 0.0, 1.0)), 1.0);
 }
 )";
-
-Mat4 orthographic(float half_width, float near, float far) {
-  Mat4 m{};
-  m[0] = 1.0f / half_width;
-  m[5] = 1.0f / half_width;
-  m[10] = -2.0f / (far - near);
-  m[14] = -(far + near) / (far - near);
-  m[15] = 1.0f;
-  return m;
-}
 
 struct Uniforms {
   GLint model_view, light_model_view, projection, light_projection, stride, base, color_word, velocity_word,
@@ -339,25 +325,9 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   const int light_size = std::clamp(style.shadow_resolution, 64, 4096);
   if (shadows) d.ensure_light(light_size);
 
-  // The light's view: an orthographic box around the bounds (or the camera's target), looking
-  // along the light.
-  Vec3 lo{style.bounds[0], style.bounds[1], style.bounds[2]}, hi{style.bounds[3], style.bounds[4], style.bounds[5]};
-  Vec3 center{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
-  float radius = 0.5f * std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                                  (hi[2] - lo[2]) * (hi[2] - lo[2]));
-  if (!(radius > 0) || !std::isfinite(radius)) {  // no bounds: around what the camera looks at
-    const Mat4& v = frame.view;
-    const Vec3 eye{-(v[0] * v[12] + v[1] * v[13] + v[2] * v[14]), -(v[4] * v[12] + v[5] * v[13] + v[6] * v[14]),
-                   -(v[8] * v[12] + v[9] * v[13] + v[10] * v[14])};
-    const float dist = std::sqrt(eye[0] * eye[0] + eye[1] * eye[1] + eye[2] * eye[2]);
-    radius = std::max(dist * 0.5f, 1e-3f);
-    center = {eye[0] - v[2] * dist, eye[1] - v[6] * dist, eye[2] - v[10] * dist};
-  }
-  const Vec3& ld = frame.light_world;
-  const Vec3 light_eye{center[0] + ld[0] * 2 * radius, center[1] + ld[1] * 2 * radius, center[2] + ld[2] * 2 * radius};
-  const Vec3 up = std::abs(ld[1]) > 0.9f ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
-  const Mat4 light_view = look_at(light_eye, center, up);
-  const Mat4 light_projection = orthographic(radius * 1.05f, radius * 0.5f, radius * 3.5f);
+  const ShadowLight light = shadow_light(style.bounds, frame.view, frame.light_world);
+  const Mat4& light_view = light.view;
+  const Mat4& light_projection = light.projection;
   std::array<float, 16 * kMaxBatches> light_model_view{};
   for (std::size_t k = 0; k < s.n; ++k) {
     const Mat4 m = multiply(light_view, source[k].world);

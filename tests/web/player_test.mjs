@@ -27,7 +27,10 @@ const kMaxMeanColorError = 16;    // mean |web - native| of R, G and B (of 255) 
 // Streaks (the sparks preset): the mean coherence of the image's local structure tensors.
 const kMinStreakCoherence = 0.4;
 const kMaxCoherenceError = 0.1;
-let roundCoherence = NaN;         // the debug preset's round sprites, measured on the way
+let roundCoherence = NaN;
+// Self-shadowing (the smoke preset): the page's image against the native one unshadowed, at
+// least this many times as far (mean colour error) as against the native shadowed one.
+const kMinShadowContrast = 4;         // the debug preset's round sprites, measured on the way
 
 // How much the image's edges run one way locally: the structure tensor of the luminance's
 // gradient, summed over 5 x 5 windows, gives (l1 - l2) / (l1 + l2) at each pixel (0 for a round
@@ -208,7 +211,9 @@ if (mode === 'playback') {
   // The looks, each against the native renderer's image of the same frame and camera: the debug
   // preset (flat stored colours), the sparks (additive, streaked along their motion, bloom) and the
   // default sprites coloured by speed (lit, tone-mapped).
-  for (const [name, extra, png, checkMore] of [
+  const sparks = { clip: env.WEB_CLIP, frame, camera: env.WEB_CAMERA };
+  const flip = { clip: env.WEB_FLIP_CLIP, frame: 40, camera: env.WEB_FLIP_CAMERA };
+  for (const [name, extra, png, checkMore, shot = sparks] of [
     ['the debug preset', '&preset=debug', env.WEB_NATIVE_PNG, null],
     ['the sparks preset', '&preset=sparks', env.WEB_NATIVE_SPARKS_PNG, (web, native) => {
       // Streaks: the sprites' edges line up along their motion. Round sprites score about
@@ -232,13 +237,31 @@ if (mode === 'playback') {
       console.log(`  ${n} pixels drawn, of mean colour (${mean.map((v) => v.toFixed(0)).join(', ')})`);
       assert.ok(n >= 500, `${n} pixels drawn: black sprites?`);
       assert.ok(mean[0] >= 40 && mean[0] > mean[2] * 1.5, `mean colour ${mean}: not the fire ramp's reds and yellows`);
-    }]
+    }],
+    ['the smoke preset (self-shadowed) on the FLIP pour', '&preset=smoke', env.WEB_NATIVE_SMOKE_PNG, async (web, native, mask, page) => {
+      // The shadows are there: the image is far nearer the native shadowed one than the native
+      // image of the same sprites unshadowed (`--opacity 0.55`, the preset without its shadows).
+      const unshadowed = await nativeImage(page, env.WEB_NATIVE_UNSHADOWED_PNG);
+      const error = (other) => {
+        let sum = 0, n = 0;
+        for (let p = 0; p < mask.length; ++p) {
+          if (!mask[p]) continue;
+          for (let c = 0; c < 3; ++c) sum += Math.abs(web.data[4 * p + c] - other.data[4 * p + c]);
+          n += 3;
+        }
+        return sum / Math.max(n, 1);
+      };
+      const shadowed = error(native), plain = error(unshadowed);
+      console.log(`  mean colour error where the page draws: ${shadowed.toFixed(2)}/255 against the native ` +
+        `shadowed image, ${plain.toFixed(2)}/255 against it unshadowed (>= ${kMinShadowContrast}x as far)`);
+      assert.ok(plain >= kMinShadowContrast * shadowed, `shadowed ${shadowed}, unshadowed ${plain}: no self-shadowing?`);
+    }, flip]
   ]) {
-    const still = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}${extra}`);
-    await check(`frame ${frame}'s image matches the native renderer's (same camera), ${name}`, async () => {
+    const still = await open(shot.clip, `&size=480x270&frame=${shot.frame}&camera=${shot.camera}${extra}`);
+    await check(`frame ${shot.frame}'s image matches the native renderer's (same camera), ${name}`, async () => {
       await waitFor(still, () => window.player.state.error || window.player.state.shown >= 1, 30000);
       assert.equal((await playerState(still)).error, null);
-      await still.evaluate((f) => window.player.show(f), frame);
+      await still.evaluate((f) => window.player.show(f), shot.frame);
       const webPixels = await canvasPixels(still);
       const nativePixels = await nativeImage(still, png);
       const web = coverage(webPixels), native = coverage(nativePixels);
@@ -264,7 +287,7 @@ if (mode === 'playback') {
       assert.ok(shift <= kMaxCentroidShift, `centroid shift ${shift}`);
       assert.ok(ratio <= kMaxCoverageRatio, `coverage ratio ${ratio}`);
       assert.ok(colorError <= kMaxMeanColorError, `mean colour error ${colorError}`);
-      if (checkMore) checkMore(webPixels, nativePixels, web.mask);
+      if (checkMore) await checkMore(webPixels, nativePixels, web.mask, still);
     });
     await still.close();
   }

@@ -26,10 +26,19 @@ native=$(ls "$work"/native/*.png)
   --preset sparks --out "$work/native_sparks" -q
 "$cli" render "$work/sparks.pstream" --frames $frame:$((frame + 1)) --size 480x270 --camera $camera \
   --color-by speed --ramp fire --ramp-range 0,4 --out "$work/native_speed" -q
+# Self-shadowing (the smoke preset) on the FLIP pour's dense liquid, and the same without shadows.
+flip_camera=1.6,1.5,2.6:0,0.35,0
+"$cli" cook "$data/sims/blender_flip_pour_small.abc" -o "$work/flip.pstream" -q
+for look in "smoke:--preset smoke" "unshadowed:--opacity 0.55"; do
+  # shellcheck disable=SC2086 # the look's flags are words
+  "$cli" render "$work/flip.pstream" --frames 40 --size 480x270 --camera $flip_camera --backdrop none \
+    ${look#*:} --out "$work/native_flip_${look%%:*}" -q
+done
 
 export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
   WEB_EMPTY_CLIP=$data/pstream/empty_frames.pstream \
   WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_NATIVE_SPARKS_PNG=$(ls "$work"/native_sparks/*.png) \
-  WEB_NATIVE_SPEED_PNG=$(ls "$work"/native_speed/*.png) WEB_OUT=${PSTREAM_WEB_OUT:-$work}
+  WEB_NATIVE_SPEED_PNG=$(ls "$work"/native_speed/*.png) WEB_FLIP_CLIP=$work/flip.pstream WEB_FLIP_CAMERA=$flip_camera \
+  WEB_NATIVE_SMOKE_PNG=$(ls "$work"/native_flip_smoke/*.png) WEB_NATIVE_UNSHADOWED_PNG=$(ls "$work"/native_flip_unshadowed/*.png) WEB_OUT=${PSTREAM_WEB_OUT:-$work}
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults

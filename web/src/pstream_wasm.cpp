@@ -104,7 +104,10 @@ struct Player {
   bool ramp_from_first_image = false;  // the ramp's range is taken from the first image's particles
   std::vector<float> ramp_values;      // those particles' speeds or attribute values, allocated at open
   std::string style_json;
-  playback::PairCurves curves;  // whether a pair of frames blends along curves, decided once a pair
+  bool shadows = false;  // the look self-shadows: pw_pack sorts along the half-angle, pw_shadow says how to draw
+  render::Vec3 light{};  // towards the light, world, unit length (the native renderer's)
+  std::array<float, 33> shadow{};  // the light's view and projection, and whether the eye blends front to back
+  playback::PairCurves curves;     // whether a pair of frames blends along curves, decided once a pair
 };
 
 std::unique_ptr<Player> g = std::make_unique<Player>();
@@ -277,8 +280,14 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     g->ramp_from_first_image = s.color_by != render::ColorBy::Stored && has_range == 0;
     g->instance_bytes = s.shutter > 0.0f ? kStreakInstanceBytes : kInstanceBytes;
     g->style = style;
+    // Self-shadowing as natively: sprites sorted front to back along the half-angle between the
+    // view and the light, drawn in slices that alternate between the image and the light buffer
+    // (additive light casts no shadow).
+    g->shadows = s.shadows && style.blend != render::BlendMode::Additive;
+    const render::Vec3 l = render::RendererOptions{}.light_direction;
+    const float length = std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
+    g->light = {l[0] / length, l[1] / length, l[2] / length};
     nlohmann::json unsupported = nlohmann::json::array();
-    if (s.shadows) unsupported.push_back("self-shadowing");
     if (!style.texture.empty()) unsupported.push_back("sprite textures");
     nlohmann::json page;  // what the page's shaders and passes take (web/player.js: draw)
     page["blend"] = static_cast<int>(style.blend);
@@ -292,7 +301,12 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     page["bloom"] = s.bloom;
     page["bloomRadius"] = s.bloom_radius;
     page["instanceBytes"] = g->instance_bytes;
-    page["light"] = render::RendererOptions{}.light_direction;
+    page["light"] = g->light;
+    page["shadows"] = g->shadows;
+    page["slices"] = std::clamp(s.slices, 1, 256);
+    page["shadowDensity"] = std::max(s.shadow_density, 0.0f);
+    page["shadowBlur"] = s.shadow_blur;
+    page["shadowResolution"] = std::clamp(s.shadow_resolution, 64, 4096);
     page["unsupported"] = unsupported;
     g->style_json = page.dump();
   });
@@ -379,13 +393,24 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
   const format::Metadata& m = g->reader->metadata();
   const std::size_t n = g->count, stride = m.record_size;
   const std::byte* records = g->records;
-  if (sorted != 0) {
-    std::array<float, 16> vw;
-    std::memcpy(vw.data(), view_world, sizeof vw);
+  std::array<float, 16> vw;
+  std::memcpy(vw.data(), view_world, sizeof vw);
+  if (g->shadows) {  // front to back along the half-angle (playback::sort_plan's rule)
+    const render::HalfAngle half = render::half_angle(vw, g->light);
+    const render::ShadowLight light = render::shadow_light(g->reader->metadata().bounds, vw, g->light);
+    std::copy(light.view.begin(), light.view.end(), g->shadow.begin());
+    std::copy(light.projection.begin(), light.projection.end(), g->shadow.begin() + 16);
+    g->shadow[32] = half.eye_front_to_back ? 1.0f : 0.0f;
+    vw = half.sort_view;
+  }
+  if (sorted != 0 || g->shadows) {
     sort::compute_depths(records, n, stride, sort::depth_axis(vw), g->depths.data());
-    // Back to front: the farthest (largest depth) first, so keys are the depths' order reversed.
-    for (std::size_t i = 0; i < n; ++i)
-      g->pairs[i] = std::uint64_t(~sort::order_preserving_key(g->depths[i])) << 32 | i;
+    // Back to front (the farthest, largest depth, first: the depths' order reversed), or front
+    // to back along the half-angle.
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t key = sort::order_preserving_key(g->depths[i]);
+      g->pairs[i] = std::uint64_t(g->shadows ? key : ~key) << 32 | i;
+    }
     sort::radix_sort_pairs(g->pairs.data(), g->scratch.data(), n, g->order.data());
   } else {
     for (std::size_t i = 0; i < n; ++i) g->order[i] = static_cast<std::uint32_t>(i);
@@ -450,5 +475,8 @@ EMSCRIPTEN_KEEPALIVE void pw_framing(double aspect, float* out) {
 
 EMSCRIPTEN_KEEPALIVE std::byte* pw_instances() { return g->instances.data(); }
 EMSCRIPTEN_KEEPALIVE double pw_instance_bytes() { return static_cast<double>(g->instance_bytes); }
+// For a self-shadowing look, after pw_pack: the light's view and projection (16 floats each,
+// column-major) and 1 where the image blends its slices front to back ("under"), else 0.
+EMSCRIPTEN_KEEPALIVE const float* pw_shadow() { return g->shadow.data(); }
 
 }  // extern "C"

@@ -2,6 +2,7 @@
 // declares `vec4 view` (the particle's centre in view space), the radius and colour, and calls
 // sprite_corner() last; it writes the varyings below.
 uniform mat4 u_projection;
+uniform mat4 u_light_projection;
 uniform float u_viewport_height;
 uniform float u_shutter;     // seconds of motion a sprite is stretched over
 uniform float u_min_pixels;
@@ -44,4 +45,14 @@ vec4 sprite_corner(vec4 view, vec3 velocity, float radius, vec2 corner, inout fl
   v_local = vec2(corner.x * (1.0 + v_half), corner.y);
   view.xy += (v_axis * v_local.x + vec2(-v_axis.y, v_axis.x) * v_local.y) * radius;
   return u_projection * view;
+}
+
+// Corner `corner` of the sprite at `light_view` (its centre in the light's view) in the light
+// buffer: a disc of `radius` facing the light. Returns the corner's position in the light's clip space.
+vec4 light_corner(vec4 light_view, float radius, vec2 corner) {
+  v_half = 0.0;
+  v_axis = vec2(1.0, 0.0);
+  v_local = corner;
+  light_view.xy += corner * radius;
+  return u_light_projection * light_view;
 }
