@@ -454,6 +454,36 @@ scrub.oninput = () => {
 };
 speed.value = String(state.speed);
 speed.onchange = () => { state.speed = Number(speed.value); };
+// The look: the worker takes the preset through the library (its checks included), the page
+// follows, and the address keeps it (a link shows what was shown).
+// A look the clip cannot show (sparks without velocities) is refused with the library's message,
+// shown over the picture for a few seconds while the look before stays.
+const lookChoice = document.getElementById('look');
+lookChoice.onchange = async () => {
+  const before = params.get('preset');
+  params.set('preset', lookChoice.value);
+  try {
+    while (inFlight) await new Promise((r) => setTimeout(r, 5));
+    useLook((await ask('look', { look: lookParams() })).style);
+    history.replaceState(null, '', `${location.pathname}?${params}`);
+    requestFrame(true);
+  } catch (e) {
+    if (before === null) params.delete('preset');
+    else params.set('preset', before);
+    lookChoice.value = before || 'sprites';
+    errorBox.textContent = e.message;
+    errorBox.hidden = false;
+    setTimeout(() => { if (!state.error) errorBox.hidden = true; }, 6000);
+  }
+};
+// The page's side of a look: its settings, what the browser leaves out, the instance layout.
+function useLook(style) {
+  look = style;
+  const missing = [...look.unsupported, ...(targets.hdr ? [] : ['half-float light (clamped to 8 bits)'])];
+  state.lookNote = missing.length ? `not in the browser: ${missing.join(', ')}` : '';
+  sizeInstanceBuffer(state.meta.max_count);
+  updateControls();
+}
 
 function updateControls() {
   playButton.textContent = state.playing ? 'Pause' : 'Play';
@@ -513,10 +543,8 @@ async function start() {
     setupGl();
     const opened = await ask('open', { url, aspect: canvas.width / canvas.height, look: lookParams() });
     state.meta = opened.meta;
-    look = opened.style;
-    const missing = [...look.unsupported, ...(targets.hdr ? [] : ['half-float light (clamped to 8 bits)'])];
-    state.lookNote = missing.length ? `not in the browser: ${missing.join(', ')}` : '';
-    sizeInstanceBuffer(state.meta.max_count);
+    useLook(opened.style);
+    if ([...lookChoice.options].some((o) => o.value === params.get('preset'))) lookChoice.value = params.get('preset');
     Object.assign(camera, opened.meta.camera);
     if (params.has('camera')) setCameraFromParam(params.get('camera'));
     scrub.max = String(Math.max(0, state.meta.frames - 1));

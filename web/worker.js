@@ -412,6 +412,7 @@ const handlers = {
     const sortMs = performance.now() - sortStart;
     const ptr = M._pw_instances();
     let instances = spares.pop();
+    if (instances && instances.byteLength < instanceBytes * 2 * meta.max_count) instances = null;  // the look changed its layout
     if (!instances) {
       instances = new ArrayBuffer(instanceBytes * 2 * meta.max_count);
       buffersMade++;
@@ -427,6 +428,14 @@ const handlers = {
         bandwidth: s.ms > 0 ? s.bytes / 1e3 / s.ms : 0 },
       transfer: [instances]
     };
+  },
+
+  // Another look (the page's look menu), through the library's presets and checks.
+  async look({ look }) {
+    const style = chooseLook(look);
+    lookStyle = style;
+    instanceBytes = style.instanceBytes;
+    return { style };
   },
 
   // Frame `frame`'s decoded records, as the native Reader gives them (for tests and tools).

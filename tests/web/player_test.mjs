@@ -152,6 +152,28 @@ async function recordsEqualNative(page) {
   return got.count;
 }
 
+// The page's image against a native PNG: the coverage masks (web, native), their intersection over
+// union, the centroids' distance (a fraction of the width), the covered pixels' ratio (>= 1) and
+// the mean colour error where both cover.
+async function againstNative(page, png) {
+  const webPixels = await canvasPixels(page);
+  const nativePixels = await nativeImage(page, png);
+  const web = coverage(webPixels), native = coverage(nativePixels);
+  assert.equal(web.width, native.width);
+  let inter = 0, union = 0;
+  for (let p = 0; p < web.mask.length; ++p) { inter += web.mask[p] & native.mask[p]; union += web.mask[p] | native.mask[p]; }
+  const iou = inter / Math.max(union, 1);
+  const shift = Math.hypot(web.cx - native.cx, web.cy - native.cy) / web.width;
+  const ratio = Math.max(web.n / native.n, native.n / web.n);
+  let colorError = 0;
+  for (let p = 0; p < web.mask.length; ++p) {
+    if (!(web.mask[p] & native.mask[p])) continue;
+    for (let c = 0; c < 3; ++c) colorError += Math.abs(webPixels.data[4 * p + c] - nativePixels.data[4 * p + c]);
+  }
+  colorError /= 3 * Math.max(inter, 1);
+  return { webPixels, nativePixels, web, native, iou, shift, ratio, colorError };
+}
+
 // A path relative to the page (index.html?url=CLIP takes either).
 const relativeClip = path.relative(env.WEB_SITE, env.WEB_CLIP);
 
@@ -262,21 +284,7 @@ if (mode === 'playback') {
       await waitFor(still, () => window.player.state.error || window.player.state.shown >= 1, 30000);
       assert.equal((await playerState(still)).error, null);
       await still.evaluate((f) => window.player.show(f), shot.frame);
-      const webPixels = await canvasPixels(still);
-      const nativePixels = await nativeImage(still, png);
-      const web = coverage(webPixels), native = coverage(nativePixels);
-      assert.equal(web.width, native.width);
-      let inter = 0, union = 0;
-      for (let p = 0; p < web.mask.length; ++p) { inter += web.mask[p] & native.mask[p]; union += web.mask[p] | native.mask[p]; }
-      const iou = inter / Math.max(union, 1);
-      const shift = Math.hypot(web.cx - native.cx, web.cy - native.cy) / web.width;
-      const ratio = Math.max(web.n / native.n, native.n / web.n);
-      let colorError = 0;
-      for (let p = 0; p < web.mask.length; ++p) {
-        if (!(web.mask[p] & native.mask[p])) continue;
-        for (let c = 0; c < 3; ++c) colorError += Math.abs(webPixels.data[4 * p + c] - nativePixels.data[4 * p + c]);
-      }
-      colorError /= 3 * Math.max(inter, 1);
+      const { webPixels, nativePixels, web, native, iou, shift, ratio, colorError } = await againstNative(still, png);
       console.log(`  coverage IoU ${iou.toFixed(3)} (>= ${kMinCoverageIoU}), centroid shift ${(shift * 100).toFixed(2)}% ` +
         `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}, ` +
         `mean colour error ${colorError.toFixed(1)}/255 where both cover (<= ${kMaxMeanColorError})`);
@@ -291,6 +299,33 @@ if (mode === 'playback') {
     });
     await still.close();
   }
+
+  // The look menu: sprites to sparks on the page, as the native sparks; on a clip without
+  // velocities the sparks are refused with the library's message, and the look before stays.
+  const menu = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}`);
+  await check('the look menu turns the sprites into the native sparks', async () => {
+    await waitFor(menu, () => window.player.state.error || window.player.state.shown >= 1, 30000);
+    await menu.select('#look', 'sparks');
+    await waitFor(menu, () => new URLSearchParams(location.search).get('preset') === 'sparks', 10000);
+    await menu.evaluate((f) => window.player.show(f), frame);
+    const r = await againstNative(menu, env.WEB_NATIVE_SPARKS_PNG);
+    console.log(`  against the native sparks: IoU ${r.iou.toFixed(3)}, colour error ${r.colorError.toFixed(1)}/255`);
+    assert.ok(r.iou >= kMinCoverageIoU && r.colorError <= kMaxMeanColorError, `IoU ${r.iou}, colour error ${r.colorError}`);
+  });
+  await menu.close();
+  const refused = await open(env.WEB_EMPTY_CLIP, '&size=320x180');
+  await check('the look menu refuses sparks on a clip without velocities, and plays on', async () => {
+    await waitFor(refused, () => window.player.state.error || window.player.state.shown >= 1, 30000);
+    await refused.select('#look', 'sparks');
+    await waitFor(refused, () => !document.getElementById('error').hidden, 10000);
+    const s = await refused.evaluate(() => ({ banner: document.getElementById('error').textContent,
+      error: window.player.state.error, look: document.getElementById('look').value }));
+    assert.match(s.banner, /motion blur \(a shutter\) needs velocities/);
+    assert.equal(s.error, null);
+    assert.equal(s.look, 'sprites');
+    console.log(`  ${s.banner}`);
+  });
+  await refused.close();
 
   // A look the browser cannot draw, or one the clip lacks what for, is refused with the library's message.
   for (const [extra, expect] of [
