@@ -8,7 +8,7 @@
 //           &speed=S              clip seconds per second (default 1)
 //           &size=WxH             the canvas size in pixels (default: the window's)
 //           &preset=NAME          the look, as `pstream render --preset`: sprites (default), sparks,
-//                                 smoke (without its self-shadowing), liquid-sprites, debug
+//                                 smoke, liquid-sprites, debug (also the page's look menu)
 //           &color-by=stored|speed|attribute, &ramp=NAME, &ramp-range=LOW,HIGH, &ramp-attribute=NAME
 //                                 the colouring, as `pstream render`'s flags of those names
 //           &bench=1              steps through every cached frame once and reports, per frame, the
@@ -292,7 +292,8 @@ function draw(reply) {
   gl.uniform1f(u.u_viewport_height, h);
   gl.uniform1i(u.u_lit, look.lit ? 1 : 0);
   gl.uniform1i(u.u_mode, look.blend === 1 ? 1 : 0);
-  // Its samplers (no texture, no light buffer) on units nothing is bound to: never the target's.
+  // Its samplers on units of their own: no sprite texture (unit 2: nothing bound) and the light
+  // buffer (unit 3, bound below only while the image is the target).
   gl.uniform1i(u.u_sprite, 2);
   gl.uniform1i(u.u_light_buffer, 3);
   gl.uniform3fv(u.u_key, viewDirection(view, l));

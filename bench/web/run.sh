@@ -54,7 +54,7 @@ for row in sys.argv[1:]:
               f"({w['backFramesDecoded']} frames decoded in {w['stepsBack']} steps) | {b['mean']:.2f} ms mean "
               f"(median {b['median']:.2f}, max {b['max']:.2f}) | - | - |")
     line("sort back to front + pack", w["sortMs"], n["sort_ms"])
-    line("draw (the page: upload, one instanced call, a pixel read back; native: draw and read-back)", w["drawMs"],
+    line("draw (the page: upload, the sprites into half floats, the composite, a pixel read back; native: the same passes and read-back)", w["drawMs"],
          render["frame_ms"])
 print()
 print(f"Browser: {w.get('renderer', '?')}, canvas {w['size'][0]}x{w['size'][1]}. "

@@ -10,6 +10,8 @@ export function launch(site) {
   return puppeteer.launch({
     executablePath: '/usr/bin/chromium',
     headless: true,
+    // A whole benchmark of a 1M-particle clip on SwiftShader waits in one call for many minutes.
+    protocolTimeout: 30 * 60 * 1000,
     args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
       '--disable-gpu-sandbox', '--disable-dev-shm-usage']
   });
