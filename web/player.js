@@ -242,8 +242,6 @@ function setupGl() {
 let benchmarking = false;
 const onePixel = new Uint8Array(4);
 
-// The background: the native renderer's (`pstream render`'s clear colour).
-const kBackground = [0.02, 0.025, 0.035, 1];
 
 // A world direction in view space, normalised (frame.hpp's view_direction).
 function viewDirection(view, d) {
@@ -343,7 +341,7 @@ function draw(reply) {
   if (bloom) blur(look.bloomRadius);
   gl.bindFramebuffer(gl.FRAMEBUFFER, null);
   gl.viewport(0, 0, w, h);
-  gl.clearColor(...kBackground);
+  gl.clearColor(...look.background);  // the native renderer's (frame.hpp: kDefaultBackground)
   gl.clear(gl.COLOR_BUFFER_BIT);
   gl.useProgram(composite.program);
   gl.activeTexture(gl.TEXTURE0);

@@ -274,7 +274,7 @@ int run_render(const RenderCli& cli, RenderStats* stats) {
     player->check();
     const auto start = std::chrono::steady_clock::now();
     context.bind();
-    renderer.begin_frame(width, height, camera, {0.02f, 0.025f, 0.035f, 1.0f});
+    renderer.begin_frame(width, height, camera, render::kDefaultBackground);
     renderer.draw(player->draw_data(style));
     renderer.end_frame();
     const std::vector<std::uint8_t> pixels = context.read_rgba();

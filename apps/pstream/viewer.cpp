@@ -76,7 +76,7 @@ struct Ui {
   int look = 0;                              // sprites, liquid
   int liquid_filter = 0, liquid_output = 0;  // in the order of the combos below
   bool backdrop = false;
-  float background[3] = {0.02f, 0.025f, 0.035f};
+  float background[3] = {render::kDefaultBackground[0], render::kDefaultBackground[1], render::kDefaultBackground[2]};
   playback::Player* player = nullptr;
 };
 

@@ -207,6 +207,10 @@ struct LiquidStyle {
   LiquidOutput output = LiquidOutput::Shaded;
 };
 
+// The colour behind the particles where no backdrop is drawn: the night blue of `pstream render`,
+// the viewer and the browser player (linear RGBA).
+inline constexpr std::array<float, 4> kDefaultBackground{0.02f, 0.025f, 0.035f, 1.0f};
+
 // A context for what is drawn: a sky gradient and a ground plane with a grid (which the liquid
 // refracts and reflects).
 struct Backdrop {

@@ -302,6 +302,7 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     page["bloomRadius"] = s.bloom_radius;
     page["instanceBytes"] = g->instance_bytes;
     page["light"] = g->light;
+    page["background"] = render::kDefaultBackground;
     page["shadows"] = g->shadows;
     page["slices"] = std::clamp(s.slices, 1, 256);
     page["shadowDensity"] = std::max(s.shadow_density, 0.0f);
