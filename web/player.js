@@ -80,13 +80,13 @@ function perspective(fovY, aspect, near, far) {
 }
 
 const camera = { eye: [0, 0, 5], target: [0, 0, 0], up: [0, 1, 0], fov: 45, near: 0.01, far: 1000 };
-function setCameraFromParam(text) {
+// `camera=x,y,z:tx,ty,tz`'s eye and target (the worker makes the camera: Camera::looking), or null.
+function cameraParam() {
+  if (!params.has('camera')) return null;
+  const text = params.get('camera');
   const m = /^(-?[\d.e+-]+),(-?[\d.e+-]+),(-?[\d.e+-]+):(-?[\d.e+-]+),(-?[\d.e+-]+),(-?[\d.e+-]+)$/.exec(text);
-  if (!m) { fail(`camera=${text}: expected x,y,z:tx,ty,tz`); return; }
-  const v = m.slice(1).map(Number);
-  camera.eye = v.slice(0, 3);
-  camera.target = v.slice(3, 6);
-  camera.up = [0, 1, 0];
+  if (!m) throw new Error(`camera=${text}: expected x,y,z:tx,ty,tz`);
+  return m.slice(1).map(Number);
 }
 
 // Drag to orbit about the target, wheel to move nearer or farther.
@@ -540,12 +540,12 @@ async function start() {
   if (size) { canvas.style.width = `${size[1]}px`; canvas.style.height = `${size[2]}px`; }
   try {
     setupGl();
-    const opened = await ask('open', { url, aspect: canvas.width / canvas.height, look: lookParams() });
+    const opened = await ask('open', { url, aspect: canvas.width / canvas.height, look: lookParams(),
+      cameraAt: cameraParam() });
     state.meta = opened.meta;
     useLook(opened.style);
     if ([...lookChoice.options].some((o) => o.value === params.get('preset'))) lookChoice.value = params.get('preset');
     Object.assign(camera, opened.meta.camera);
-    if (params.has('camera')) setCameraFromParam(params.get('camera'));
     scrub.max = String(Math.max(0, state.meta.frames - 1));
     document.title = `${url.split('/').pop()} · ParticleStream`;
     if (params.has('frame')) {

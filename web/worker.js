@@ -370,7 +370,7 @@ function chooseLook(look = {}) {
 }
 
 const handlers = {
-  async open({ url, aspect, look }) {
+  async open({ url, aspect, look, cameraAt }) {
     await zstd.init();
     M = await createDecoder({ readFetched, zstdDecompress, zstdStream });
     cache = new RangeCache(new URL(url, self.location.href).href);
@@ -390,8 +390,9 @@ const handlers = {
     chunkSpans = [];
     for (let i = 0; i < meta.chunks.length; i += 2) chunkSpans.push([meta.chunks[i], meta.chunks[i] + meta.chunks[i + 1]]);
     if (meta.frames > 0) lookAhead(-1);
-    const cam = M._malloc(48);
-    M._pw_framing(aspect || 16 / 9, cam);
+    const cam = M._malloc(48 + 24);
+    if (cameraAt) M.HEAPF32.set(cameraAt, (cam >> 2) + 12);
+    M._pw_camera(aspect || 16 / 9, cameraAt ? cam + 48 : 0, cam);
     const c = Array.from(M.HEAPF32.subarray(cam >> 2, (cam >> 2) + 12));
     M._free(cam);
     const camera = { eye: c.slice(0, 3), target: c.slice(3, 6), up: c.slice(6, 9), fov: c[9], near: c[10], far: c[11] };

@@ -55,15 +55,9 @@ playback::CameraTrack camera_for(const std::string& spec, std::span<const std::f
     throw Error(fmt::format("--camera '{}': expected auto, fixed or x,y,z:tx,ty,tz{}", spec,
                             did_you_mean(spec, {"auto", "fixed"})));
   }
-  render::Camera c;
-  c.eye = parse_vec3(spec.substr(0, colon));
-  c.target = parse_vec3(spec.substr(colon + 1));
-  const float dx = c.eye[0] - c.target[0], dy = c.eye[1] - c.target[1], dz = c.eye[2] - c.target[2];
-  const float distance = std::sqrt(dx * dx + dy * dy + dz * dz);
-  c.near = std::max(0.001f, distance * 0.001f);
-  c.far = distance * 100.0f + 100.0f;
   playback::CameraTrack track;
-  track.keys.push_back({0.0, c});
+  track.keys.push_back(
+      {0.0, render::Camera::looking(parse_vec3(spec.substr(0, colon)), parse_vec3(spec.substr(colon + 1)))});
   return track;
 }
 

@@ -40,6 +40,9 @@ struct Camera {
     m[9] = -shift[1];
     return m;
   }
+  // A camera at `eye` looking at `target` (`pstream render --camera eye:target`, the browser's
+  // `camera=`), its near and far planes from their distance d: max(0.001, d / 1000) and 100 d + 100.
+  static Camera looking(const Vec3& eye, const Vec3& target);
   // A camera that frames the box [lo, hi] from a three-quarter view above the front, as close as
   // keeps all of it in a view of this width / height.
   static Camera framing(const Vec3& lo, const Vec3& hi, float aspect = 16.0f / 9.0f);

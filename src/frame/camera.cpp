@@ -119,6 +119,17 @@ Camera in_region(const std::array<float, 4>& region, float aspect, Frame&& frame
 
 }  // namespace
 
+Camera Camera::looking(const Vec3& eye, const Vec3& target) {
+  Camera c;
+  c.eye = eye;
+  c.target = target;
+  const Vec3 d = sub(eye, target);
+  const float distance = std::sqrt(dot(d, d));
+  c.near = std::max(0.001f, distance * 0.001f);
+  c.far = distance * 100.0f + 100.0f;
+  return c;
+}
+
 Camera Camera::framing(const Vec3& lo, const Vec3& hi, float aspect) {
   return frame_box(lo, hi, aspect, half_tan(Camera{}.fov_y_degrees));
 }

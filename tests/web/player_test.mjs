@@ -260,6 +260,19 @@ if (mode === 'playback') {
       assert.ok(n >= 500, `${n} pixels drawn: black sprites?`);
       assert.ok(mean[0] >= 40 && mean[0] > mean[2] * 1.5, `mean colour ${mean}: not the fire ramp's reds and yellows`);
     }],
+    ['colour by an attribute (age)', '&ramp-attribute=age&ramp=viridis&ramp-range=0,1.5', env.WEB_NATIVE_AGE_PNG, (web, native, mask) => {
+      // The ramp's two ends both drawn: young sparks purple-blue (blue over green), old ones
+      // green (green over blue).
+      let young = 0, old = 0, n = 0;
+      for (let p = 0; p < mask.length; ++p) {
+        if (!mask[p]) continue;
+        n++;
+        if (web.data[4 * p + 2] > web.data[4 * p + 1]) young++;
+        else old++;
+      }
+      console.log(`  ${n} pixels drawn: ${young} bluer (young), ${old} greener (old)`);
+      assert.ok(young >= 0.05 * n && old >= 0.05 * n, `${young} young and ${old} old of ${n}: one end of the ramp only`);
+    }, { clip: env.WEB_AGE_CLIP, frame, camera: env.WEB_AGE_CAMERA }],
     ['the smoke preset (self-shadowed) on the FLIP pour', '&preset=smoke', env.WEB_NATIVE_SMOKE_PNG, async (web, native, mask, page) => {
       // The shadows are there: the image is far nearer the native shadowed one than the native
       // image of the same sprites unshadowed (`--opacity 0.55`, the preset without its shadows).
@@ -288,7 +301,7 @@ if (mode === 'playback') {
       console.log(`  coverage IoU ${iou.toFixed(3)} (>= ${kMinCoverageIoU}), centroid shift ${(shift * 100).toFixed(2)}% ` +
         `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}, ` +
         `mean colour error ${colorError.toFixed(1)}/255 where both cover (<= ${kMaxMeanColorError})`);
-      const file = name === 'the debug preset' ? 'web_frame.png' : `web_frame_${extra.split('=')[1].split('&')[0]}.png`;
+      const file = name === 'the debug preset' ? 'web_frame.png' : `web_frame_${extra.split('=')[1].split('&')[0]}.png`;  // _sparks, _speed, _age, _smoke
       await still.screenshot({ path: path.join(env.WEB_OUT, file) });
       if (name === 'the debug preset') roundCoherence = streakCoherence(webPixels);
       assert.ok(iou >= kMinCoverageIoU, `coverage IoU ${iou}`);

@@ -26,6 +26,11 @@ native=$(ls "$work"/native/*.png)
   --preset sparks --out "$work/native_sparks" -q
 "$cli" render "$work/sparks.pstream" --frames $frame:$((frame + 1)) --size 480x270 --camera $camera \
   --color-by speed --ramp fire --ramp-range 0,4 --out "$work/native_speed" -q
+# Colour by a float attribute: the sparks' age, kept in the cook, seen from nearer.
+age_camera=0.9,1.3,1.5:0,1.0,0
+"$cli" cook "$data/sims/blender_sparks.abc" --attributes age -o "$work/sparks_age.pstream" -q
+"$cli" render "$work/sparks_age.pstream" --frames $frame:$((frame + 1)) --size 480x270 --camera $age_camera \
+  --ramp-attribute age --ramp viridis --ramp-range 0,1.5 --out "$work/native_age" -q
 # Self-shadowing (the smoke preset) on the FLIP pour's dense liquid, and the same without shadows.
 flip_camera=1.6,1.5,2.6:0,0.35,0
 "$cli" cook "$data/sims/blender_flip_pour_small.abc" -o "$work/flip.pstream" -q
@@ -38,7 +43,8 @@ done
 export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
   WEB_EMPTY_CLIP=$data/pstream/empty_frames.pstream \
   WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_NATIVE_SPARKS_PNG=$(ls "$work"/native_sparks/*.png) \
-  WEB_NATIVE_SPEED_PNG=$(ls "$work"/native_speed/*.png) WEB_FLIP_CLIP=$work/flip.pstream WEB_FLIP_CAMERA=$flip_camera \
+  WEB_NATIVE_SPEED_PNG=$(ls "$work"/native_speed/*.png) WEB_AGE_CLIP=$work/sparks_age.pstream WEB_AGE_CAMERA=$age_camera \
+  WEB_NATIVE_AGE_PNG=$(ls "$work"/native_age/*.png) WEB_FLIP_CLIP=$work/flip.pstream WEB_FLIP_CAMERA=$flip_camera \
   WEB_NATIVE_SMOKE_PNG=$(ls "$work"/native_flip_smoke/*.png) WEB_NATIVE_UNSHADOWED_PNG=$(ls "$work"/native_flip_unshadowed/*.png) WEB_OUT=${PSTREAM_WEB_OUT:-$work}
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults

@@ -462,13 +462,18 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
   }
   return static_cast<double>(n);
 }
-// The camera `pstream render` and the viewer start from (frame.hpp: Camera::framing) for the
-// clip's bounds at this aspect: eye xyz, target xyz, up xyz, fov_y, near, far into `out`.
-EMSCRIPTEN_KEEPALIVE void pw_framing(double aspect, float* out) {
+// The camera the page starts from, for an image of this aspect: at `eye_target` (6 floats: eye
+// xyz, target xyz, `camera=`'s; frame.hpp: Camera::looking, as `pstream render --camera`), or, when
+// it is null, the framing `pstream render` and the viewer start from for the clip's bounds
+// (Camera::framing). Into `out`: eye xyz, target xyz, up xyz, fov_y, near, far.
+EMSCRIPTEN_KEEPALIVE void pw_camera(double aspect, const float* eye_target, float* out) {
   const auto& b = g->reader->metadata().bounds;
   const bool empty = !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]);
-  const render::Camera c =
-      empty ? render::Camera{} : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, float(aspect));
+  const render::Camera c = eye_target != nullptr
+                               ? render::Camera::looking({eye_target[0], eye_target[1], eye_target[2]},
+                                                         {eye_target[3], eye_target[4], eye_target[5]})
+                           : empty ? render::Camera{}
+                                   : render::Camera::framing({b[0], b[1], b[2]}, {b[3], b[4], b[5]}, float(aspect));
   const float values[12] = {c.eye[0], c.eye[1], c.eye[2], c.target[0],     c.target[1], c.target[2],
                             c.up[0],  c.up[1],  c.up[2],  c.fov_y_degrees, c.near,      c.far};
   std::memcpy(out, values, sizeof values);
