@@ -110,6 +110,7 @@ canvas.addEventListener('wheel', (e) => {
   e.preventDefault();
   const k = Math.exp(e.deltaY * 0.001);
   camera.eye = camera.target.map((t, i) => t + (camera.eye[i] - t) * k);
+  camera.near *= k;  // the near plane keeps its share of the distance (Camera::looking's rule): nothing close is clipped
   requestFrame(true);
 }, { passive: false });
 
