@@ -244,11 +244,6 @@ let benchmarking = false;
 const onePixel = new Uint8Array(4);
 
 
-// A world direction in view space, normalised (frame.hpp's view_direction).
-function viewDirection(view, d) {
-  return normalize([0, 1, 2].map((i) => view[i] * d[0] + view[4 + i] * d[1] + view[8 + i] * d[2]));
-}
-
 // Blurs the accumulated light into targets.bloom[1]: a Gaussian of `radius` image heights, across
 // (halving the resolution through bilinear taps), then down; the weights sum to one.
 function blur(radius) {
@@ -281,7 +276,7 @@ function draw(reply) {
   gl.bindVertexArray(vao);
   gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
   gl.bufferSubData(gl.ARRAY_BUFFER, 0, new Uint8Array(reply.instances, 0, reply.count * look.instanceBytes));
-  const u = sprites.u, l = normalize(look.light);
+  const u = sprites.u;
   gl.uniformMatrix4fv(u.u_view, false, view);
   gl.uniformMatrix4fv(u.u_projection, false, perspective(camera.fov, w / h, camera.near, camera.far));
   gl.uniform4fv(u.u_tint, look.tint);
@@ -295,8 +290,8 @@ function draw(reply) {
   // buffer (unit 3, bound below only while the image is the target).
   gl.uniform1i(u.u_sprite, 2);
   gl.uniform1i(u.u_light_buffer, 3);
-  gl.uniform3fv(u.u_key, viewDirection(view, l));
-  gl.uniform3fv(u.u_fill, viewDirection(view, [-l[0], 0.35, -l[2]]));
+  gl.uniform3fv(u.u_key, reply.lights.slice(0, 3));  // the worker's, for this view (frame.hpp: sprite_lights)
+  gl.uniform3fv(u.u_fill, reply.lights.slice(3, 6));
   // Self-shadowing (the worker sorted front to back along the half-angle): slices drawn into the
   // image, each lit by the light buffer the slices before laid down, then into the light buffer.
   const shadows = look.shadows && reply.shadow, slices = shadows ? look.slices : 1;

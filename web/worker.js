@@ -421,10 +421,11 @@ const handlers = {
     new Uint8Array(instances, 0, count * instanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * instanceBytes));
     // A self-shadowing look: the light's view and projection, and the eye's blending order.
     const shadow = lookStyle.shadows ? Array.from(M.HEAPF32.subarray(M._pw_shadow() >> 2, (M._pw_shadow() >> 2) + 33)) : null;
+    const lights = Array.from(M.HEAPF32.subarray(M._pw_lights() >> 2, (M._pw_lights() >> 2) + 6));
     const s = cache.stats;
     const at = M._pw_frame_at(time);
     return {
-      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs, shadow,
+      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs, shadow, lights,
       cache: { states: chunkStates(), requests: s.requests, bytes: s.bytes, retries: s.retries, inFlight: s.inFlight,
         bandwidth: s.ms > 0 ? s.bytes / 1e3 / s.ms : 0 },
       transfer: [instances]

@@ -158,6 +158,14 @@ struct HalfAngle {
 };
 HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction);
 
+// The lit sprite's two lights in view space, the directions its fragment shader takes (u_key,
+// u_fill): the key along `light_direction` (world, towards the light, unit length), and the fill
+// from the opposite side, a little above.
+struct SpriteLights {
+  Vec3 key{}, fill{};
+};
+SpriteLights sprite_lights(const Mat4& camera_view, const Vec3& light_direction);
+
 // The light buffer's view for self-shadowed sprites: an orthographic box around the world box
 // `bounds` (lo xyz, hi xyz), or, where it is empty or not finite, around what `camera_view` looks
 // at, seen along `light_direction` (world, towards the light, unit length).

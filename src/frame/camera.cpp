@@ -192,6 +192,11 @@ Mat4 orthographic(float half_width, float near, float far) {
 
 }  // namespace
 
+SpriteLights sprite_lights(const Mat4& camera_view, const Vec3& light_direction) {
+  const Vec3& l = light_direction;
+  return {view_direction(camera_view, l), view_direction(camera_view, {-l[0], 0.35f, -l[2]})};
+}
+
 ShadowLight shadow_light(const std::array<float, 6>& bounds, const Mat4& camera_view, const Vec3& light_direction) {
   const Vec3 lo{bounds[0], bounds[1], bounds[2]}, hi{bounds[3], bounds[4], bounds[5]};
   Vec3 center{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};

@@ -370,9 +370,9 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glUniform1f(u.light_texel, 1.0f / float(light_size));
   glUniform1f(u.shadow_density, std::max(style.shadow_density, 0.0f));
   glUniform1i(u.lit, style.lit ? 1 : 0);
-  glUniform3fv(u.key, 1, frame.light_view.data());
-  const Vec3 fill = view_direction(frame.view, {-frame.light_world[0], 0.35f, -frame.light_world[2]});
-  glUniform3fv(u.fill, 1, fill.data());
+  const SpriteLights lights = sprite_lights(frame.view, frame.light_world);
+  glUniform3fv(u.key, 1, lights.key.data());
+  glUniform3fv(u.fill, 1, lights.fill.data());
   // The ground plane y = h in view space: n = the view's y axis, d = -n . (0, h, 0) transformed.
   const bool cull = style.ground_height.has_value();
   glUniform1i(u.cull_below, cull ? 1 : 0);

@@ -107,7 +107,9 @@ struct Player {
   bool shadows = false;  // the look self-shadows: pw_pack sorts along the half-angle, pw_shadow says how to draw
   render::Vec3 light{};  // towards the light, world, unit length (the native renderer's)
   std::array<float, 33> shadow{};  // the light's view and projection, and whether the eye blends front to back
-  playback::PairCurves curves;     // whether a pair of frames blends along curves, decided once a pair
+  std::array<float, 6> lights{};   // the key and fill lights in view space, for the view pw_pack sorted along
+  std::array<std::uint8_t, 4> default_color{};  // a particle's where the clip stores none (RGBA8)
+  playback::PairCurves curves;                  // whether a pair of frames blends along curves, decided once a pair
 };
 
 std::unique_ptr<Player> g = std::make_unique<Player>();
@@ -287,6 +289,9 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     const render::Vec3 l = render::RendererOptions{}.light_direction;
     const float length = std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
     g->light = {l[0] / length, l[1] / length, l[2] / length};
+    const std::array<float, 4> fallback = render::ParticleBatch{}.color;
+    for (std::size_t c = 0; c < 4; ++c)
+      g->default_color[c] = static_cast<std::uint8_t>(std::lround(fallback[c] * 255.0f));
     nlohmann::json unsupported = nlohmann::json::array();
     if (!style.texture.empty()) unsupported.push_back("sprite textures");
     nlohmann::json page;  // what the page's shaders and passes take (web/player.js: draw)
@@ -301,7 +306,6 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     page["bloom"] = s.bloom;
     page["bloomRadius"] = s.bloom_radius;
     page["instanceBytes"] = g->instance_bytes;
-    page["light"] = g->light;
     page["background"] = render::kDefaultBackground;
     page["shadows"] = g->shadows;
     page["slices"] = std::clamp(s.slices, 1, 256);
@@ -396,6 +400,9 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
   const std::byte* records = g->records;
   std::array<float, 16> vw;
   std::memcpy(vw.data(), view_world, sizeof vw);
+  const render::SpriteLights lights = render::sprite_lights(vw, g->light);
+  std::copy(lights.key.begin(), lights.key.end(), g->lights.begin());
+  std::copy(lights.fill.begin(), lights.fill.end(), g->lights.begin() + 3);
   if (g->shadows) {  // front to back along the half-angle (playback::sort_plan's rule)
     const render::HalfAngle half = render::half_angle(vw, g->light);
     const render::ShadowLight light = render::shadow_light(g->reader->metadata().bounds, vw, g->light);
@@ -436,9 +443,6 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
     ramp.low = range[0], ramp.high = range[1];
     g->ramp_from_first_image = false;
   }
-  const std::array<float, 4> fallback = render::ParticleBatch{}.color;
-  std::array<std::uint8_t, 4> default_color;
-  for (std::size_t c = 0; c < 4; ++c) default_color[c] = static_cast<std::uint8_t>(std::lround(fallback[c] * 255.0f));
   const std::size_t bytes = g->instance_bytes;
   std::byte* out = g->instances.data();
   for (std::size_t k = 0; k < n; ++k, out += bytes) {
@@ -447,7 +451,7 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
     float radius = 0.05f;
     if (g->scale >= 0) std::memcpy(&radius, r + g->scale, 4);
     std::memcpy(out + 12, &radius, 4);
-    std::array<std::uint8_t, 4> rgba = default_color;
+    std::array<std::uint8_t, 4> rgba = g->default_color;
     if (g->color >= 0) std::memcpy(rgba.data(), r + g->color, 4);
     if (by_speed || by_scalar) {  // the ramp's colour, the alpha kept (the vertex shader's rule)
       const std::array<float, 3> c = ramp.at(ramp_value(r));
@@ -484,5 +488,7 @@ EMSCRIPTEN_KEEPALIVE double pw_instance_bytes() { return static_cast<double>(g->
 // For a self-shadowing look, after pw_pack: the light's view and projection (16 floats each,
 // column-major) and 1 where the image blends its slices front to back ("under"), else 0.
 EMSCRIPTEN_KEEPALIVE const float* pw_shadow() { return g->shadow.data(); }
+// After pw_pack: the key and the fill light's directions in its view (6 floats; frame.hpp: sprite_lights).
+EMSCRIPTEN_KEEPALIVE const float* pw_lights() { return g->lights.data(); }
 
 }  // extern "C"
