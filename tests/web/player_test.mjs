@@ -313,6 +313,22 @@ if (mode === 'playback') {
     await still.close();
   }
 
+  // A ramp without a range spans the first image's speeds (0 to their 99th percentile): the
+  // sparks come out in the fire ramp's colours, not black.
+  const auto = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}&color-by=speed&ramp=fire`);
+  await check('colour by speed without a range: the ramp spans the first image', async () => {
+    await waitFor(auto, () => window.player.state.error || window.player.state.shown >= 1, 30000);
+    assert.equal((await playerState(auto)).error, null);
+    const pixels = await canvasPixels(auto), c = coverage(pixels);
+    let red = 0, blue = 0;
+    for (let p = 0; p < c.mask.length; ++p) if (c.mask[p]) { red += pixels.data[4 * p]; blue += pixels.data[4 * p + 2]; }
+    red /= Math.max(c.n, 1);
+    blue /= Math.max(c.n, 1);
+    console.log(`  ${c.n} pixels drawn, mean red ${red.toFixed(0)}, blue ${blue.toFixed(0)}`);
+    assert.ok(c.n >= 500 && red >= 40 && red > 1.5 * blue, `${c.n} pixels, red ${red}, blue ${blue}`);
+  });
+  await auto.close();
+
   // The look menu: sprites to sparks on the page, as the native sparks; on a clip without
   // velocities the sparks are refused with the library's message, and the look before stays.
   const menu = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}`);
