@@ -220,8 +220,9 @@ let chunkSpans = [];     // [offset, end) of each chunk
 let viewPtr = 0;         // the view matrix's 16 floats in the module's heap, allocated at open
 const spares = [];       // particle buffers the page has handed back
 let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
-let lookStyle = {};     // the look's settings (chooseLook)
-let instanceBytes = 20;  // a drawn particle: x, y, z, radius, RGBA8, and velocity where the look streaks (pstream_wasm.cpp)
+// The look's settings (chooseLook), its particle layout among them (instanceBytes: x, y, z,
+// radius, RGBA8, and velocity where the look streaks; pstream_wasm.cpp).
+let lookStyle = { instanceBytes: 20 };
 // zstddec's streaming build (zstd's own decoder in WebAssembly). Its exports, which _init is
 // handed, give the one stream a particle clip's keyframe group is (format version 4 on).
 let zx = null;
@@ -351,7 +352,8 @@ async function decodeFrames(from, to, decoder) {
 }
 
 // The look (`preset`, `color-by`, `ramp`, `ramp-range`, `ramp-attribute`: the page's parameters,
-// `pstream render`'s flags) through the library's presets and checks; what the page draws with it.
+// `pstream render`'s flags) through the library's presets and checks; what the page draws with it,
+// kept as lookStyle.
 function chooseLook(look = {}) {
   const strings = [look.preset, look.colorBy, look.ramp, look.rampAttribute].map((text) => {
     const n = M.lengthBytesUTF8(text || '') + 1, ptr = M._malloc(n);
@@ -366,8 +368,12 @@ function chooseLook(look = {}) {
   } finally {
     strings.forEach((ptr) => M._free(ptr));
   }
-  return JSON.parse(M.UTF8ToString(M._pw_style_json()));
+  lookStyle = JSON.parse(M.UTF8ToString(M._pw_style_json()));
+  return lookStyle;
 }
+
+// `n` floats the decoder wrote at `ptr`, copied out of its heap.
+const floatsAt = (ptr, n) => Array.from(M.HEAPF32.subarray(ptr >> 2, (ptr >> 2) + n));
 
 const handlers = {
   async open({ url, aspect, look, cameraAt }) {
@@ -384,8 +390,6 @@ const handlers = {
     }
     meta = JSON.parse(M.UTF8ToString(M._pw_metadata()));
     const style = chooseLook(look);
-    lookStyle = style;
-    instanceBytes = style.instanceBytes;
     viewPtr = M._malloc(64);
     chunkSpans = [];
     for (let i = 0; i < meta.chunks.length; i += 2) chunkSpans.push([meta.chunks[i], meta.chunks[i] + meta.chunks[i + 1]]);
@@ -393,7 +397,7 @@ const handlers = {
     const cam = M._malloc(48 + 24);
     if (cameraAt) M.HEAPF32.set(cameraAt, (cam >> 2) + 12);
     M._pw_camera(aspect || 16 / 9, cameraAt ? cam + 48 : 0, cam);
-    const c = Array.from(M.HEAPF32.subarray(cam >> 2, (cam >> 2) + 12));
+    const c = floatsAt(cam, 12);
     M._free(cam);
     const camera = { eye: c.slice(0, 3), target: c.slice(3, 6), up: c.slice(6, 9), fov: c[9], near: c[10], far: c[11] };
     return { meta: { ...meta, url: cache.url, size: cache.size, camera }, style };
@@ -413,15 +417,15 @@ const handlers = {
     const sortMs = performance.now() - sortStart;
     const ptr = M._pw_instances();
     let instances = spares.pop();
-    if (instances && instances.byteLength < instanceBytes * 2 * meta.max_count) instances = null;  // the look changed its layout
+    if (instances && instances.byteLength < lookStyle.instanceBytes * 2 * meta.max_count) instances = null;  // the look changed its layout
     if (!instances) {
-      instances = new ArrayBuffer(instanceBytes * 2 * meta.max_count);
+      instances = new ArrayBuffer(lookStyle.instanceBytes * 2 * meta.max_count);
       buffersMade++;
     }
-    new Uint8Array(instances, 0, count * instanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * instanceBytes));
+    new Uint8Array(instances, 0, count * lookStyle.instanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * lookStyle.instanceBytes));
     // A self-shadowing look: the light's view and projection, and the eye's blending order.
-    const shadow = lookStyle.shadows ? Array.from(M.HEAPF32.subarray(M._pw_shadow() >> 2, (M._pw_shadow() >> 2) + 33)) : null;
-    const lights = Array.from(M.HEAPF32.subarray(M._pw_lights() >> 2, (M._pw_lights() >> 2) + 6));
+    const shadow = lookStyle.shadows ? floatsAt(M._pw_shadow(), 33) : null;
+    const lights = floatsAt(M._pw_lights(), 6);
     const s = cache.stats;
     const at = M._pw_frame_at(time);
     return {
@@ -434,10 +438,7 @@ const handlers = {
 
   // Another look (the page's look menu), through the library's presets and checks.
   async look({ look }) {
-    const style = chooseLook(look);
-    lookStyle = style;
-    instanceBytes = style.instanceBytes;
-    return { style };
+    return { style: chooseLook(look) };
   },
 
   // Frame `frame`'s decoded records, as the native Reader gives them (for tests and tools).
