@@ -1320,4 +1320,107 @@ TEST(Camera, TheFramingTrackFollowsAnEffectThatGrows) {
   }
 }
 
+// What is drawn behind a look, by name (`pstream render --backdrop`, the browser's `backdrop=`):
+// "auto" puts a ground under the liquid and under self-shadowing sprites, nothing behind others.
+TEST(Looks, TheBackdropFollowsTheLookAndRefusesOtherNames) {
+  const std::array<float, 6> bounds{-1.0f, 0.25f, -2.0f, 1.0f, 2.0f, 2.0f};
+  const playback::DrawStyle sprites = playback::look_preset("sprites"), smoke = playback::look_preset("smoke"),
+                            liquid = playback::look_preset("liquid");
+  EXPECT_FALSE(playback::backdrop_for("auto", sprites, bounds));
+  for (const playback::DrawStyle* style : {&smoke, &liquid}) {
+    const std::optional<render::Backdrop> b = playback::backdrop_for("auto", *style, bounds);
+    ASSERT_TRUE(b);
+    EXPECT_TRUE(b->ground);
+    EXPECT_EQ(b->ground_height, 0.25f);      // the clip's lowest point
+    EXPECT_FLOAT_EQ(b->grid_spacing, 0.5f);  // a tenth of the 4-unit footprint, rounded to 1, 2 or 5
+  }
+  const std::optional<render::Backdrop> ground = playback::backdrop_for("ground", sprites, bounds);
+  ASSERT_TRUE(ground);
+  EXPECT_TRUE(ground->ground);
+  const std::optional<render::Backdrop> sky = playback::backdrop_for("sky", liquid, bounds);
+  ASSERT_TRUE(sky);
+  EXPECT_FALSE(sky->ground);
+  EXPECT_FALSE(playback::backdrop_for("none", liquid, bounds));
+  try {
+    playback::backdrop_for("grund", liquid, bounds);
+    FAIL() << "a backdrop named 'grund' was taken";
+  } catch (const OptionError& e) {
+    EXPECT_EQ(e.option(), "backdrop");
+    EXPECT_NE(std::string(e.what()).find("expected auto, ground, sky or none (did you mean 'ground'?)"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
+// The liquid's passes as numbers (frame.hpp: liquid_passes), which the native renderer and the
+// browser player both take: lengths are the style's particle radii in view units, the buffers the
+// style's fraction of the image, and the filter's passes three smaller ones and its iterations.
+TEST(Looks, TheLiquidsPassesScaleWithTheParticleRadius) {
+  render::LiquidStyle style;
+  const render::Mat4 projection = render::perspective(45.0f, 16.0f / 9.0f, 0.1f, 100.0f);
+  const float radius = 0.02f;
+  const render::LiquidPasses p = render::liquid_passes(style, radius, projection, 480, 270);
+  EXPECT_EQ(p.width, 480);
+  EXPECT_EQ(p.height, 270);
+  EXPECT_EQ(p.radius, radius);
+  EXPECT_EQ(p.fixed_radius, 0.0f);
+  // A particle 1 unit away: its radius through the focal length, in pixels of the buffer's height.
+  EXPECT_FLOAT_EQ(p.radius_px_at_1, radius * projection[5] * 0.5f * 270.0f);
+  EXPECT_FLOAT_EQ(p.filter_radius_at_1, style.smoothing * p.radius_px_at_1);
+  EXPECT_FLOAT_EQ(p.range, style.depth_range * radius);
+  EXPECT_FLOAT_EQ(p.color_depth, style.color_depth * radius);
+  EXPECT_FLOAT_EQ(p.opacity_depth, style.opacity_depth * radius);
+  EXPECT_FLOAT_EQ(p.foam_thickness, style.foam_isolation * radius);
+  for (std::size_t c = 0; c < 3; ++c)  // color_depth of liquid lets `color` through
+    EXPECT_NEAR(std::exp(-p.absorb[c] * p.color_depth), style.color[c], 1e-5f);
+  EXPECT_EQ(p.filter_mode, 0);
+  EXPECT_EQ(p.filter_passes, render::kLiquidRampPasses + style.iterations);
+  EXPECT_TRUE(p.spray);  // isolated particles are spray by default
+
+  style.resolution = 0.5f;
+  style.iterations = 50;
+  style.filter = render::LiquidFilter::Bilateral;
+  style.particle_radius = 0.03f;
+  style.output = render::LiquidOutput::Depth;
+  const render::LiquidPasses q = render::liquid_passes(style, 0.03f, projection, 481, 271);
+  EXPECT_EQ(q.width, 241);  // rounded
+  EXPECT_EQ(q.height, 136);
+  EXPECT_EQ(q.fixed_radius, 0.03f);
+  EXPECT_EQ(q.filter_mode, 1);
+  EXPECT_EQ(q.filter_passes, render::kLiquidRampPasses + render::kLiquidMaxIterations);
+  EXPECT_FALSE(q.spray);  // an inspection view has none
+  style.filter = render::LiquidFilter::None;
+  EXPECT_EQ(render::liquid_passes(style, 0.03f, projection, 481, 271).filter_passes, 0);
+
+  // The filter's passes: 1/8, 1/4 and 1/2 of its radius, then the whole; each pass's taps on the
+  // same spiral over the unit disc, turned 1.1 radians from the pass before, with Gaussian weights.
+  EXPECT_EQ(render::liquid_filter_scale(0), 0.125f);
+  EXPECT_EQ(render::liquid_filter_scale(2), 0.5f);
+  EXPECT_EQ(render::liquid_filter_scale(3), 1.0f);
+  const auto a = render::liquid_filter_taps(0), b = render::liquid_filter_taps(1);
+  for (int i = 0; i < render::kLiquidFilterPairs; ++i) {
+    const float ax = a[3 * std::size_t(i)], ay = a[3 * std::size_t(i) + 1], bx = b[3 * std::size_t(i)],
+                by = b[3 * std::size_t(i) + 1];
+    const float r = std::hypot(ax, ay);
+    EXPECT_NEAR(r, std::sqrt((i + 0.5f) / render::kLiquidFilterPairs), 1e-5f);
+    EXPECT_NEAR(std::hypot(bx, by), r, 1e-5f);
+    EXPECT_NEAR(a[3 * std::size_t(i) + 2], std::exp(-2.0f * r * r), 1e-5f);
+    EXPECT_NEAR(std::remainder(std::atan2(by, bx) - std::atan2(ay, ax) - 1.1f, 6.2831853f), 0.0f, 1e-4f);
+  }
+}
+
+// The particles' radius where the style sets none: the median of up to 255 of them spread over the
+// image, leaving out radii that are not finite or not positive.
+TEST(Looks, TheLiquidsRadiusIsTheMedianOfTheImages) {
+  EXPECT_EQ(render::median_radius(0, [](std::uint64_t) { return 1.0f; }), 0.01f);  // none: a default
+  EXPECT_EQ(render::median_radius(3, [](std::uint64_t i) { return float(i + 1); }), 2.0f);
+  // 100,000 particles, radius i / 1000 for particle i: 255 sampled evenly, their median near 50.
+  EXPECT_NEAR(render::median_radius(100000, [](std::uint64_t i) { return float(i) / 1000.0f; }), 50.0f, 0.5f);
+  // Bad radii do not count: half of them NaN, negative or zero.
+  const float m = render::median_radius(1000, [](std::uint64_t i) {
+    return i % 2 == 0 ? 0.5f : i % 3 == 0 ? std::numeric_limits<float>::quiet_NaN() : i % 5 == 0 ? -1.0f : 0.0f;
+  });
+  EXPECT_EQ(m, 0.5f);
+}
+
 }  // namespace

@@ -152,12 +152,35 @@ void main() {
   gl_Position = sprite_corner(view, mat3(u_view) * a_velocity, radius, corner, v_color.a);
 }`;
 const kFragment = kFragmentPrelude + shaders['sprite.frag'];
-const kFullScreen = `${kVertexPrelude}
-void main() {
-  gl_Position = vec4(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0, 0.0, 1.0);
-}`;
+const kFullScreen = kVertexPrelude + shaders['full_screen.vert'];
 const kComposite = kFragmentPrelude + shaders['composite.frag'];
 const kBloom = kFragmentPrelude + shaders['bloom.frag'];
+// The sky and the ground grid behind the particles (the native backdrop's shader).
+const kBackdrop = kFragmentPrelude + shaders['sky.glsl'] + shaders['ground_ray.glsl'] + shaders['backdrop.frag'];
+// The self-shadowing sprites' shadow on that ground, from the light buffer.
+const kGroundShadow = kFragmentPrelude + shaders['ground_ray.glsl'] + shaders['ground_shadow.frag'];
+// The liquid (src/render/liquid.cpp's passes, with its shaders): sphere splats into a depth and a
+// thickness buffer, the two-dimensional depth filter (natively a compute pass, here a fragment
+// pass over the same function), normals, and the surface over the scene; spray over it.
+const kSamplerPrecision = 'precision highp sampler2D;\n';
+const kLiquidSplatVertex = `${kVertexPrelude}precision highp float;\n${kSamplerPrecision}
+layout(location = 0) in vec4 a_center;    // xyz, radius (world units)
+layout(location = 2) in vec3 a_velocity;  // world units per second (with foam by speed; else 0)
+uniform mat4 u_view;
+uniform float u_fixed_radius;             // > 0: every particle's radius
+${shaders['liquid_splat.glsl']}
+void main() {
+  float r = u_fixed_radius > 0.0 ? u_fixed_radius : a_center.w;
+  gl_Position = liquid_splat_corner(u_view * vec4(a_center.xyz, 1.0), r, length(a_velocity));
+}`;
+const kLiquidSplat = kFragmentPrelude + shaders['liquid_splat.frag'];
+const liquidFilterSource = (pairs) => `${kFragmentPrelude}${kSamplerPrecision}const int kPairs = ${pairs};
+${shaders['liquid_filter.glsl']}
+layout(location = 0) out vec4 o_out;
+void main() { o_out = vec4(liquid_filter(ivec2(gl_FragCoord.xy)), 0.0, 0.0); }`;
+const kLiquidNormals = kFragmentPrelude + kSamplerPrecision + shaders['view_position.glsl'] + shaders['liquid_normal.frag'];
+const kLiquidComposite = kFragmentPrelude + kSamplerPrecision + shaders['view_position.glsl'] + shaders['sky.glsl'] +
+  shaders['liquid_composite.frag'];
 
 function compile(type, source) {
   const s = gl.createShader(type);
@@ -174,11 +197,11 @@ function link(vertex, fragment, names) {
   if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(program));
   return { program, u: Object.fromEntries(names.map((n) => [n, gl.getUniformLocation(program, n)])) };
 }
-let sprites, composite, bloomBlur, instanceBuffer, vao, look;
+let sprites, composite, bloomBlur, backdrop, groundShadow, liquid, instanceBuffer, vao, look;
 // Render targets: the accumulated light at the canvas's size, and the bloom's two buffers at half
 // of it (across, then down), made once at start.
 const targets = {};
-function target(width, height, format = targets.format) {
+function target(width, height, format = targets.format, depth = null) {
   const texture = gl.createTexture();
   gl.bindTexture(gl.TEXTURE_2D, texture);
   gl.texStorage2D(gl.TEXTURE_2D, 1, format, width, height);
@@ -187,6 +210,7 @@ function target(width, height, format = targets.format) {
   const framebuffer = gl.createFramebuffer();
   gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
   gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, texture, 0);
+  if (depth) gl.framebufferRenderbuffer(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.RENDERBUFFER, depth);
   if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) throw new Error('a render target is not renderable');
   gl.bindFramebuffer(gl.FRAMEBUFFER, null);
   return { texture, framebuffer, width, height };
@@ -222,6 +246,9 @@ function setupGl() {
     'u_viewport_height', 'u_lit', 'u_mode', 'u_key', 'u_fill', 'u_sprite', 'u_light_buffer', 'u_pass', 'u_light_view',
     'u_light_projection', 'u_shadows', 'u_shadow_blur', 'u_light_texel', 'u_shadow_density']);
   composite = link(kFullScreen, kComposite, ['u_hdr', 'u_bloom', 'u_bloom_strength', 'u_exposure', 'u_tone_map']);
+  backdrop = link(kFullScreen, kBackdrop, ['u_view', 'u_projection', 'u_viewport', 'u_ground', 'u_ground_height', 'u_grid']);
+  groundShadow = link(kFullScreen, kGroundShadow, ['u_view', 'u_projection', 'u_viewport', 'u_ground_height',
+    'u_light_view', 'u_light_projection', 'u_light_buffer', 'u_light_texel']);
   bloomBlur = link(kFullScreen, kBloom, ['u_source', 'u_step', 'u_size', 'u_sigma', 'u_taps']);
   // Half floats where the browser renders to them (EXT_color_buffer_float: nearly all); else
   // 8 bits, which clamps the light before the tone map (the status line says so).
@@ -238,6 +265,185 @@ function setupGl() {
   gl.vertexAttribDivisor(0, 1);
   gl.enableVertexAttribArray(1);
   gl.vertexAttribDivisor(1, 1);
+}
+
+// The liquid's programs and buffers, made on its first image (and the buffers again when the
+// image's size changes). It renders to 32-bit float buffers, filters them bilinearly and adds
+// thicknesses up in them: a browser without those extensions is told so.
+function liquidPasses(pairs) {
+  if (liquid && liquid.pairs === pairs) return liquid;
+  const missing = ['EXT_color_buffer_float', 'OES_texture_float_linear', 'EXT_float_blend'].filter((e) => !gl.getExtension(e));
+  if (missing.length) throw new Error(`the liquid needs WebGL2's ${missing.join(', ')}, which this browser lacks`);
+  liquid = {
+    pairs,
+    splat: link(kLiquidSplatVertex, kLiquidSplat, ['u_view', 'u_projection', 'u_pass', 'u_thickness', 'u_foam_speed',
+      'u_foam_thickness', 'u_fixed_radius']),
+    filter: link(kFullScreen, liquidFilterSource(pairs), ['u_depth', 'u_size', 'u_radius_at_1', 'u_range', 'u_mode',
+      'u_scale', 'u_taps']),
+    normals: link(kFullScreen, kLiquidNormals, ['u_depth', 'u_size', 'u_projection', 'u_range']),
+    composite: link(kFullScreen, kLiquidComposite, ['u_depth', 'u_normal', 'u_thickness', 'u_scene', 'u_viewport',
+      'u_liquid_size', 'u_projection', 'u_view', 'u_light', 'u_color', 'u_absorb', 'u_color_depth', 'u_refraction',
+      'u_opacity_depth', 'u_output', 'u_radius_at_1']),
+    size: ''
+  };
+  return liquid;
+}
+function liquidTargets(lw, lh, w, h) {
+  const key = `${lw}x${lh}/${w}x${h}`;
+  if (liquid.size === key) return;
+  for (const t of [liquid.raw, ...(liquid.smooth || []), liquid.thickness, liquid.normal, liquid.scene]) {
+    if (t) { gl.deleteFramebuffer(t.framebuffer); gl.deleteTexture(t.texture); }
+  }
+  if (liquid.depth) gl.deleteRenderbuffer(liquid.depth);
+  liquid.depth = gl.createRenderbuffer();
+  gl.bindRenderbuffer(gl.RENDERBUFFER, liquid.depth);
+  gl.renderbufferStorage(gl.RENDERBUFFER, gl.DEPTH_COMPONENT32F, lw, lh);
+  liquid.raw = target(lw, lh, gl.RG32F, liquid.depth);  // depth x coverage, coverage
+  liquid.smooth = [target(lw, lh, gl.RG32F), target(lw, lh, gl.RG32F)];
+  liquid.thickness = target(lw, lh, gl.R32F);
+  liquid.normal = target(lw, lh, gl.RGBA16F);
+  liquid.scene = target(w, h, gl.RGBA8);
+  liquid.size = key;
+}
+
+// The backdrop (look.backdrop: the library's choice, as `pstream render --backdrop`) or the
+// plain background, with the depth buffer cleared or written as the ground's.
+function drawBackground(view, projection) {
+  const w = canvas.width, h = canvas.height;
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  gl.viewport(0, 0, w, h);
+  gl.clearColor(...look.background);  // the native renderer's (frame.hpp: kDefaultBackground)
+  gl.clearDepth(1);
+  gl.depthMask(true);
+  gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+  if (!look.backdrop) return;
+  gl.useProgram(backdrop.program);
+  const u = backdrop.u;
+  gl.uniformMatrix4fv(u.u_view, false, view);
+  gl.uniformMatrix4fv(u.u_projection, false, projection);
+  gl.uniform2f(u.u_viewport, w, h);
+  gl.uniform1i(u.u_ground, look.backdrop.ground ? 1 : 0);
+  gl.uniform1f(u.u_ground_height, look.backdrop.groundHeight);
+  gl.uniform1f(u.u_grid, look.backdrop.grid > 0 ? look.backdrop.grid : 1);
+  gl.disable(gl.BLEND);
+  gl.enable(gl.DEPTH_TEST);
+  gl.depthFunc(gl.ALWAYS);
+  gl.drawArrays(gl.TRIANGLES, 0, 3);
+  gl.depthFunc(gl.LESS);
+  gl.disable(gl.DEPTH_TEST);
+}
+
+// The liquid's image, as LiquidPass::draw makes it natively; `reply.liquid` holds the numbers the
+// library derived for it (frame.hpp: liquid_passes).
+function drawLiquid(reply, view, projection) {
+  const w = canvas.width, h = canvas.height, L = reply.liquid, lw = L.width, lh = L.height;
+  const passes = liquidPasses(look.liquid.pairs);
+  liquidTargets(lw, lh, w, h);
+  gl.bindVertexArray(vao);
+  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+  gl.bufferSubData(gl.ARRAY_BUFFER, 0, new Uint8Array(reply.instances, 0, reply.count * look.instanceBytes));
+  const splat = (pass) => {
+    gl.useProgram(passes.splat.program);
+    const u = passes.splat.u;
+    gl.uniformMatrix4fv(u.u_view, false, view);
+    gl.uniformMatrix4fv(u.u_projection, false, projection);
+    gl.uniform1i(u.u_pass, pass);
+    gl.uniform1i(u.u_thickness, 0);
+    gl.uniform1f(u.u_foam_speed, L.foamSpeed);
+    gl.uniform1f(u.u_foam_thickness, L.foamThickness);
+    gl.uniform1f(u.u_fixed_radius, L.fixedRadius);
+    gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, reply.count);
+  };
+  const bindTextures = (list) => list.forEach((t, i) => {
+    gl.activeTexture(gl.TEXTURE0 + i);
+    gl.bindTexture(gl.TEXTURE_2D, t ? t.texture : null);
+  });
+  gl.disable(gl.BLEND);
+  // 1. Sphere depth, nearest wins (nothing bound to the splats' thickness sampler: no feedback).
+  bindTextures([null]);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, passes.raw.framebuffer);
+  gl.viewport(0, 0, lw, lh);
+  gl.clearColor(0, 0, 0, 0);
+  gl.clearDepth(1);
+  gl.depthMask(true);
+  gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+  gl.enable(gl.DEPTH_TEST);
+  gl.depthFunc(gl.LESS);
+  splat(0);
+  // 2. Thickness, every sphere's chord added.
+  gl.bindFramebuffer(gl.FRAMEBUFFER, passes.thickness.framebuffer);
+  gl.clear(gl.COLOR_BUFFER_BIT);
+  gl.disable(gl.DEPTH_TEST);
+  gl.enable(gl.BLEND);
+  gl.blendFunc(gl.ONE, gl.ONE);
+  splat(1);
+  gl.disable(gl.BLEND);
+  // 3. The depth filter: three smaller passes, then the look's iterations at its radius.
+  let smoothed = passes.raw;
+  const f = passes.filter;
+  gl.useProgram(f.program);
+  gl.uniform1f(f.u.u_radius_at_1, L.filterRadiusAt1);
+  gl.uniform1f(f.u.u_range, L.range);
+  gl.uniform1i(f.u.u_mode, L.filterMode);
+  gl.uniform2i(f.u.u_size, lw, lh);
+  gl.uniform1i(f.u.u_depth, 0);
+  for (let i = 0; i < L.filterPasses; ++i) {
+    const out = passes.smooth[i % 2];
+    gl.bindFramebuffer(gl.FRAMEBUFFER, out.framebuffer);
+    gl.uniform1f(f.u.u_scale, look.liquid.scales[i]);
+    gl.uniform3fv(f.u.u_taps, look.liquid.taps[i]);
+    bindTextures([smoothed]);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    smoothed = out;
+  }
+  // 4. Normals from the smoothed depth.
+  gl.bindFramebuffer(gl.FRAMEBUFFER, passes.normal.framebuffer);
+  gl.useProgram(passes.normals.program);
+  gl.uniform1i(passes.normals.u.u_depth, 0);
+  gl.uniform2i(passes.normals.u.u_size, lw, lh);
+  gl.uniformMatrix4fv(passes.normals.u.u_projection, false, projection);
+  gl.uniform1f(passes.normals.u.u_range, L.range);
+  bindTextures([smoothed]);
+  gl.drawArrays(gl.TRIANGLES, 0, 3);
+  // 5. What is behind the liquid, copied for refraction; then the surface over it.
+  drawBackground(view, projection);
+  gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, passes.scene.framebuffer);
+  gl.blitFramebuffer(0, 0, w, h, 0, 0, w, h, gl.COLOR_BUFFER_BIT, gl.NEAREST);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  gl.viewport(0, 0, w, h);
+  const c = passes.composite, cu = c.u;
+  gl.useProgram(c.program);
+  [cu.u_depth, cu.u_normal, cu.u_thickness, cu.u_scene].forEach((at, i) => gl.uniform1i(at, i));
+  bindTextures([smoothed, passes.normal, passes.thickness, passes.scene]);
+  gl.uniform2f(cu.u_viewport, w, h);
+  gl.uniform2f(cu.u_liquid_size, lw, lh);
+  gl.uniformMatrix4fv(cu.u_projection, false, projection);
+  gl.uniformMatrix4fv(cu.u_view, false, view);
+  gl.uniform3fv(cu.u_light, reply.lights.slice(0, 3));  // the key light (frame.hpp: sprite_lights)
+  gl.uniform3fv(cu.u_color, look.liquid.color);
+  gl.uniform3fv(cu.u_absorb, L.absorb);
+  gl.uniform1f(cu.u_color_depth, L.colorDepth);
+  gl.uniform1f(cu.u_refraction, L.refraction);
+  gl.uniform1f(cu.u_opacity_depth, L.opacityDepth);
+  gl.uniform1i(cu.u_output, look.liquid.output);
+  gl.uniform1f(cu.u_radius_at_1, L.radiusPxAt1);
+  gl.enable(gl.DEPTH_TEST);
+  gl.depthFunc(gl.LESS);
+  gl.drawArrays(gl.TRIANGLES, 0, 3);
+  bindTextures([null, null, null, null]);
+  // 6. Spray over the surface.
+  if (L.spray) {
+    bindTextures([passes.thickness]);
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
+    gl.depthMask(false);
+    splat(2);
+    gl.depthMask(true);
+    gl.disable(gl.BLEND);
+    bindTextures([null]);
+  }
+  gl.disable(gl.DEPTH_TEST);
+  gl.activeTexture(gl.TEXTURE0);
 }
 
 let benchmarking = false;
@@ -266,7 +472,18 @@ function blur(radius) {
 
 function draw(reply) {
   const start = performance.now();
-  const w = canvas.width, h = canvas.height, view = reply.view;
+  const w = canvas.width, h = canvas.height, view = reply.view, projection = reply.projection;
+  if (look.look === 'liquid') drawLiquid(reply, view, projection);
+  else drawSprites(reply, view, projection);
+  // Chrome's finish() need not wait for the GPU process; reading a pixel back does (the benchmark
+  // pays that to time the draw; playback does not).
+  if (benchmarking) gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, onePixel);
+  else gl.finish();
+  state.timing.drawMs = performance.now() - start;
+}
+
+function drawSprites(reply, view, projection) {
+  const w = canvas.width, h = canvas.height;
   // The sprites' light, accumulated back to front.
   gl.bindFramebuffer(gl.FRAMEBUFFER, targets.light.framebuffer);
   gl.viewport(0, 0, w, h);
@@ -278,7 +495,7 @@ function draw(reply) {
   gl.bufferSubData(gl.ARRAY_BUFFER, 0, new Uint8Array(reply.instances, 0, reply.count * look.instanceBytes));
   const u = sprites.u;
   gl.uniformMatrix4fv(u.u_view, false, view);
-  gl.uniformMatrix4fv(u.u_projection, false, perspective(camera.fov, w / h, camera.near, camera.far));
+  gl.uniformMatrix4fv(u.u_projection, false, projection);
   gl.uniform4fv(u.u_tint, look.tint);
   gl.uniform1f(u.u_opacity, look.opacity);
   gl.uniform1f(u.u_shutter, Math.max(look.shutter, 0));
@@ -307,6 +524,7 @@ function draw(reply) {
     gl.clear(gl.COLOR_BUFFER_BIT);
   }
   const underFirst = shadows && reply.shadow[32] === 1;
+  const ground = look.backdrop && look.backdrop.ground;  // receives the shadows (of the last slice too)
   gl.enable(gl.BLEND);
   for (let k = 0; k < slices; ++k) {
     const first = Math.floor((reply.count * k) / slices), end = Math.floor((reply.count * (k + 1)) / slices);
@@ -321,7 +539,7 @@ function draw(reply) {
     else gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
     gl.uniform1i(u.u_pass, 0);
     gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, end - first);
-    if (!shadows || k + 1 === slices) continue;  // the last slice shadows nothing after it
+    if (!shadows || (k + 1 === slices && !ground)) continue;  // the last slice shadows no slice after it
     gl.bindTexture(gl.TEXTURE_2D, null);  // the light buffer is the target now: no sampler may read it
     gl.bindFramebuffer(gl.FRAMEBUFFER, targets.shadow.framebuffer);
     gl.viewport(0, 0, look.shadowResolution, look.shadowResolution);
@@ -332,13 +550,27 @@ function draw(reply) {
   if (slices > 1) pointInstances(0);
   gl.activeTexture(gl.TEXTURE3);
   gl.bindTexture(gl.TEXTURE_2D, null);
-  // Bloom, exposure and the tone map, over the background.
+  // Bloom, exposure and the tone map, over the background or the backdrop.
   const bloom = look.bloom > 0 && look.bloomRadius > 0;
   if (bloom) blur(look.bloomRadius);
-  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
-  gl.viewport(0, 0, w, h);
-  gl.clearColor(...look.background);  // the native renderer's (frame.hpp: kDefaultBackground)
-  gl.clear(gl.COLOR_BUFFER_BIT);
+  drawBackground(view, projection);
+  if (shadows && ground) {  // the ground darkened under every slice (multiplied over it)
+    const g = groundShadow.u;
+    gl.useProgram(groundShadow.program);
+    gl.uniformMatrix4fv(g.u_view, false, view);
+    gl.uniformMatrix4fv(g.u_projection, false, projection);
+    gl.uniform2f(g.u_viewport, w, h);
+    gl.uniform1f(g.u_ground_height, look.backdrop.groundHeight);
+    gl.uniformMatrix4fv(g.u_light_view, false, reply.shadow.slice(0, 16));
+    gl.uniformMatrix4fv(g.u_light_projection, false, reply.shadow.slice(16, 32));
+    gl.uniform1i(g.u_light_buffer, 0);
+    gl.uniform1f(g.u_light_texel, 1 / look.shadowResolution);
+    gl.activeTexture(gl.TEXTURE0);
+    gl.bindTexture(gl.TEXTURE_2D, targets.shadow.texture);
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.ZERO, gl.SRC_COLOR);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+  }
   gl.useProgram(composite.program);
   gl.activeTexture(gl.TEXTURE0);
   gl.bindTexture(gl.TEXTURE_2D, targets.light.texture);
@@ -352,11 +584,6 @@ function draw(reply) {
   gl.enable(gl.BLEND);
   gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
   gl.drawArrays(gl.TRIANGLES, 0, 3);
-  // Chrome's finish() need not wait for the GPU process; reading a pixel back does (the benchmark
-  // pays that to time the draw; playback does not).
-  if (benchmarking) gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, onePixel);
-  else gl.finish();
-  state.timing.drawMs = performance.now() - start;
 }
 
 // ---- the clock --------------------------------------------------------------------------------
@@ -381,8 +608,11 @@ function recycled(message) {
 // Asks the worker for the particles at clip time `time` along the current view and draws them.
 async function drawAt(time) {
   const view = lookAt(camera.eye, camera.target, camera.up);
-  const reply = await ask('show', recycled({ time, view, sorted: true }));
+  const projection = perspective(camera.fov, canvas.width / canvas.height, camera.near, camera.far);
+  const reply = await ask('show', recycled({ time, view, projection, size: [canvas.width, canvas.height],
+    sorted: look.look !== 'liquid' }));
   reply.view = view;
+  reply.projection = projection;
   draw(reply);
   spare = reply.instances;
   return reply;
@@ -512,10 +742,12 @@ function drawCacheView() {
 
 // ---- start ------------------------------------------------------------------------------------
 
-// The look's parameters, as `pstream render`'s flags: preset, color-by, ramp, ramp-range, ramp-attribute.
+// The look's parameters, as `pstream render`'s flags: preset, color-by, ramp, ramp-range,
+// ramp-attribute, backdrop.
 function lookParams() {
   const look = { preset: params.get('preset') || '', colorBy: params.get('color-by') || '',
-    ramp: params.get('ramp') || '', rampAttribute: params.get('ramp-attribute') || '' };
+    ramp: params.get('ramp') || '', rampAttribute: params.get('ramp-attribute') || '',
+    backdrop: params.get('backdrop') || '' };
   if (params.has('ramp-range')) {
     const m = /^(-?[\d.e+-]+),(-?[\d.e+-]+)$/.exec(params.get('ramp-range'));
     if (!m) throw new Error(`ramp-range=${params.get('ramp-range')}: expected LOW,HIGH`);

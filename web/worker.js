@@ -218,6 +218,7 @@ let cache = null;
 let meta = null;
 let chunkSpans = [];     // [offset, end) of each chunk
 let viewPtr = 0;         // the view matrix's 16 floats in the module's heap, allocated at open
+let projectionPtr = 0;   // the projection's, for the liquid (pw_liquid)
 const spares = [];       // particle buffers the page has handed back
 let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
 // The look's settings (chooseLook), its particle layout among them (instanceBytes: x, y, z,
@@ -355,7 +356,7 @@ async function decodeFrames(from, to, decoder) {
 // `pstream render`'s flags) through the library's presets and checks; what the page draws with it,
 // kept as lookStyle.
 function chooseLook(look = {}) {
-  const strings = [look.preset, look.colorBy, look.ramp, look.rampAttribute].map((text) => {
+  const strings = [look.preset, look.colorBy, look.ramp, look.rampAttribute, look.backdrop].map((text) => {
     const n = M.lengthBytesUTF8(text || '') + 1, ptr = M._malloc(n);
     M.stringToUTF8(text || '', ptr, n);
     return ptr;
@@ -363,7 +364,7 @@ function chooseLook(look = {}) {
   const range = look.rampRange || null;
   try {
     const status = M._pw_style(strings[0], strings[1], strings[2], range ? 1 : 0, range ? range[0] : 0,
-      range ? range[1] : 0, strings[3]);
+      range ? range[1] : 0, strings[3], strings[4]);
     if (status !== 0) throw new FatalError(M.UTF8ToString(M._pw_error()));
   } finally {
     strings.forEach((ptr) => M._free(ptr));
@@ -391,6 +392,7 @@ const handlers = {
     meta = JSON.parse(M.UTF8ToString(M._pw_metadata()));
     const style = chooseLook(look);
     viewPtr = M._malloc(64);
+    projectionPtr = M._malloc(64);
     chunkSpans = [];
     for (let i = 0; i < meta.chunks.length; i += 2) chunkSpans.push([meta.chunks[i], meta.chunks[i] + meta.chunks[i + 1]]);
     if (meta.frames > 0) lookAhead(-1);
@@ -407,7 +409,7 @@ const handlers = {
   // as the native player does), sorted back to front along `view`.
   // The particles travel in one of two buffers of the clip's largest size, made once: the page
   // hands each back (`recycle`) with its next request, so playing allocates no particle buffers.
-  async show({ time, view, sorted, recycle }) {
+  async show({ time, view, projection, size, sorted, recycle }) {
     if (recycle) spares.push(recycle);
     const from = M._pw_first_needed(time), to = M._pw_last_needed(time);
     const timing = await decodeFrames(from, to, () => M._pw_show(time));
@@ -426,10 +428,17 @@ const handlers = {
     // A self-shadowing look: the light's view and projection, and the eye's blending order.
     const shadow = lookStyle.shadows ? floatsAt(M._pw_shadow(), 33) : null;
     const lights = floatsAt(M._pw_lights(), 6);
+    // The liquid: what its passes take for this image and this projection (frame.hpp: liquid_passes).
+    let liquid = null;
+    if (lookStyle.look === 'liquid') {
+      M.HEAPF32.set(projection, projectionPtr >> 2);
+      liquid = JSON.parse(M.UTF8ToString(M._pw_liquid(projectionPtr, size[0], size[1])));
+    }
     const s = cache.stats;
     const at = M._pw_frame_at(time);
     return {
       frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs, shadow, lights,
+      liquid,
       cache: { states: chunkStates(), requests: s.requests, bytes: s.bytes, retries: s.retries, inFlight: s.inFlight,
         bandwidth: s.ms > 0 ? s.bytes / 1e3 / s.ms : 0 },
       transfer: [instances]

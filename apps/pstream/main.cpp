@@ -548,7 +548,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   render_cmd
       ->add_option("--backdrop", render_cli.backdrop,
-                   "auto (a ground grid under the clip for liquid, none for sprites), ground, sky or none")
+                   "auto (a ground grid under the clip for the liquid and self-shadowing looks, nothing behind "
+                   "other sprites), ground, sky or none")
+      ->check(pstream::app::one_of({"auto", "ground", "sky", "none"}))
       ->capture_default_str();
   render_cmd
       ->add_option("--particle-radius", render_cli.liquid.particle_radius,

@@ -134,15 +134,7 @@ playback::DrawStyle draw_style(const RenderCli& cli, const std::array<float, 6>&
     }
     l.color = c;
   }
-  // auto: a ground for liquid, and for shadows to fall on.
-  const bool ground = cli.backdrop == "ground" ||
-                      (cli.backdrop == "auto" && (style.look == render::Look::Liquid || style.sprites.shadows));
-  if (cli.backdrop != "auto" && cli.backdrop != "ground" && cli.backdrop != "sky" && cli.backdrop != "none")
-    throw Error(fmt::format("--backdrop '{}': expected auto, ground, sky or none", cli.backdrop));
-  if (ground || cli.backdrop == "sky") {
-    style.backdrop = render::Backdrop::under({bounds[0], bounds[1], bounds[2]}, {bounds[3], bounds[4], bounds[5]});
-    style.backdrop->ground = ground;
-  }
+  style.backdrop = playback::backdrop_for(cli.backdrop, style, bounds);
   return style;
 }
 

@@ -196,7 +196,7 @@ int run_viewer(const ViewerCli& cli) {
   Ui ui;
   ui.look = style.look == render::Look::Liquid ? 1 : 0;
   ui.blend = style.blend == render::BlendMode::Alpha ? 0 : style.blend == render::BlendMode::Additive ? 1 : 2;
-  ui.backdrop = ui.look == 1 || style.sprites.shadows;
+  ui.backdrop = playback::wants_ground(style);
   ui.player = player.get();
   ui.show_ui = !cli.hide_ui;
   int window_width = 0, window_height = 0;

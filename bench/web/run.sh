@@ -37,8 +37,18 @@ for spec in 100000:1 1000000:0.5; do
   rows+=("$native_json|$web_json|$draw_json")
 done
 
-python3 - "${rows[@]}" <<'PY'
+# The liquid (the page's and the native renderer's screen-space surface over the ground grid) on
+# the FLIP fixture, 48 frames of up to 7,880 particles: the draw only.
+flip=$out/flip.pstream
+[ -f "$flip" ] || "$cli" cook "$root/tests/data/sims/blender_flip_pour_small.abc" -o "$flip" -q
+liquid_native=$("$cli" render "$flip" --size 1280x720 --preset liquid --playback cpu --out "$out/liquid_frames" --json)
+rm -rf "$out/liquid_frames"
+liquid_web=$(bash "$root/tests/http/with_server.sh" nginx node "$root/bench/web/bench.mjs" "$site" "$flip" liquid)
+
+python3 - "$liquid_web|$liquid_native" "${rows[@]}" <<'PY'
 import json, sys
+liquid_web, liquid_native = (json.loads(x) for x in sys.argv[1].split("|", 1))
+del sys.argv[1]
 print("| particles (median) | stage | browser (WebAssembly, worker) | native (same run) | browser / native |")
 print("|---|---|---|---|---|")
 for row in sys.argv[1:]:
@@ -56,6 +66,10 @@ for row in sys.argv[1:]:
     line("sort back to front + pack", w["sortMs"], n["sort_ms"])
     line("draw (the page: upload, the sprites into half floats, the composite, a pixel read back; native: the same passes and read-back)", w["drawMs"],
          render["frame_ms"])
+lw, ln = liquid_web["drawMs"], liquid_native["frame_ms"]
+print(f"| {int(liquid_web['particles']):,} (the FLIP fixture) | draw the liquid over the ground grid (`preset=liquid`: splats, "
+      f"the depth filter's five passes, normals, the composite, spray; native: the same passes, the filter in compute) | "
+      f"{lw['median']:.2f} ms (p95 {lw['p95']:.2f}) | {ln['median']:.2f} ms (p95 {ln['p95']:.2f}) | {lw['median'] / ln['median']:.2f}x |")
 print()
 print(f"Browser: {w.get('renderer', '?')}, canvas {w['size'][0]}x{w['size'][1]}. "
       f"Native renderer: {render['gl_renderer']}, {render['size'][0]}x{render['size'][1]}.")

@@ -5,8 +5,10 @@
 // sprite, liquid and backdrop styles.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <atomic>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -217,6 +219,55 @@ struct LiquidStyle {
   float foam_isolation = 3.0f;  // particles where the liquid is thinner than this (radii) are spray (0: off)
   LiquidOutput output = LiquidOutput::Shaded;
 };
+
+// What the liquid's passes take for one image, derived from its style once for every renderer
+// (the native passes and the browser player's; docs/rendering.md, "Liquid"). Lengths in view
+// units unless said otherwise.
+inline constexpr int kLiquidFilterPairs = 64;   // pairs of taps a filter pass reads
+inline constexpr int kLiquidRampPasses = 3;     // passes at 1/8, 1/4 and 1/2 of the filter's radius first
+inline constexpr int kLiquidMaxIterations = 8;  // passes at its radius, at most
+struct LiquidPasses {
+  int width = 1, height = 1;     // the depth, thickness and normal buffers (the style's resolution)
+  float radius = 0.01f;          // the particles' radius: the style's, or the median of the image's
+  float fixed_radius = 0.0f;     // > 0: every splat's radius in object units (the style's)
+  float radius_px_at_1 = 0;      // a particle's radius in buffer pixels at distance 1
+  int filter_mode = 0;           // 0 narrow range, 1 bilateral, 2 gaussian
+  int filter_passes = 0;         // kLiquidRampPasses + the iterations, or 0 (no filter)
+  float filter_radius_at_1 = 0;  // pixels at distance 1
+  float range = 0;               // the narrow range: farther in depth is another surface
+  float color_depth = 0;
+  std::array<float, 3> absorb{};  // per view unit of thickness
+  float refraction = 0;
+  float opacity_depth = 0;  // 0: clear
+  float foam_speed = 0;     // view units per second; 0: off
+  float foam_thickness = 0;
+  bool spray = false;  // a spray pass after the surface
+};
+// `radius`: the particles' radius in view units (the style's particle_radius times the world
+// transform's scale, or the median of the image's; median_radius). `projection`: the camera's,
+// for an image of width x height.
+LiquidPasses liquid_passes(const LiquidStyle& style, float radius, const Mat4& projection, int width, int height);
+// Filter pass `pass`'s taps: kLiquidFilterPairs pairs on a sunflower (Vogel) spiral over the unit
+// disc, the i-th at radius sqrt((i + 0.5) / n) and i golden angles, the whole turned 1.1 radians
+// a pass; each (x, y, Gaussian weight for a sigma of half the radius). And the pass's radius, a
+// fraction of the filter's.
+std::array<float, 3 * kLiquidFilterPairs> liquid_filter_taps(int pass);
+float liquid_filter_scale(int pass);
+// The median of up to 255 radii spread evenly over `count` particles (radius_at(i) for particle i;
+// not finite or not positive: left out); 0.01 when none is left.
+template <class RadiusAt>
+float median_radius(std::uint64_t count, RadiusAt radius_at) {
+  std::array<float, 255> sample{};
+  std::size_t n = 0;
+  const std::uint64_t want = count < sample.size() ? count : sample.size();
+  for (std::uint64_t k = 0; k < want; ++k) {
+    const float r = radius_at(count <= want ? k : k * count / want);
+    if (std::isfinite(r) && r > 0) sample[n++] = r;
+  }
+  if (n == 0) return 0.01f;
+  std::nth_element(sample.begin(), sample.begin() + std::ptrdiff_t(n / 2), sample.begin() + std::ptrdiff_t(n));
+  return sample[n / 2];
+}
 
 // The colour behind the particles where no backdrop is drawn: the night blue of `pstream render`,
 // the viewer and the browser player (linear RGBA).

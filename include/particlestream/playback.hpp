@@ -119,6 +119,16 @@ struct Colouring {
 };
 void apply_colouring(const Colouring& colouring, DrawStyle& style);
 
+// What is drawn behind the particles, by name, as `pstream render --backdrop` and the browser
+// player's `backdrop=` give it: "auto" (a ground grid under the clip's `bounds` for the liquid and
+// for self-shadowing sprites, whose shadows fall on it; nothing for other looks, which draw over
+// the plain background), "ground", "sky" (the gradient alone) or "none". Throws OptionError for
+// another name (with "did you mean").
+std::optional<render::Backdrop> backdrop_for(std::string_view choice, const DrawStyle& style,
+                                             const std::array<float, 6>& bounds);
+// "auto"'s rule: whether the look wants the ground.
+bool wants_ground(const DrawStyle& style);
+
 // Throws OptionError naming the setting when `style` asks for what the clip `clip` (named `name`
 // in the message) lacks: colouring by speed or motion blur without velocities (the message names
 // the cook flag that adds them), a `ramp_attribute` that is not one of its float attributes (the

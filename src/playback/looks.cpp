@@ -96,6 +96,22 @@ void apply_colouring(const Colouring& c, DrawStyle& style) {
   }
 }
 
+bool wants_ground(const DrawStyle& style) { return style.look == render::Look::Liquid || style.sprites.shadows; }
+
+std::optional<render::Backdrop> backdrop_for(std::string_view choice, const DrawStyle& style,
+                                             const std::array<float, 6>& bounds) {
+  static constexpr std::array<std::string_view, 4> kChoices{"auto", "ground", "sky", "none"};
+  if (std::find(kChoices.begin(), kChoices.end(), choice) == kChoices.end())
+    throw OptionError("backdrop", fmt::format("backdrop '{}': expected auto, ground, sky or none{}", choice,
+                                              did_you_mean(choice, kChoices)));
+  const bool ground = choice == "ground" || (choice == "auto" && wants_ground(style));
+  if (!ground && choice != "sky") return std::nullopt;
+  render::Backdrop backdrop =
+      render::Backdrop::under({bounds[0], bounds[1], bounds[2]}, {bounds[3], bounds[4], bounds[5]});
+  backdrop.ground = ground;
+  return backdrop;
+}
+
 void check_style(const DrawStyle& style, const format::Metadata& clip, std::string_view name) {
   const bool sprites = style.look == render::Look::Sprites;
   if (sprites && style.sprites.color_by == render::ColorBy::Attribute && style.ramp_attribute.empty()) {

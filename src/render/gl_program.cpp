@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include "particlestream/error.hpp"
+#include "shaders.hpp"
 
 namespace pstream::render::detail {
 namespace {
@@ -67,6 +68,17 @@ void linear_clamped(GLuint texture) {
   glTextureParameteri(texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTextureParameteri(texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
   glTextureParameteri(texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+}
+
+std::string glsl_source(std::initializer_list<std::string_view> parts) {
+  std::string source = "#version 450 core\n";
+  for (const std::string_view part : parts) source += part;
+  return source;
+}
+
+const std::string& full_screen_vertex_source() {
+  static const std::string source = glsl_source({kShader_full_screen_vert});
+  return source;
 }
 
 }  // namespace pstream::render::detail

@@ -38,17 +38,6 @@ struct StagedBatches {
 void stage_batch(StagedBatches& staged, std::size_t k, const ParticleBatch& batch, std::uint64_t base_word,
                  const Mat4& view);
 
-// A triangle that covers the viewport (no vertex buffer: positions from gl_VertexID).
-extern const char* const kFullScreenVertexShader;
-
-// The sky seen along a world-space direction, shared by the backdrop and the liquid's reflection.
-extern const char* const kSkyFunction;
-
-// This pixel's view ray and where it meets the ground plane y = h (false when it does not), for
-// the full-screen passes that draw the ground or its shadow. Uses the uniforms u_view,
-// u_projection and u_viewport.
-extern const char* const kGroundRayFunction;
-
 class LiquidPass {
  public:
   LiquidPass();

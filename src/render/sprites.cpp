@@ -11,7 +11,7 @@
 
 #include "gl_program.hpp"
 #include "passes.hpp"
-#include "sprite_shaders.hpp"
+#include "shaders.hpp"
 
 namespace pstream::render::detail {
 namespace {
@@ -119,29 +119,6 @@ std::string sprite_vertex_source() {
          kShader_sprite_corner_glsl + kVertexShader;
 }
 
-// The ground under the light buffer: each pixel's view ray meets the ground plane; where that
-// point is in the light buffer, the scene there darkens by the opacity above it.
-constexpr const char* kGroundShadowFragment = R"(
-uniform float u_ground_height;
-uniform mat4 u_light_view_projection;   // world -> the light's clip space
-uniform sampler2D u_light_buffer;
-uniform float u_light_texel;
-uniform float u_strength;
-out vec4 o_color;
-void main() {
-  vec3 dir, hit;
-  float t;
-  if (!ground_ray(u_ground_height, dir, t, hit)) discard;
-  vec4 l = u_light_view_projection * vec4(hit, 1.0);
-  vec2 uv = l.xy * 0.5 + 0.5;
-  if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) discard;
-  float o = 0.0;
-  for (int y = -1; y <= 1; ++y)
-    for (int x = -1; x <= 1; ++x) o += texture(u_light_buffer, uv + 2.0 * u_light_texel * vec2(x, y)).r;
-  o_color = vec4(vec3(1.0 - u_strength * clamp(o / 9.0, 0.0, 1.0)), 1.0);
-}
-)";
-
 struct Uniforms {
   GLint model_view, light_model_view, projection, light_projection, stride, base, color_word, velocity_word,
       scalar_word, color, batch_tint, size, use_order, merged, first, points, pass, viewport_height, color_by, ramp,
@@ -159,8 +136,8 @@ struct SpritePass::Impl {
   GLint b_source = -1, b_step = -1, b_sigma = -1, b_taps = -1, b_size = -1;
   std::array<GLuint, 2> bloom_texture{}, bloom_framebuffer{};  // half resolution: across, then down
   int bloom_width = 0, bloom_height = 0;
-  GLint g_view = -1, g_projection = -1, g_viewport = -1, g_ground = -1, g_light_vp = -1, g_light = -1, g_texel = -1,
-        g_strength = -1;
+  GLint g_view = -1, g_projection = -1, g_viewport = -1, g_ground = -1, g_light_view = -1, g_light_projection = -1,
+        g_light = -1, g_texel = -1;
   GLuint hdr_texture = 0, hdr_depth = 0, hdr_framebuffer = 0;  // depth: alpha-tested sprites only
   int hdr_width = 0, hdr_height = 0;
   GLuint light_texture = 0, light_framebuffer = 0;
@@ -251,7 +228,7 @@ struct SpritePass::Impl {
 
 SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
-  d.program = link_program(sprite_vertex_source().c_str(), (kGlslVersion + std::string(kShader_sprite_frag)).c_str());
+  d.program = link_program(sprite_vertex_source().c_str(), glsl_source({kShader_sprite_frag}).c_str());
   const auto loc = [&](const char* name) { return glGetUniformLocation(d.program, name); };
   d.u = Uniforms{loc("u_model_view"),   loc("u_light_model_view"),
                  loc("u_projection"),   loc("u_light_projection"),
@@ -273,29 +250,29 @@ SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
                  loc("u_light_texel"),  loc("u_shadow_density"),
                  loc("u_lit"),          loc("u_key"),
                  loc("u_fill")};
-  d.composite = link_program(kFullScreenVertexShader, (kGlslVersion + std::string(kShader_composite_frag)).c_str());
+  d.composite = link_program(full_screen_vertex_source().c_str(), glsl_source({kShader_composite_frag}).c_str());
   d.c_hdr = glGetUniformLocation(d.composite, "u_hdr");
   d.c_exposure = glGetUniformLocation(d.composite, "u_exposure");
   d.c_tone_map = glGetUniformLocation(d.composite, "u_tone_map");
   d.c_bloom = glGetUniformLocation(d.composite, "u_bloom");
   d.c_bloom_strength = glGetUniformLocation(d.composite, "u_bloom_strength");
-  d.bloom = link_program(kFullScreenVertexShader, (kGlslVersion + std::string(kShader_bloom_frag)).c_str());
+  d.bloom = link_program(full_screen_vertex_source().c_str(), glsl_source({kShader_bloom_frag}).c_str());
   d.b_source = glGetUniformLocation(d.bloom, "u_source");
   d.b_step = glGetUniformLocation(d.bloom, "u_step");
   d.b_sigma = glGetUniformLocation(d.bloom, "u_sigma");
   d.b_taps = glGetUniformLocation(d.bloom, "u_taps");
   d.b_size = glGetUniformLocation(d.bloom, "u_size");
-  const std::string ground_shadow = std::string(kGlslVersion) + kGroundRayFunction + kGroundShadowFragment;
-  d.ground_shadow = link_program(kFullScreenVertexShader, ground_shadow.c_str());
+  const std::string ground_shadow = glsl_source({kShader_ground_ray_glsl, kShader_ground_shadow_frag});
+  d.ground_shadow = link_program(full_screen_vertex_source().c_str(), ground_shadow.c_str());
   const auto gloc = [&](const char* name) { return glGetUniformLocation(d.ground_shadow, name); };
   d.g_view = gloc("u_view");
   d.g_projection = gloc("u_projection");
   d.g_viewport = gloc("u_viewport");
   d.g_ground = gloc("u_ground_height");
-  d.g_light_vp = gloc("u_light_view_projection");
+  d.g_light_view = gloc("u_light_view");
+  d.g_light_projection = gloc("u_light_projection");
   d.g_light = gloc("u_light_buffer");
   d.g_texel = gloc("u_light_texel");
-  d.g_strength = gloc("u_strength");
   glCreateVertexArrays(1, &d.vao);
 }
 
@@ -455,11 +432,10 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
     glUniformMatrix4fv(d.g_projection, 1, GL_FALSE, frame.projection.data());
     glUniform2f(d.g_viewport, float(frame.width), float(frame.height));
     glUniform1f(d.g_ground, *style.ground_height);
-    const Mat4 light_vp = multiply(light_projection, light_view);
-    glUniformMatrix4fv(d.g_light_vp, 1, GL_FALSE, light_vp.data());
+    glUniformMatrix4fv(d.g_light_view, 1, GL_FALSE, light_view.data());
+    glUniformMatrix4fv(d.g_light_projection, 1, GL_FALSE, light_projection.data());
     glUniform1i(d.g_light, 1);
     glUniform1f(d.g_texel, 1.0f / float(light_size));
-    glUniform1f(d.g_strength, 0.8f);
     glBindTextureUnit(1, d.light_texture);
     glEnable(GL_BLEND);
     glBlendFunc(GL_ZERO, GL_SRC_COLOR);

@@ -31,6 +31,12 @@ let roundCoherence = NaN;
 // Self-shadowing (the smoke preset): the page's image against the native one unshadowed, at
 // least this many times as far (mean colour error) as against the native shadowed one.
 const kMinShadowContrast = 4;         // the debug preset's round sprites, measured on the way
+// The liquid and the smoke over the ground grid, the whole image against the native one: the mean
+// of each pixel's largest channel error, and the share of pixels off by more than 48/255.
+const kMaxWholeImageError = 6;
+const kMaxFarPixels = 0.02;
+// The smoke's shadow on the ground: how much darker than the bare ground, against the native.
+const kMaxGroundShadowError = 0.25;
 
 // How much the image's edges run one way locally: the structure tensor of the luminance's
 // gradient, summed over 5 x 5 windows, gives (l1 - l2) / (l1 + l2) at each pixel (0 for a round
@@ -174,6 +180,23 @@ async function againstNative(page, png) {
   return { webPixels, nativePixels, web, native, iou, shift, ratio, colorError };
 }
 
+// The whole image, the backdrop's sky and grid included, as the native one: the mean of each
+// pixel's largest channel error, and the share of pixels off by more than 48/255.
+function wholeImageAsNative(web, native) {
+  let sum = 0, far = 0;
+  for (let p = 0; p < web.data.length; p += 4) {
+    let d = 0;
+    for (let c = 0; c < 3; ++c) d = Math.max(d, Math.abs(web.data[p + c] - native.data[p + c]));
+    sum += d;
+    if (d > 48) far++;
+  }
+  const n = web.data.length / 4, mean = sum / n;
+  console.log(`  whole image: mean largest channel error ${mean.toFixed(2)}/255 (<= ${kMaxWholeImageError}), ` +
+    `${(100 * far / n).toFixed(2)}% of the pixels off by more than 48 (<= ${kMaxFarPixels * 100}%)`);
+  assert.ok(mean <= kMaxWholeImageError, `whole-image error ${mean}`);
+  assert.ok(far <= kMaxFarPixels * n, `${far} pixels off by more than 48`);
+}
+
 // A path relative to the page (index.html?url=CLIP takes either).
 const relativeClip = path.relative(env.WEB_SITE, env.WEB_CLIP);
 
@@ -273,7 +296,7 @@ if (mode === 'playback') {
       console.log(`  ${n} pixels drawn: ${young} bluer (young), ${old} greener (old)`);
       assert.ok(young >= 0.05 * n && old >= 0.05 * n, `${young} young and ${old} old of ${n}: one end of the ramp only`);
     }, { clip: env.WEB_AGE_CLIP, frame, camera: env.WEB_AGE_CAMERA }],
-    ['the smoke preset (self-shadowed) on the FLIP pour', '&preset=smoke', env.WEB_NATIVE_SMOKE_PNG, async (web, native, mask, page) => {
+    ['the smoke preset (self-shadowed) on the FLIP pour', '&preset=smoke&backdrop=none', env.WEB_NATIVE_SMOKE_PNG, async (web, native, mask, page) => {
       // The shadows are there: the image is far nearer the native shadowed one than the native
       // image of the same sprites unshadowed (`--opacity 0.55`, the preset without its shadows).
       const unshadowed = await nativeImage(page, env.WEB_NATIVE_UNSHADOWED_PNG);
@@ -290,6 +313,34 @@ if (mode === 'playback') {
       console.log(`  mean colour error where the page draws: ${shadowed.toFixed(2)}/255 against the native ` +
         `shadowed image, ${plain.toFixed(2)}/255 against it unshadowed (>= ${kMinShadowContrast}x as far)`);
       assert.ok(plain >= kMinShadowContrast * shadowed, `shadowed ${shadowed}, unshadowed ${plain}: no self-shadowing?`);
+    }, flip],
+    // The liquid's surface (LiquidPass's passes, the filter as a fragment pass) on the plain
+    // background, then over the ground grid it refracts and reflects the sky over.
+    ['the liquid on the FLIP pour', '&preset=liquid&backdrop=none', env.WEB_NATIVE_LIQUID_NONE_PNG, null, flip],
+    ['the liquid over the ground grid', '&preset=liquid', env.WEB_NATIVE_LIQUID_PNG, wholeImageAsNative, flip],
+    // The smoke over the ground (backdrop "auto"), with the shadow its slices cast on it.
+    ['the smoke preset over the ground, shadowed', '&preset=smoke', env.WEB_NATIVE_SMOKE_GROUND_PNG, async (web, native, mask, page) => {
+      wholeImageAsNative(web, native);
+      // The shadow on the ground: where the native image's ground (outside the smoke, as the
+      // native image without a backdrop covers it) is darker than the bare ground (`--opacity 0`)
+      // by more than 8/255, the page's is darker by about as much.
+      const ground = await nativeImage(page, env.WEB_NATIVE_GROUND_PNG);
+      const smoke = coverage(await nativeImage(page, env.WEB_NATIVE_SMOKE_PNG)).mask;
+      const darker = (img, p) => (ground.data[4 * p] + ground.data[4 * p + 1] + ground.data[4 * p + 2] -
+        img.data[4 * p] - img.data[4 * p + 1] - img.data[4 * p + 2]) / 3;
+      let n = 0, nativeDark = 0, webDark = 0;
+      for (let p = 0; p < smoke.length; ++p) {
+        if (smoke[p] || darker(native, p) <= 8) continue;
+        n++;
+        nativeDark += darker(native, p);
+        webDark += darker(web, p);
+      }
+      nativeDark /= Math.max(n, 1);
+      webDark /= Math.max(n, 1);
+      console.log(`  the shadow on the ground: ${n} pixels, darker than the bare ground by ${webDark.toFixed(1)}/255 ` +
+        `(native ${nativeDark.toFixed(1)}; within ${kMaxGroundShadowError * 100}%)`);
+      assert.ok(n >= 200, `${n} pixels of shadow on the native ground`);
+      assert.ok(Math.abs(webDark - nativeDark) <= kMaxGroundShadowError * nativeDark, `ground darker by ${webDark}, native ${nativeDark}`);
     }, flip]
   ]) {
     const still = await open(shot.clip, `&size=480x270&frame=${shot.frame}&camera=${shot.camera}${extra}`);
@@ -301,7 +352,10 @@ if (mode === 'playback') {
       console.log(`  coverage IoU ${iou.toFixed(3)} (>= ${kMinCoverageIoU}), centroid shift ${(shift * 100).toFixed(2)}% ` +
         `of the width (<= ${kMaxCentroidShift * 100}%), covered pixels web ${web.n} / native ${native.n}, ` +
         `mean colour error ${colorError.toFixed(1)}/255 where both cover (<= ${kMaxMeanColorError})`);
-      const file = name === 'the debug preset' ? 'web_frame.png' : `web_frame_${extra.split('=')[1].split('&')[0]}.png`;  // _sparks, _speed, _age, _smoke
+      // web_frame_sparks, _speed, _age, _smoke, _liquid_none, _liquid, _smoke_ground
+      const look = extra.split('=')[1].split('&')[0], plain = extra.includes('backdrop=none');
+      const file = name === 'the debug preset' ? 'web_frame.png'
+        : `web_frame_${look}${look === 'liquid' && plain ? '_none' : look === 'smoke' && !plain ? '_ground' : ''}.png`;
       await still.screenshot({ path: path.join(env.WEB_OUT, file) });
       if (name === 'the debug preset') roundCoherence = streakCoherence(webPixels);
       assert.ok(iou >= kMinCoverageIoU, `coverage IoU ${iou}`);
@@ -358,7 +412,7 @@ if (mode === 'playback') {
 
   // A look the browser cannot draw, or one the clip lacks what for, is refused with the library's message.
   for (const [extra, expect] of [
-    ['&preset=liquid', /the browser draws sprites; the liquid's surface needs the native renderer/],
+    ['&backdrop=grund', /backdrop 'grund': expected auto, ground, sky or none \(did you mean 'ground'\?\)/],
     ['&preset=spark', /look preset 'spark'.*did you mean 'sparks'/],
     ['&color-by=speed', /colouring by speed needs velocities, and the clip has none: cook it again with `--attributes velocity`/]
   ]) {

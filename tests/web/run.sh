@@ -34,9 +34,13 @@ age_camera=0.9,1.3,1.5:0,1.0,0
 # Self-shadowing (the smoke preset) on the FLIP pour's dense liquid, and the same without shadows.
 flip_camera=1.6,1.5,2.6:0,0.35,0
 "$cli" cook "$data/sims/blender_flip_pour_small.abc" -o "$work/flip.pstream" -q
-for look in "smoke:--preset smoke" "unshadowed:--opacity 0.55"; do
+# The liquid's surface over the ground grid (the backdrop "auto" gives it), and on the plain
+# background; the smoke over the ground, with its shadow on it, and the ground alone (no opacity).
+for look in "smoke:--preset smoke --backdrop none" "unshadowed:--opacity 0.55 --backdrop none" \
+  "liquid:--preset liquid" "liquid_none:--preset liquid --backdrop none" "smoke_ground:--preset smoke" \
+  "ground:--preset smoke --opacity 0"; do
   # shellcheck disable=SC2086 # the look's flags are words
-  "$cli" render "$work/flip.pstream" --frames 40 --size 480x270 --camera $flip_camera --backdrop none \
+  "$cli" render "$work/flip.pstream" --frames 40 --size 480x270 --camera $flip_camera \
     ${look#*:} --out "$work/native_flip_${look%%:*}" -q
 done
 
@@ -45,6 +49,8 @@ export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=
   WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_NATIVE_SPARKS_PNG=$(ls "$work"/native_sparks/*.png) \
   WEB_NATIVE_SPEED_PNG=$(ls "$work"/native_speed/*.png) WEB_AGE_CLIP=$work/sparks_age.pstream WEB_AGE_CAMERA=$age_camera \
   WEB_NATIVE_AGE_PNG=$(ls "$work"/native_age/*.png) WEB_FLIP_CLIP=$work/flip.pstream WEB_FLIP_CAMERA=$flip_camera \
-  WEB_NATIVE_SMOKE_PNG=$(ls "$work"/native_flip_smoke/*.png) WEB_NATIVE_UNSHADOWED_PNG=$(ls "$work"/native_flip_unshadowed/*.png) WEB_OUT=${PSTREAM_WEB_OUT:-$work}
+  WEB_NATIVE_SMOKE_PNG=$(ls "$work"/native_flip_smoke/*.png) WEB_NATIVE_UNSHADOWED_PNG=$(ls "$work"/native_flip_unshadowed/*.png) \
+  WEB_NATIVE_LIQUID_PNG=$(ls "$work"/native_flip_liquid/*.png) WEB_NATIVE_LIQUID_NONE_PNG=$(ls "$work"/native_flip_liquid_none/*.png) \
+  WEB_NATIVE_SMOKE_GROUND_PNG=$(ls "$work"/native_flip_smoke_ground/*.png) WEB_NATIVE_GROUND_PNG=$(ls "$work"/native_flip_ground/*.png) WEB_OUT=${PSTREAM_WEB_OUT:-$work}
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults

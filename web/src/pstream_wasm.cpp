@@ -108,6 +108,7 @@ struct Player {
   render::Vec3 light{};  // towards the light, world, unit length (the native renderer's)
   std::array<float, 33> shadow{};  // the light's view and projection, and whether the eye blends front to back
   std::array<float, 6> lights{};   // the key and fill lights in view space, for the view pw_pack sorted along
+  std::string liquid_json;         // the liquid's passes for the image pw_pack made (pw_liquid)
   std::array<std::uint8_t, 4> default_color{};  // a particle's where the clip stores none (RGBA8)
   playback::PairCurves curves;                  // whether a pair of frames blends along curves, decided once a pair
 };
@@ -258,19 +259,15 @@ EMSCRIPTEN_KEEPALIVE const char* pw_metadata() { return g->metadata_json.c_str()
 // The look the page asked for (docs/web.md, "Looks"): a preset by name (playback::look_preset, as
 // `pstream render --preset`), then its colouring (`--color-by`, `--ramp`, `--ramp-range` when
 // `has_range`, `--ramp-attribute`; empty strings leave the preset's), checked against the clip as
-// the native player checks it. A ramp without a range spans the first image's particles (the
-// native renderer samples the clip's frames, which a browser would have to fetch first).
-// pw_style_json() then says what the page draws.
+// the native player checks it, and what is drawn behind it (`--backdrop`: playback::backdrop_for;
+// empty is "auto"). A ramp without a range spans the first image's particles (the native renderer
+// samples the clip's frames, which a browser would have to fetch first). pw_style_json() then says
+// what the page draws.
 EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, const char* ramp, int has_range, double low,
-                                  double high, const char* ramp_attribute) {
+                                  double high, const char* ramp_attribute, const char* backdrop) {
   return guarded([&] {
     const format::Metadata& m = g->reader->metadata();
     playback::DrawStyle style = playback::look_preset(*preset != 0 ? preset : "sprites");
-    if (style.look != render::Look::Sprites)
-      throw Error(
-          fmt::format("look '{}': the browser draws sprites; the liquid's surface needs the native renderer "
-                      "(pstream render --look liquid)",
-                      preset));
     playback::Colouring colouring{color_by, ramp, std::nullopt, ramp_attribute};
     if (has_range != 0) colouring.range = {float(low), float(high)};
     playback::apply_colouring(colouring, style);
@@ -280,7 +277,10 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     if (const format::Attribute* a = m.find(style.ramp_attribute); a && !style.ramp_attribute.empty())
       g->scalar = static_cast<std::int32_t>(a->offset);
     g->ramp_from_first_image = s.color_by != render::ColorBy::Stored && has_range == 0;
-    g->instance_bytes = s.shutter > 0.0f ? kStreakInstanceBytes : kInstanceBytes;
+    const bool liquid = style.look == render::Look::Liquid;
+    // Velocities travel with the particles where the look streaks them or makes fast ones spray.
+    const bool moving = s.shutter > 0.0f || (liquid && style.liquid.foam_speed > 0.0f && g->velocity >= 0);
+    g->instance_bytes = moving ? kStreakInstanceBytes : kInstanceBytes;
     g->style = style;
     // Self-shadowing as natively: sprites sorted front to back along the half-angle between the
     // view and the light, drawn in slices that alternate between the image and the light buffer
@@ -292,6 +292,8 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     const std::array<float, 4> fallback = render::ParticleBatch{}.color;
     for (std::size_t c = 0; c < 4; ++c)
       g->default_color[c] = static_cast<std::uint8_t>(std::lround(fallback[c] * 255.0f));
+    const std::optional<render::Backdrop> behind =
+        playback::backdrop_for(*backdrop != 0 ? backdrop : "auto", style, m.bounds);
     nlohmann::json unsupported = nlohmann::json::array();
     if (!style.texture.empty()) unsupported.push_back("sprite textures");
     nlohmann::json page;  // what the page's shaders and passes take (web/player.js: draw)
@@ -312,6 +314,24 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     page["shadowDensity"] = std::max(s.shadow_density, 0.0f);
     page["shadowBlur"] = s.shadow_blur;
     page["shadowResolution"] = std::clamp(s.shadow_resolution, 64, 4096);
+    page["look"] = liquid ? "liquid" : "sprites";
+    if (behind) {
+      page["backdrop"] = {
+          {"ground", behind->ground}, {"groundHeight", behind->ground_height}, {"grid", behind->grid_spacing}};
+    }
+    if (liquid) {  // what does not change from image to image; pw_liquid gives the rest
+      const render::LiquidStyle& l = style.liquid;
+      nlohmann::json taps = nlohmann::json::array(), scales = nlohmann::json::array();
+      for (int pass = 0; pass < render::kLiquidRampPasses + render::kLiquidMaxIterations; ++pass) {
+        taps.push_back(render::liquid_filter_taps(pass));
+        scales.push_back(render::liquid_filter_scale(pass));
+      }
+      page["liquid"] = {{"color", l.color},
+                        {"output", static_cast<int>(l.output)},
+                        {"pairs", render::kLiquidFilterPairs},
+                        {"taps", taps},
+                        {"scales", scales}};
+    }
     page["unsupported"] = unsupported;
     g->style_json = page.dump();
   });
@@ -490,5 +510,42 @@ EMSCRIPTEN_KEEPALIVE double pw_instance_bytes() { return static_cast<double>(g->
 EMSCRIPTEN_KEEPALIVE const float* pw_shadow() { return g->shadow.data(); }
 // After pw_pack: the key and the fill light's directions in its view (6 floats; frame.hpp: sprite_lights).
 EMSCRIPTEN_KEEPALIVE const float* pw_lights() { return g->lights.data(); }
+
+// For the liquid look, after pw_pack: what its passes take for this image (frame.hpp:
+// liquid_passes), seen through `projection` (16 floats, column-major) at width x height pixels,
+// with the particles' radius the median of the image's (or the look's); JSON.
+EMSCRIPTEN_KEEPALIVE const char* pw_liquid(const float* projection, int width, int height) {
+  render::Mat4 p;
+  std::memcpy(p.data(), projection, sizeof p);
+  const render::LiquidStyle& style = g->style.liquid;
+  const std::size_t stride = g->reader->metadata().record_size;
+  // Every record's head holds its radius (frame.hpp: kScaleOffset), as the native pass reads it.
+  const float radius =
+      style.particle_radius > 0 ? style.particle_radius : render::median_radius(g->count, [&](std::uint64_t i) {
+        float r = 0;
+        std::memcpy(&r, g->records + i * stride + render::kScaleOffset, sizeof r);
+        return r;
+      });
+  const render::LiquidPasses l = render::liquid_passes(style, radius, p, width, height);
+  g->liquid_json = nlohmann::json{
+      {"width", l.width},
+      {"height", l.height},
+      {"radius", l.radius},
+      {"fixedRadius", l.fixed_radius},
+      {"radiusPxAt1", l.radius_px_at_1},
+      {"filterMode", l.filter_mode},
+      {"filterPasses", l.filter_passes},
+      {"filterRadiusAt1", l.filter_radius_at_1},
+      {"range", l.range},
+      {"colorDepth", l.color_depth},
+      {"absorb", l.absorb},
+      {"refraction", l.refraction},
+      {"opacityDepth", l.opacity_depth},
+      {"foamSpeed", l.foam_speed},
+      {"foamThickness", l.foam_thickness},
+      {"spray",
+       l.spray}}.dump();
+  return g->liquid_json.c_str();
+}
 
 }  // extern "C"
