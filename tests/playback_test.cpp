@@ -1359,7 +1359,7 @@ TEST(Looks, TheLiquidsPassesScaleWithTheParticleRadius) {
   render::LiquidStyle style;
   const render::Mat4 projection = render::perspective(45.0f, 16.0f / 9.0f, 0.1f, 100.0f);
   const float radius = 0.02f;
-  const render::LiquidPasses p = render::liquid_passes(style, radius, projection, 480, 270);
+  const render::LiquidPasses p = render::liquid_passes(style, 1.0f, radius, projection, 480, 270);
   EXPECT_EQ(p.width, 480);
   EXPECT_EQ(p.height, 270);
   EXPECT_EQ(p.radius, radius);
@@ -1382,15 +1382,18 @@ TEST(Looks, TheLiquidsPassesScaleWithTheParticleRadius) {
   style.filter = render::LiquidFilter::Bilateral;
   style.particle_radius = 0.03f;
   style.output = render::LiquidOutput::Depth;
-  const render::LiquidPasses q = render::liquid_passes(style, 0.03f, projection, 481, 271);
+  // The style's radius, scaled by the world transform, wins over the image's.
+  const render::LiquidPasses q = render::liquid_passes(style, 2.0f, radius, projection, 481, 271);
   EXPECT_EQ(q.width, 241);  // rounded
   EXPECT_EQ(q.height, 136);
+  EXPECT_EQ(q.radius, 0.06f);
   EXPECT_EQ(q.fixed_radius, 0.03f);
+  EXPECT_FLOAT_EQ(q.range, style.depth_range * 0.06f);
   EXPECT_EQ(q.filter_mode, 1);
   EXPECT_EQ(q.filter_passes, render::kLiquidRampPasses + render::kLiquidMaxIterations);
   EXPECT_FALSE(q.spray);  // an inspection view has none
   style.filter = render::LiquidFilter::None;
-  EXPECT_EQ(render::liquid_passes(style, 0.03f, projection, 481, 271).filter_passes, 0);
+  EXPECT_EQ(render::liquid_passes(style, 2.0f, radius, projection, 481, 271).filter_passes, 0);
 
   // The filter's passes: 1/8, 1/4 and 1/2 of its radius, then the whole; each pass's taps on the
   // same spiral over the unit disc, turned 1.1 radians from the pass before, with Gaussian weights.

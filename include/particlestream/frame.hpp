@@ -243,10 +243,12 @@ struct LiquidPasses {
   float foam_thickness = 0;
   bool spray = false;  // a spray pass after the surface
 };
-// `radius`: the particles' radius in view units (the style's particle_radius times the world
-// transform's scale, or the median of the image's; median_radius). `projection`: the camera's,
-// for an image of width x height.
-LiquidPasses liquid_passes(const LiquidStyle& style, float radius, const Mat4& projection, int width, int height);
+// The particles' radius in view units is the style's particle_radius times `world_scale` (how much
+// the clips' world transform scales lengths), or where the style sets none `image_radius` (the
+// median of the image's radii, median_radius, in view units). `projection`: the camera's, for an
+// image of width x height.
+LiquidPasses liquid_passes(const LiquidStyle& style, float world_scale, float image_radius, const Mat4& projection,
+                           int width, int height);
 // Filter pass `pass`'s taps: kLiquidFilterPairs pairs on a sunflower (Vogel) spiral over the unit
 // disc, the i-th at radius sqrt((i + 0.5) / n) and i golden angles, the whole turned 1.1 radians
 // a pass; each (x, y, Gaussian weight for a sigma of half the radius). And the pass's radius, a

@@ -7,8 +7,11 @@
 
 namespace pstream::render {
 
-LiquidPasses liquid_passes(const LiquidStyle& style, float radius, const Mat4& projection, int width, int height) {
+LiquidPasses liquid_passes(const LiquidStyle& style, float world_scale, float image_radius, const Mat4& projection,
+                           int width, int height) {
   LiquidPasses p;
+  // Lengths in view units: the style's are in particle radii.
+  const float radius = style.particle_radius > 0 ? style.particle_radius * world_scale : image_radius;
   const float resolution = std::clamp(style.resolution, 0.25f, 1.0f);
   p.width = std::max(1, int(std::lround(float(width) * resolution)));
   p.height = std::max(1, int(std::lround(float(height) * resolution)));

@@ -231,10 +231,9 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   Impl& d = *impl_;
   GLint target = 0;  // the application's framebuffer (a window's is 0)
   glGetIntegerv(GL_DRAW_FRAMEBUFFER_BINDING, &target);
-  // Lengths in view units: the style's are in particle radii.
   const float world = source.empty() ? 1.0f : scale_of(source[0].world);
-  const float radius = style.particle_radius > 0 ? style.particle_radius * world : median_radius(source);
-  const LiquidPasses p = liquid_passes(style, radius, frame.projection, frame.width, frame.height);
+  const LiquidPasses p =
+      liquid_passes(style, world, median_radius(source), frame.projection, frame.width, frame.height);
   d.resize(frame.width, frame.height, p.width, p.height);
   const int lw = d.liquid_width, lh = d.liquid_height;
   glBindVertexArray(d.vao);

@@ -519,14 +519,14 @@ EMSCRIPTEN_KEEPALIVE const char* pw_liquid(const float* projection, int width, i
   std::memcpy(p.data(), projection, sizeof p);
   const render::LiquidStyle& style = g->style.liquid;
   const std::size_t stride = g->reader->metadata().record_size;
-  // Every record's head holds its radius (frame.hpp: kScaleOffset), as the native pass reads it.
-  const float radius =
-      style.particle_radius > 0 ? style.particle_radius : render::median_radius(g->count, [&](std::uint64_t i) {
-        float r = 0;
-        std::memcpy(&r, g->records + i * stride + render::kScaleOffset, sizeof r);
-        return r;
-      });
-  const render::LiquidPasses l = render::liquid_passes(style, radius, p, width, height);
+  // Every record's head holds its radius (frame.hpp: kScaleOffset), as the native pass reads it;
+  // the page draws the clip unscaled.
+  const float median = render::median_radius(g->count, [&](std::uint64_t i) {
+    float r = 0;
+    std::memcpy(&r, g->records + i * stride + render::kScaleOffset, sizeof r);
+    return r;
+  });
+  const render::LiquidPasses l = render::liquid_passes(style, 1.0f, median, p, width, height);
   g->liquid_json = nlohmann::json{
       {"width", l.width},
       {"height", l.height},
