@@ -19,9 +19,6 @@ namespace {
 // What the sprite shader shares with the C++ side, written once (frame.hpp).
 std::string sprite_vertex_source();
 
-// The first line of the shaders shared with the browser (shaders/README.md), which start without one.
-constexpr const char* kGlslVersion = "#version 450 core\n";
-
 // After the prelude (sprite_vertex_source()): kBatches, kMergedIndexBits, kScaleWord, and the
 // corner placing shared with the browser (shaders/sprite_corner.glsl: u_projection,
 // u_light_projection, u_shutter, u_min_pixels, u_viewport_height, v_local, v_half, v_axis).
@@ -112,11 +109,10 @@ void main() {
 )";
 
 std::string sprite_vertex_source() {
-  return fmt::format(
-             "{}const int kBatches = {};\nconst uint kMergedIndexBits = {}u;\n"
-             "const uint kScaleWord = {}u;\n",
-             kGlslVersion, kMaxMergedBatches, kMergedIndexBits, kScaleOffset / 4) +
-         kShader_sprite_corner_glsl + kVertexShader;
+  return glsl_source({fmt::format("const int kBatches = {};\nconst uint kMergedIndexBits = {}u;\n"
+                                  "const uint kScaleWord = {}u;\n",
+                                  kMaxMergedBatches, kMergedIndexBits, kScaleOffset / 4),
+                      kShader_sprite_corner_glsl, kVertexShader});
 }
 
 struct Uniforms {
