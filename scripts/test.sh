@@ -32,7 +32,23 @@ stage_done() {  # label
 
 run_suite() {  # build dir, label
   echo "== $2"
-  ctest --test-dir "$1" -j"$jobs" --output-on-failure --timeout 600 | tee -a "$log" | grep -vE '^ *[0-9]+/[0-9]+ Test'
+  local rc=0
+  ctest --test-dir "$1" -j"$jobs" --output-on-failure --timeout 600 | tee -a "$log" |
+    grep -vE '^ *[0-9]+/[0-9]+ Test' || rc=$?
+  [ "$rc" -eq 0 ] && return
+  # Each failed test's output again, at the end, where whoever reads only the log's tail sees it
+  # (--output-on-failure printed it when the test ended, among the others).
+  local temporary="$1/Testing/Temporary"
+  cut -d: -f2 "$temporary/LastTestsFailed.log" 2>/dev/null | while read -r name; do
+    echo "== $name failed: its output again"
+    awk -v test="$name" '$0 ~ "^[0-9]+/[0-9]+ Test: " test "$" { on = 1; next }
+      on && /^<end of output>$/ { exit } on' "$temporary/LastTest.log" >"$log.failed"
+    grep -m 20 -E 'FAIL|[Ee]rror|failed|Failure' "$log.failed" || true  # what went wrong first
+    echo "-- its last lines"
+    tail -n 40 "$log.failed"
+  done
+  rm -f "$log.failed"
+  exit "$rc"
 }
 
 bash scripts/install-deps.sh

@@ -12,6 +12,8 @@ export function launch(site) {
     headless: true,
     // A whole benchmark of a 1M-particle clip on SwiftShader waits in one call for many minutes.
     protocolTimeout: 30 * 60 * 1000,
+    // The suite's other tests share the machine's two cores: a start may take long there.
+    timeout: 120 * 1000,
     args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
       '--disable-gpu-sandbox', '--disable-dev-shm-usage']
   });

@@ -84,7 +84,7 @@ async function open(clipUrl, extra = '') {
   const page = await browser.newPage();
   page.on('pageerror', (e) => console.log(`  page error: ${e.message}`));
   page.on('console', (m) => { if (m.type() === 'error' && !/favicon|404/.test(m.text())) console.log(`  console: ${m.text()}`); });
-  await page.goto(`${site}?url=${encodeURIComponent(clipUrl)}${extra}`);
+  await page.goto(`${site}?url=${encodeURIComponent(clipUrl)}${extra}`, { timeout: 120000 });
   return page;
 }
 
@@ -389,7 +389,7 @@ if (mode === 'playback') {
   await check('the look menu turns the sprites into the native sparks', async () => {
     await waitFor(menu, () => window.player.state.error || window.player.state.shown >= 1, 30000);
     await menu.select('#look', 'sparks');
-    await waitFor(menu, () => new URLSearchParams(location.search).get('preset') === 'sparks', 10000);
+    await waitFor(menu, () => new URLSearchParams(location.search).get('preset') === 'sparks', 30000);
     await menu.evaluate((f) => window.player.show(f), frame);
     const r = await againstNative(menu, env.WEB_NATIVE_SPARKS_PNG);
     console.log(`  against the native sparks: IoU ${r.iou.toFixed(3)}, colour error ${r.colorError.toFixed(1)}/255`);
@@ -400,7 +400,7 @@ if (mode === 'playback') {
   await check('the look menu refuses sparks on a clip without velocities, and plays on', async () => {
     await waitFor(refused, () => window.player.state.error || window.player.state.shown >= 1, 30000);
     await refused.select('#look', 'sparks');
-    await waitFor(refused, () => !document.getElementById('error').hidden, 10000);
+    await waitFor(refused, () => !document.getElementById('error').hidden, 30000);
     const s = await refused.evaluate(() => ({ banner: document.getElementById('error').textContent,
       error: window.player.state.error, look: document.getElementById('look').value }));
     assert.match(s.banner, /motion blur \(a shutter\) needs velocities/);

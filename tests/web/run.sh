@@ -4,6 +4,7 @@
 # (puppeteer-core) against nginx and against the fault-injecting server.
 #   run.sh PSTREAM_CLI REFERENCE_FRAME SITE_DIR
 set -euo pipefail
+trap 'echo "run.sh: line $LINENO failed (exit code $?): $BASH_COMMAND" >&2' ERR
 cli=$1 reference=$2 site=$(cd "$3" 2>/dev/null && pwd) || {
   echo "run.sh: no web player at $3: build it with scripts/build-web.sh" >&2
   exit 1
@@ -44,13 +45,18 @@ for look in "smoke:--preset smoke --backdrop none" "unshadowed:--opacity 0.55 --
     ${look#*:} --out "$work/native_flip_${look%%:*}" -q
 done
 
+# The native images, each checked to be there (a `$(ls ...)` inside `export` would hide a failure).
+pngs=()
+for image in SPARKS:native_sparks SPEED:native_speed AGE:native_age SMOKE:native_flip_smoke \
+  UNSHADOWED:native_flip_unshadowed LIQUID:native_flip_liquid LIQUID_NONE:native_flip_liquid_none \
+  SMOKE_GROUND:native_flip_smoke_ground GROUND:native_flip_ground; do
+  file=$(ls "$work/${image#*:}"/*.png)
+  pngs+=("WEB_NATIVE_${image%%:*}_PNG=$file")
+done
+export "${pngs[@]}" WEB_NATIVE_PNG="$native"
 export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
-  WEB_EMPTY_CLIP=$data/pstream/empty_frames.pstream \
-  WEB_REFERENCE=$work/frame.bin WEB_NATIVE_PNG=$native WEB_NATIVE_SPARKS_PNG=$(ls "$work"/native_sparks/*.png) \
-  WEB_NATIVE_SPEED_PNG=$(ls "$work"/native_speed/*.png) WEB_AGE_CLIP=$work/sparks_age.pstream WEB_AGE_CAMERA=$age_camera \
-  WEB_NATIVE_AGE_PNG=$(ls "$work"/native_age/*.png) WEB_FLIP_CLIP=$work/flip.pstream WEB_FLIP_CAMERA=$flip_camera \
-  WEB_NATIVE_SMOKE_PNG=$(ls "$work"/native_flip_smoke/*.png) WEB_NATIVE_UNSHADOWED_PNG=$(ls "$work"/native_flip_unshadowed/*.png) \
-  WEB_NATIVE_LIQUID_PNG=$(ls "$work"/native_flip_liquid/*.png) WEB_NATIVE_LIQUID_NONE_PNG=$(ls "$work"/native_flip_liquid_none/*.png) \
-  WEB_NATIVE_SMOKE_GROUND_PNG=$(ls "$work"/native_flip_smoke_ground/*.png) WEB_NATIVE_GROUND_PNG=$(ls "$work"/native_flip_ground/*.png) WEB_OUT=${PSTREAM_WEB_OUT:-$work}
+  WEB_EMPTY_CLIP=$data/pstream/empty_frames.pstream WEB_REFERENCE=$work/frame.bin \
+  WEB_AGE_CLIP=$work/sparks_age.pstream WEB_AGE_CAMERA=$age_camera WEB_FLIP_CLIP=$work/flip.pstream \
+  WEB_FLIP_CAMERA=$flip_camera WEB_OUT=${PSTREAM_WEB_OUT:-$work}
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults
