@@ -240,6 +240,13 @@ function pointInstances(first) {
   gl.vertexAttribPointer(1, 4, gl.UNSIGNED_BYTE, true, bytes, at + 16);
   if (bytes >= 32) gl.vertexAttribPointer(2, 3, gl.FLOAT, false, bytes, at + 20);
 }
+
+// The liquid renders to 32-bit float buffers, filters them bilinearly and adds thicknesses up in
+// them: the extensions for that which this browser lacks (phones' GPUs often have no
+// OES_texture_float_linear). The worker refuses the liquid where any is missing, with
+// the library's other refusals, so that the look before stays (chooseLook).
+let liquidLacks = [];
+
 function setupGl() {
   if (!gl) throw new Error('this browser has no WebGL2');
   sprites = link(kVertex, kFragment, ['u_view', 'u_projection', 'u_tint', 'u_opacity', 'u_shutter', 'u_min_pixels',
@@ -253,6 +260,7 @@ function setupGl() {
   // Half floats where the browser renders to them (EXT_color_buffer_float: nearly all); else
   // 8 bits, which clamps the light before the tone map (the status line says so).
   targets.hdr = !!gl.getExtension('EXT_color_buffer_float');
+  liquidLacks = ['EXT_color_buffer_float', 'OES_texture_float_linear', 'EXT_float_blend'].filter((e) => !gl.getExtension(e));
   targets.format = targets.hdr ? gl.RGBA16F : gl.RGBA8;
   targets.light = target(canvas.width, canvas.height);
   const w = Math.max(1, (canvas.width + 1) >> 1), h = Math.max(1, (canvas.height + 1) >> 1);
@@ -268,12 +276,9 @@ function setupGl() {
 }
 
 // The liquid's programs and buffers, made on its first image (and the buffers again when the
-// image's size changes). It renders to 32-bit float buffers, filters them bilinearly and adds
-// thicknesses up in them: a browser without those extensions is told so.
+// image's size changes).
 function liquidPasses(pairs) {
   if (liquid && liquid.pairs === pairs) return liquid;
-  const missing = ['EXT_color_buffer_float', 'OES_texture_float_linear', 'EXT_float_blend'].filter((e) => !gl.getExtension(e));
-  if (missing.length) throw new Error(`the liquid needs WebGL2's ${missing.join(', ')}, which this browser lacks`);
   liquid = {
     pairs,
     splat: link(kLiquidSplatVertex, kLiquidSplat, ['u_view', 'u_projection', 'u_pass', 'u_thickness', 'u_foam_speed',
@@ -689,7 +694,7 @@ lookChoice.onchange = async () => {
   params.set('preset', lookChoice.value);
   try {
     while (inFlight) await new Promise((r) => setTimeout(r, 5));
-    useLook((await ask('look', { look: lookParams() })).style);
+    useLook((await ask('look', { look: lookParams(), liquidLacks })).style);
     history.replaceState(null, '', `${location.pathname}?${params}`);
     requestFrame(true);
   } catch (e) {
@@ -768,7 +773,7 @@ async function start() {
   if (size) { canvas.style.width = `${size[1]}px`; canvas.style.height = `${size[2]}px`; }
   try {
     setupGl();
-    const opened = await ask('open', { url, aspect: canvas.width / canvas.height, look: lookParams(),
+    const opened = await ask('open', { url, aspect: canvas.width / canvas.height, look: lookParams(), liquidLacks,
       cameraAt: cameraParam() });
     state.meta = opened.meta;
     useLook(opened.style);

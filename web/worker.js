@@ -222,8 +222,10 @@ let projectionPtr = 0;   // the projection's, for the liquid (pw_liquid)
 const spares = [];       // particle buffers the page has handed back
 let buffersMade = 0;     // particle buffers made (the test checks that playing makes no more than two)
 // The look's settings (chooseLook), its particle layout among them (instanceBytes: x, y, z,
-// radius, RGBA8, and velocity where the look streaks; pstream_wasm.cpp).
+// radius, RGBA8, and velocity where the look streaks; pstream_wasm.cpp), and the page's parameters
+// that chose it.
 let lookStyle = { instanceBytes: 20 };
+let lookChosen = {};
 // zstddec's streaming build (zstd's own decoder in WebAssembly). Its exports, which _init is
 // handed, give the one stream a particle clip's keyframe group is (format version 4 on).
 let zx = null;
@@ -353,9 +355,9 @@ async function decodeFrames(from, to, decoder) {
 }
 
 // The look (`preset`, `color-by`, `ramp`, `ramp-range`, `ramp-attribute`: the page's parameters,
-// `pstream render`'s flags) through the library's presets and checks; what the page draws with it,
-// kept as lookStyle.
-function chooseLook(look = {}) {
+// `pstream render`'s flags) set in the module through the library's presets and checks; its
+// settings, or the library's refusal.
+function setStyle(look) {
   const strings = [look.preset, look.colorBy, look.ramp, look.rampAttribute, look.backdrop].map((text) => {
     const n = M.lengthBytesUTF8(text || '') + 1, ptr = M._malloc(n);
     M.stringToUTF8(text || '', ptr, n);
@@ -369,7 +371,20 @@ function chooseLook(look = {}) {
   } finally {
     strings.forEach((ptr) => M._free(ptr));
   }
-  lookStyle = JSON.parse(M.UTF8ToString(M._pw_style_json()));
+  return JSON.parse(M.UTF8ToString(M._pw_style_json()));
+}
+
+// The look, kept as lookStyle: what the page draws with. `liquidLacks` are the WebGL2 extensions
+// the liquid's passes need that the page's browser lacks (player.js): a look the browser cannot
+// draw is refused as the library refuses one, and the look before stays (set in the module again).
+function chooseLook(look = {}, liquidLacks = []) {
+  const style = setStyle(look);
+  if (style.look === 'liquid' && liquidLacks.length) {
+    setStyle(lookChosen);
+    throw new FatalError(`the liquid needs WebGL2's ${liquidLacks.join(', ')}, which this browser lacks`);
+  }
+  lookChosen = look;
+  lookStyle = style;
   return lookStyle;
 }
 
@@ -377,7 +392,7 @@ function chooseLook(look = {}) {
 const floatsAt = (ptr, n) => Array.from(M.HEAPF32.subarray(ptr >> 2, (ptr >> 2) + n));
 
 const handlers = {
-  async open({ url, aspect, look, cameraAt }) {
+  async open({ url, aspect, look, liquidLacks, cameraAt }) {
     await zstd.init();
     M = await createDecoder({ readFetched, zstdDecompress, zstdStream });
     cache = new RangeCache(new URL(url, self.location.href).href);
@@ -390,7 +405,7 @@ const handlers = {
       M._free(ptr);
     }
     meta = JSON.parse(M.UTF8ToString(M._pw_metadata()));
-    const style = chooseLook(look);
+    const style = chooseLook(look, liquidLacks);
     viewPtr = M._malloc(64);
     projectionPtr = M._malloc(64);
     chunkSpans = [];
@@ -446,8 +461,8 @@ const handlers = {
   },
 
   // Another look (the page's look menu), through the library's presets and checks.
-  async look({ look }) {
-    return { style: chooseLook(look) };
+  async look({ look, liquidLacks }) {
+    return { style: chooseLook(look, liquidLacks) };
   },
 
   // Frame `frame`'s decoded records, as the native Reader gives them (for tests and tools).

@@ -80,8 +80,10 @@ function check(name, fn) {
   });
 }
 
-async function open(clipUrl, extra = '') {
+// `prepare(page)` runs before the page loads (a browser made to lack an extension, say).
+async function open(clipUrl, extra = '', prepare = null) {
   const page = await browser.newPage();
+  if (prepare) await prepare(page);
   page.on('pageerror', (e) => console.log(`  page error: ${e.message}`));
   page.on('console', (m) => { if (m.type() === 'error' && !/favicon|404/.test(m.text())) console.log(`  console: ${m.text()}`); });
   await page.goto(`${site}?url=${encodeURIComponent(clipUrl)}${extra}`, { timeout: 120000 });
@@ -409,6 +411,52 @@ if (mode === 'playback') {
     console.log(`  ${s.banner}`);
   });
   await refused.close();
+
+  // A browser without one of the liquid's float extensions (phones' GPUs often have no
+  // OES_texture_float_linear): the look menu refuses the liquid with a message naming it, and the
+  // look before (the sparks, whose particles travel with their velocities) stays, in the page and
+  // in the worker (the same image again, every pixel); a page asked for the liquid says so.
+  const lacksFloatLinear = (page) => page.evaluateOnNewDocument(() => {
+    const get = WebGL2RenderingContext.prototype.getExtension;
+    WebGL2RenderingContext.prototype.getExtension = function (name) {
+      return name === 'OES_texture_float_linear' ? null : get.call(this, name);
+    };
+  });
+  const lacksMessage = /the liquid needs WebGL2's OES_texture_float_linear, which this browser lacks/;
+  const phone = await open(env.WEB_CLIP, `&size=480x270&frame=${frame}&camera=${env.WEB_CAMERA}&preset=sparks`,
+    lacksFloatLinear);
+  await check('without a float extension the look menu refuses the liquid, and the look before stays', async () => {
+    await waitFor(phone, () => window.player.state.error || window.player.state.shown >= 1, 30000);
+    assert.equal((await playerState(phone)).error, null);
+    const before = await canvasPixels(phone);
+    await phone.select('#look', 'liquid');
+    await waitFor(phone, () => !document.getElementById('error').hidden, 30000);
+    const s = await phone.evaluate(() => ({ banner: document.getElementById('error').textContent,
+      error: window.player.state.error, look: document.getElementById('look').value,
+      preset: new URLSearchParams(location.search).get('preset') }));
+    assert.match(s.banner, lacksMessage);
+    assert.equal(s.error, null);
+    assert.equal(s.look, 'sparks');
+    assert.equal(s.preset, 'sparks');
+    const shown = (await playerState(phone)).shown;
+    await phone.evaluate((f) => window.player.show(f), frame);
+    const after = await canvasPixels(phone), state = await playerState(phone);
+    assert.equal(state.error, null);
+    assert.ok(state.shown > shown, 'no image drawn after the refusal');
+    let differ = 0;
+    for (let i = 0; i < after.data.length; ++i) differ += after.data[i] !== before.data[i];
+    assert.equal(differ, 0, `${differ} channels differ from the image before the refusal`);
+    console.log(`  ${s.banner}; the sparks' image again, every pixel`);
+  });
+  await phone.close();
+  const phoneLiquid = await open(env.WEB_FLIP_CLIP, '&size=320x180&preset=liquid', lacksFloatLinear);
+  await check('without a float extension preset=liquid is refused with a message', async () => {
+    await waitFor(phoneLiquid, () => window.player.state.error, 30000);
+    const s = await playerState(phoneLiquid);
+    assert.match(s.error, lacksMessage);
+    console.log(`  ${s.error}`);
+  });
+  await phoneLiquid.close();
 
   // A look the browser cannot draw, or one the clip lacks what for, is refused with the library's message.
   for (const [extra, expect] of [
