@@ -104,6 +104,16 @@ const playerState = (page) => page.evaluate(() => {
     timing: s.timing, count: s.count };
 });
 
+// Chooses `look` in the page's look menu and waits for the banner that refuses it: the banner, the
+// player's error state, and the look the menu and the address are on after.
+async function chooseRefusedLook(page, look) {
+  await page.select('#look', look);
+  await waitFor(page, () => !document.getElementById('error').hidden, 30000);
+  return page.evaluate(() => ({ banner: document.getElementById('error').textContent,
+    error: window.player.state.error, look: document.getElementById('look').value,
+    preset: new URLSearchParams(location.search).get('preset') }));
+}
+
 // The canvas's pixels as RGBA rows (the drawing buffer is preserved).
 function canvasPixels(page) {
   return page.evaluate(() => {
@@ -401,13 +411,11 @@ if (mode === 'playback') {
   const refused = await open(env.WEB_EMPTY_CLIP, '&size=320x180');
   await check('the look menu refuses sparks on a clip without velocities, and plays on', async () => {
     await waitFor(refused, () => window.player.state.error || window.player.state.shown >= 1, 30000);
-    await refused.select('#look', 'sparks');
-    await waitFor(refused, () => !document.getElementById('error').hidden, 30000);
-    const s = await refused.evaluate(() => ({ banner: document.getElementById('error').textContent,
-      error: window.player.state.error, look: document.getElementById('look').value }));
+    const s = await chooseRefusedLook(refused, 'sparks');
     assert.match(s.banner, /motion blur \(a shutter\) needs velocities/);
     assert.equal(s.error, null);
     assert.equal(s.look, 'sprites');
+    assert.equal(s.preset, null);
     console.log(`  ${s.banner}`);
   });
   await refused.close();
@@ -429,11 +437,7 @@ if (mode === 'playback') {
     await waitFor(phone, () => window.player.state.error || window.player.state.shown >= 1, 30000);
     assert.equal((await playerState(phone)).error, null);
     const before = await canvasPixels(phone);
-    await phone.select('#look', 'liquid');
-    await waitFor(phone, () => !document.getElementById('error').hidden, 30000);
-    const s = await phone.evaluate(() => ({ banner: document.getElementById('error').textContent,
-      error: window.player.state.error, look: document.getElementById('look').value,
-      preset: new URLSearchParams(location.search).get('preset') }));
+    const s = await chooseRefusedLook(phone, 'liquid');
     assert.match(s.banner, lacksMessage);
     assert.equal(s.error, null);
     assert.equal(s.look, 'sparks');
