@@ -1,10 +1,13 @@
 // Depth sort at 1M random keys: ours (radix, 8-bit digits), its 16-bit and 2-thread variants,
-// Highway's vqsort and std::sort on the same key-index pairs, plus memcpy of the pairs.
+// Highway's vqsort and std::sort on the same key-index pairs, plus memcpy of the pairs. And the
+// self-shadowing slices' starts (render::slice_starts) over 1M records, which the host works out
+// each frame beside the sort (on the GPU path instead of it).
 #include <benchmark/benchmark.h>
 
 #include <cstring>
 #include <random>
 
+#include "particlestream/frame.hpp"
 #include "sort_contenders.hpp"
 
 namespace {
@@ -41,7 +44,21 @@ void BM_MemcpyPairs(benchmark::State& state) {
   }
 }
 
+// 48 slices (the smoke preset's) of 1M [x y z scale] records: kSliceSamples of them read.
+void BM_SliceStarts(benchmark::State& state) {
+  std::vector<float> records(std::size_t(4) << 20);
+  for (std::size_t i = 0; i < records.size(); ++i) records[i] = depths()[i % depths().size()] * 0.001f;
+  pstream::render::ParticleBatch batch;
+  batch.first = std::as_bytes(std::span(records));
+  batch.count = 1 << 20;
+  for (auto _ : state) {
+    const auto cut = pstream::render::slice_starts({&batch, 1}, pstream::render::identity(), 48, batch.count);
+    benchmark::DoNotOptimize(cut.starts.data());
+  }
+}
+
 BENCHMARK(BM_MemcpyPairs)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_SliceStarts)->Unit(benchmark::kMicrosecond);
 BENCHMARK_CAPTURE(BM_Sort, ours, "ours")->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_Sort, ours_16bit, "ours_16bit")->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_Sort, ours_2threads, "ours_2threads")->Unit(benchmark::kMillisecond)->UseRealTime();

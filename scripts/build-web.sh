@@ -43,7 +43,7 @@ for p in "${pids[@]}"; do wait "$p"; done
 em++ -O3 -msimd128 -fwasm-exceptions "${objects[@]}" -o "$out/site/pstream.js" \
   -sENVIRONMENT=worker -sMODULARIZE=1 -sEXPORT_NAME=createDecoder -sEXPORT_ES6=1 -sALLOW_MEMORY_GROWTH=1 \
   -sINITIAL_MEMORY=64MB -sMAXIMUM_MEMORY=4GB -sFILESYSTEM=0 \
-  -sEXPORTED_FUNCTIONS=_malloc,_free -sEXPORTED_RUNTIME_METHODS=UTF8ToString,stringToUTF8,lengthBytesUTF8,HEAPU8,HEAPF32
+  -sEXPORTED_FUNCTIONS=_malloc,_free -sEXPORTED_RUNTIME_METHODS=UTF8ToString,stringToUTF8,lengthBytesUTF8,HEAPU8,HEAPU32,HEAPF32
 
 # The page and its npm dependencies (pinned by the lockfile; puppeteer-core drives the test).
 if [ ! -d web/node_modules ] || [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -1197,6 +1198,93 @@ TEST(Playback, OnlyAnRgba8ColorIsHandedOutAsTheColour) {
       }
     }
   }
+}
+
+// Self-shadowing slices (render::slice_starts) bound each slice in depth as well as in count: a
+// dense core of 9,000 particles over 1 unit of depth and a sparse tail of 1,000 over the next 4
+// (a smoke plume's top seen along the half-angle). Equal counts give the tail three slices of
+// about 1.3 units each, where its particles do not shadow each other; the library's slices each
+// span at most a little over 2/32 of the depth and hold at most a little over 2/32 of the
+// particles. A uniform cloud keeps nearly equal counts, and the GPU path's sample (a FramePair's
+// earlier frame) and two merged batches give the same starts as the records themselves.
+TEST(SliceStarts, BoundEachSliceInDepthAsWellAsCount) {
+  constexpr std::uint64_t kCore = 9000, kTail = 1000, kTotal = kCore + kTail;
+  constexpr int kSlices = 32;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0, 1);
+  std::vector<float> records(kTotal * 4), depths(kTotal);
+  for (std::uint64_t i = 0; i < kTotal; ++i) {
+    const float d = i < kCore ? u(rng) : 1 + 4 * u(rng);
+    depths[i] = d;
+    const float r[4] = {u(rng), u(rng), -d, 0.05f};  // depth is -z in the sort's view
+    std::memcpy(&records[i * 4], r, sizeof r);
+  }
+  std::sort(depths.begin(), depths.end());  // the drawing order's depths, front to back
+  render::ParticleBatch batch;
+  batch.first = std::as_bytes(std::span(records));
+  batch.count = kTotal;
+  const render::Mat4 sort_view = render::identity();
+  const render::SliceStarts cut = render::slice_starts({&batch, 1}, sort_view, kSlices, kTotal);
+  ASSERT_EQ(cut.slices, kSlices);
+  EXPECT_EQ(cut.starts[0], 0u);
+  EXPECT_EQ(cut.starts[kSlices], kTotal);
+  const double range = depths.back() - depths.front();
+  const auto widest = [&](const auto& starts) {  // the largest depth span and count of a slice
+    double span = 0;
+    std::uint64_t most = 0;
+    for (int k = 0; k < kSlices; ++k) {
+      const std::uint64_t a = starts[std::size_t(k)], b = starts[std::size_t(k) + 1];
+      EXPECT_LE(a, b) << "slice " << k;
+      if (b <= a) continue;
+      span = std::max(span, double(depths[b - 1] - depths[a]));
+      most = std::max(most, b - a);
+    }
+    return std::pair{span, most};
+  };
+  const auto [span, most] = widest(cut.starts);
+  std::printf("slice_starts: widest slice %.3f of %.3f depth units, largest %llu of %llu particles\n", span, range,
+              static_cast<unsigned long long>(most), static_cast<unsigned long long>(kTotal));
+  EXPECT_LE(span, 2.5 * range / kSlices);
+  EXPECT_LE(double(most), 2.5 * double(kTotal) / kSlices);
+  std::array<std::uint64_t, kSlices + 1> equal{};
+  for (int k = 0; k <= kSlices; ++k) equal[std::size_t(k)] = kTotal * std::uint64_t(k) / kSlices;
+  EXPECT_GT(widest(equal).first, 2.5 * range / kSlices) << "equal counts should make the tail's slices thick";
+
+  // The same particles through a FramePair (the GPU path's records are made on the GPU), and as
+  // two batches, the second moved by its world transform back onto the first's places.
+  render::FramePair pair;
+  pair.a = batch.first;
+  pair.a_count = kTotal;
+  pair.record_size = 16;
+  render::ParticleBatch on_gpu;
+  on_gpu.pair = &pair;
+  on_gpu.count = kTotal;
+  EXPECT_EQ(render::slice_starts({&on_gpu, 1}, sort_view, kSlices, kTotal).starts, cut.starts);
+  std::vector<float> moved(records);
+  for (std::uint64_t i = kTotal / 2; i < kTotal; ++i) moved[i * 4 + 2] += 10;  // 10 further, moved back by `world`
+  render::ParticleBatch halves[2];
+  halves[0].first = std::as_bytes(std::span(moved).first(kTotal / 2 * 4));
+  halves[0].count = kTotal / 2;
+  halves[1].first = std::as_bytes(std::span(moved).subspan(kTotal / 2 * 4));
+  halves[1].count = kTotal - kTotal / 2;
+  halves[1].world[14] = -10;
+  const render::SliceStarts merged = render::slice_starts(halves, sort_view, kSlices, kTotal);
+  const auto [merged_span, merged_most] = widest(merged.starts);
+  EXPECT_LE(merged_span, 2.5 * range / kSlices);
+  EXPECT_LE(double(merged_most), 2.5 * double(kTotal) / kSlices);
+
+  // A uniform cloud: the two shares grow together, so the counts stay nearly equal.
+  for (std::uint64_t i = 0; i < kTotal; ++i) records[i * 4 + 2] = -float(i) / float(kTotal);
+  const render::SliceStarts uniform = render::slice_starts({&batch, 1}, sort_view, kSlices, kTotal);
+  for (int k = 0; k <= kSlices; ++k)
+    EXPECT_NEAR(double(uniform.starts[std::size_t(k)]), double(equal[std::size_t(k)]), 0.01 * kTotal) << k;
+
+  // Nothing to cut: no particles, one slice, or more slices than allowed (clamped).
+  EXPECT_EQ(render::slice_starts({}, sort_view, kSlices, 0).starts[kSlices], 0u);
+  const render::SliceStarts one = render::slice_starts({&batch, 1}, sort_view, 1, kTotal);
+  EXPECT_EQ(one.slices, 1);
+  EXPECT_EQ(one.starts[1], kTotal);
+  EXPECT_EQ(render::slice_starts({&batch, 1}, sort_view, 1000, kTotal).slices, render::kMaxSlices);
 }
 
 // Camera::framing in a region of the image (the viewer's, beside its panel): every corner of the

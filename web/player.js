@@ -514,9 +514,10 @@ function drawSprites(reply, view, projection) {
   gl.uniform1i(u.u_light_buffer, 3);
   gl.uniform3fv(u.u_key, reply.lights.slice(0, 3));  // the worker's, for this view (frame.hpp: sprite_lights)
   gl.uniform3fv(u.u_fill, reply.lights.slice(3, 6));
-  // Self-shadowing (the worker sorted front to back along the half-angle): slices drawn into the
-  // image, each lit by the light buffer the slices before laid down, then into the light buffer.
-  const shadows = look.shadows && reply.shadow, slices = shadows ? look.slices : 1;
+  // Self-shadowing (the worker sorted front to back along the half-angle and cut the order into
+  // slices, bounded in count and depth): slices drawn into the image, each lit by the light
+  // buffer the slices before laid down, then into the light buffer.
+  const shadows = look.shadows && reply.shadow && reply.slices, slices = shadows ? reply.slices.length - 1 : 1;
   gl.uniform1i(u.u_shadows, shadows ? 1 : 0);
   if (shadows) {
     gl.uniformMatrix4fv(u.u_light_view, false, reply.shadow.slice(0, 16));
@@ -532,7 +533,7 @@ function drawSprites(reply, view, projection) {
   const ground = look.backdrop && look.backdrop.ground;  // receives the shadows (of the last slice too)
   gl.enable(gl.BLEND);
   for (let k = 0; k < slices; ++k) {
-    const first = Math.floor((reply.count * k) / slices), end = Math.floor((reply.count * (k + 1)) / slices);
+    const first = shadows ? reply.slices[k] : 0, end = shadows ? reply.slices[k + 1] : reply.count;  // the library's slices
     if (end === first) continue;
     if (slices > 1) pointInstances(first);
     gl.bindFramebuffer(gl.FRAMEBUFFER, targets.light.framebuffer);

@@ -442,6 +442,12 @@ const handlers = {
     new Uint8Array(instances, 0, count * lookStyle.instanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * lookStyle.instanceBytes));
     // A self-shadowing look: the light's view and projection, and the eye's blending order.
     const shadow = lookStyle.shadows ? floatsAt(M._pw_shadow(), 33) : null;
+    // And its slices: where each starts in `instances`, and the end (frame.hpp: slice_starts).
+    let slices = null;
+    if (lookStyle.shadows) {
+      const at = M._pw_slices() >> 2;
+      slices = Array.from(M.HEAPU32.subarray(at + 1, at + 2 + M.HEAPU32[at]));
+    }
     const lights = floatsAt(M._pw_lights(), 6);
     // The liquid: what its passes take for this image and this projection (frame.hpp: liquid_passes).
     let liquid = null;
@@ -452,7 +458,7 @@ const handlers = {
     const s = cache.stats;
     const at = M._pw_frame_at(time);
     return {
-      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs, shadow, lights,
+      frame: Math.floor(at), fraction: at - Math.floor(at), count, instances, buffersMade, ...timing, sortMs, shadow, slices, lights,
       liquid,
       cache: { states: chunkStates(), requests: s.requests, bytes: s.bytes, retries: s.retries, inFlight: s.inFlight,
         bandwidth: s.ms > 0 ? s.bytes / 1e3 / s.ms : 0 },

@@ -160,6 +160,27 @@ struct HalfAngle {
 };
 HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction);
 
+// Where each self-shadowing slice starts in the drawing order (front to back in `sort_view`, as
+// half_angle() gives it), for `slices` slices (1..kMaxSlices) of `total` particles: starts[k] for
+// k = 0..slices, starts[0] = 0 and starts[slices] = total, never decreasing (a slice may be
+// empty). Equal numbers of particles make a slice through a sparse part of the cloud thick in
+// depth, and its particles do not shadow each other: bands across the top of a smoke plume, where
+// few particles share a range of depth. So each slice takes an equal share of the two together,
+// its part of the particles plus its part of the depth range (2 / slices): a dense core's slices
+// are bounded by their counts, a sparse edge's by their depth. The depths are read from up to
+// kSliceSamples particles spread evenly through each batch's records (a FramePair's earlier
+// cached frame where the records are made on the GPU), so the drawing order itself is not needed
+// (with 512 a slice through the last few particles at the plume's top stayed thick); no
+// allocation, and no sort: the samples' depths are counted in bins.
+constexpr int kMaxSlices = 256;
+constexpr std::size_t kSliceSamples = 4096;
+struct SliceStarts {
+  std::array<std::uint64_t, kMaxSlices + 1> starts{};
+  int slices = 1;
+};
+SliceStarts slice_starts(std::span<const ParticleBatch> batches, const Mat4& sort_view, int slices,
+                         std::uint64_t total);
+
 // The lit sprite's two lights in view space, the directions its fragment shader takes (u_key,
 // u_fill): the key along `light_direction` (world, towards the light, unit length), and the fill
 // from the opposite side, a little above.

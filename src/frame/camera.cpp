@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include "particlestream/frame.hpp"
+#include "particlestream/sort.hpp"
 
 namespace pstream::render {
 namespace {
@@ -176,6 +177,70 @@ HalfAngle half_angle(const Mat4& camera_view, const Vec3& light_direction) {
   const Vec3 up = std::abs(s[1]) > 0.9f ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
   h.sort_view = look_at({0, 0, 0}, s, up);
   return h;
+}
+
+SliceStarts slice_starts(std::span<const ParticleBatch> batches, const Mat4& sort_view, int slices,
+                         std::uint64_t total) {
+  SliceStarts out;
+  out.slices = std::clamp(slices, 1, kMaxSlices);
+  const auto n = static_cast<std::uint64_t>(out.slices);
+  for (std::uint64_t k = 0; k <= n; ++k) out.starts[k] = total * k / n;  // equal counts, the fallback
+  std::uint64_t batch_total = 0;
+  for (const ParticleBatch& b : batches) batch_total += b.count;
+  if (n < 2 || total == 0 || batch_total == 0) return out;
+  // Each batch's share of the samples, spread evenly through its records, as the depths the sort
+  // orders by (front to back: ascending).
+  std::array<float, kSliceSamples> depth;
+  std::size_t m = 0;
+  std::uint64_t before = 0;  // particles of the batches before this one
+  for (const ParticleBatch& b : batches) {
+    const bool paired = b.pair != nullptr;
+    const std::span<const std::byte> first = paired ? b.pair->a : b.first,
+                                     second = paired ? std::span<const std::byte>{} : b.second;
+    const std::uint64_t stored = paired ? b.pair->a_count : b.count;
+    const std::size_t rs = paired ? b.pair->record_size : b.record_size;
+    const std::size_t end = std::size_t((before + b.count) * kSliceSamples / batch_total);
+    const std::size_t take = end - std::min(end, std::size_t(before * kSliceSamples / batch_total));
+    before += b.count;
+    if (stored == 0 || rs < 12) continue;
+    const sort::DepthAxis axis = sort::depth_axis(multiply(sort_view, b.world));  // the sort's own depth
+    for (std::size_t t = 0; t < take; ++t) {
+      const std::size_t at = std::size_t((2 * t + 1) * stored / (2 * take)) * rs;  // the middle of its share
+      const std::byte* r = at + 12 <= first.size()                   ? first.data() + at
+                           : at - first.size() + 12 <= second.size() ? second.data() + (at - first.size())
+                                                                     : nullptr;
+      float d = 0;
+      if (r != nullptr) sort::compute_depths(r, 1, rs, axis, &d);
+      if (r != nullptr && std::isfinite(d)) depth[m++] = d;
+    }
+  }
+  if (m < 2) return out;
+  const auto [lo, hi] = std::minmax_element(depth.begin(), depth.begin() + std::ptrdiff_t(m));
+  const double low = *lo, range = double(*hi) - low;
+  if (!(range > 0)) return out;
+  // The samples' depths in kBins bins of equal depth (a histogram, not a sort: its cost grows with
+  // the samples alone). Across a bin both shares grow linearly, the particles' by its count over
+  // m and the depth's by 1 / kBins; slice k starts where their sum reaches 2k / slices.
+  constexpr std::size_t kBins = 1024;
+  std::array<std::uint32_t, kBins> bins{};
+  for (std::size_t t = 0; t < m; ++t)
+    ++bins[std::min(kBins - 1, static_cast<std::size_t>((double(depth[t]) - low) / range * double(kBins)))];
+  std::size_t b = 0;
+  std::uint64_t below = 0;  // samples in the bins before b
+  for (std::uint64_t k = 1; k < n; ++k) {
+    const double target = 2.0 * double(k) / double(n);
+    while (b < kBins && double(below + bins[b]) / double(m) + double(b + 1) / double(kBins) < target)
+      below += bins[b++];
+    double at = 1.0;  // the share of the order, 0..1
+    if (b < kBins) {
+      const double start_share = double(below) / double(m) + double(b) / double(kBins);
+      const double width = double(bins[b]) / double(m) + 1.0 / double(kBins);
+      at = (double(below) + (target - start_share) / width * double(bins[b])) / double(m);
+    }
+    const auto start = static_cast<std::uint64_t>(std::llround(double(total) * std::clamp(at, 0.0, 1.0)));
+    out.starts[k] = std::clamp(start, out.starts[k - 1], total);
+  }
+  return out;
 }
 
 namespace {

@@ -1,8 +1,9 @@
 // Sprites: instanced camera-facing quads (or streaks along their screen-space velocity) pulled
 // straight from the staged records, accumulated in a half-float buffer and tone-mapped over what
-// is already drawn. With shadows, half-angle slicing (Green 2008): the slices alternate between
-// the eye buffer, which reads how much light the slices before let through, and the light
-// buffer, which adds the slice's opacity; the ground then takes the light buffer's final shadow.
+// is already drawn. With shadows, half-angle slicing (Green 2008), the slices cut by count and
+// depth (slice_starts()): they alternate between the eye buffer, which reads how much light the
+// slices before let through, and the light buffer, which adds the slice's opacity; the ground
+// then takes the light buffer's final shadow.
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -391,10 +392,10 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
     }
   };
   const std::uint64_t total = what.instances;
-  const int slices = shadows ? std::clamp(style.slices, 1, 256) : 1;
+  const SliceStarts cut = slice_starts(source, half.sort_view, shadows ? style.slices : 1, total);
+  const int slices = cut.slices;
   for (int k = 0; k < slices; ++k) {
-    const std::uint64_t first = total * std::uint64_t(k) / std::uint64_t(slices);
-    const std::uint64_t end = total * std::uint64_t(k + 1) / std::uint64_t(slices);
+    const std::uint64_t first = cut.starts[std::size_t(k)], end = cut.starts[std::size_t(k) + 1];
     if (end == first) continue;
     glUniform1ui(u.first, GLuint(first));
     glBindFramebuffer(GL_FRAMEBUFFER, d.hdr_framebuffer);

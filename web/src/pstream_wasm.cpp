@@ -107,8 +107,11 @@ struct Player {
   bool shadows = false;  // the look self-shadows: pw_pack sorts along the half-angle, pw_shadow says how to draw
   render::Vec3 light{};  // towards the light, world, unit length (the native renderer's)
   std::array<float, 33> shadow{};  // the light's view and projection, and whether the eye blends front to back
-  std::array<float, 6> lights{};   // the key and fill lights in view space, for the view pw_pack sorted along
-  std::string liquid_json;         // the liquid's passes for the image pw_pack made (pw_liquid)
+  // The self-shadowing slices of the image pw_pack made: their number, then where each starts in
+  // its order and the end (frame.hpp: slice_starts).
+  std::array<std::uint32_t, render::kMaxSlices + 2> slices{};
+  std::array<float, 6> lights{};  // the key and fill lights in view space, for the view pw_pack sorted along
+  std::string liquid_json;        // the liquid's passes for the image pw_pack made (pw_liquid)
   std::array<std::uint8_t, 4> default_color{};  // a particle's where the clip stores none (RGBA8)
   playback::PairCurves curves;                  // whether a pair of frames blends along curves, decided once a pair
 };
@@ -430,6 +433,14 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
     std::copy(light.projection.begin(), light.projection.end(), g->shadow.begin() + 16);
     g->shadow[32] = half.eye_front_to_back ? 1.0f : 0.0f;
     vw = half.sort_view;
+    render::ParticleBatch batch;
+    batch.first = std::span(records, n * stride);
+    batch.count = n;
+    batch.record_size = static_cast<std::uint32_t>(stride);
+    const render::SliceStarts cut = render::slice_starts({&batch, 1}, vw, g->style.sprites.slices, n);
+    g->slices[0] = static_cast<std::uint32_t>(cut.slices);
+    for (int k = 0; k <= cut.slices; ++k)
+      g->slices[std::size_t(k) + 1] = static_cast<std::uint32_t>(cut.starts[std::size_t(k)]);
   }
   if (sorted != 0 || g->shadows) {
     sort::compute_depths(records, n, stride, sort::depth_axis(vw), g->depths.data());
@@ -508,6 +519,9 @@ EMSCRIPTEN_KEEPALIVE double pw_instance_bytes() { return static_cast<double>(g->
 // For a self-shadowing look, after pw_pack: the light's view and projection (16 floats each,
 // column-major) and 1 where the image blends its slices front to back ("under"), else 0.
 EMSCRIPTEN_KEEPALIVE const float* pw_shadow() { return g->shadow.data(); }
+// For a self-shadowing look, after pw_pack: the number of slices, then where each starts in the
+// order pw_instances() holds, and the end (uint32s; frame.hpp: slice_starts).
+EMSCRIPTEN_KEEPALIVE const std::uint32_t* pw_slices() { return g->slices.data(); }
 // After pw_pack: the key and the fill light's directions in its view (6 floats; frame.hpp: sprite_lights).
 EMSCRIPTEN_KEEPALIVE const float* pw_lights() { return g->lights.data(); }
 
