@@ -41,7 +41,7 @@ void add_look_flags(CLI::App& cmd, pstream::app::LookCli& look) {
                "Volumetric self-shadowing (half-angle slices) and shadows on the ground");
   cmd.add_option("--slices", look.sprites.slices, "Shadow slices: more is smoother and slower")
       ->default_val(defaults.slices)
-      ->check(CLI::Range(1, 256));
+      ->check(CLI::Range(1, pstream::render::kMaxSlices));
   cmd.add_option("--shadow-density", look.sprites.shadow_density, "How much light a particle stops, x its alpha")
       ->default_val(defaults.shadow_density)
       ->check(CLI::NonNegativeNumber);

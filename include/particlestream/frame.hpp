@@ -129,7 +129,7 @@ struct SpriteStyle {
   // then into the light buffer (as opacity × shadow_density). The ground receives the light
   // buffer's final shadow.
   bool shadows = false;
-  int slices = 32;              // 1..256
+  int slices = 32;              // 1..kMaxSlices (256)
   float shadow_density = 1.0f;  // a particle's opacity to light, × its alpha
   bool shadow_blur = true;      // a 5-tap blur when the light buffer is read
   int shadow_resolution = 512;  // the light buffer's size, 64..4096

@@ -313,7 +313,7 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     page["instanceBytes"] = g->instance_bytes;
     page["background"] = render::kDefaultBackground;
     page["shadows"] = g->shadows;
-    page["slices"] = std::clamp(s.slices, 1, 256);
+    page["slices"] = std::clamp(s.slices, 1, render::kMaxSlices);
     page["shadowDensity"] = std::max(s.shadow_density, 0.0f);
     page["shadowBlur"] = s.shadow_blur;
     page["shadowResolution"] = std::clamp(s.shadow_resolution, 64, 4096);
