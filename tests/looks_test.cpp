@@ -288,8 +288,8 @@ TEST_F(LooksTest, SlicesStayThinWhereTheCloudThins) {
   const Image few = draw(cam, ps, style, BlendMode::Alpha, std::nullopt, "thin_tail_48_slices");
   style.slices = 256;
   const Image many = draw(cam, ps, style, BlendMode::Alpha, std::nullopt, "thin_tail_256_slices");
-  // The tail's pixels: where the 256-slice image shows a particle of the tail (its centres'
-  // screen box, shrunk by a sprite), compared in 8x8 blocks.
+  // The tail's pixels: the screen box of its particles' centres, where the 256-slice image is not
+  // background, compared in 8x8 blocks (blocks mostly background left out).
   const Mat4 vp = multiply(cam.projection(float(kW) / kH), cam.view());
   int x0 = kW, x1 = 0, y0 = kH, y1 = 0;
   for (std::size_t i = 9000; i < ps.size(); ++i) {
