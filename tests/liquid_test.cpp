@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <optional>
@@ -515,6 +516,126 @@ TEST_F(LiquidTest, AThinSheetHidesTheGroundBehindIt) {
   }
   EXPECT_LE(ratio[0], 0.2);
   EXPECT_GT(ratio[1], 0.3) << "the clear control shows the grid through the sheet";
+}
+
+// The liquid's shadow on a ground at the tank's floor, frame 20 of the pour (its jet in the air) seen
+// from above, the light the renderer's own. Over the ground the image shows (not under the liquid
+// in it): the pixels the shadow darkens lie under the particles moved along the light onto the
+// ground, most of that footprint is darkened, and a smaller shadow depth darkens it more. Without
+// a ground, or at a shadow depth of 0, nothing changes.
+TEST_F(LiquidTest, TheLiquidShadowsTheGroundUnderIt) {
+  const Camera camera = top_view();
+  Backdrop ground;
+  ground.ground_height = 0.0f;
+  ground.grid_spacing = 0.1f;
+  const std::size_t frame = 20;
+  const auto image = [&](float shadow_depth, bool with_ground) {
+    LiquidStyle style;
+    style.shadow_depth = shadow_depth;
+    if (with_ground) style.ground_height = ground.ground_height;
+    render_frame(frame, camera, style, 1, 0.0f, {}, ground);
+    return rgba_;
+  };
+  const std::vector<std::uint8_t> bare = image(0.0f, true);
+  const LiquidImage raw = renderer_.read_liquid(LiquidBuffer::RawDepth);  // bottom row first
+  const std::vector<std::uint8_t> shadowed = image(8.0f, true);           // the default
+  keep("shadow_on_the_ground");
+  // The ground in the image: no liquid within 2 px (the surface refracts the shadow under it).
+  std::vector<char> ground_px(std::size_t(kW) * kH, 1);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x)
+      if (at(raw, x, kH - 1 - y) > 0)
+        for (int dy = -2; dy <= 2; ++dy)
+          for (int dx = -2; dx <= 2; ++dx)
+            if (x + dx >= 0 && x + dx < kW && y + dy >= 0 && y + dy < kH)
+              ground_px[std::size_t(y + dy) * kW + std::size_t(x + dx)] = 0;
+  // The footprint: each particle moved away from the light onto the ground, where its disc facing
+  // the light lands as an ellipse r wide and r / cos(the light's angle from the vertical) long (a
+  // disc that long here), and 3 px more (the ground's 3x3 blur of the light buffer, texels 2
+  // apart, with its bilinear taps: about 15 mm here, where a pixel is 10 mm).
+  const Vec3 l = RendererOptions{}.light_direction;
+  const float ll = std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
+  const Mat4 projection = camera.projection(float(kW) / kH), vp = multiply(projection, camera.view());
+  std::vector<char> footprint(std::size_t(kW) * kH, 0);
+  std::size_t particles = 0;
+  for (const ParticleBatch& b : player_->draw_data({}).batches) {
+    for (std::uint64_t i = 0; i < b.count; ++i, ++particles) {
+      float p[3];
+      const std::uint64_t at_byte = i * b.record_size;
+      const auto part =
+          at_byte < b.first.size() ? b.first.subspan(at_byte) : b.second.subspan(at_byte - b.first.size());
+      std::memcpy(p, part.data(), sizeof p);
+      const float t = (p[1] - ground.ground_height) / (l[1] / ll);
+      const float g[3] = {p[0] - t * l[0] / ll, ground.ground_height, p[2] - t * l[2] / ll};
+      const float cx = vp[0] * g[0] + vp[4] * g[1] + vp[8] * g[2] + vp[12];
+      const float cy = vp[1] * g[0] + vp[5] * g[1] + vp[9] * g[2] + vp[13];
+      const float cw = vp[3] * g[0] + vp[7] * g[1] + vp[11] * g[2] + vp[15];
+      const float px = (cx / cw * 0.5f + 0.5f) * kW, py = (0.5f - cy / cw * 0.5f) * kH;
+      const float r = kRadius / (l[1] / ll) * projection[5] * 0.5f * kH / cw + 3.0f;
+      for (int y = int(py - r); y <= int(py + r); ++y)
+        for (int x = int(px - r); x <= int(px + r); ++x)
+          if (x >= 0 && x < kW && y >= 0 && y < kH && (x - px) * (x - px) + (y - py) * (y - py) <= r * r)
+            footprint[std::size_t(y) * kW + std::size_t(x)] = 1;
+    }
+  }
+  ASSERT_GT(particles, 1000u);
+  if (const char* d = std::getenv("PSTREAM_LIQUID_IMAGES")) {  // the footprint in red, the ground in green
+    std::vector<std::uint8_t> marks = shadowed;
+    for (std::size_t i = 0; i < footprint.size(); ++i) {
+      if (footprint[i]) marks[4 * i] = 255;
+      if (ground_px[i] && !footprint[i] && 1.0 - luminance(shadowed, i) / luminance(bare, i) > 0.03)
+        marks[4 * i + 2] = 255, marks[4 * i] = marks[4 * i + 1] = 0;
+    }
+    write_png(fs::path(d) / "shadow_footprint.png", kW, kH, marks);
+  }
+  // How much darker than the bare ground each pixel of the ground is (0..1 of its light).
+  const auto darkening = [&](const std::vector<std::uint8_t>& img, std::size_t i) {
+    const double b0 = luminance(bare, i);
+    return b0 > 0 ? 1.0 - luminance(img, i) / b0 : 0.0;
+  };
+  int darkened = 0, inside = 0, under = 0, under_darkened = 0;
+  double under_sum = 0, darkest = 0;
+  for (std::size_t i = 0; i < footprint.size(); ++i) {
+    if (!ground_px[i]) continue;
+    const double d = darkening(shadowed, i);
+    darkest = std::max(darkest, d);
+    if (d > 0.03) {
+      ++darkened;
+      inside += footprint[i];
+    }
+    if (footprint[i]) {
+      ++under;
+      under_darkened += d > 0.03;
+      under_sum += d;
+    }
+  }
+  std::printf(
+      "shadow on the ground: %d pixels darkened, %.1f %% of them under the particles moved along the light; "
+      "%d ground pixels there, %.1f %% darkened, by %.1f %% on average, %.1f %% at most\n",
+      darkened, 100.0 * inside / std::max(darkened, 1), under, 100.0 * under_darkened / std::max(under, 1),
+      100.0 * under_sum / std::max(under, 1), 100.0 * darkest);
+  ASSERT_GT(under, 800) << "the footprint should show beside the liquid";
+  EXPECT_GT(darkened, 800);
+  EXPECT_GE(inside, 0.95 * darkened) << "a shadow where no particle casts one";
+  EXPECT_GE(under_darkened, 0.6 * under) << "particles that cast no shadow";
+  // Under the jet's many layers the shadow nears its strength (water's: half the light), never past it.
+  const double strength = LiquidStyle{}.shadow_strength;
+  EXPECT_LE(darkest, strength + 0.02);
+  EXPECT_GE(darkest, 0.8 * strength);
+  // A smaller shadow depth: darker; a larger: lighter.
+  double mean[3] = {};
+  const float depths[3] = {4.0f, 8.0f, 16.0f};
+  for (int k = 0; k < 3; ++k) {
+    const std::vector<std::uint8_t> img = k == 1 ? shadowed : image(depths[k], true);
+    for (std::size_t i = 0; i < footprint.size(); ++i)
+      if (ground_px[i] && footprint[i]) mean[k] += darkening(img, i) / under;
+  }
+  std::printf("mean darkening under the particles at shadow depths 4, 8, 16 radii: %.3f, %.3f, %.3f\n", mean[0],
+              mean[1], mean[2]);
+  EXPECT_GT(mean[0], mean[1] + 0.02);
+  EXPECT_GT(mean[1], mean[2] + 0.02);
+  // No ground to fall on: the image is the bare one, every pixel.
+  EXPECT_EQ(image(8.0f, false), bare);
 }
 
 }  // namespace

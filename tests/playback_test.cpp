@@ -118,6 +118,39 @@ TEST(Playback, SeveralClipsAreSortedTogether) {
   for (std::size_t i = 1; i < order.size(); ++i) ASSERT_LE(depth_of(order[i]), depth_of(order[i - 1]) + 1e-5f) << i;
 }
 
+// The player fills in what a look's shadows need and the style leaves out: the light buffer's
+// bounds (the clips' world box, moved by their transforms) and the ground (the backdrop's), for
+// self-shadowing sprites and for the liquid alike; what the style sets stays.
+TEST(Playback, DrawDataFillsTheShadowsBoundsAndGround) {
+  const fs::path dir = test::fresh_dir();
+  const fs::path files[] = {cook(dir, "points_constant", format::FrameCodec::Records)};
+  playback::PlayerOptions options;
+  options.stream.blocking = true;
+  const auto player = playback::Player::open(files, std::move(options));
+  player->set_world_transform(0, render::translation({0, 2, 0}));
+  player->advance(0.0, render::identity(), sort::SortMode::None);
+  player->check();
+  const std::array<float, 6>& m = player->clip(0).metadata().bounds;
+  const std::array<float, 6> world{m[0], m[1] + 2, m[2], m[3], m[4] + 2, m[5]};
+  for (const char* look : {"smoke", "liquid"}) {
+    playback::DrawStyle style = playback::look_preset(look);
+    style.backdrop = playback::backdrop_for("auto", style, world);
+    ASSERT_TRUE(style.backdrop && style.backdrop->ground) << look;
+    const render::DrawData& d = player->draw_data(style);
+    const bool liquid = d.look == render::Look::Liquid;
+    const std::array<float, 6>& bounds = liquid ? d.liquid.bounds : d.sprites.bounds;
+    const std::optional<float>& ground = liquid ? d.liquid.ground_height : d.sprites.ground_height;
+    for (std::size_t i = 0; i < 6; ++i) EXPECT_FLOAT_EQ(bounds[i], world[i]) << look << " " << i;
+    ASSERT_TRUE(ground) << look;
+    EXPECT_EQ(*ground, style.backdrop->ground_height) << look;
+    style.liquid.ground_height = style.sprites.ground_height = -5.0f;
+    style.liquid.bounds = style.sprites.bounds = {-1, -1, -1, 1, 1, 1};
+    const render::DrawData& e = player->draw_data(style);
+    EXPECT_EQ(liquid ? e.liquid.ground_height : e.sprites.ground_height, -5.0f) << look;
+    EXPECT_EQ((liquid ? e.liquid.bounds : e.sprites.bounds)[3], 1.0f) << look;
+  }
+}
+
 TEST(Playback, AHostFrameAllocatesNothing) {
   const fs::path dir = test::fresh_dir();
   const fs::path files[] = {cook(dir, "points_varying", format::FrameCodec::Particle),
@@ -1464,6 +1497,16 @@ TEST(Looks, TheLiquidsPassesScaleWithTheParticleRadius) {
   EXPECT_EQ(p.filter_mode, 0);
   EXPECT_EQ(p.filter_passes, render::kLiquidRampPasses + style.iterations);
   EXPECT_TRUE(p.spray);  // isolated particles are spray by default
+  // The shadow needs a ground to fall on: its depth in view units, the light buffer's size clamped.
+  EXPECT_EQ(p.shadow_depth, 0.0f);
+  style.ground_height = 0.0f;
+  style.shadow_resolution = 9000;
+  const render::LiquidPasses shadowed = render::liquid_passes(style, 1.0f, radius, projection, 480, 270);
+  EXPECT_FLOAT_EQ(shadowed.shadow_depth, style.shadow_depth * radius);
+  EXPECT_EQ(shadowed.shadow_resolution, 4096);
+  style.shadow_depth = 0.0f;
+  EXPECT_EQ(render::liquid_passes(style, 1.0f, radius, projection, 480, 270).shadow_depth, 0.0f);
+  style.shadow_depth = render::LiquidStyle{}.shadow_depth;
 
   style.resolution = 0.5f;
   style.iterations = 50;
@@ -1479,7 +1522,8 @@ TEST(Looks, TheLiquidsPassesScaleWithTheParticleRadius) {
   EXPECT_FLOAT_EQ(q.range, style.depth_range * 0.06f);
   EXPECT_EQ(q.filter_mode, 1);
   EXPECT_EQ(q.filter_passes, render::kLiquidRampPasses + render::kLiquidMaxIterations);
-  EXPECT_FALSE(q.spray);  // an inspection view has none
+  EXPECT_FALSE(q.spray);            // an inspection view has none
+  EXPECT_EQ(q.shadow_depth, 0.0f);  // nor a shadow
   style.filter = render::LiquidFilter::None;
   EXPECT_EQ(render::liquid_passes(style, 2.0f, radius, projection, 481, 271).filter_passes, 0);
 

@@ -255,7 +255,7 @@ function setupGl() {
   composite = link(kFullScreen, kComposite, ['u_hdr', 'u_bloom', 'u_bloom_strength', 'u_exposure', 'u_tone_map']);
   backdrop = link(kFullScreen, kBackdrop, ['u_view', 'u_projection', 'u_viewport', 'u_ground', 'u_ground_height', 'u_grid']);
   groundShadow = link(kFullScreen, kGroundShadow, ['u_view', 'u_projection', 'u_viewport', 'u_ground_height',
-    'u_light_view', 'u_light_projection', 'u_light_buffer', 'u_light_texel']);
+    'u_light_view', 'u_light_projection', 'u_light_buffer', 'u_light_texel', 'u_strength']);
   bloomBlur = link(kFullScreen, kBloom, ['u_source', 'u_step', 'u_size', 'u_sigma', 'u_taps']);
   // Half floats where the browser renders to them (EXT_color_buffer_float: nearly all); else
   // 8 bits, which clamps the light before the tone map (the status line says so).
@@ -282,7 +282,7 @@ function liquidPasses(pairs) {
   liquid = {
     pairs,
     splat: link(kLiquidSplatVertex, kLiquidSplat, ['u_view', 'u_projection', 'u_pass', 'u_thickness', 'u_foam_speed',
-      'u_foam_thickness', 'u_fixed_radius']),
+      'u_foam_thickness', 'u_fixed_radius', 'u_shadow_depth']),
     filter: link(kFullScreen, liquidFilterSource(pairs), ['u_depth', 'u_size', 'u_radius_at_1', 'u_range', 'u_mode',
       'u_scale', 'u_taps']),
     normals: link(kFullScreen, kLiquidNormals, ['u_depth', 'u_size', 'u_projection', 'u_range']),
@@ -338,6 +338,29 @@ function drawBackground(view, projection) {
   gl.disable(gl.DEPTH_TEST);
 }
 
+// The ground under a light buffer (`light`: a target; `shadow`: its view and projection, from the
+// worker) darkened by `strength` times the opacity above it, multiplied over the canvas
+// (ShadowBuffer::darken_ground).
+function darkenGround(view, projection, shadow, light, strength) {
+  const g = groundShadow.u;
+  gl.useProgram(groundShadow.program);
+  gl.uniformMatrix4fv(g.u_view, false, view);
+  gl.uniformMatrix4fv(g.u_projection, false, projection);
+  gl.uniform2f(g.u_viewport, canvas.width, canvas.height);
+  gl.uniform1f(g.u_ground_height, look.backdrop.groundHeight);
+  gl.uniformMatrix4fv(g.u_light_view, false, shadow.slice(0, 16));
+  gl.uniformMatrix4fv(g.u_light_projection, false, shadow.slice(16, 32));
+  gl.uniform1i(g.u_light_buffer, 0);
+  gl.uniform1f(g.u_light_texel, 1 / light.width);
+  gl.uniform1f(g.u_strength, strength);
+  gl.activeTexture(gl.TEXTURE0);
+  gl.bindTexture(gl.TEXTURE_2D, light.texture);
+  gl.disable(gl.DEPTH_TEST);
+  gl.enable(gl.BLEND);
+  gl.blendFunc(gl.ZERO, gl.SRC_COLOR);
+  gl.drawArrays(gl.TRIANGLES, 0, 3);
+}
+
 // The liquid's image, as LiquidPass::draw makes it natively; `reply.liquid` holds the numbers the
 // library derived for it (frame.hpp: liquid_passes).
 function drawLiquid(reply, view, projection) {
@@ -347,12 +370,13 @@ function drawLiquid(reply, view, projection) {
   gl.bindVertexArray(vao);
   gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
   gl.bufferSubData(gl.ARRAY_BUFFER, 0, new Uint8Array(reply.instances, 0, reply.count * look.instanceBytes));
-  const splat = (pass) => {
+  const splat = (pass, through = [view, projection]) => {
     gl.useProgram(passes.splat.program);
     const u = passes.splat.u;
-    gl.uniformMatrix4fv(u.u_view, false, view);
-    gl.uniformMatrix4fv(u.u_projection, false, projection);
+    gl.uniformMatrix4fv(u.u_view, false, through[0]);
+    gl.uniformMatrix4fv(u.u_projection, false, through[1]);
     gl.uniform1i(u.u_pass, pass);
+    gl.uniform1f(u.u_shadow_depth, Math.max(L.shadowDepth, 1e-6));
     gl.uniform1i(u.u_thickness, 0);
     gl.uniform1f(u.u_foam_speed, L.foamSpeed);
     gl.uniform1f(u.u_foam_thickness, L.foamThickness);
@@ -410,8 +434,31 @@ function drawLiquid(reply, view, projection) {
   gl.uniform1f(passes.normals.u.u_range, L.range);
   bindTextures([smoothed]);
   gl.drawArrays(gl.TRIANGLES, 0, 3);
-  // 5. What is behind the liquid, copied for refraction; then the surface over it.
+  // 5. The liquid's shadow on the ground: its sphere chords along the light, as opacities in a
+  // light buffer over the clip's bounds, darken the ground.
+  const shadow = L.shadowDepth > 0 && reply.shadow && look.backdrop && look.backdrop.ground;  // liquid_passes decided
+  if (shadow) {
+    if (!passes.light || passes.light.width !== L.shadowResolution) {
+      if (passes.light) { gl.deleteFramebuffer(passes.light.framebuffer); gl.deleteTexture(passes.light.texture); }
+      passes.light = target(L.shadowResolution, L.shadowResolution, gl.R16F);
+    }
+    bindTextures([null]);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, passes.light.framebuffer);
+    gl.viewport(0, 0, L.shadowResolution, L.shadowResolution);
+    gl.clearColor(0, 0, 0, 0);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
+    splat(3, [reply.shadow.slice(0, 16), reply.shadow.slice(16, 32)]);
+    gl.disable(gl.BLEND);
+  }
+  // 6. What is behind the liquid (with the shadow), copied for refraction; then the surface over it.
   drawBackground(view, projection);
+  if (shadow) {
+    gl.bindVertexArray(vao);
+    darkenGround(view, projection, reply.shadow, passes.light, L.shadowStrength);
+    gl.disable(gl.BLEND);
+  }
   gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, passes.scene.framebuffer);
   gl.blitFramebuffer(0, 0, w, h, 0, 0, w, h, gl.COLOR_BUFFER_BIT, gl.NEAREST);
   gl.bindFramebuffer(gl.FRAMEBUFFER, null);
@@ -436,7 +483,7 @@ function drawLiquid(reply, view, projection) {
   gl.depthFunc(gl.LESS);
   gl.drawArrays(gl.TRIANGLES, 0, 3);
   bindTextures([null, null, null, null]);
-  // 6. Spray over the surface.
+  // 7. Spray over the surface.
   if (L.spray) {
     bindTextures([passes.thickness]);
     gl.enable(gl.BLEND);
@@ -560,23 +607,7 @@ function drawSprites(reply, view, projection) {
   const bloom = look.bloom > 0 && look.bloomRadius > 0;
   if (bloom) blur(look.bloomRadius);
   drawBackground(view, projection);
-  if (shadows && ground) {  // the ground darkened under every slice (multiplied over it)
-    const g = groundShadow.u;
-    gl.useProgram(groundShadow.program);
-    gl.uniformMatrix4fv(g.u_view, false, view);
-    gl.uniformMatrix4fv(g.u_projection, false, projection);
-    gl.uniform2f(g.u_viewport, w, h);
-    gl.uniform1f(g.u_ground_height, look.backdrop.groundHeight);
-    gl.uniformMatrix4fv(g.u_light_view, false, reply.shadow.slice(0, 16));
-    gl.uniformMatrix4fv(g.u_light_projection, false, reply.shadow.slice(16, 32));
-    gl.uniform1i(g.u_light_buffer, 0);
-    gl.uniform1f(g.u_light_texel, 1 / look.shadowResolution);
-    gl.activeTexture(gl.TEXTURE0);
-    gl.bindTexture(gl.TEXTURE_2D, targets.shadow.texture);
-    gl.enable(gl.BLEND);
-    gl.blendFunc(gl.ZERO, gl.SRC_COLOR);
-    gl.drawArrays(gl.TRIANGLES, 0, 3);
-  }
+  if (shadows && ground) darkenGround(view, projection, reply.shadow, targets.shadow, look.groundShadow);  // under every slice
   gl.useProgram(composite.program);
   gl.activeTexture(gl.TEXTURE0);
   gl.bindTexture(gl.TEXTURE_2D, targets.light.texture);

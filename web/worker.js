@@ -440,8 +440,9 @@ const handlers = {
       buffersMade++;
     }
     new Uint8Array(instances, 0, count * lookStyle.instanceBytes).set(M.HEAPU8.subarray(ptr, ptr + count * lookStyle.instanceBytes));
-    // A self-shadowing look: the light's view and projection, and the eye's blending order.
-    const shadow = lookStyle.shadows ? floatsAt(M._pw_shadow(), 33) : null;
+    // A self-shadowing look: the light's view and projection, and the eye's blending order; the
+    // liquid: the same view and projection, for its shadow on the ground.
+    const shadow = lookStyle.shadows || lookStyle.look === 'liquid' ? floatsAt(M._pw_shadow(), 33) : null;
     // And its slices: where each starts in `instances`, and the end (frame.hpp: slice_starts).
     let slices = null;
     if (lookStyle.shadows) {

@@ -574,6 +574,19 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   render_cmd
+      ->add_option("--liquid-shadow-depth", render_cli.liquid.shadow_depth,
+                   "Liquid: its shadow on the ground (with --backdrop auto or ground) darkens the ground by 63 % of "
+                   "--liquid-shadow-strength under this many particle radii of summed sphere chords along the "
+                   "light; 0: no shadow")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  render_cmd
+      ->add_option("--liquid-shadow-strength", render_cli.liquid.shadow_strength,
+                   "Liquid: how dark its shadow gets under deep liquid, 0..1 (0.5 halves the ground's light; water "
+                   "lets most light through)")
+      ->check(CLI::Range(0.0f, 1.0f))
+      ->capture_default_str();
+  render_cmd
       ->add_option("--liquid-smoothing", render_cli.liquid.smoothing,
                    "Liquid: the depth filter's radius in particle radii (larger: calmer surface, fewer beads)")
       ->check(CLI::Range(0.0f, 20.0f))

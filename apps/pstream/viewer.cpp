@@ -380,6 +380,11 @@ int run_viewer(const ViewerCli& cli) {
       ImGui::SliderFloat("Opacity depth", &l.opacity_depth, 0.0f, 20.0f, "%.1f r");
       tip("Liquid this thick (particle radii) hides most of what is behind it; 0: clear as glass");
       ImGui::SliderFloat("Refraction", &l.refraction, 0.0f, 4.0f, "%.2f");
+      ImGui::SliderFloat("Shadow depth", &l.shadow_depth, 0.0f, 40.0f, "%.1f r");
+      tip("The shadow on the ground: this much liquid along the light (particle radii) darkens it by 63 % of "
+          "its strength; 0: none");
+      ImGui::SliderFloat("Shadow strength", &l.shadow_strength, 0.0f, 1.0f, "%.2f");
+      tip("How dark the ground gets under deep liquid (0.5 halves its light)");
       ImGui::SliderFloat("Spray: thin", &l.foam_isolation, 0.0f, 10.0f, "%.1f r");
       tip("Particles in liquid thinner than this many radii are drawn as spray");
       ImGui::SliderFloat("Spray: fast", &l.foam_speed, 0.0f, 20.0f, "%.1f u/s");

@@ -133,6 +133,7 @@ struct SpriteStyle {
   float shadow_density = 1.0f;  // a particle's opacity to light, × its alpha
   bool shadow_blur = true;      // a 5-tap blur when the light buffer is read
   int shadow_resolution = 512;  // the light buffer's size, 64..4096
+  float ground_shadow = 0.8f;   // how dark the ground gets under an opaque column: 0.8 leaves it 20 % of its light
   std::array<float, 6>
       bounds{};  // world box the light buffer covers (lo xyz, hi xyz); all 0: the camera's target ± its distance
   std::optional<float> ground_height;  // a ground plane that receives the shadows (and hides what is under it)
@@ -239,6 +240,16 @@ struct LiquidStyle {
   float foam_speed = 0.0f;      // world units per second: faster particles are spray (0: off; needs velocities)
   float foam_isolation = 3.0f;  // particles where the liquid is thinner than this (radii) are spray (0: off)
   LiquidOutput output = LiquidOutput::Shaded;
+  // The liquid's shadow on the ground, when there is one (`ground_height`): the particles' sphere
+  // chords along the light, summed in a light buffer as self-shadowing sprites' opacities are
+  // (shadow_light(), `shadow_resolution` square), darken the ground by 63 % of `shadow_strength`
+  // where this many particle radii of liquid lie above it; 0: no shadow. Water lets most light
+  // through (it bends it into caustics), so its shadow is lighter than smoke's.
+  float shadow_depth = 8.0f;
+  float shadow_strength = 0.5f;        // how dark the ground gets under deep liquid: 0.5 halves its light
+  int shadow_resolution = 512;         // 64..4096
+  std::array<float, 6> bounds{};       // world box the light buffer covers (lo xyz, hi xyz); all 0: as SpriteStyle's
+  std::optional<float> ground_height;  // a ground plane that receives the shadow
 };
 
 // What the liquid's passes take for one image, derived from its style once for every renderer
@@ -262,7 +273,10 @@ struct LiquidPasses {
   float opacity_depth = 0;  // 0: clear
   float foam_speed = 0;     // view units per second; 0: off
   float foam_thickness = 0;
-  bool spray = false;  // a spray pass after the surface
+  bool spray = false;         // a spray pass after the surface
+  float shadow_depth = 0;     // a light-buffer opacity of 1 - exp(-chord / shadow_depth); 0: no shadow
+  float shadow_strength = 0;  // the ground's darkening under an opaque column, 0..1
+  int shadow_resolution = 512;
 };
 // The particles' radius in view units is the style's particle_radius times `world_scale` (how much
 // the clips' world transform scales lengths), or where the style sets none `image_radius` (the

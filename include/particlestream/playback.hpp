@@ -75,8 +75,10 @@ struct DrawStyle {
   render::Look look = render::Look::Sprites;
   render::BlendMode blend = render::BlendMode::Alpha;  // sprites
   float size_multiplier = 1.0f;
-  std::string texture;                       // a sprite image (PNG); empty: the soft round sprite
-  render::LiquidStyle liquid;                // Look::Liquid: every clip drawn as one liquid surface
+  std::string texture;  // a sprite image (PNG); empty: the soft round sprite
+  // Look::Liquid: every clip drawn as one liquid surface. draw() fills in its light buffer's bounds
+  // and the ground its shadow falls on, as for sprites.
+  render::LiquidStyle liquid;
   std::optional<render::Backdrop> backdrop;  // drawn first when set (sky and ground grid)
   bool bounds_box = false;                   // the clips' world bounds as lines
   // Look::Sprites: colour, light, shadows, motion and tone. draw() fills in what it knows: the

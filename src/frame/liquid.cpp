@@ -32,6 +32,12 @@ LiquidPasses liquid_passes(const LiquidStyle& style, float world_scale, float im
   p.foam_speed = style.foam_speed;
   p.foam_thickness = style.foam_isolation * radius;
   p.spray = style.output == LiquidOutput::Shaded && (style.foam_isolation > 0 || style.foam_speed > 0);
+  // A shadow needs a ground to fall on, and a surface: the inspection views show the buffers alone.
+  const bool shadow = style.ground_height && style.output == LiquidOutput::Shaded && style.shadow_depth > 0 &&
+                      style.shadow_strength > 0;
+  p.shadow_depth = shadow ? style.shadow_depth * radius : 0.0f;
+  p.shadow_strength = std::clamp(style.shadow_strength, 0.0f, 1.0f);
+  p.shadow_resolution = std::clamp(style.shadow_resolution, 64, 4096);
   return p;
 }
 

@@ -14,7 +14,13 @@ namespace pstream::playback {
 const render::DrawData& Player::draw_data(const DrawStyle& style) {
   const std::span<render::ParticleBatch> batches(batches_.data(), batch_count_);
   render::SpriteStyle sprites = style.sprites;
-  const bool fit_bounds = std::all_of(sprites.bounds.begin(), sprites.bounds.end(), [](float v) { return v == 0; });
+  render::LiquidStyle liquid = style.liquid;
+  // The light buffers (self-shadowing sprites', the liquid's) cover the clips' world box unless the
+  // style names one.
+  const auto unset = [](const std::array<float, 6>& b) {
+    return std::all_of(b.begin(), b.end(), [](float v) { return v == 0; });
+  };
+  const bool fit_bounds = style.look == render::Look::Liquid ? unset(liquid.bounds) : unset(sprites.bounds);
   const bool need_box = fit_bounds || style.bounds_box;
   std::array<float, 6> box{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
   for (std::size_t i = 0; i < clip_count(); ++i) {
@@ -47,16 +53,18 @@ const render::DrawData& Player::draw_data(const DrawStyle& style) {
     }
   }
   const bool box_found = std::all_of(box.begin(), box.end(), [](float v) { return std::isfinite(v); });
-  if (fit_bounds && box_found) sprites.bounds = box;
+  if (fit_bounds && box_found) (style.look == render::Look::Liquid ? liquid.bounds : sprites.bounds) = box;
   render::DrawData& d = draw_data_;
   d.batches = batches;
   d.merged_order = merged_order_;
   d.look = style.look;
-  d.liquid = style.liquid;
   d.backdrop = style.backdrop;
-  if (style.backdrop && style.backdrop->ground && !sprites.ground_height)
-    sprites.ground_height = style.backdrop->ground_height;
+  if (style.backdrop && style.backdrop->ground) {  // the ground receives the shadows
+    if (!sprites.ground_height) sprites.ground_height = style.backdrop->ground_height;
+    if (!liquid.ground_height) liquid.ground_height = style.backdrop->ground_height;
+  }
   d.sprites = sprites;
+  d.liquid = liquid;
   d.sort = path_ == PlaybackPath::Gpu ? sort_mode_ : render::SortMode::None;
   d.sort_view = sort_view_;
   d.box.reset();

@@ -117,7 +117,7 @@ float median_radius(std::span<const ParticleBatch> batches) {
 
 struct Uniforms {
   GLint model_view, projection, base, stride, size, velocity_word, fixed_radius, pass, thickness, foam_speed,
-      foam_thickness;
+      foam_thickness, shadow_depth;
 };
 struct FilterUniforms {
   GLint radius_at_1, range, mode, size, depth, scale, taps;
@@ -141,12 +141,16 @@ struct LiquidPass::Impl {
   NormalUniforms nu{};
   CompositeUniforms cu{};
   Target raw, smooth[2], thickness, normal, scene;
-  const Target* smoothed = &raw;  // the last filter output
+  std::unique_ptr<ShadowBuffer> light;  // made on the first image with a shadow on the ground
+  const Target* smoothed = &raw;        // the last filter output
   int width = 0, height = 0, liquid_width = 0, liquid_height = 0;
 
   void resize(int w, int h, int lw, int lh);
   void release();
-  void splat_batches(const FrameContext& frame, const StagedBatches& s, int pass, const LiquidPasses& p);
+  // Draws every batch's splats for `pass` (liquid_splat.frag) through `projection`, batch k
+  // through model_views[16 k ...] (object -> the pass's view).
+  void splat_batches(const Mat4& projection, const float* model_views, const StagedBatches& s, int pass,
+                     const LiquidPasses& p);
 };
 
 void LiquidPass::Impl::release() {
@@ -183,9 +187,9 @@ LiquidPass::LiquidPass() : impl_(std::make_unique<Impl>()) {
                    glsl_source({kShader_view_position_glsl, kShader_sky_glsl, kShader_liquid_composite_frag}).c_str());
   glCreateVertexArrays(1, &d.vao);
   const auto loc = [&](const char* name) { return glGetUniformLocation(d.splat, name); };
-  d.su = {loc("u_model_view"), loc("u_projection"),    loc("u_base"),          loc("u_stride"),
-          loc("u_size"),       loc("u_velocity_word"), loc("u_fixed_radius"),  loc("u_pass"),
-          loc("u_thickness"),  loc("u_foam_speed"),    loc("u_foam_thickness")};
+  d.su = {loc("u_model_view"), loc("u_projection"),    loc("u_base"),           loc("u_stride"),
+          loc("u_size"),       loc("u_velocity_word"), loc("u_fixed_radius"),   loc("u_pass"),
+          loc("u_thickness"),  loc("u_foam_speed"),    loc("u_foam_thickness"), loc("u_shadow_depth")};
   const auto in = [](GLuint program, const char* name) { return glGetUniformLocation(program, name); };
   d.fu = {in(d.filter, "u_radius_at_1"), in(d.filter, "u_range"), in(d.filter, "u_mode"), in(d.filter, "u_size"),
           in(d.filter, "u_depth"),       in(d.filter, "u_scale"), in(d.filter, "u_taps")};
@@ -206,18 +210,19 @@ LiquidPass::~LiquidPass() {
   glDeleteVertexArrays(1, &d.vao);
 }
 
-void LiquidPass::Impl::splat_batches(const FrameContext& frame, const StagedBatches& s, int pass,
+void LiquidPass::Impl::splat_batches(const Mat4& projection, const float* model_views, const StagedBatches& s, int pass,
                                      const LiquidPasses& p) {
   glUseProgram(splat);
-  glUniformMatrix4fv(su.projection, 1, GL_FALSE, frame.projection.data());
+  glUniformMatrix4fv(su.projection, 1, GL_FALSE, projection.data());
   glUniform1i(su.pass, pass);
   glUniform1f(su.fixed_radius, p.fixed_radius);
   glUniform1i(su.thickness, 0);
   glUniform1f(su.foam_speed, p.foam_speed);
   glUniform1f(su.foam_thickness, p.foam_thickness);
+  glUniform1f(su.shadow_depth, std::max(p.shadow_depth, 1e-6f));
   for (std::size_t k = 0; k < s.n; ++k) {
     if (s.count[k] == 0) continue;
-    glUniformMatrix4fv(su.model_view, 1, GL_FALSE, s.model_view.data() + 16 * k);
+    glUniformMatrix4fv(su.model_view, 1, GL_FALSE, model_views + 16 * k);
     glUniform1ui(su.base, s.base[k]);
     glUniform1ui(su.stride, s.stride[k]);
     glUniform1f(su.size, s.size[k]);
@@ -249,7 +254,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
   glDepthMask(GL_TRUE);
-  d.splat_batches(frame, s, 0, p);
+  d.splat_batches(frame.projection, s.model_view.data(), s, 0, p);
 
   // 2. Thickness, every sphere's chord added.
   glBindFramebuffer(GL_FRAMEBUFFER, d.thickness.framebuffer);
@@ -257,7 +262,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glDisable(GL_DEPTH_TEST);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE);
-  d.splat_batches(frame, s, 1, p);
+  d.splat_batches(frame.projection, s.model_view.data(), s, 1, p);
   glDisable(GL_BLEND);
 
   // 3. The depth filter (two-dimensional, compute): three smaller passes, then the style's
@@ -293,7 +298,28 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glBindTextureUnit(0, d.smoothed->texture);
   glDrawArrays(GL_TRIANGLES, 0, 3);
 
-  // 5. What is behind the liquid, copied for refraction; then the surface over it.
+  // 5. The liquid's shadow on the ground: its sphere chords along the light, as opacities in a
+  // light buffer over the clips' bounds (frame.hpp: shadow_light), darken the ground already drawn.
+  if (p.shadow_depth > 0 && style.ground_height) {
+    const ShadowLight light = shadow_light(style.bounds, frame.view, frame.light_world);
+    std::array<float, 16 * kMaxBatches> light_model_view{};
+    for (std::size_t k = 0; k < s.n && k < source.size(); ++k) {
+      const Mat4 m = multiply(light.view, source[k].world);
+      std::copy(m.begin(), m.end(), light_model_view.begin() + 16 * std::ptrdiff_t(k));
+    }
+    if (!d.light) d.light = std::make_unique<ShadowBuffer>();
+    d.light->clear(p.shadow_resolution);
+    d.light->bind_for_opacity();
+    glBindVertexArray(d.vao);
+    d.splat_batches(light.projection, light_model_view.data(), s, 3, p);
+    glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
+    glViewport(0, 0, frame.width, frame.height);
+    d.light->darken_ground(frame, *style.ground_height, light, p.shadow_strength);
+    glDisable(GL_BLEND);
+    glBindVertexArray(d.vao);
+  }
+
+  // 6. What is behind the liquid (with the shadow), copied for refraction; then the surface over it.
   glBlitNamedFramebuffer(GLuint(target), d.scene.framebuffer, 0, 0, frame.width, frame.height, 0, 0, frame.width,
                          frame.height, GL_COLOR_BUFFER_BIT, GL_NEAREST);
   glBindFramebuffer(GL_FRAMEBUFFER, GLuint(target));
@@ -324,13 +350,13 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glDepthMask(GL_TRUE);
   glDrawArrays(GL_TRIANGLES, 0, 3);
 
-  // 6. Spray over the surface.
+  // 7. Spray over the surface.
   if (p.spray) {
     glBindTextureUnit(0, d.thickness.texture);
     glEnable(GL_BLEND);
     glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
     glDepthMask(GL_FALSE);
-    d.splat_batches(frame, s, 2, p);
+    d.splat_batches(frame.projection, s.model_view.data(), s, 2, p);
     glDepthMask(GL_TRUE);
     glDisable(GL_BLEND);
   }

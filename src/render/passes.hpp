@@ -38,6 +38,35 @@ struct StagedBatches {
 void stage_batch(StagedBatches& staged, std::size_t k, const ParticleBatch& batch, std::uint64_t base_word,
                  const Mat4& view);
 
+// A light buffer (R16F, square: an orthographic view along the light, shadow_light()) that a
+// look's particles add their opacities to, and the shadow it casts on the ground plane: the
+// self-shadowing sprites' and the liquid's (shaders/ground_shadow.frag).
+class ShadowBuffer {
+ public:
+  ShadowBuffer();
+  ~ShadowBuffer();
+  ShadowBuffer(const ShadowBuffer&) = delete;
+  ShadowBuffer& operator=(const ShadowBuffer&) = delete;
+  // Makes the buffer `size` square (64..4096) unless it is already, and clears it to no opacity.
+  void clear(int size);
+  // Binds it as the framebuffer with its viewport, blending each fragment's opacity "over" what
+  // is there (premultiplied: ONE, ONE_MINUS_SRC_ALPHA).
+  void bind_for_opacity() const;
+  GLuint texture() const { return texture_; }
+  int size() const { return size_; }
+  // Multiplies the shadow over the ground y = `ground_height` into the framebuffer bound when
+  // called, with the viewport of `frame`: each pixel whose view ray meets the ground there is
+  // darkened by `strength` (0..1) times the opacity above it (a 3x3 blur of the buffer). Leaves
+  // blending on.
+  void darken_ground(const FrameContext& frame, float ground_height, const ShadowLight& light, float strength) const;
+
+ private:
+  GLuint texture_ = 0, framebuffer_ = 0, program_ = 0, vao_ = 0;
+  int size_ = 0;
+  GLint view_ = -1, projection_ = -1, viewport_ = -1, ground_ = -1, light_view_ = -1, light_projection_ = -1,
+        buffer_ = -1, texel_ = -1, strength_ = -1;
+};
+
 class LiquidPass {
  public:
   LiquidPass();

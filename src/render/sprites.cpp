@@ -126,19 +126,16 @@ struct Uniforms {
 }  // namespace
 
 struct SpritePass::Impl {
-  GLuint program = 0, composite = 0, ground_shadow = 0, vao = 0;
+  GLuint program = 0, composite = 0, vao = 0;
   Uniforms u{};
   GLint c_hdr = -1, c_bloom = -1, c_bloom_strength = -1, c_exposure = -1, c_tone_map = -1;
   GLuint bloom = 0;  // the blur program
   GLint b_source = -1, b_step = -1, b_sigma = -1, b_taps = -1, b_size = -1;
   std::array<GLuint, 2> bloom_texture{}, bloom_framebuffer{};  // half resolution: across, then down
   int bloom_width = 0, bloom_height = 0;
-  GLint g_view = -1, g_projection = -1, g_viewport = -1, g_ground = -1, g_light_view = -1, g_light_projection = -1,
-        g_light = -1, g_texel = -1;
   GLuint hdr_texture = 0, hdr_depth = 0, hdr_framebuffer = 0;  // depth: alpha-tested sprites only
   int hdr_width = 0, hdr_height = 0;
-  GLuint light_texture = 0, light_framebuffer = 0;
-  int light_size = 0;
+  ShadowBuffer light;  // the light buffer: what the slices before let through, and the ground's shadow
 
   void ensure_hdr(int width, int height) {
     if (hdr_width == width && hdr_height == height) return;
@@ -207,20 +204,6 @@ struct SpritePass::Impl {
     glUniform2f(b_step, 0.0f, 1.0f / float(h));
     glDrawArrays(GL_TRIANGLES, 0, 3);
   }
-
-  void ensure_light(int size) {
-    if (light_size == size) return;
-    if (light_framebuffer) glDeleteFramebuffers(1, &light_framebuffer);
-    if (light_texture) glDeleteTextures(1, &light_texture);
-    glCreateTextures(GL_TEXTURE_2D, 1, &light_texture);
-    glTextureStorage2D(light_texture, 1, GL_R16F, size, size);
-    linear_clamped(light_texture);
-    glCreateFramebuffers(1, &light_framebuffer);
-    glNamedFramebufferTexture(light_framebuffer, GL_COLOR_ATTACHMENT0, light_texture, 0);
-    if (glCheckNamedFramebufferStatus(light_framebuffer, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
-      throw Error("the sprites' light buffer is not renderable on this GPU");
-    light_size = size;
-  }
 };
 
 SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
@@ -259,17 +242,6 @@ SpritePass::SpritePass() : impl_(std::make_unique<Impl>()) {
   d.b_sigma = glGetUniformLocation(d.bloom, "u_sigma");
   d.b_taps = glGetUniformLocation(d.bloom, "u_taps");
   d.b_size = glGetUniformLocation(d.bloom, "u_size");
-  const std::string ground_shadow = glsl_source({kShader_ground_ray_glsl, kShader_ground_shadow_frag});
-  d.ground_shadow = link_program(full_screen_vertex_source().c_str(), ground_shadow.c_str());
-  const auto gloc = [&](const char* name) { return glGetUniformLocation(d.ground_shadow, name); };
-  d.g_view = gloc("u_view");
-  d.g_projection = gloc("u_projection");
-  d.g_viewport = gloc("u_viewport");
-  d.g_ground = gloc("u_ground_height");
-  d.g_light_view = gloc("u_light_view");
-  d.g_light_projection = gloc("u_light_projection");
-  d.g_light = gloc("u_light_buffer");
-  d.g_texel = gloc("u_light_texel");
   glCreateVertexArrays(1, &d.vao);
 }
 
@@ -278,14 +250,11 @@ SpritePass::~SpritePass() {
   if (d.hdr_framebuffer) glDeleteFramebuffers(1, &d.hdr_framebuffer);
   if (d.hdr_texture) glDeleteTextures(1, &d.hdr_texture);
   if (d.hdr_depth) glDeleteRenderbuffers(1, &d.hdr_depth);
-  if (d.light_framebuffer) glDeleteFramebuffers(1, &d.light_framebuffer);
-  if (d.light_texture) glDeleteTextures(1, &d.light_texture);
   d.delete_bloom();
   glDeleteProgram(d.bloom);
   glDeleteVertexArrays(1, &d.vao);
   glDeleteProgram(d.program);
   glDeleteProgram(d.composite);
-  glDeleteProgram(d.ground_shadow);
 }
 
 void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::span<const ParticleBatch> source,
@@ -296,8 +265,8 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glGetIntegerv(GL_DRAW_FRAMEBUFFER_BINDING, &target);
   d.ensure_hdr(frame.width, frame.height);
   const bool shadows = style.shadows && what.blend != BlendMode::Additive && !what.points;
-  const int light_size = std::clamp(style.shadow_resolution, 64, 4096);
-  if (shadows) d.ensure_light(light_size);
+  if (shadows) d.light.clear(style.shadow_resolution);
+  const int light_size = d.light.size();
 
   const ShadowLight light = shadow_light(style.bounds, frame.view, frame.light_world);
   const Mat4& light_view = light.view;
@@ -341,7 +310,7 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glUniform1i(u.light_buffer, 1);
   glUniform1i(u.shadows, shadows ? 1 : 0);
   glUniform1i(u.shadow_blur, style.shadow_blur ? 1 : 0);
-  glUniform1f(u.light_texel, 1.0f / float(light_size));
+  glUniform1f(u.light_texel, 1.0f / float(std::max(light_size, 1)));
   glUniform1f(u.shadow_density, std::max(style.shadow_density, 0.0f));
   glUniform1i(u.lit, style.lit ? 1 : 0);
   const SpriteLights lights = sprite_lights(frame.view, frame.light_world);
@@ -358,11 +327,10 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
     glUniform4f(u.ground_view, nx, ny, nz, -(nx * px + ny * py + nz * pz));
   }
   if (what.sprite != 0) glBindTextureUnit(0, what.sprite);
-  if (shadows) glBindTextureUnit(1, d.light_texture);
+  if (shadows) glBindTextureUnit(1, d.light.texture());
 
   const float clear[4] = {0, 0, 0, 0};
   glClearNamedFramebufferfv(d.hdr_framebuffer, GL_COLOR, 0, clear);
-  if (shadows) glClearNamedFramebufferfv(d.light_framebuffer, GL_COLOR, 0, clear);
   // Blended sprites need no depth (drawn in order; the ground hides what is under it in the
   // vertex shader); alpha-tested ones are opaque cut-outs with a depth test of their own.
   const bool depth = what.blend == BlendMode::AlphaTest;
@@ -410,10 +378,7 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
     }
     // The last slice shadows no slice after it, only the ground (when there is one).
     if (!shadows || (k + 1 == slices && !style.ground_height)) continue;
-    glBindFramebuffer(GL_FRAMEBUFFER, d.light_framebuffer);
-    glViewport(0, 0, light_size, light_size);
-    glEnable(GL_BLEND);
-    glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+    d.light.bind_for_opacity();
     glUniform1i(u.pass, 1);
     glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(end - first));
   }
@@ -424,19 +389,7 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   glViewport(0, 0, frame.width, frame.height);
   glBindVertexArray(d.vao);
   if (shadows && style.ground_height) {  // the ground's shadow under every slice
-    glUseProgram(d.ground_shadow);
-    glUniformMatrix4fv(d.g_view, 1, GL_FALSE, frame.view.data());
-    glUniformMatrix4fv(d.g_projection, 1, GL_FALSE, frame.projection.data());
-    glUniform2f(d.g_viewport, float(frame.width), float(frame.height));
-    glUniform1f(d.g_ground, *style.ground_height);
-    glUniformMatrix4fv(d.g_light_view, 1, GL_FALSE, light_view.data());
-    glUniformMatrix4fv(d.g_light_projection, 1, GL_FALSE, light_projection.data());
-    glUniform1i(d.g_light, 1);
-    glUniform1f(d.g_texel, 1.0f / float(light_size));
-    glBindTextureUnit(1, d.light_texture);
-    glEnable(GL_BLEND);
-    glBlendFunc(GL_ZERO, GL_SRC_COLOR);
-    glDrawArrays(GL_TRIANGLES, 0, 3);
+    d.light.darken_ground(frame, *style.ground_height, light, style.ground_shadow);
   }
 
   const bool bloom = style.bloom > 0.0f && style.bloom_radius > 0.0f;

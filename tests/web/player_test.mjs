@@ -209,6 +209,27 @@ function wholeImageAsNative(web, native) {
   assert.ok(far <= kMaxFarPixels * n, `${far} pixels off by more than 48`);
 }
 
+// A shadow on the ground as the native renderer casts it: where the native image is darker than
+// the native image without the shadow (`bare`) by more than 8/255, outside `exclude` (a mask, or
+// null), the page's is darker than `bare` by about as much.
+function groundShadowAsNative(web, native, bare, exclude) {
+  const darker = (img, p) => (bare.data[4 * p] + bare.data[4 * p + 1] + bare.data[4 * p + 2] -
+    img.data[4 * p] - img.data[4 * p + 1] - img.data[4 * p + 2]) / 3;
+  let n = 0, nativeDark = 0, webDark = 0;
+  for (let p = 0; p < web.data.length / 4; ++p) {
+    if ((exclude && exclude[p]) || darker(native, p) <= 8) continue;
+    n++;
+    nativeDark += darker(native, p);
+    webDark += darker(web, p);
+  }
+  nativeDark /= Math.max(n, 1);
+  webDark /= Math.max(n, 1);
+  console.log(`  the shadow on the ground: ${n} pixels, darker than without it by ${webDark.toFixed(1)}/255 ` +
+    `(native ${nativeDark.toFixed(1)}; within ${kMaxGroundShadowError * 100}%)`);
+  assert.ok(n >= 200, `${n} pixels of shadow on the native ground`);
+  assert.ok(Math.abs(webDark - nativeDark) <= kMaxGroundShadowError * nativeDark, `ground darker by ${webDark}, native ${nativeDark}`);
+}
+
 // A path relative to the page (index.html?url=CLIP takes either).
 const relativeClip = path.relative(env.WEB_SITE, env.WEB_CLIP);
 
@@ -329,30 +350,19 @@ if (mode === 'playback') {
     // The liquid's surface (LiquidPass's passes, the filter as a fragment pass) on the plain
     // background, then over the ground grid it refracts and reflects the sky over.
     ['the liquid on the FLIP pour', '&preset=liquid&backdrop=none', env.WEB_NATIVE_LIQUID_NONE_PNG, null, flip],
-    ['the liquid over the ground grid', '&preset=liquid', env.WEB_NATIVE_LIQUID_PNG, wholeImageAsNative, flip],
-    // The smoke over the ground (backdrop "auto"), with the shadow its slices cast on it.
+    // With its shadow on the ground: where the native image is darker than the native one without
+    // the shadow (`--liquid-shadow-depth 0`), under the liquid too (it refracts the shadow).
+    ['the liquid over the ground grid, with its shadow', '&preset=liquid', env.WEB_NATIVE_LIQUID_PNG, async (web, native, mask, page) => {
+      wholeImageAsNative(web, native);
+      groundShadowAsNative(web, native, await nativeImage(page, env.WEB_NATIVE_LIQUID_BARE_PNG), null);
+    }, flip],
+    // The smoke over the ground (backdrop "auto"), with the shadow its slices cast on it: on the
+    // ground outside the smoke (as the native image without a backdrop covers it), against the
+    // bare ground (`--opacity 0`).
     ['the smoke preset over the ground, shadowed', '&preset=smoke', env.WEB_NATIVE_SMOKE_GROUND_PNG, async (web, native, mask, page) => {
       wholeImageAsNative(web, native);
-      // The shadow on the ground: where the native image's ground (outside the smoke, as the
-      // native image without a backdrop covers it) is darker than the bare ground (`--opacity 0`)
-      // by more than 8/255, the page's is darker by about as much.
-      const ground = await nativeImage(page, env.WEB_NATIVE_GROUND_PNG);
-      const smoke = coverage(await nativeImage(page, env.WEB_NATIVE_SMOKE_PNG)).mask;
-      const darker = (img, p) => (ground.data[4 * p] + ground.data[4 * p + 1] + ground.data[4 * p + 2] -
-        img.data[4 * p] - img.data[4 * p + 1] - img.data[4 * p + 2]) / 3;
-      let n = 0, nativeDark = 0, webDark = 0;
-      for (let p = 0; p < smoke.length; ++p) {
-        if (smoke[p] || darker(native, p) <= 8) continue;
-        n++;
-        nativeDark += darker(native, p);
-        webDark += darker(web, p);
-      }
-      nativeDark /= Math.max(n, 1);
-      webDark /= Math.max(n, 1);
-      console.log(`  the shadow on the ground: ${n} pixels, darker than the bare ground by ${webDark.toFixed(1)}/255 ` +
-        `(native ${nativeDark.toFixed(1)}; within ${kMaxGroundShadowError * 100}%)`);
-      assert.ok(n >= 200, `${n} pixels of shadow on the native ground`);
-      assert.ok(Math.abs(webDark - nativeDark) <= kMaxGroundShadowError * nativeDark, `ground darker by ${webDark}, native ${nativeDark}`);
+      groundShadowAsNative(web, native, await nativeImage(page, env.WEB_NATIVE_GROUND_PNG),
+        coverage(await nativeImage(page, env.WEB_NATIVE_SMOKE_PNG)).mask);
     }, flip]
   ]) {
     const still = await open(shot.clip, `&size=480x270&frame=${shot.frame}&camera=${shot.camera}${extra}`);

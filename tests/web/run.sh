@@ -35,10 +35,12 @@ age_camera=0.9,1.3,1.5:0,1.0,0
 # Self-shadowing (the smoke preset) on the FLIP pour's dense liquid, and the same without shadows.
 flip_camera=1.6,1.5,2.6:0,0.35,0
 "$cli" cook "$data/sims/blender_flip_pour_small.abc" -o "$work/flip.pstream" -q
-# The liquid's surface over the ground grid (the backdrop "auto" gives it), and on the plain
-# background; the smoke over the ground, with its shadow on it, and the ground alone (no opacity).
+# The liquid's surface over the ground grid (the backdrop "auto" gives it), the same without its
+# shadow on the ground, and on the plain background; the smoke over the ground, with its shadow on
+# it, and the ground alone (no opacity).
 for look in "smoke:--preset smoke --backdrop none" "unshadowed:--opacity 0.55 --backdrop none" \
-  "liquid:--preset liquid" "liquid_none:--preset liquid --backdrop none" "smoke_ground:--preset smoke" \
+  "liquid:--preset liquid" "liquid_bare:--preset liquid --liquid-shadow-depth 0" \
+  "liquid_none:--preset liquid --backdrop none" "smoke_ground:--preset smoke" \
   "ground:--preset smoke --opacity 0"; do
   # shellcheck disable=SC2086 # the look's flags are words
   "$cli" render "$work/flip.pstream" --frames 40 --size 480x270 --camera $flip_camera \
@@ -48,7 +50,8 @@ done
 # The native images, each checked to be there (a `$(ls ...)` inside `export` would hide a failure).
 pngs=()
 for image in SPARKS:native_sparks SPEED:native_speed AGE:native_age SMOKE:native_flip_smoke \
-  UNSHADOWED:native_flip_unshadowed LIQUID:native_flip_liquid LIQUID_NONE:native_flip_liquid_none \
+  UNSHADOWED:native_flip_unshadowed LIQUID:native_flip_liquid LIQUID_BARE:native_flip_liquid_bare \
+  LIQUID_NONE:native_flip_liquid_none \
   SMOKE_GROUND:native_flip_smoke_ground GROUND:native_flip_ground; do
   file=$(ls "$work/${image#*:}"/*.png)
   pngs+=("WEB_NATIVE_${image%%:*}_PNG=$file")

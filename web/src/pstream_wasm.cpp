@@ -297,6 +297,9 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
       g->default_color[c] = static_cast<std::uint8_t>(std::lround(fallback[c] * 255.0f));
     const std::optional<render::Backdrop> behind =
         playback::backdrop_for(*backdrop != 0 ? backdrop : "auto", style, m.bounds);
+    // The liquid's shadow falls on the ground (Player::draw_data's rule; pw_liquid says whether
+    // there is one), its light buffer over the clip's bounds.
+    if (behind && behind->ground) g->style.liquid.ground_height = behind->ground_height;
     nlohmann::json unsupported = nlohmann::json::array();
     if (!style.texture.empty()) unsupported.push_back("sprite textures");
     nlohmann::json page;  // what the page's shaders and passes take (web/player.js: draw)
@@ -317,6 +320,7 @@ EMSCRIPTEN_KEEPALIVE int pw_style(const char* preset, const char* color_by, cons
     page["shadowDensity"] = std::max(s.shadow_density, 0.0f);
     page["shadowBlur"] = s.shadow_blur;
     page["shadowResolution"] = std::clamp(s.shadow_resolution, 64, 4096);
+    page["groundShadow"] = std::clamp(s.ground_shadow, 0.0f, 1.0f);
     page["look"] = liquid ? "liquid" : "sprites";
     if (behind) {
       page["backdrop"] = {
@@ -426,11 +430,13 @@ EMSCRIPTEN_KEEPALIVE double pw_pack(const float* view_world, int sorted) {
   const render::SpriteLights lights = render::sprite_lights(vw, g->light);
   std::copy(lights.key.begin(), lights.key.end(), g->lights.begin());
   std::copy(lights.fill.begin(), lights.fill.end(), g->lights.begin() + 3);
-  if (g->shadows) {  // front to back along the half-angle (playback::sort_plan's rule)
-    const render::HalfAngle half = render::half_angle(vw, g->light);
+  if (g->shadows || g->style.look == render::Look::Liquid) {  // the light buffer's view over the clip's bounds
     const render::ShadowLight light = render::shadow_light(g->reader->metadata().bounds, vw, g->light);
     std::copy(light.view.begin(), light.view.end(), g->shadow.begin());
     std::copy(light.projection.begin(), light.projection.end(), g->shadow.begin() + 16);
+  }
+  if (g->shadows) {  // front to back along the half-angle (playback::sort_plan's rule)
+    const render::HalfAngle half = render::half_angle(vw, g->light);
     g->shadow[32] = half.eye_front_to_back ? 1.0f : 0.0f;
     vw = half.sort_view;
     render::ParticleBatch batch;
@@ -516,8 +522,9 @@ EMSCRIPTEN_KEEPALIVE void pw_camera(double aspect, const float* eye_target, floa
 
 EMSCRIPTEN_KEEPALIVE std::byte* pw_instances() { return g->instances.data(); }
 EMSCRIPTEN_KEEPALIVE double pw_instance_bytes() { return static_cast<double>(g->instance_bytes); }
-// For a self-shadowing look, after pw_pack: the light's view and projection (16 floats each,
-// column-major) and 1 where the image blends its slices front to back ("under"), else 0.
+// For a self-shadowing look or a liquid that casts a shadow on the ground, after pw_pack: the light
+// buffer's view and projection (16 floats each, column-major) and, self-shadowing, 1 where the
+// image blends its slices front to back ("under"), else 0.
 EMSCRIPTEN_KEEPALIVE const float* pw_shadow() { return g->shadow.data(); }
 // For a self-shadowing look, after pw_pack: the number of slices, then where each starts in the
 // order pw_instances() holds, and the end (uint32s; frame.hpp: slice_starts).
@@ -541,24 +548,26 @@ EMSCRIPTEN_KEEPALIVE const char* pw_liquid(const float* projection, int width, i
     return r;
   });
   const render::LiquidPasses l = render::liquid_passes(style, 1.0f, median, p, width, height);
-  g->liquid_json = nlohmann::json{
-      {"width", l.width},
-      {"height", l.height},
-      {"radius", l.radius},
-      {"fixedRadius", l.fixed_radius},
-      {"radiusPxAt1", l.radius_px_at_1},
-      {"filterMode", l.filter_mode},
-      {"filterPasses", l.filter_passes},
-      {"filterRadiusAt1", l.filter_radius_at_1},
-      {"range", l.range},
-      {"colorDepth", l.color_depth},
-      {"absorb", l.absorb},
-      {"refraction", l.refraction},
-      {"opacityDepth", l.opacity_depth},
-      {"foamSpeed", l.foam_speed},
-      {"foamThickness", l.foam_thickness},
-      {"spray",
-       l.spray}}.dump();
+  g->liquid_json = nlohmann::json{{"width", l.width},
+                                  {"height", l.height},
+                                  {"radius", l.radius},
+                                  {"fixedRadius", l.fixed_radius},
+                                  {"radiusPxAt1", l.radius_px_at_1},
+                                  {"filterMode", l.filter_mode},
+                                  {"filterPasses", l.filter_passes},
+                                  {"filterRadiusAt1", l.filter_radius_at_1},
+                                  {"range", l.range},
+                                  {"colorDepth", l.color_depth},
+                                  {"absorb", l.absorb},
+                                  {"refraction", l.refraction},
+                                  {"opacityDepth", l.opacity_depth},
+                                  {"foamSpeed", l.foam_speed},
+                                  {"foamThickness", l.foam_thickness},
+                                  {"spray", l.spray},
+                                  {"shadowDepth", l.shadow_depth},
+                                  {"shadowStrength", l.shadow_strength},
+                                  {"shadowResolution", l.shadow_resolution}}
+                       .dump();
   return g->liquid_json.c_str();
 }
 

@@ -1,5 +1,6 @@
 // A liquid splat's corner: one quad per particle, a sphere's front depth (pass 0), its thickness
-// (1) or spray (2: particles where the liquid is thin, isolated, or that move fast). The including
+// (1), spray (2: particles where the liquid is thin, isolated, or that move fast) or its opacity
+// in the light buffer (3: `view` is then the light's view, u_projection its). The including
 // vertex shader finds the particle's view-space centre, its radius and its speed (view units; the
 // speed negative where the clip has no velocity) and returns liquid_splat_corner()'s position.
 uniform mat4 u_projection;
