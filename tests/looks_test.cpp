@@ -95,9 +95,10 @@ class LooksTest : public ::testing::Test {
   // over an optional backdrop.
   Image draw(const Camera& cam, const std::vector<Particle>& ps, const SpriteStyle& style,
              BlendMode blend = BlendMode::Alpha, const std::optional<Backdrop>& backdrop = std::nullopt,
-             const std::string& name = {}) {
+             const std::string& name = {}, const std::string& texture = {}) {
     ParticleBatch b = batch_of(ps);
     b.blend = blend;
+    b.texture = texture;
     sort::DepthSorter sorter(ps.size());
     const HalfAngle half = half_angle(cam.view(), light);
     const bool sliced = style.shadows && blend != BlendMode::Additive;
@@ -125,6 +126,36 @@ Camera front_camera(float distance = 5) {
   c.eye = {0, 0, distance};
   c.target = {0, 0, 0};
   return c;
+}
+
+// ---- Sprite images ----------------------------------------------------------------------------
+
+// An artist's sprite (`--texture`) stands upright, as the image viewer shows it: the test image's
+// ring is green along its top row and red along its bottom one (tests/data/render/sprite_ring.png),
+// so the sprite's upper half is green and its lower half red.
+TEST_F(LooksTest, ASpriteImageIsDrawnUpright) {
+  const std::vector<Particle> ps{{0, 0, 0, 1.5f, rgba(1, 1, 1, 1), 0, 0, 0, 0}};
+  SpriteStyle style;
+  style.lit = false;
+  style.tone_map = ToneMap::Linear;
+  const Image img = draw(front_camera(), ps, style, BlendMode::Alpha, std::nullopt, "sprite_image",
+                         PSTREAM_TEST_DATA "/render/sprite_ring.png");
+  double green_above = 0, red_above = 0, green_below = 0, red_below = 0;
+  int drawn = 0;
+  for (int y = 0; y < kH; ++y) {
+    for (int x = 0; x < kW; ++x) {
+      const auto [r, g, b] = img.at(x, y);
+      if (r + g + b < 30) continue;
+      ++drawn;
+      (y < kH / 2 ? red_above : red_below) += r;
+      (y < kH / 2 ? green_above : green_below) += g;
+    }
+  }
+  std::printf("sprite image: %d pixels; above the centre green %.0f, red %.0f; below green %.0f, red %.0f\n", drawn,
+              green_above, red_above, green_below, red_below);
+  ASSERT_GT(drawn, 2000) << "the sprite should cover much of the image";
+  EXPECT_GT(green_above, 2 * red_above) << "the image's top row is drawn at the sprite's bottom";
+  EXPECT_GT(red_below, 2 * green_below);
 }
 
 // ---- Self-shadowing ---------------------------------------------------------------------------

@@ -250,7 +250,7 @@ let liquidLacks = [];
 function setupGl() {
   if (!gl) throw new Error('this browser has no WebGL2');
   sprites = link(kVertex, kFragment, ['u_view', 'u_projection', 'u_tint', 'u_opacity', 'u_shutter', 'u_min_pixels',
-    'u_viewport_height', 'u_lit', 'u_mode', 'u_key', 'u_fill', 'u_sprite', 'u_light_buffer', 'u_pass', 'u_light_view',
+    'u_viewport_height', 'u_lit', 'u_mode', 'u_key', 'u_fill', 'u_sprite', 'u_textured', 'u_light_buffer', 'u_pass', 'u_light_view',
     'u_light_projection', 'u_shadows', 'u_shadow_blur', 'u_light_texel', 'u_shadow_density']);
   composite = link(kFullScreen, kComposite, ['u_hdr', 'u_bloom', 'u_bloom_strength', 'u_exposure', 'u_tone_map']);
   backdrop = link(kFullScreen, kBackdrop, ['u_view', 'u_projection', 'u_viewport', 'u_ground', 'u_ground_height', 'u_grid']);
@@ -555,9 +555,12 @@ function drawSprites(reply, view, projection) {
   gl.uniform1f(u.u_viewport_height, h);
   gl.uniform1i(u.u_lit, look.lit ? 1 : 0);
   gl.uniform1i(u.u_mode, look.blend === 1 ? 1 : 0);
-  // Its samplers on units of their own: no sprite texture (unit 2: nothing bound) and the light
-  // buffer (unit 3, bound below only while the image is the target).
+  // Its samplers on units of their own: the sprite image, if any (unit 2), and the light buffer
+  // (unit 3, bound below only while the image is the target).
   gl.uniform1i(u.u_sprite, 2);
+  gl.uniform1i(u.u_textured, spriteImage ? 1 : 0);
+  gl.activeTexture(gl.TEXTURE2);
+  gl.bindTexture(gl.TEXTURE_2D, spriteImage);
   gl.uniform1i(u.u_light_buffer, 3);
   gl.uniform3fv(u.u_key, reply.lights.slice(0, 3));  // the worker's, for this view (frame.hpp: sprite_lights)
   gl.uniform3fv(u.u_fill, reply.lights.slice(3, 6));
@@ -779,6 +782,35 @@ function drawCacheView() {
 
 // ---- start ------------------------------------------------------------------------------------
 
+// The sprite image (`texture=URL`, as `pstream render --texture`; the sprite look's, not the
+// liquid's): its bytes as the native renderer reads them (no colour conversion, alpha straight:
+// the bitmap's options, which WebGL's unpack flags do not override for a bitmap), its first row
+// first, sampled as natively (bilinear, repeating) and drawn at the sprite's top.
+let spriteImage = null;
+async function loadSpriteImage(src) {
+  let response;
+  try {
+    response = await fetch(new URL(src, location.href));
+  } catch (e) {
+    throw new Error(`texture=${src}: ${e.message}`);
+  }
+  if (!response.ok) throw new Error(`texture=${src}: HTTP ${response.status} ${response.statusText}`);
+  let image;
+  try {
+    image = await createImageBitmap(await response.blob(), { premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
+  } catch (e) {
+    throw new Error(`texture=${src}: not an image the browser can read (${e.message})`);
+  }
+  const texture = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, texture);
+  gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, image);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+  gl.bindTexture(gl.TEXTURE_2D, null);
+  image.close();
+  return texture;
+}
+
 // The look's parameters, as `pstream render`'s flags: preset, color-by, ramp, ramp-range,
 // ramp-attribute, backdrop.
 function lookParams() {
@@ -805,6 +837,7 @@ async function start() {
   if (size) { canvas.style.width = `${size[1]}px`; canvas.style.height = `${size[2]}px`; }
   try {
     setupGl();
+    if (params.has('texture')) spriteImage = await loadSpriteImage(params.get('texture'));
     const opened = await ask('open', { url, aspect: canvas.width / canvas.height, look: lookParams(), liquidLacks,
       cameraAt: cameraParam() });
     state.meta = opened.meta;

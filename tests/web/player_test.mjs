@@ -350,6 +350,10 @@ if (mode === 'playback') {
     // The liquid's surface (LiquidPass's passes, the filter as a fragment pass) on the plain
     // background, then over the ground grid it refracts and reflects the sky over.
     ['the liquid on the FLIP pour', '&preset=liquid&backdrop=none', env.WEB_NATIVE_LIQUID_NONE_PNG, null, flip],
+    // A sprite image (`texture=`, as `--texture`), upright as natively: the ring's colours are
+    // green above and red below, so one drawn upside down misses the mean colour error.
+    ['a sprite image (texture=)', `&preset=debug&texture=${env.WEB_TEXTURE}`, env.WEB_NATIVE_TEXTURE_PNG, null,
+      { clip: env.WEB_FLIP_CLIP, frame: 40, camera: env.WEB_TEXTURE_CAMERA }],
     // With its shadow on the ground: where the native image is darker than the native one without
     // the shadow (`--liquid-shadow-depth 0`), under the liquid too (it refracts the shadow).
     ['the liquid over the ground grid, with its shadow', '&preset=liquid', env.WEB_NATIVE_LIQUID_PNG, async (web, native, mask, page) => {
@@ -474,6 +478,7 @@ if (mode === 'playback') {
 
   // A look the browser cannot draw, or one the clip lacks what for, is refused with the library's message.
   for (const [extra, expect] of [
+    ['&texture=missing_sprite.png', /texture=missing_sprite\.png: HTTP 404/],
     ['&backdrop=grund', /backdrop 'grund': expected auto, ground, sky or none \(did you mean 'ground'\?\)/],
     ['&preset=spark', /look preset 'spark'.*did you mean 'sparks'/],
     ['&color-by=speed', /colouring by speed needs velocities, and the clip has none: cook it again with `--attributes velocity`/]

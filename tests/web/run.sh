@@ -47,12 +47,18 @@ for look in "smoke:--preset smoke --backdrop none" "unshadowed:--opacity 0.55 --
     ${look#*:} --out "$work/native_flip_${look%%:*}" -q
 done
 
+# A sprite image (`--texture`: a ring, green along its top row and red along its bottom one),
+# near enough to see it.
+texture_camera=0.5,0.55,0.9:0.15,0.2,0
+"$cli" render "$work/flip.pstream" --frames 40 --size 480x270 --camera $texture_camera --preset debug \
+  --texture "$data/render/sprite_ring.png" --out "$work/native_flip_texture" -q
+
 # The native images, each checked to be there (a `$(ls ...)` inside `export` would hide a failure).
 pngs=()
 for image in SPARKS:native_sparks SPEED:native_speed AGE:native_age SMOKE:native_flip_smoke \
   UNSHADOWED:native_flip_unshadowed LIQUID:native_flip_liquid LIQUID_BARE:native_flip_liquid_bare \
   LIQUID_NONE:native_flip_liquid_none \
-  SMOKE_GROUND:native_flip_smoke_ground GROUND:native_flip_ground; do
+  SMOKE_GROUND:native_flip_smoke_ground GROUND:native_flip_ground TEXTURE:native_flip_texture; do
   file=$(ls "$work/${image#*:}"/*.png)
   pngs+=("WEB_NATIVE_${image%%:*}_PNG=$file")
 done
@@ -60,6 +66,7 @@ export "${pngs[@]}" WEB_NATIVE_PNG="$native"
 export WEB_SITE=$site WEB_CLIP=$work/sparks.pstream WEB_FRAME=$frame WEB_CAMERA=$camera \
   WEB_EMPTY_CLIP=$data/pstream/empty_frames.pstream WEB_REFERENCE=$work/frame.bin \
   WEB_AGE_CLIP=$work/sparks_age.pstream WEB_AGE_CAMERA=$age_camera WEB_FLIP_CLIP=$work/flip.pstream \
-  WEB_FLIP_CAMERA=$flip_camera WEB_OUT=${PSTREAM_WEB_OUT:-$work}
+  WEB_FLIP_CAMERA=$flip_camera WEB_TEXTURE=$data/render/sprite_ring.png WEB_TEXTURE_CAMERA=$texture_camera \
+  WEB_OUT=${PSTREAM_WEB_OUT:-$work}
 bash "$here/../http/with_server.sh" nginx node "$here/player_test.mjs" playback
 bash "$here/../http/with_server.sh" faulty node "$here/player_test.mjs" faults

@@ -39,8 +39,8 @@ void main() {
   if (r2 > 1.0) discard;
   vec4 base = v_color;
   float coverage = 1.0 - smoothstep(0.55, 1.0, sqrt(r2));  // a soft round sprite
-  if (u_textured) {
-    base *= texture(u_sprite, c * 0.5 + 0.5);
+  if (u_textured) {  // the image upright: its first row (the top of the file) at the sprite's top
+    base *= texture(u_sprite, vec2(c.x, u_points ? c.y : -c.y) * 0.5 + 0.5);
     coverage = 1.0;
   }
   float a = base.a * coverage;
