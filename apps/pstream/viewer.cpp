@@ -181,6 +181,10 @@ int run_viewer(const ViewerCli& cli) {
   std::vector<std::filesystem::path> files(cli.files.begin(), cli.files.end());
   playback::PlayerOptions options;  // loops by default
   options.path = playback::parse_playback_path(cli.playback);
+  // A scripted run (--frames-to-run) shows each step's own frame, as `pstream render` does: its
+  // streams decode in the host thread, so a busy machine cannot leave a screenshot without its
+  // particles (the IO worker not done yet) or on another frame.
+  options.stream.blocking = cli.frames_to_run > 0;
   const auto player = playback::Player::open(files, std::move(options));
   player->play();
   render::RendererOptions ro;
