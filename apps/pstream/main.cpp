@@ -636,7 +636,8 @@ int main(int argc, char** argv) {
   play_cmd->add_option("files", viewer.files, "One or more .pstream files")->required()->check(file_or_url());
   play_cmd->add_option("--width", viewer.width, "Window width")->capture_default_str();
   play_cmd->add_option("--height", viewer.height, "Window height")->capture_default_str();
-  play_cmd->add_option("--frames-to-run", viewer.frames_to_run, "Quit after N frames (scripted runs)");
+  play_cmd->add_option("--frames-to-run", viewer.frames_to_run,
+                       "Quit after N frames (scripted runs: 1/30 s a frame, each decoded before it is drawn)");
   play_cmd->add_option("--screenshot", viewer.screenshot, "With --frames-to-run: save the last frame as PNG");
   play_cmd->add_flag("--hide-ui", viewer.hide_ui,
                      "Start with the panel and the timeline hidden (H shows them); scripted runs print where they "
