@@ -10,6 +10,16 @@
 
 namespace pstream::render::detail {
 
+std::array<float, 16 * kMaxBatches> model_views(const Mat4& view, std::span<const ParticleBatch> source,
+                                                std::size_t n) {
+  std::array<float, 16 * kMaxBatches> out{};
+  for (std::size_t k = 0; k < std::min({n, source.size(), kMaxBatches}); ++k) {
+    const Mat4 m = multiply(view, source[k].world);
+    std::copy(m.begin(), m.end(), out.begin() + 16 * std::ptrdiff_t(k));
+  }
+  return out;
+}
+
 ShadowBuffer::ShadowBuffer() {
   program_ = link_program(full_screen_vertex_source().c_str(),
                           glsl_source({kShader_ground_ray_glsl, kShader_ground_shadow_frag}).c_str());

@@ -302,11 +302,7 @@ void LiquidPass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   // light buffer over the clips' bounds (frame.hpp: shadow_light), darken the ground already drawn.
   if (p.shadow_depth > 0 && style.ground_height) {
     const ShadowLight light = shadow_light(style.bounds, frame.view, frame.light_world);
-    std::array<float, 16 * kMaxBatches> light_model_view{};
-    for (std::size_t k = 0; k < s.n && k < source.size(); ++k) {
-      const Mat4 m = multiply(light.view, source[k].world);
-      std::copy(m.begin(), m.end(), light_model_view.begin() + 16 * std::ptrdiff_t(k));
-    }
+    const std::array<float, 16 * kMaxBatches> light_model_view = model_views(light.view, source, s.n);
     if (!d.light) d.light = std::make_unique<ShadowBuffer>();
     d.light->clear(p.shadow_resolution);
     d.light->bind_for_opacity();

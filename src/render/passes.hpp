@@ -38,6 +38,10 @@ struct StagedBatches {
 void stage_batch(StagedBatches& staged, std::size_t k, const ParticleBatch& batch, std::uint64_t base_word,
                  const Mat4& view);
 
+// Each of the first `n` batches' object -> `view` matrix, 16 floats a batch (as
+// StagedBatches::model_view holds the camera's): for a light buffer, the light's view.
+std::array<float, 16 * kMaxBatches> model_views(const Mat4& view, std::span<const ParticleBatch> source, std::size_t n);
+
 // A light buffer (R16F, square: an orthographic view along the light, shadow_light()) that a
 // look's particles add their opacities to, and the shadow it casts on the ground plane: the
 // self-shadowing sprites' and the liquid's (shaders/ground_shadow.frag).

@@ -271,11 +271,7 @@ void SpritePass::draw(const FrameContext& frame, const StagedBatches& s, std::sp
   const ShadowLight light = shadow_light(style.bounds, frame.view, frame.light_world);
   const Mat4& light_view = light.view;
   const Mat4& light_projection = light.projection;
-  std::array<float, 16 * kMaxBatches> light_model_view{};
-  for (std::size_t k = 0; k < s.n; ++k) {
-    const Mat4 m = multiply(light_view, source[k].world);
-    std::copy(m.begin(), m.end(), light_model_view.begin() + 16 * std::ptrdiff_t(k));
-  }
+  const std::array<float, 16 * kMaxBatches> light_model_view = model_views(light_view, source, s.n);
 
   const auto n = GLsizei(s.n);
   glUseProgram(d.program);
