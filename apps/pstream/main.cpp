@@ -684,8 +684,9 @@ int main(int argc, char** argv) {
   auto* bench_render_cmd = bench_cmd->add_subcommand(
       "render",
       "Per-frame cost of 100k and 1M particles: sprites (instanced quads) vs GL points vs the screen-space liquid, "
-      "as ratios to the sprites in the same run; alpha sprites with and without self-shadowing (32 slices) as "
-      "their ratio and the overhead in ms; with GL_RENDERER");
+      "as ratios to the sprites in the same run; the liquid with and without its shadow on a ground, and alpha "
+      "sprites with and without self-shadowing (32 slices), each as their ratio and the overhead in ms; with "
+      "GL_RENDERER");
   bench_render_cmd
       ->add_option("--size", bench_render_opts.size, "Image size WIDTHxHEIGHT (1920x1080 for the GPU target)")
       ->capture_default_str();
