@@ -436,7 +436,8 @@ function drawLiquid(reply, view, projection) {
   gl.drawArrays(gl.TRIANGLES, 0, 3);
   // 5. The liquid's shadow on the ground: its sphere chords along the light, as opacities in a
   // light buffer over the clip's bounds, darken the ground.
-  const shadow = L.shadowDepth > 0 && reply.shadow && look.backdrop && look.backdrop.ground;  // liquid_passes decided
+  // liquid_passes decided: a shadow depth only over a ground (the worker's light view comes with every liquid image).
+  const shadow = L.shadowDepth > 0;
   if (shadow) {
     if (!passes.light || passes.light.width !== L.shadowResolution) {
       if (passes.light) { gl.deleteFramebuffer(passes.light.framebuffer); gl.deleteTexture(passes.light.texture); }
