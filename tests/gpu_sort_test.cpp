@@ -9,9 +9,12 @@
 #include <random>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "alloc_counter.hpp"
 #include "particlestream/render.hpp"
 #include "particlestream/sort.hpp"
+#include "test_util.hpp"
 
 namespace {
 
@@ -101,6 +104,21 @@ TEST(GpuSort, DepthKeysGiveTheDepthSortersOrder) {
                                  mode == sort::SortMode::BackToFront),
               expected);
   }
+}
+
+// `pstream bench sort` reports the GPU sort's own time by a timer query, with 32-bit and 16-bit
+// keys, beside the wall time and the host thread's; it fails if the GPU's order is not sorted.
+TEST(GpuSort, BenchSortReportsTheGpusOwnTime) {
+  const auto r = test::run_cli("bench sort --n 20000 --repetitions 2 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
+  EXPECT_NE(j["gpu_renderer"].get<std::string>(), "none");
+  for (const char* key : {"gpu_radix_ms", "gpu_radix_gpu_ms", "gpu_radix16_gpu_ms", "gpu_radix_host_thread_ms"}) {
+    ASSERT_TRUE(j.contains(key)) << key;
+    EXPECT_GT(j[key].get<double>(), 0.0) << key;
+  }
+  // Half the passes: less GPU time (llvmpipe's is its threads' wall time, so only a loose bound).
+  EXPECT_LT(j["gpu_radix16_gpu_ms"].get<double>(), 1.5 * j["gpu_radix_gpu_ms"].get<double>());
 }
 
 }  // namespace

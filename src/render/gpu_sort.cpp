@@ -5,9 +5,13 @@
 //   count   — per block of kBlockItems pairs, how many of each digit (shared-memory atomics);
 //   scan    — exclusive prefix over the counts in digit-major order (digit 0 of every block,
 //             then digit 1, ...): where each block's pairs of each digit start in the output;
-//   scatter — each thread owns a contiguous run of kThreadItems pairs; a per-digit prefix over
-//             the threads (in order) and over the thread's own run keeps equal digits in input
-//             order, so the sort is stable and equal keys keep the order of their values.
+//   scatter — the block is ordered by digit in shared memory first, then written out, so that
+//             neighbouring threads write neighbouring addresses of one digit's run (coalesced:
+//             a block's 16 runs average 256 pairs). Each thread owns a contiguous run of
+//             kThreadItems pairs; a prefix over the block's per-thread digit counts, in digit
+//             then thread order, gives each pair its place in the block and keeps equal digits
+//             in input order, so the sort is stable and equal keys keep the order of their values.
+// Every global read and write walks the block with the thread index fastest (coalesced).
 // 32-bit keys take 8 passes, 16-bit keys 4; both end in the first buffer pair.
 #include <algorithm>
 #include <initializer_list>
@@ -54,9 +58,8 @@ void main() {
   uint t = gl_LocalInvocationID.x, b = gl_WorkGroupID.x;
   if (t < kDigits) block_counts[t] = 0u;
   barrier();
-  uint first = b * kBlockItems + t * kThreadItems;
   for (uint k = 0u; k < kThreadItems; ++k) {
-    uint i = first + k;
+    uint i = b * kBlockItems + k * kThreads + t;
     if (i < u_count) atomicAdd(block_counts[digit_of(keys_in[i])], 1u);
   }
   barrier();
@@ -64,8 +67,23 @@ void main() {
 }
 )";
 
+// An inclusive prefix over `partial[0..kThreads)` in place, in log2(kThreads) steps (every thread
+// of the work group calls it). Shared by the scan and the scatter.
+constexpr const char* kGroupPrefix = R"(
+void inclusive_prefix(uint t) {
+  for (uint offset = 1u; offset < kThreads; offset <<= 1u) {
+    uint v = partial[t] + (t >= offset ? partial[t - offset] : 0u);
+    barrier();
+    partial[t] = v;
+    barrier();
+  }
+}
+)";
+
 constexpr const char* kScan = R"(
 shared uint partial[kThreads];
+)";
+constexpr const char* kScanMain = R"(
 void main() {
   uint t = gl_LocalInvocationID.x;
   uint n = kDigits * u_blocks, per = (n + kThreads - 1u) / kThreads, begin = min(t * per, n),
@@ -74,16 +92,8 @@ void main() {
   for (uint i = begin; i < end; ++i) sum += counts[i];
   partial[t] = sum;
   barrier();
-  if (t == 0u) {
-    uint running = 0u;
-    for (uint j = 0u; j < kThreads; ++j) {
-      uint c = partial[j];
-      partial[j] = running;
-      running += c;
-    }
-  }
-  barrier();
-  uint running = partial[t];
+  inclusive_prefix(t);
+  uint running = partial[t] - sum;
   for (uint i = begin; i < end; ++i) {
     uint c = counts[i];
     counts[i] = running;
@@ -92,40 +102,88 @@ void main() {
 }
 )";
 
+// 32 KB of shared memory (OpenGL's guaranteed minimum): the per-thread digit counts, then places
+// (16 KB), and one block of keys, then of values (16 KB), whose first kThreads words also serve as
+// the prefix's partial sums. Per-thread arrays are indexed only by loop counters (registers); a
+// thread's counts live in its own column of `place`, where lanes never share a bank, because an
+// array indexed by a random digit goes to per-lane local memory on GPUs and serialises the warp.
 constexpr const char* kScatter = R"(
-shared uint before[kDigits * kThreads];  // [digit * kThreads + thread]: that digit's pairs in earlier threads' runs
+shared uint place[kDigits * kThreads];  // [digit * kThreads + thread]: counts, then where those pairs go in the block
+shared uint partial[kBlockItems];       // the block's keys or values
+)";
+constexpr const char* kScatterMain = R"(
 void main() {
-  uint t = gl_LocalInvocationID.x, b = gl_WorkGroupID.x;
-  uint first = b * kBlockItems + t * kThreadItems;
-  uint mine[kDigits];
-  for (uint d = 0u; d < kDigits; ++d) mine[d] = 0u;
+  uint t = gl_LocalInvocationID.x, b = gl_WorkGroupID.x, base = b * kBlockItems;
+  uint items = min(kBlockItems, u_count - base);
+  // This thread's contiguous run of the block, read through shared memory so that the global
+  // reads are coalesced, and the run's digit counts.
+  uint key[kThreadItems], value[kThreadItems], slot[kThreadItems], dest[kThreadItems];
+  for (uint d = 0u; d < kDigits; ++d) place[d * kThreads + t] = 0u;
   for (uint k = 0u; k < kThreadItems; ++k) {
-    uint i = first + k;
-    if (i < u_count) mine[digit_of(keys_in[i])] += 1u;
+    uint j = k * kThreads + t;
+    if (j < items) partial[j] = keys_in[base + j];
   }
-  for (uint d = 0u; d < kDigits; ++d) before[d * kThreads + t] = mine[d];
   barrier();
-  if (t < kDigits) {
-    uint running = 0u;
-    for (uint j = 0u; j < kThreads; ++j) {
-      uint c = before[t * kThreads + j];
-      before[t * kThreads + j] = running;
-      running += c;
+  for (uint k = 0u; k < kThreadItems; ++k) {
+    uint j = t * kThreadItems + k;
+    key[k] = j < items ? partial[j] : 0u;
+    if (j < items) place[digit_of(key[k]) * kThreads + t] += 1u;
+  }
+  barrier();
+  for (uint k = 0u; k < kThreadItems; ++k) {
+    uint j = k * kThreads + t;
+    if (j < items) partial[j] = values_in[base + j];
+  }
+  barrier();
+  for (uint k = 0u; k < kThreadItems; ++k) value[k] = partial[t * kThreadItems + k];
+  barrier();
+  // Exclusive prefix over `place` in its digit-major order: each thread sums a contiguous
+  // kDigits entries, the partial sums are prefixed, then each thread writes its entries' places.
+  uint sum = 0u;
+  for (uint k = 0u; k < kDigits; ++k) sum += place[t * kDigits + k];
+  partial[t] = sum;
+  barrier();
+  inclusive_prefix(t);
+  uint running = partial[t] - sum;
+  for (uint k = 0u; k < kDigits; ++k) {
+    uint c = place[t * kDigits + k];
+    place[t * kDigits + k] = running;
+    running += c;
+  }
+  barrier();
+  // The keys in the block's digit order. Afterwards the last thread's entry of each digit holds
+  // where the next digit starts in the block.
+  for (uint k = 0u; k < kThreadItems; ++k) {
+    if (t * kThreadItems + k < items) {
+      uint at = digit_of(key[k]) * kThreads + t;
+      slot[k] = place[at];
+      place[at] = slot[k] + 1u;
+      partial[slot[k]] = key[k];
     }
   }
   barrier();
-  uint at[kDigits];
-  for (uint d = 0u; d < kDigits; ++d) at[d] = counts[d * u_blocks + b] + before[d * kThreads + t];
+  // Each digit's output index less its start in the block, in place[0..kDigits).
+  uint shift = 0u;
+  if (t < kDigits) shift = counts[t * u_blocks + b] - (t == 0u ? 0u : place[(t - 1u) * kThreads + kThreads - 1u]);
+  barrier();
+  if (t < kDigits) place[t] = shift;
+  barrier();
   for (uint k = 0u; k < kThreadItems; ++k) {
-    uint i = first + k;
-    if (i < u_count) {
-      uint key = keys_in[i];
-      uint d = digit_of(key);
-      uint o = at[d];
-      at[d] = o + 1u;
-      keys_out[o] = key;
-      values_out[o] = values_in[i];
+    uint j = k * kThreads + t;
+    if (j < items) {
+      uint sorted = partial[j];
+      dest[k] = place[digit_of(sorted)] + j;
+      keys_out[dest[k]] = sorted;
     }
+  }
+  barrier();
+  for (uint k = 0u; k < kThreadItems; ++k) {
+    if (t * kThreadItems + k < items) partial[slot[k]] = value[k];
+  }
+  barrier();
+  for (uint k = 0u; k < kThreadItems; ++k) {
+    uint j = k * kThreads + t;
+    if (j < items) values_out[dest[k]] = partial[j];
   }
 }
 )";
@@ -193,8 +251,8 @@ GpuSorter::GpuSorter(std::uint32_t capacity) : impl_(std::make_unique<Impl>()) {
   }
   glNamedBufferStorage(d.counts, GLsizeiptr(kDigits) * d.max_blocks * 4, nullptr, GL_DYNAMIC_STORAGE_BIT);
   d.count = program({kPrelude, kCount});
-  d.scan = program({kPrelude, kScan});
-  d.scatter = program({kPrelude, kScatter});
+  d.scan = program({kPrelude, kScan, kGroupPrefix, kScanMain});
+  d.scatter = program({kPrelude, kScatter, kGroupPrefix, kScatterMain});
   d.depth_keys = program({kDepthKeys});
 }
 
