@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <limits>
 #include <map>
@@ -981,51 +982,57 @@ TEST(ParticleCodec, ScalesThatChangeOverLifeAreCodedInTheLoop) {
               fine_cost, coarse_cost, 100 * fine_worst, 100 * coarse_worst);
 }
 
-// Without ids the encoder pairs particles closest first among each one's 8 nearest. On a jittered
-// lattice whose particles each move a tenth of the spacing, written in another order in the second
-// frame, every particle is paired with itself: at the default bound (cells of side `cell` few
-// enough for the indexed search, and `cell` below 2048 grid steps) and at an absolute bound fine
-// enough that `cell` is 5000 grid steps (the general search).
-TEST(ParticleCodec, WithoutIdsEachParticlePairsWithItselfAfterASmallMove) {
-  constexpr std::uint32_t kSide = 10, kCount = kSide * kSide * kSide;
-  const std::vector<format::Attribute> layout = format::default_layout();
-  const std::uint32_t rs = format::record_size_of(layout);
-  std::uint32_t seed = 7;
-  const auto jitter = [&](double most) {
-    seed = seed * 1664525u + 1013904223u;
-    return most * (double(seed >> 8) / double(1u << 24) * 2 - 1);
-  };
+// Two frames of a jittered lattice of side^3 particles, spacing 1, each within 0.2 of its node;
+// `move(i, jitter)` gives particle i's move along each axis into the second frame, which lists the
+// particles in another order (particle i at position (i * 389) % count). [x y z scale] records.
+struct LatticePair {
+  std::uint32_t count;
+  std::vector<format::Attribute> layout = format::default_layout();
+  std::uint32_t rs = format::record_size_of(layout);
   std::vector<std::array<float, 3>> where[2];
-  for (std::uint32_t i = 0; i < kCount; ++i) {
-    const std::uint32_t c[3] = {i % kSide, i / kSide % kSide, i / (kSide * kSide)};
-    std::array<float, 3> p{}, q{};
-    for (int a = 0; a < 3; ++a) {
-      p[std::size_t(a)] = float(c[a] + jitter(0.2));  // spacing 1: neighbours at least 0.6 apart
-      q[std::size_t(a)] = float(p[std::size_t(a)] + jitter(0.1));
+  std::vector<std::vector<std::byte>> records;
+  format::ClipStats stats{layout};
+
+  template <class Move>
+  LatticePair(std::uint32_t side, std::uint32_t seed, const Move& move,
+              const std::function<void(std::vector<std::array<float, 3>>*)>& adjust = {})
+      : count(side * side * side) {
+    const auto jitter = [&](double most) {
+      seed = seed * 1664525u + 1013904223u;
+      return most * (double(seed >> 8) / double(1u << 24) * 2 - 1);
+    };
+    for (std::uint32_t i = 0; i < count; ++i) {
+      const std::uint32_t c[3] = {i % side, i / side % side, i / (side * side)};
+      std::array<float, 3> p{}, q{};
+      for (int a = 0; a < 3; ++a) {
+        p[std::size_t(a)] = float(c[a] + jitter(0.2));  // neighbours at least 0.6 apart
+        q[std::size_t(a)] = float(p[std::size_t(a)] + move(i, jitter));
+      }
+      where[0].push_back(p);
+      where[1].push_back(q);
     }
-    where[0].push_back(p);
-    where[1].push_back(q);
-  }
-  // The second frame's source order: particle i is at position (i * 389) % kCount.
-  std::vector<std::uint32_t> source_of(kCount);
-  for (std::uint32_t i = 0; i < kCount; ++i) source_of[(i * 389) % kCount] = i;
-  std::vector<std::vector<std::byte>> records(2, std::vector<std::byte>(kCount * rs));
-  format::ClipStats stats(layout);
-  for (int f = 0; f < 2; ++f) {
-    for (std::uint32_t t = 0; t < kCount; ++t) {
-      const std::uint32_t i = f == 0 ? t : source_of[t];
-      const float r[4] = {where[f][i][0], where[f][i][1], where[f][i][2], 0.05f};
-      std::memcpy(records[std::size_t(f)].data() + std::size_t(t) * rs, r, 16);
+    if (adjust) adjust(where);
+    std::vector<std::uint32_t> source_of(count);
+    for (std::uint32_t i = 0; i < count; ++i) source_of[(i * 389) % count] = i;
+    records.assign(2, std::vector<std::byte>(std::size_t(count) * rs));
+    for (int f = 0; f < 2; ++f) {
+      for (std::uint32_t t = 0; t < count; ++t) {
+        const std::uint32_t i = f == 0 ? t : source_of[t];
+        const float r[4] = {where[f][i][0], where[f][i][1], where[f][i][2], 0.05f};
+        std::memcpy(records[std::size_t(f)].data() + std::size_t(t) * rs, r, 16);
+      }
+      stats.add(records[std::size_t(f)], count);
     }
-    stats.add(records[std::size_t(f)], kCount);
   }
-  // The particle a decoded record is (the nearest source position: errors are far below 0.3).
-  const auto particle_at = [&](int f, const std::byte* record) {
+
+  // The particle a decoded record of frame f is: the nearest source position (the lowest index
+  // where particles share one; errors are far below 0.3).
+  std::uint32_t particle_at(int f, const std::byte* record) const {
     float r[3];
     std::memcpy(r, record, 12);
     std::uint32_t nearest = 0;
     double best = 1e30;
-    for (std::uint32_t i = 0; i < kCount; ++i) {
+    for (std::uint32_t i = 0; i < count; ++i) {
       double d = 0;
       for (int a = 0; a < 3; ++a)
         d += (double(r[a]) - where[f][i][std::size_t(a)]) * (double(r[a]) - where[f][i][std::size_t(a)]);
@@ -1033,35 +1040,84 @@ TEST(ParticleCodec, WithoutIdsEachParticlePairsWithItselfAfterASmallMove) {
     }
     EXPECT_LT(best, 0.01);
     return nearest;
-  };
+  }
+
+  // Encodes both frames with `info`, decodes them, and calls visit(previous record, record) for
+  // each pair the second frame's operations keep; returns how many pairs there were.
+  std::uint32_t pairs(const format::CodecInfo& info,
+                      const std::function<void(const std::byte*, const std::byte*)>& visit) const {
+    std::vector<format::SourceFrame> frames;
+    for (int f = 0; f < 2; ++f) frames.push_back({records[std::size_t(f)], {}, count});
+    const auto encoded = format::encode_group(info, frames, {}, 0);
+    EXPECT_EQ(encoded[1].matched, count);
+    const format::Metadata meta = metadata_for(layout, info, encoded);
+    format::FrameDecoder decoder(meta, "lattice");
+    std::vector<std::byte> before(std::size_t(count) * rs), after(std::size_t(count) * rs);
+    std::vector<format::MatchRun> runs(2 * std::size_t(count) + 1);
+    decoder.decode(0, encoded[0].packet, before);
+    const std::size_t n = decoder.decode(1, encoded[1].packet, after, runs);
+    EXPECT_NE(n, format::kNoMatching);
+    if (n == format::kNoMatching) return 0;
+    std::uint32_t i = 0, j = 0, kept = 0;
+    for (std::size_t r = 0; r < n; ++r) {
+      for (std::uint32_t t = 0; t < runs[r].keep; ++t, ++i, ++j, ++kept)
+        visit(before.data() + std::size_t(i) * rs, after.data() + std::size_t(j) * rs);
+      i += runs[r].drop;
+      j += runs[r].insert;
+    }
+    return kept;
+  }
+};
+
+// Without ids the encoder pairs particles closest first among each one's 6 nearest. On a jittered
+// lattice whose particles each move a tenth of the spacing, written in another order in the second
+// frame, every particle is paired with itself: at the default bound (cells of side `cell` few
+// enough for the indexed search, and `cell` below 2048 grid steps) and at an absolute bound fine
+// enough that `cell` is 5000 grid steps (the general search).
+TEST(ParticleCodec, WithoutIdsEachParticlePairsWithItselfAfterASmallMove) {
+  const LatticePair clip(10, 7, [](std::uint32_t, const auto& jitter) { return jitter(0.1); });
   for (const double bound : {-1.0, 1e-4}) {  // the default; an absolute 0.1 mm
     SCOPED_TRACE(bound < 0 ? "default bound" : "absolute bound 1e-4");
     format::ParticleCodecOptions options;
     if (bound > 0) options.error = bound, options.error_relative = false;
-    const format::CodecInfo info = format::plan_particle_codec(layout, stats, 24.0, false, options);
+    const format::CodecInfo info = format::plan_particle_codec(clip.layout, clip.stats, 24.0, false, options);
     ASSERT_EQ(info.order, format::FrameOrder::Matched);
-    std::vector<format::SourceFrame> frames;
-    for (int f = 0; f < 2; ++f) frames.push_back({records[std::size_t(f)], {}, kCount});
-    const auto encoded = format::encode_group(info, frames, {}, 0);
-    ASSERT_EQ(encoded[1].matched, kCount);
-    const format::Metadata meta = metadata_for(layout, info, encoded);
-    format::FrameDecoder decoder(meta, "lattice");
-    std::vector<std::byte> before(kCount * rs), after(kCount * rs);
-    std::vector<format::MatchRun> runs(2 * kCount + 1);
-    decoder.decode(0, encoded[0].packet, before);
-    const std::size_t count = decoder.decode(1, encoded[1].packet, after, runs);
-    ASSERT_NE(count, format::kNoMatching);
-    std::uint32_t i = 0, j = 0, pairs = 0, wrong = 0;
-    for (std::size_t r = 0; r < count; ++r) {
-      for (std::uint32_t t = 0; t < runs[r].keep; ++t, ++i, ++j, ++pairs)
-        wrong +=
-            particle_at(0, before.data() + std::size_t(i) * rs) != particle_at(1, after.data() + std::size_t(j) * rs);
-      i += runs[r].drop;
-      j += runs[r].insert;
-    }
-    EXPECT_EQ(pairs, kCount);
+    std::uint32_t wrong = 0;
+    const std::uint32_t pairs = clip.pairs(info, [&](const std::byte* a, const std::byte* b) {
+      wrong += clip.particle_at(0, a) != clip.particle_at(1, b);
+    });
+    EXPECT_EQ(pairs, clip.count);
     EXPECT_EQ(wrong, 0u);
   }
+}
+
+// Without ids, a particle that stays exactly where it was (a FLIP inflow re-seeds its particles
+// in the same places) is paired with itself without a search, and decodes to the same bits in both
+// frames; a second particle at the same place is searched and paired too. On a jittered lattice
+// whose even particles stay put and odd ones move a tenth of the spacing, with particles 0 and 1
+// at one place in both frames, written in another order in the second frame, every particle is
+// paired with itself.
+TEST(ParticleCodec, WithoutIdsParticlesThatStayPutPairWithThemselves) {
+  const LatticePair clip(
+      12, 11, [](std::uint32_t i, const auto& jitter) { return i % 2 == 0 ? 0.0 : jitter(0.1); },
+      [](std::vector<std::array<float, 3>>* where) {
+        for (int f = 0; f < 2; ++f) where[f][1] = where[f][0];
+      });
+  const format::CodecInfo info = format::plan_particle_codec(clip.layout, clip.stats, 24.0, false, {});
+  ASSERT_EQ(info.order, format::FrameOrder::Matched);
+  std::uint32_t wrong = 0, still = 0, same_bits = 0;
+  const std::uint32_t pairs = clip.pairs(info, [&](const std::byte* a, const std::byte* b) {
+    const std::uint32_t was = clip.particle_at(0, a);
+    wrong += was != clip.particle_at(1, b);
+    if (was % 2 == 0) {
+      ++still;
+      same_bits += std::memcmp(a, b, 12) == 0;
+    }
+  });
+  EXPECT_EQ(pairs, clip.count);
+  EXPECT_EQ(wrong, 0u);
+  EXPECT_EQ(still, clip.count / 2 + 1);  // the even ones, and particle 1 at particle 0's place
+  EXPECT_EQ(same_bits, still);
 }
 
 // The zstd stream's saved state (EntropyDecoder::save_stream): a packet decoded after the state

@@ -429,14 +429,51 @@ class GroupEncoder {
     }
     std::uint64_t slot(std::uint64_t key) const { return (key * 0x9E3779B97F4A7C15ull) >> shift; }
   };
+  // This frame's particles by their exact quantised place, in an open-addressed table: the lowest
+  // index at each place.
+  struct ExactPlaces {
+    static constexpr std::uint32_t kNone = ~std::uint32_t{0};
+    std::vector<std::uint32_t> slot;
+    std::uint64_t mask = 0;
+    static std::uint64_t hash(const std::int64_t* q) {
+      const std::uint64_t k = (std::uint64_t(std::uint32_t(q[0])) * 0x9E3779B97F4A7C15ull) ^
+                              (std::uint64_t(std::uint32_t(q[1])) * 0xC2B2AE3D27D4EB4Full) ^
+                              (std::uint64_t(std::uint32_t(q[2])) * 0x165667B19E3779F9ull);
+      return k ^ (k >> 29);
+    }
+    template <class At>
+    void build(std::uint32_t n, const At& at) {
+      const std::size_t size = std::bit_ceil(std::max<std::size_t>(16, 2 * std::size_t(n)));
+      slot.assign(size, kNone);
+      mask = size - 1;
+      for (std::uint32_t j = 0; j < n; ++j) {
+        const std::int64_t* q = at(j);
+        std::uint64_t h = hash(q) & mask;
+        for (; slot[h] != kNone; h = (h + 1) & mask) {
+          const std::int64_t* o = at(slot[h]);
+          if (o[0] == q[0] && o[1] == q[1] && o[2] == q[2]) break;  // an earlier particle holds the place
+        }
+        if (slot[h] == kNone) slot[h] = j;
+      }
+    }
+    template <class At>
+    std::uint32_t find(const std::int64_t* q, const At& at) const {
+      for (std::uint64_t h = hash(q) & mask; slot[h] != kNone; h = (h + 1) & mask) {
+        const std::int64_t* o = at(slot[h]);
+        if (o[0] == q[0] && o[1] == q[1] && o[2] == q[2]) return slot[h];
+      }
+      return kNone;
+    }
+  };
   // match_by_position()'s working memory, kept from frame to frame: made afresh, its larger arrays
   // were pages the kernel mapped and cleared for every frame.
   struct MatchScratch {
     std::vector<std::int64_t> at, sorted;
     std::vector<Pair> slots, saved, pairs;
-    std::vector<std::uint8_t> kept, saved_kept, prev_taken;
+    std::vector<std::uint8_t> kept, saved_kept, prev_taken, claimed;
     std::vector<std::int32_t> steps, e;
-    std::vector<std::uint32_t> start, order, fill, visit_start, visit, all, sample, by_distance;
+    std::vector<std::uint32_t> start, order, fill, visit_start, visit, all, rest, sample, by_distance;
+    ExactPlaces places;  // this frame's particles by their exact place
     std::vector<float> xs, ys, zs;
     std::vector<Offset> offsets;
     std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_cells;
@@ -532,7 +569,7 @@ class GroupEncoder {
     offsets.clear();
     bool prepared = false;
     // The searches of the previous particles `previous` (indices), into their slots.
-    const auto searches = [&](std::span<const std::uint32_t> previous) {
+    const auto searches = [&](std::span<const std::uint32_t> previous, bool in_cell_order) {
       const auto searched = static_cast<std::uint32_t>(previous.size());
       // Particles 0..count-1 by their cells (a counting sort, stable): `order` lists them, and cell
       // c's are order[start[c]] to order[start[c + 1] - 1]. Each particle's cell is found once.
@@ -587,7 +624,7 @@ class GroupEncoder {
         // after another read the same cells (a sample is searched in its own order).
         const auto home_of = [&](std::uint32_t i, int a) { return floordiv(from(i, a), cell) - c0[a]; };
         std::vector<std::uint32_t>&visit_start = m.visit_start, &visit = m.visit;
-        if (searched == state_.count) {
+        if (in_cell_order) {
           by_cell(
               std::size_t(cells), searched,
               [&](std::uint32_t u) {
@@ -757,7 +794,7 @@ class GroupEncoder {
             }
             return static_cast<std::size_t>((c[0] * dims[1] + c[1]) * dims[2] + c[2]);
           };
-          if (searched == state_.count) {
+          if (in_cell_order) {
             by_cell(std::size_t(total), searched, home_cell, visit_start, visit);
           } else {
             visit.resize(searched);
@@ -815,7 +852,32 @@ class GroupEncoder {
     std::vector<std::uint32_t>& all = m.all;
     all.resize(state_.count);
     std::iota(all.begin(), all.end(), 0u);
-    searches(all);  // from where they were
+    // A previous particle with a current one at exactly its place (a FLIP inflow re-seeds its
+    // particles where it seeded them: a fifth of the pour's, and more in its first frames) keeps
+    // that one alone as its candidate, without a search: it is the nearest of the six a search
+    // would keep, and the pairing below takes it first. A second previous particle at the same
+    // place is searched, as the ones without are. The FLIP pour cooks to the same bytes, its
+    // `[x y z scale]` encode 1.07-1.13x as fast (docs/compression-experiments.md, "Particles that
+    // stay put, paired without a search"); a clip with none costs a table lookup a particle.
+    std::vector<std::uint32_t>& rest = m.rest;
+    rest.clear();
+    ExactPlaces& places = m.places;
+    places.build(n, [&](std::uint32_t j) { return &at[std::size_t(j) * 6]; });
+    std::vector<std::uint8_t>& claimed = m.claimed;
+    claimed.assign(n, 0);
+    for (std::uint32_t i = 0; i < state_.count; ++i) {
+      const std::int64_t q[3] = {static_cast<std::int32_t>(was[0][i]), static_cast<std::int32_t>(was[1][i]),
+                                 static_cast<std::int32_t>(was[2][i])};
+      const std::uint32_t j = places.find(q, [&](std::uint32_t c) { return &at[std::size_t(c) * 6]; });
+      if (j == ExactPlaces::kNone || claimed[j]) {  // a later one at a shared place is searched
+        rest.push_back(i);
+        continue;
+      }
+      claimed[j] = 1;
+      slots[std::size_t(i) * kCandidates] = Pair{0, i, j};
+      kept[i] = 1;
+    }
+    searches(rest, true);  // from where they were
     // A cache without ids whose particles persist (a particle system without its ids) moves them
     // further than their spacing: the nearest particle is another one, and the clip costs about
     // 4x what it does with ids. Moved on by their stored velocities they are found again; a FLIP
@@ -847,11 +909,11 @@ class GroupEncoder {
       }
       step_along(sample);
       moved = steps.data();
-      searches(sample);
+      searches(sample, false);
       if (2 * cost() < still) {
         step_along(all);
         moved = steps.data();
-        searches(all);
+        searches(all, true);
       } else {
         for (std::size_t u = 0; u < sample.size(); ++u) {
           std::copy_n(&saved[u * kCandidates], kCandidates, &slots[std::size_t(sample[u]) * kCandidates]);
