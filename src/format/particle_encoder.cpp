@@ -430,39 +430,34 @@ class GroupEncoder {
     std::uint64_t slot(std::uint64_t key) const { return (key * 0x9E3779B97F4A7C15ull) >> shift; }
   };
   // This frame's particles by their exact quantised place, in an open-addressed table: the lowest
-  // index at each place.
+  // index at each place. `at` holds each particle's place in its first 3 of every 6 numbers.
   struct ExactPlaces {
     static constexpr std::uint32_t kNone = ~std::uint32_t{0};
     std::vector<std::uint32_t> slot;
     std::uint64_t mask = 0;
-    static std::uint64_t hash(const std::int64_t* q) {
-      const std::uint64_t k = (std::uint64_t(std::uint32_t(q[0])) * 0x9E3779B97F4A7C15ull) ^
-                              (std::uint64_t(std::uint32_t(q[1])) * 0xC2B2AE3D27D4EB4Full) ^
-                              (std::uint64_t(std::uint32_t(q[2])) * 0x165667B19E3779F9ull);
-      return k ^ (k >> 29);
-    }
-    template <class At>
-    void build(std::uint32_t n, const At& at) {
+    const std::int64_t* at = nullptr;
+    void build(std::uint32_t n, const std::int64_t* places) {
       const std::size_t size = std::bit_ceil(std::max<std::size_t>(16, 2 * std::size_t(n)));
       slot.assign(size, kNone);
       mask = size - 1;
+      at = places;
       for (std::uint32_t j = 0; j < n; ++j) {
-        const std::int64_t* q = at(j);
-        std::uint64_t h = hash(q) & mask;
-        for (; slot[h] != kNone; h = (h + 1) & mask) {
-          const std::int64_t* o = at(slot[h]);
-          if (o[0] == q[0] && o[1] == q[1] && o[2] == q[2]) break;  // an earlier particle holds the place
-        }
-        if (slot[h] == kNone) slot[h] = j;
+        std::uint32_t& s = slot[probe(&at[std::size_t(j) * 6])];
+        if (s == kNone) s = j;  // else an earlier particle holds the place
       }
     }
-    template <class At>
-    std::uint32_t find(const std::int64_t* q, const At& at) const {
-      for (std::uint64_t h = hash(q) & mask; slot[h] != kNone; h = (h + 1) & mask) {
-        const std::int64_t* o = at(slot[h]);
-        if (o[0] == q[0] && o[1] == q[1] && o[2] == q[2]) return slot[h];
+    std::uint32_t find(const std::int64_t* q) const { return slot[probe(q)]; }
+    // The slot that holds q's place, or the empty one where it would go.
+    std::uint64_t probe(const std::int64_t* q) const {
+      const std::uint64_t k = (std::uint64_t(std::uint32_t(q[0])) * 0x9E3779B97F4A7C15ull) ^
+                              (std::uint64_t(std::uint32_t(q[1])) * 0xC2B2AE3D27D4EB4Full) ^
+                              (std::uint64_t(std::uint32_t(q[2])) * 0x165667B19E3779F9ull);
+      std::uint64_t h = (k ^ (k >> 29)) & mask;
+      for (; slot[h] != kNone; h = (h + 1) & mask) {
+        const std::int64_t* o = &at[std::size_t(slot[h]) * 6];
+        if (o[0] == q[0] && o[1] == q[1] && o[2] == q[2]) break;
       }
-      return kNone;
+      return h;
     }
   };
   // match_by_position()'s working memory, kept from frame to frame: made afresh, its larger arrays
@@ -862,13 +857,12 @@ class GroupEncoder {
     std::vector<std::uint32_t>& rest = m.rest;
     rest.clear();
     ExactPlaces& places = m.places;
-    places.build(n, [&](std::uint32_t j) { return &at[std::size_t(j) * 6]; });
+    places.build(n, at.data());
     std::vector<std::uint8_t>& claimed = m.claimed;
     claimed.assign(n, 0);
     for (std::uint32_t i = 0; i < state_.count; ++i) {
-      const std::int64_t q[3] = {static_cast<std::int32_t>(was[0][i]), static_cast<std::int32_t>(was[1][i]),
-                                 static_cast<std::int32_t>(was[2][i])};
-      const std::uint32_t j = places.find(q, [&](std::uint32_t c) { return &at[std::size_t(c) * 6]; });
+      const std::int64_t q[3] = {from(i, 0), from(i, 1), from(i, 2)};  // where it was (moved is null)
+      const std::uint32_t j = places.find(q);
       if (j == ExactPlaces::kNone || claimed[j]) {  // a later one at a shared place is searched
         rest.push_back(i);
         continue;
