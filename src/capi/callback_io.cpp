@@ -106,7 +106,7 @@ class CallbackIo final : public io::ByteSource {
   }
 
  private:
-  enum : int { kIdle, kClaimed, kPending, kAbandoned };
+  enum : int { kIdle, kClaimed, kPending, kAbandoned, kCompleting };
   // One read under way: the completion the host calls goes through it, so a second call (or one
   // after the stream gave up on it) is caught instead of completing a load twice.
   struct Ticket {
@@ -119,8 +119,16 @@ class CallbackIo final : public io::ByteSource {
     static void complete(void* token, int status) {
       auto* t = static_cast<Ticket*>(token);
       int pending = kPending;
-      if (t->state.compare_exchange_strong(pending, kIdle, std::memory_order_acq_rel)) {
-        t->done(t->context, status);
+      if (t->state.compare_exchange_strong(pending, kCompleting, std::memory_order_acq_rel)) {
+        // The read's completion is taken out before the ticket is free again: once it is idle, the
+        // stream's worker may claim it for its next read and overwrite them, and this read would
+        // complete that one. Nor is the ticket touched after done(): the stream, which owns it,
+        // may close as soon as its last read is done.
+        const ReadDone done = t->done;
+        void* const context = t->context;
+        int completing = kCompleting;
+        t->state.compare_exchange_strong(completing, kIdle, std::memory_order_acq_rel);  // not if abandoned since
+        done(context, status);
         return;
       }
       if (pending == kAbandoned) return;  // late: the stream gave up on it

@@ -138,13 +138,14 @@ void IoScheduler::submit(LoadRequest* request) {
     host_(&IoScheduler::run_job, request);
     return;
   }
-  {
-    std::lock_guard lock(queue_->mutex);
-    Queue& q = *queue_;
-    q.ring[(q.head + q.count) % q.ring.size()] = request;  // room was reserved at open
-    ++q.count;
-  }
-  queue_->wake.notify_one();
+  // The wake-up is sent under the lock. A worker may take the request as soon as the lock is
+  // free, and its completion may let the stream that owns this scheduler close and destroy it;
+  // sent after the unlock, from a host's thread (read_done()), it could reach a destroyed queue.
+  std::lock_guard lock(queue_->mutex);
+  Queue& q = *queue_;
+  q.ring[(q.head + q.count) % q.ring.size()] = request;  // room was reserved at open
+  ++q.count;
+  q.wake.notify_one();
 }
 
 void IoScheduler::run() {
