@@ -67,9 +67,9 @@ class CallbackIo final : public io::ByteSource {
     if (t == nullptr) throw Error(fmt::format("{}: more than {} reads under way", name_, tickets_.size()));
     t->done = done;
     t->context = context;
-    t->offset = offset;
-    t->size = out.size();
-    t->started = Clock::now();
+    t->offset.store(offset, std::memory_order_relaxed);
+    t->size.store(out.size(), std::memory_order_relaxed);
+    t->started.store(Clock::now().time_since_epoch().count(), std::memory_order_relaxed);
     t->state.store(kPending, std::memory_order_release);
     const int status = io_.read_async(io_.user, offset, out.data(), out.size(), &Ticket::complete, t);
     if (status != 0) {  // refused at once: no completion will come
@@ -89,13 +89,14 @@ class CallbackIo final : public io::ByteSource {
       return fmt::format(
           "{}: the host completed the read of {} bytes at offset {} more than once (read_async's "
           "completion must be called exactly once)",
-          name_, m->size, m->offset);
+          name_, m->size.load(std::memory_order_relaxed), m->offset.load(std::memory_order_relaxed));
     }
     const Clock::time_point now = Clock::now();
     for (const Ticket& t : tickets_) {
-      if (t.state.load(std::memory_order_acquire) == kPending && now - t.started > timeout_) {
-        return fmt::format("{}: read_async of {} bytes at offset {} did not complete within {:g} s", name_, t.size,
-                           t.offset, seconds());
+      if (t.state.load(std::memory_order_acquire) == kPending &&
+          now - Clock::time_point(Clock::duration(t.started.load(std::memory_order_relaxed))) > timeout_) {
+        return fmt::format("{}: read_async of {} bytes at offset {} did not complete within {:g} s", name_,
+                           t.size.load(std::memory_order_relaxed), t.offset.load(std::memory_order_relaxed), seconds());
       }
     }
     return {};
@@ -114,8 +115,10 @@ class CallbackIo final : public io::ByteSource {
     std::atomic<int> state{kIdle};
     ReadDone done = nullptr;
     void* context = nullptr;
-    std::uint64_t offset = 0, size = 0;
-    Clock::time_point started;
+    // What fault() reports of the read, read by the stream's thread while the worker may start the
+    // ticket's next read: atomics, so that a report races with nothing (ThreadSanitizer found it).
+    std::atomic<std::uint64_t> offset{0}, size{0};
+    std::atomic<Clock::rep> started{0};
     static void complete(void* token, int status) {
       auto* t = static_cast<Ticket*>(token);
       int pending = kPending;
