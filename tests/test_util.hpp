@@ -1,6 +1,7 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cctype>
@@ -41,10 +42,13 @@ inline std::filesystem::path fresh_dir(std::string name = {}) {
 // A clip that several tests or runs cook alike, cooked once per CTest run. Under CTest,
 // PSTREAM_TEST_CLIPS names a folder that the fixture SharedClips (tests/CMakeLists.txt) empties
 // before the tests and removes after them: the clip is `key`.pstream there, made by `cook` when it
-// is not there yet, and tests only read it (one that alters a clip alters a copy). `cook` must
-// write its output whole or not at all: the cook writes a temporary beside it and renames it, so
-// two tests cooking the same clip at once each leave a whole file. Without the variable (the test
-// program run by hand), `cook` makes `own`.
+// is not there yet, and tests only read it (one that alters a clip alters a copy). Without the
+// variable (the test program run by hand), `cook` makes `own`.
+//
+// Two tests may find the clip missing at once. Each cooks under a name of its own process and
+// links it into place only where no other got there first: renamed over the first, the second
+// would change a file that a test already reads, and a test server that names it by path (nginx)
+// then serves another file under it (the stream fails: "the file changed since it was opened").
 inline std::filesystem::path shared_clip(const std::string& key, const std::filesystem::path& own,
                                          const std::function<void(const std::filesystem::path&)>& cook) {
   const char* shared = std::getenv("PSTREAM_TEST_CLIPS");
@@ -53,7 +57,14 @@ inline std::filesystem::path shared_clip(const std::string& key, const std::file
     return own;
   }
   const std::filesystem::path path = std::filesystem::path(shared) / (key + ".pstream");
-  if (!std::filesystem::exists(path)) cook(path);
+  if (std::filesystem::exists(path)) return path;
+  const std::filesystem::path mine =
+      std::filesystem::path(shared) / (key + ".cooking-" + std::to_string(getpid()) + ".pstream");
+  cook(mine);
+  std::error_code ec;
+  std::filesystem::create_hard_link(mine, path, ec);  // fails where another test's is there: it stays
+  if (ec && !std::filesystem::exists(path)) std::filesystem::rename(mine, path);  // no hard links here
+  std::filesystem::remove(mine, ec);
   return path;
 }
 
