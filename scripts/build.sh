@@ -5,6 +5,8 @@
 #   scripts/build.sh check      clang, AddressSanitizer + UndefinedBehaviorSanitizer + libFuzzer's
 #                               coverage: the sanitized test suite and the fuzz targets, one build
 #                               (into build-check/; `asan` and `fuzz` are other names for it)
+#   scripts/build.sh tsan       clang, ThreadSanitizer (into build-tsan/): not part of the test
+#                               command; docs/reliability.md says how to run it and what it found
 set -euo pipefail
 cd "$(dirname "$0")/.."
 flavour=${1:-release}
@@ -18,7 +20,12 @@ case "$flavour" in
     args=(-DCMAKE_BUILD_TYPE=RelWithDebInfo -DPSTREAM_FUZZ=ON -DPSTREAM_BENCH=OFF -DCMAKE_C_COMPILER=clang
       -DCMAKE_CXX_COMPILER=clang++ "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O2 -gline-tables-only -DNDEBUG"
       "-DCMAKE_C_FLAGS_RELWITHDEBINFO=-O2 -gline-tables-only -DNDEBUG") ;;
-  *) echo "usage: $0 [release|check]" >&2; exit 2 ;;
+  tsan)
+    dir=build-tsan
+    args=(-DCMAKE_BUILD_TYPE=RelWithDebInfo -DPSTREAM_SANITIZE=ON -DPSTREAM_SANITIZERS=thread -DPSTREAM_BENCH=OFF
+      -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g -DNDEBUG"
+      "-DCMAKE_C_FLAGS_RELWITHDEBINFO=-O1 -g -DNDEBUG") ;;
+  *) echo "usage: $0 [release|check|tsan]" >&2; exit 2 ;;
 esac
 # The web player (web/, docs/web.md) with the release build: its test runs in that suite. It needs
 # none of the native build, so it runs beside it in the idle scheduling class, on the CPU that
