@@ -9,6 +9,7 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libfmt-dev nlohmann-json3-dev libcli11-dev
   libxxhash-dev libzstd-dev liblz4-dev libhwy-dev
+  zstd                               # the zstd command: bench/point_set_coders.py codes its streams with it
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libglvnd-dev libimgui-dev libstb-dev  # rendering
   ffmpeg xvfb xauth                  # MP4 output; the viewer's test under a virtual display
   libmeshoptimizer-dev libdraco-dev  # the particle codec's peers in `pstream bench codec`
