@@ -12,6 +12,7 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <numeric>
 #include <random>
 #include <set>
 
@@ -299,6 +300,56 @@ TEST(FrameComparison, InOrderPairsParticleIWithParticleIWhereNearestWouldNot) {
   fewer.in_order = true;
   fewer.add(layout, bytes(decoded), 2, bytes(source), 1, &info);
   EXPECT_EQ(fewer.count_mismatches, 1u);
+}
+
+// Without ids or order, each decoded particle takes the nearest unused source particle among the
+// 27 cells (4 bounds wide) around it, searching first the cells its bound's box overlaps. A
+// shuffled copy within the bound pairs every particle within it; a particle moved beyond its bound
+// is still found, in the cells around, and its error is reported as it is; one moved past them
+// finds no partner.
+TEST(FrameComparison, NearestPartnersWithinAndBeyondTheBound) {
+  const std::vector<format::Attribute> layout = format::default_layout();  // x y z scale
+  format::CodecInfo info;
+  info.codec = format::FrameCodec::Particle;
+  info.order = format::FrameOrder::Matched;
+  info.words.resize(4);
+  for (int w = 0; w < 3; ++w) {
+    info.words[w].coding = format::WordCoding::Quantized;
+    info.words[w].error = 0.01f;
+  }
+  info.words[3].coding = format::WordCoding::Constant;
+  constexpr std::size_t n = 4000;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> place(0.0f, 4.0f), jitter(-0.0099f, 0.0099f);
+  std::vector<float> source(n * 4), decoded(n * 4);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) source[i * 4 + std::size_t(c)] = place(rng);
+    source[i * 4 + 3] = 0.5f;
+  }
+  std::vector<std::size_t> shuffled(n);
+  std::iota(shuffled.begin(), shuffled.end(), std::size_t{0});
+  std::shuffle(shuffled.begin(), shuffled.end(), rng);
+  for (std::size_t d = 0; d < n; ++d) {
+    for (int c = 0; c < 4; ++c) decoded[d * 4 + std::size_t(c)] = source[shuffled[d] * 4 + std::size_t(c)];
+    for (int c = 0; c < 3; ++c) decoded[d * 4 + std::size_t(c)] += jitter(rng);
+  }
+  const auto bytes = [](const std::vector<float>& v) { return std::as_bytes(std::span(v)); };
+  format::FrameComparison within;
+  within.add(layout, bytes(decoded), n, bytes(source), n, &info);
+  EXPECT_EQ(within.unmatched, 0u);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_LE(within.max_error[std::size_t(c)], 0.0099 + 1e-6);
+    EXPECT_GT(within.max_error[std::size_t(c)], 0.009);
+  }
+  // Particle 10 moved 2.5 bounds along x (within the cells around it), particle 20 moved 20
+  // bounds along y (beyond them).
+  decoded[10 * 4 + 0] = source[shuffled[10] * 4 + 0] + 0.025f;
+  decoded[20 * 4 + 1] = source[shuffled[20] * 4 + 1] + 0.2f;
+  format::FrameComparison beyond;
+  beyond.add(layout, bytes(decoded), n, bytes(source), n, &info);
+  EXPECT_NEAR(beyond.max_error[0], 0.025, 1e-4);
+  EXPECT_LE(beyond.max_error[1], 0.0099 + 1e-6);
+  EXPECT_EQ(beyond.unmatched, 1u);
 }
 
 TEST(ParticleCodec, BytesPerParticleOnTheSims) {

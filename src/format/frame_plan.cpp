@@ -6,7 +6,6 @@
 #include <cstring>
 #include <limits>
 #include <numeric>
-#include <unordered_map>
 
 #include <fmt/format.h>
 
@@ -241,9 +240,12 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
   std::vector<std::byte> mapped(source_count * rs, std::byte{0});
   for (const Attribute& at : layout) {
     const Attribute* from = find_attribute(source_layout, at.name);
-    if (from == nullptr || from->size() != at.size()) continue;
-    for (std::uint64_t i = 0; i < source_count && (i + 1) * from_rs <= source.size(); ++i)
-      std::memcpy(mapped.data() + i * rs + at.offset, source.data() + i * from_rs + from->offset, at.size());
+    const std::size_t size = at.size();
+    if (from == nullptr || from->size() != size || size == 0) continue;
+    const std::uint64_t count = std::min<std::uint64_t>(source_count, source.size() / from_rs);  // from_rs >= size
+    const std::byte* in = source.data() + from->offset;
+    std::byte* out = mapped.data() + at.offset;
+    for (std::uint64_t i = 0; i < count; ++i, in += from_rs, out += rs) std::memcpy(out, in, size);
   }
   add(layout, decoded, decoded_count, mapped, source_count, codec);
 }
@@ -349,52 +351,106 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
     const auto key = [](std::int64_t x, std::int64_t y, std::int64_t z) {
       return (std::uint64_t(x & 0x1fffff) << 42) | (std::uint64_t(y & 0x1fffff) << 21) | std::uint64_t(z & 0x1fffff);
     };
-    std::unordered_map<std::uint64_t, std::vector<std::uint64_t>> grid;
+    // The source particles by cell, in index order within each, and where each cell's run of
+    // `by_cell` starts and ends in an open-addressing table of the occupied cells (a key is 63
+    // bits: all ones marks an empty slot).
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> by_cell(source_count);
     for (std::uint64_t s = 0; s < source_count; ++s)
-      grid[key(cell_of(pos(source, s, 0), 0), cell_of(pos(source, s, 1), 1), cell_of(pos(source, s, 2), 2))].push_back(
-          s);
+      by_cell[s] = {key(cell_of(pos(source, s, 0), 0), cell_of(pos(source, s, 1), 1), cell_of(pos(source, s, 2), 2)),
+                    s};
+    std::sort(by_cell.begin(), by_cell.end());
+    struct Cell {
+      std::uint64_t key = UINT64_MAX, begin = 0, end = 0;
+    };
+    const int table_log = std::bit_width(std::max<std::uint64_t>(2 * source_count, 16) - 1);
+    std::vector<Cell> table(std::size_t{1} << table_log);
+    const auto slot_of = [&](std::uint64_t k) {
+      std::size_t at = std::size_t((k * 0x9E3779B97F4A7C15ull) >> (64 - table_log));
+      while (table[at].key != UINT64_MAX && table[at].key != k) at = (at + 1) & (table.size() - 1);
+      return at;
+    };
+    for (std::uint64_t b = 0, e = 0; b < source_count; b = e) {
+      for (e = b + 1; e < source_count && by_cell[e].first == by_cell[b].first;) ++e;
+      table[slot_of(by_cell[b].first)] = Cell{by_cell[b].first, b, e};
+    }
+    // How each word is compared, once: its difference in units of its bound where it has one
+    // (quantised: absolute; relative: of the source's value), any difference far where it is exact.
+    // Derived words have no bound and say nothing about which particle this is.
+    enum class Bound : std::uint8_t { kSkip, kQuantized, kRelative, kExact, kPlain };
+    std::vector<Bound> bound(words, Bound::kSkip);
+    std::vector<double> error(words, 0.0);
+    for (std::uint32_t w = 0; w < words; ++w) {
+      const WordCodingEntry* c = codec && w < codec->words.size() ? &codec->words[w] : nullptr;
+      error[w] = c ? double(c->error) : 0.0;
+      if (c && c->coding == WordCoding::Quantized && c->error > 0)
+        bound[w] = Bound::kQuantized;
+      else if (c && c->coding == WordCoding::Relative && c->error > 0)
+        bound[w] = Bound::kRelative;
+      else if (c && (c->coding == WordCoding::Exact || c->coding == WordCoding::Constant) && w >= 3)
+        bound[w] = Bound::kExact;
+      else if (w < 3)
+        bound[w] = Bound::kPlain;
+    }
+    // A partner within every bound lies within each quantised position's bound of the decoded
+    // particle: the cells that box overlaps (one to eight of the 27 around it) are searched first.
+    // Any particle outside them is beyond a bound (more than 1 in its units), so a partner found
+    // there within every bound is the one the 27 cells would give (visited in the same order).
+    const bool boxed = bound[0] == Bound::kQuantized && bound[1] == Bound::kQuantized && bound[2] == Bound::kQuantized;
     std::vector<bool> used(source_count, false);
     for (std::uint64_t d = 0; d < decoded_count; ++d) {
       const std::int64_t cx = cell_of(pos(decoded, d, 0), 0), cy = cell_of(pos(decoded, d, 1), 1),
                          cz = cell_of(pos(decoded, d, 2), 2);
       double best = std::numeric_limits<double>::infinity();
-      for (std::int64_t dx = -1; dx <= 1; ++dx) {
-        for (std::int64_t dy = -1; dy <= 1; ++dy) {
-          for (std::int64_t dz = -1; dz <= 1; ++dz) {
-            const auto it = grid.find(key(cx + dx, cy + dy, cz + dz));
-            if (it == grid.end()) continue;
-            for (const std::uint64_t s : it->second) {
-              if (used[s]) continue;
-              double e = 0.0;
-              for (std::uint32_t w = 0; w < words; ++w) {
-                // Each word's difference in units of its bound: quantised (absolute), relative (of
-                // the source's value), exact (any difference is far). Derived words have no
-                // bound and say nothing about which particle this is.
-                const WordCodingEntry* c = codec && w < codec->words.size() ? &codec->words[w] : nullptr;
-                const bool quantized = c && c->coding == WordCoding::Quantized && c->error > 0;
-                const bool relative = c && c->coding == WordCoding::Relative && c->error > 0;
-                const bool exact = c && (c->coding == WordCoding::Exact || c->coding == WordCoding::Constant);
-                if (!quantized && !relative && !exact && w >= 3) continue;
-                const float x = std::bit_cast<float>(word(decoded, rs, d, w));
-                const float y = std::bit_cast<float>(word(source, rs, s, w));
-                const double diff = std::abs(double(x) - double(y));
-                if (quantized) {
-                  e = std::max(e, diff / double(c->error));
-                } else if (relative) {
-                  e = std::max(e, diff / (double(c->error) * std::max(std::abs(double(y)), 1e-30)));
-                } else if (exact && w >= 3) {
-                  if (word(decoded, rs, d, w) != word(source, rs, s, w)) e = std::max(e, 1e6);
-                } else {
-                  e = std::max(e, diff);
+      // The nearest unused source particle in cells [from, to] (each within 1 of the home cell).
+      const auto search = [&](const std::int64_t* from, const std::int64_t* to) {
+        for (std::int64_t x = from[0]; x <= to[0]; ++x) {
+          for (std::int64_t y = from[1]; y <= to[1]; ++y) {
+            for (std::int64_t z = from[2]; z <= to[2]; ++z) {
+              const Cell& run = table[slot_of(key(x, y, z))];
+              for (std::uint64_t r = run.begin; r < run.end; ++r) {
+                const std::uint64_t s = by_cell[r].second;
+                if (used[s]) continue;
+                double e = 0.0;
+                for (std::uint32_t w = 0; w < words; ++w) {
+                  if (bound[w] == Bound::kSkip) continue;
+                  if (bound[w] == Bound::kExact) {
+                    if (word(decoded, rs, d, w) != word(source, rs, s, w)) e = std::max(e, 1e6);
+                    continue;
+                  }
+                  const float fx = std::bit_cast<float>(word(decoded, rs, d, w));
+                  const float fy = std::bit_cast<float>(word(source, rs, s, w));
+                  const double diff = std::abs(double(fx) - double(fy));
+                  if (bound[w] == Bound::kQuantized)
+                    e = std::max(e, diff / error[w]);
+                  else if (bound[w] == Bound::kRelative)
+                    e = std::max(e, diff / (error[w] * std::max(std::abs(double(fy)), 1e-30)));
+                  else
+                    e = std::max(e, diff);
                 }
-              }
-              if (e < best) {
-                best = e;
-                partner[d] = s;
+                if (e < best) {
+                  best = e;
+                  partner[d] = s;
+                }
               }
             }
           }
         }
+      };
+      const std::int64_t home[3] = {cx, cy, cz};
+      if (boxed) {
+        std::int64_t from[3], to[3];
+        for (int c = 0; c < 3; ++c) {
+          const double v = pos(decoded, d, c);
+          from[c] = std::max(home[c] - 1, cell_of(v - error[std::size_t(c)], c));
+          to[c] = std::min(home[c] + 1, cell_of(v + error[std::size_t(c)], c));
+        }
+        search(from, to);
+      }
+      if (!(best <= 1.0)) {  // none within every bound there: the 27 cells, as if afresh
+        best = std::numeric_limits<double>::infinity();
+        partner[d] = UINT64_MAX;
+        const std::int64_t from[3] = {cx - 1, cy - 1, cz - 1}, to[3] = {cx + 1, cy + 1, cz + 1};
+        search(from, to);
       }
       if (partner[d] != UINT64_MAX) used[partner[d]] = true;
     }
