@@ -243,6 +243,7 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
     const std::size_t size = at.size();
     if (from == nullptr || from->size() != size || size == 0) continue;
     const std::uint64_t count = std::min<std::uint64_t>(source_count, source.size() / from_rs);  // from_rs >= size
+    if (count == 0) continue;  // (an empty frame's data may be null)
     const std::byte* in = source.data() + from->offset;
     std::byte* out = mapped.data() + at.offset;
     for (std::uint64_t i = 0; i < count; ++i, in += from_rs, out += rs) std::memcpy(out, in, size);
