@@ -58,11 +58,12 @@ def spacing(points, sample):
     return out
 
 
-def clip_grid(archive, name, error):
+def clip_grid(archive, name, error, samples=None):
     """The codec's position grid for a points object at the bound `error` (a fraction of the clip's
-    bounds diagonal): its origin, the clip's least corner, and its step, twice the bound."""
+    bounds diagonal): its origin, the clip's least corner, and its step, twice the bound. Over the
+    first `samples` samples where given (a cook of those frames alone), else all."""
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for t in range(archive.num_samples(name)):
+    for t in range(archive.num_samples(name) if samples is None else samples):
         p = archive.positions(name, t)
         if len(p):
             lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0))

@@ -42,6 +42,7 @@ import tempfile
 import numpy as np
 
 import particlestream as ps
+from particle_identity import clip_grid  # bench/, beside this script
 
 AXIS_BITS = 21  # a key holds three axes of up to 21 bits
 
@@ -180,12 +181,8 @@ def main():
         samples = min(samples, args.frames)
     if samples < 2:
         sys.exit(f"{args.file}: {name}: {samples} frame(s) to use; two or more are needed")
+    lo, step = clip_grid(archive, name, args.error, samples)
     positions = [archive.positions(name, t).astype(np.float64) for t in range(samples)]
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for p in positions:
-        if len(p):
-            lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0))
-    step = 2 * args.error * float(np.linalg.norm(hi - lo))
     grid = [np.round((p - lo) / step).astype(np.int64) for p in positions]
     depth = max(1, max(int(g.max()) for g in grid if len(g)).bit_length())
     if depth > AXIS_BITS:

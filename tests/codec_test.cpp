@@ -274,18 +274,25 @@ TEST(ParticleCodec, FramesWithIdsAreInIdOrderAndIdsAreExact) {
 // bound (the demo fountain's dense jet made `verify --against` report errors of 2 % in scale and
 // 3x the position bound on a clip within both): decoded A' is nearer B than A, takes it, and
 // leaves A to B'. A clip ordered by id against its source in id order pairs particle i with i.
-TEST(FrameComparison, InOrderPairsParticleIWithParticleIWhereNearestWouldNot) {
-  const std::vector<format::Attribute> layout = format::default_layout();  // x y z scale
+// A particle codec's plan for [x y z scale] in `order`: positions within `error`, scale coded as
+// `scale` (within 1 % where relative).
+format::CodecInfo xyz_scale_plan(format::FrameOrder order, float error, format::WordCoding scale) {
   format::CodecInfo info;
   info.codec = format::FrameCodec::Particle;
-  info.order = format::FrameOrder::Id;
+  info.order = order;
   info.words.resize(4);
   for (int w = 0; w < 3; ++w) {
     info.words[w].coding = format::WordCoding::Quantized;
-    info.words[w].error = 1.0f;
+    info.words[w].error = error;
   }
-  info.words[3].coding = format::WordCoding::Relative;
-  info.words[3].error = 0.01f;
+  info.words[3].coding = scale;
+  if (scale == format::WordCoding::Relative) info.words[3].error = 0.01f;
+  return info;
+}
+
+TEST(FrameComparison, InOrderPairsParticleIWithParticleIWhereNearestWouldNot) {
+  const std::vector<format::Attribute> layout = format::default_layout();  // x y z scale
+  const format::CodecInfo info = xyz_scale_plan(format::FrameOrder::Id, 1.0f, format::WordCoding::Relative);
   const float source[8] = {0.0f, 0, 0, 1, 1.5f, 0, 0, 1}, decoded[8] = {0.9f, 0, 0, 1, 2.4f, 0, 0, 1};
   const auto bytes = [](const float* v) { return std::as_bytes(std::span(v, 8)); };
   format::FrameComparison nearest;
@@ -309,15 +316,7 @@ TEST(FrameComparison, InOrderPairsParticleIWithParticleIWhereNearestWouldNot) {
 // finds no partner.
 TEST(FrameComparison, NearestPartnersWithinAndBeyondTheBound) {
   const std::vector<format::Attribute> layout = format::default_layout();  // x y z scale
-  format::CodecInfo info;
-  info.codec = format::FrameCodec::Particle;
-  info.order = format::FrameOrder::Matched;
-  info.words.resize(4);
-  for (int w = 0; w < 3; ++w) {
-    info.words[w].coding = format::WordCoding::Quantized;
-    info.words[w].error = 0.01f;
-  }
-  info.words[3].coding = format::WordCoding::Constant;
+  const format::CodecInfo info = xyz_scale_plan(format::FrameOrder::Matched, 0.01f, format::WordCoding::Constant);
   constexpr std::size_t n = 4000;
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> place(0.0f, 4.0f), jitter(-0.0099f, 0.0099f);

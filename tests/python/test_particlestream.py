@@ -629,7 +629,9 @@ def run_bench_script(script, *args):
     import subprocess
     import sys
     path = pathlib.Path(__file__).parents[2] / "bench" / script
-    return subprocess.run([sys.executable, str(path), *map(str, args)], capture_output=True, text=True)
+    # No bench/__pycache__ from the scripts that import one another: the tests leave the tree as it was.
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
+    return subprocess.run([sys.executable, str(path), *map(str, args)], capture_output=True, text=True, env=env)
 
 
 def bench_script_json(script, *args):
