@@ -441,9 +441,11 @@ void FrameComparison::add(const std::vector<Attribute>& layout, std::span<const 
       if (boxed) {
         std::int64_t from[3], to[3];
         for (int c = 0; c < 3; ++c) {
-          const double v = pos(decoded, d, c);
-          from[c] = std::max(home[c] - 1, cell_of(v - error[std::size_t(c)], c));
-          to[c] = std::min(home[c] + 1, cell_of(v + error[std::size_t(c)], c));
+          // The bound and a margin for the rounding of v ± bound, so that no particle within it
+          // falls outside the box.
+          const double v = pos(decoded, d, c), reach = error[std::size_t(c)] * (1 + 1e-6) + std::abs(v) * 1e-15;
+          from[c] = std::max(home[c] - 1, cell_of(v - reach, c));
+          to[c] = std::min(home[c] + 1, cell_of(v + reach, c));
         }
         search(from, to);
       }
