@@ -222,7 +222,7 @@ def main():
         bits += sum(per_level[k] for k in range(level + 1, depth + 1)) * (multi_points / max(nodes_points, 1))
         if best is None or bits < best[1]:
             best = (level, bits)
-    file_bytes, cooked = codec_bytes(args.file, name, args.error, f"0:{samples - 1}")
+    file_bytes, cooked = codec_bytes(args.file, name, args.error, f"0:{samples}")  # A:B stops before B
     rows = {
         "particle codec (its file: positions and sizes)": 8 * file_bytes / cooked,
         "at rest + movers as a set": (entropy_bits(flags) + gap_bits) / particles,
