@@ -4,6 +4,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cfloat>
 #include <cmath>
@@ -14,6 +15,15 @@
 #include <type_traits>
 
 #include <fmt/format.h>
+
+// SurvivorRuns::compact(), built for AVX2 on x86-64 outside the browser (the decoder picks it at
+// run time); elsewhere the survivors are only walked run by run.
+#if defined(__x86_64__) && !defined(__EMSCRIPTEN__)
+#include <immintrin.h>
+#define PSTREAM_COMPACT_SURVIVORS 1
+#else
+#define PSTREAM_COMPACT_SURVIVORS 0
+#endif
 
 #include "particlestream/codec.hpp"
 
@@ -304,6 +314,18 @@ inline void read_values(const std::byte* planes, std::size_t n, unsigned bytes, 
   for (std::size_t t = 0; t < n; ++t) out[t] = unzigzag(out[t]);
 }
 
+// For each of the 256 masks of eight lanes, the lanes it marks, lowest first, a byte each
+// (SurvivorRuns::compact()).
+constexpr auto kCompactLanes = [] {
+  std::array<std::uint64_t, 256> lanes{};
+  for (unsigned m = 0; m < 256; ++m) {
+    unsigned at = 0;
+    for (unsigned l = 0; l < 8; ++l)
+      if (m >> l & 1) lanes[m] |= std::uint64_t(l) << (8 * at++);
+  }
+  return lanes;
+}();
+
 // The survivors of one word, predicted a run at a time straight from their residuals: survivor
 // `at` of the frame's survivors (in order) is q = q1 + (d1 if linear) + r, and its step d = q - q1,
 // where r is its residual unzigzagged plus the bias of its block of 1024. The residuals are `bytes`
@@ -312,7 +334,9 @@ inline void read_values(const std::byte* planes, std::size_t n, unsigned bytes, 
 // values past its end (kRunPad), which the next run or new particle overwrites, and reads up to
 // kReadPad bytes past the residuals. The runs between births and deaths are short (33 survivors on
 // the sparks, 15 on the FLIP pour): a scalar tail for each had taken 43 % of the loop, and the
-// residuals made in a pass of their own, a block at a time, a third of its time.
+// residuals made in a pass of their own, a block at a time, a third of its time. Where the
+// survivors are the frame's first particles, compact() predicts them all in one pass over the
+// previous particles instead, without the runs.
 class SurvivorRuns {
  public:
   SurvivorRuns(const std::byte* keep, std::uint32_t n, std::uint8_t packing, unsigned bytes,
@@ -328,6 +352,36 @@ class SurvivorRuns {
   }
 
   SurvivorRuns() = default;
+
+#if PSTREAM_COMPACT_SURVIVORS
+  // Every survivor in one pass over the previous particles (Reader::compact()), eight at a time,
+  // for a caller built for AVX2.
+  [[gnu::target("avx2"), gnu::always_inline]] void compact(unsigned kind, const std::uint8_t* alive, std::uint32_t prev,
+                                                           std::uint32_t* q0, std::uint32_t* d0,
+                                                           const std::uint32_t* q1, const std::uint32_t* d1,
+                                                           std::uint32_t linear) {
+    switch (kind) {
+      case 0: return compact_as<false, 0>(alive, prev, q0, d0, q1, d1, linear);
+      case 1: return compact_as<false, 1>(alive, prev, q0, d0, q1, d1, linear);
+      case 2: return compact_as<false, 2>(alive, prev, q0, d0, q1, d1, linear);
+      case 3: return compact_as<false, 3>(alive, prev, q0, d0, q1, d1, linear);
+      case 4: return compact_as<false, 4>(alive, prev, q0, d0, q1, d1, linear);
+      case 5: return compact_as<true, 0>(alive, prev, q0, d0, q1, d1, linear);
+      case 6: return compact_as<true, 1>(alive, prev, q0, d0, q1, d1, linear);
+      case 7: return compact_as<true, 2>(alive, prev, q0, d0, q1, d1, linear);
+      case 8: return compact_as<true, 3>(alive, prev, q0, d0, q1, d1, linear);
+      default: return compact_as<true, 4>(alive, prev, q0, d0, q1, d1, linear);
+    }
+  }
+  template <bool Nibbles, unsigned Bytes>
+  [[gnu::target("avx2"), gnu::always_inline]] void compact_as(const std::uint8_t* alive, std::uint32_t prev,
+                                                              std::uint32_t* q0, std::uint32_t* d0,
+                                                              const std::uint32_t* q1, const std::uint32_t* d1,
+                                                              std::uint32_t linear) {
+    if (linear != 0) return Reader<8, Nibbles, Bytes>{this}.template compact<true>(alive, prev, q0, d0, q1, d1);
+    Reader<8, Nibbles, Bytes>{this}.template compact<false>(alive, prev, q0, d0, q1, d1);
+  }
+#endif
 
   // Which reader the residuals need: 0-4 for byte planes of that many bytes, 5-9 for nibbles with
   // escapes of kind - 5 bytes.
@@ -414,36 +468,41 @@ class SurvivorRuns {
   template <unsigned Lanes, bool Nibbles, unsigned Bytes>
   struct Reader {
     SurvivorRuns* s;
+    using W = std::conditional_t<Lanes == 4, V, V8>;
+    // The residuals of survivors at to at + 7 (zigzagged, before the bias): all eight in `lo` for
+    // eight lanes, else the first four in `lo` and the others in `hi`.
+    [[gnu::always_inline]] void load(std::uint32_t at, W& lo, W& hi) const {
+      const std::uint8_t* __restrict keep = s->keep_;
+      lo = W{};
+      hi = W{};
+      if constexpr (Nibbles) {
+        if constexpr (Lanes == 4) {
+          widen(nibbles8(keep, at), lo, hi);
+        } else {
+          widen(nibbles8(keep, at), lo);
+        }
+      } else {
+        for (unsigned b = 0; b < Bytes; ++b) {
+          W l{};
+          [[maybe_unused]] W h{};
+          if constexpr (Lanes == 4) {
+            widen(bytes8(load8(keep + b * std::size_t(s->n_) + at)), l, h);
+          } else {
+            widen(bytes8(load8(keep + b * std::size_t(s->n_) + at)), l);
+          }
+          lo |= l << (8 * b);
+          if constexpr (Lanes == 4) hi |= h << (8 * b);
+        }
+      }
+    }
     [[gnu::always_inline]] void run(std::uint32_t at, std::uint32_t len, std::uint32_t* __restrict q0,
                                     std::uint32_t* __restrict d0, const std::uint32_t* __restrict q1,
                                     const std::uint32_t* __restrict d1, std::uint32_t linear) {
       static_assert(Lanes == 4 || Lanes == 8);
-      using W = std::conditional_t<Lanes == 4, V, V8>;
-      const std::uint8_t* __restrict keep = s->keep_;
-      const std::size_t n = s->n_;
       const std::uint32_t add = s->bias_[at >> kBlockShift];
       for (std::uint32_t t = 0; t < len; t += 8) {
-        W lo{};
-        [[maybe_unused]] W hi{};
-        if constexpr (Nibbles) {
-          if constexpr (Lanes == 4) {
-            widen(nibbles8(keep, at + t), lo, hi);
-          } else {
-            widen(nibbles8(keep, at + t), lo);
-          }
-        } else {
-          for (unsigned b = 0; b < Bytes; ++b) {
-            W l{};
-            [[maybe_unused]] W h{};
-            if constexpr (Lanes == 4) {
-              widen(bytes8(load8(keep + b * n + at + t)), l, h);
-            } else {
-              widen(bytes8(load8(keep + b * n + at + t)), l);
-            }
-            lo |= l << (8 * b);
-            if constexpr (Lanes == 4) hi |= h << (8 * b);
-          }
-        }
+        W lo, hi;
+        load(at + t, lo, hi);
         predict(q0 + t, d0 + t, q1 + t, d1 + t, lo, add, linear);
         if constexpr (Lanes == 4) predict(q0 + t + 4, d0 + t + 4, q1 + t + 4, d1 + t + 4, hi, add, linear);
       }
@@ -451,6 +510,54 @@ class SurvivorRuns {
         if (s->scan_.next() < at + len) s->template patch<Bytes>(at, len, q0, d0);
       }
     }
+#if PSTREAM_COMPACT_SURVIVORS
+    // Every survivor, when they are the frame's first particles: survivor t continues the t-th
+    // previous particle that `alive` marks (a bit each, the lowest first). Eight previous particles
+    // at a time, those marked moved into the lowest lanes (kCompactLanes) and predicted there.
+    template <bool Linear>
+    [[gnu::target("avx2"), gnu::always_inline]] void compact(const std::uint8_t* __restrict alive, std::uint32_t prev,
+                                                             std::uint32_t* __restrict q0, std::uint32_t* __restrict d0,
+                                                             const std::uint32_t* __restrict q1,
+                                                             const std::uint32_t* __restrict d1) {
+      static_assert(Lanes == 8);
+      const std::uint32_t blocks = (s->n_ + kBlock - 1) >> kBlockShift;
+      const W lane = {0, 1, 2, 3, 4, 5, 6, 7};
+      std::uint32_t at = 0;
+      // A chunk of previous particles at a time, then its escapes while its survivors are in cache.
+      constexpr std::uint32_t kChunk = 512;
+      for (std::uint32_t c = 0; c < prev; c += kChunk) {
+        const std::uint32_t chunk_at = at;
+        for (std::uint32_t i = c; i < std::min(prev, c + kChunk); i += 8) {
+          const unsigned m = alive[i / 8];
+          if (m == 0) continue;
+          const __m256i lanes = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(static_cast<long long>(kCompactLanes[m])));
+          W q, d{};
+          const __m256i q_moved =
+              _mm256_permutevar8x32_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(q1 + i)), lanes);
+          std::memcpy(&q, &q_moved, sizeof(W));
+          if constexpr (Linear) {
+            const __m256i d_moved =
+                _mm256_permutevar8x32_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(d1 + i)), lanes);
+            std::memcpy(&d, &d_moved, sizeof(W));
+          }
+          W u, unused;
+          load(at, u, unused);
+          const std::uint32_t b = at >> kBlockShift, next = std::min(b + 1, blocks - 1);
+          const W border = W{} + ((b + 1) << kBlockShift);
+          const W add =
+              (W{} + s->bias_[b]) + (reinterpret_cast<W>(at + lane >= border) & (s->bias_[next] - s->bias_[b]));
+          const W step = d + ((u >> 1) ^ (0u - (u & 1u))) + add;
+          q += step;
+          std::memcpy(q0 + at, &q, sizeof(W));
+          std::memcpy(d0 + at, &step, sizeof(W));
+          at += static_cast<std::uint32_t>(std::popcount(m));
+        }
+        if constexpr (Nibbles && Bytes != 0) {
+          if (s->scan_.next() < at) s->template patch<Bytes>(chunk_at, at - chunk_at, q0 + chunk_at, d0 + chunk_at);
+        }
+      }
+    }
+#endif
   };
 
   // The escapes among survivors [at, at + len): each was predicted with 15, and takes the
