@@ -314,6 +314,7 @@ inline void read_values(const std::byte* planes, std::size_t n, unsigned bytes, 
   for (std::size_t t = 0; t < n; ++t) out[t] = unzigzag(out[t]);
 }
 
+#if PSTREAM_COMPACT_SURVIVORS
 // For each of the 256 masks of eight lanes, the lanes it marks, lowest first, a byte each
 // (SurvivorRuns::compact()).
 constexpr auto kCompactLanes = [] {
@@ -325,6 +326,7 @@ constexpr auto kCompactLanes = [] {
   }
   return lanes;
 }();
+#endif
 
 // The survivors of one word, predicted a run at a time straight from their residuals: survivor
 // `at` of the frame's survivors (in order) is q = q1 + (d1 if linear) + r, and its step d = q - q1,

@@ -346,7 +346,7 @@ void predict_survivors_baseline(const Body& b, WordRuns* words, std::size_t coun
 // frame whose survivors come first (a clip without ids: the FLIP pour re-simulated at resolution
 // 120, up to 353,000 particles a frame, one in eight new) is predicted a word at a time in one
 // pass over the previous particles, eight at a time, those that survive moved into the lowest
-// lanes: no walk of the runs between deaths, which average 8 survivors there. 1.10-1.14x as fast
+// lanes: no walk of the runs between deaths, which average 8 survivors there. 1.10-1.17x as fast
 // a decode of that clip, 1.05-1.14x at resolution 80 (docs/compression-experiments.md, "The
 // survivors compacted"); below kWordWalkBytes the walk stays, 10 % faster on the fixtures' small
 // frames.
