@@ -314,6 +314,11 @@ inline void read_values(const std::byte* planes, std::size_t n, unsigned bytes, 
   for (std::size_t t = 0; t < n; ++t) out[t] = unzigzag(out[t]);
 }
 
+// Whether the decoder predicts every frame whose survivors come first with SurvivorRuns::compact()
+// where it can, not only frames past the word walk's size: in the fuzzing build (checksum.cpp,
+// PSTREAM_FUZZING), so that the fuzz targets' small frames reach that loop too.
+bool compact_every_frame();
+
 #if PSTREAM_COMPACT_SURVIVORS
 // For each of the 256 masks of eight lanes, the lanes it marks, lowest first, a byte each
 // (SurvivorRuns::compact()).

@@ -342,7 +342,8 @@ void predict_survivors_baseline(const Body& b, WordRuns* words, std::size_t coun
   predict_survivors_with<4>(b, words, count);
 }
 #if PSTREAM_DECODER_AVX2
-// The same compiled for AVX2: eight survivors a vector instead of two vectors of four. A large
+// The same compiled for AVX2: eight survivors a vector instead of two vectors of four. Given
+// `alive` (a frame past kWordWalkBytes, or any frame in the fuzzing build), a large
 // frame whose survivors come first (a clip without ids: the FLIP pour re-simulated at resolution
 // 120, up to 353,000 particles a frame, one in eight new) is predicted a word at a time in one
 // pass over the previous particles, eight at a time, those that survive moved into the lowest
@@ -353,7 +354,7 @@ void predict_survivors_baseline(const Body& b, WordRuns* words, std::size_t coun
 [[gnu::target("avx2")]] void predict_survivors_avx2(const Body& b, WordRuns* words, std::size_t count,
                                                     [[maybe_unused]] std::uint64_t* alive) {
 #if PSTREAM_COMPACT_SURVIVORS
-  if (!walk_together(b, count) && mark_survivors(b, alive)) {
+  if (alive != nullptr && mark_survivors(b, alive)) {
     for (std::size_t k = 0; k < count; ++k) {
       WordRuns& w = words[k];
       w.runs.compact(w.kind, reinterpret_cast<const std::uint8_t*>(alive), b.prev_count, w.q0, w.d0, w.q1, w.d1,
@@ -525,7 +526,8 @@ class ParticleUnit final : public FrameUnit {
         r.q1 = q_[prev].data() + k * n;
         r.d1 = d_[prev].data() + k * n;
       }
-      predict_survivors_(b, runs_.data(), runs_.size(), alive_.data());
+      const bool compact = compact_every_frame() || !walk_together(b, runs_.size());
+      predict_survivors_(b, runs_.data(), runs_.size(), compact ? alive_.data() : nullptr);
       if (b.new_count != 0) {
         // The new particles' values and first steps, each in one vector pass into the residual
         // buffer.
