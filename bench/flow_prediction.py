@@ -28,7 +28,7 @@ import json
 import numpy as np
 
 import particlestream as ps
-from particle_identity import clip_grid  # bench/, beside this script
+from particle_identity import clip_arguments, clip_grid  # bench/, beside this script
 
 PREDICTIONS = ("previous", "linear", "flow", "flow of stored velocity", "stored velocity")
 
@@ -79,10 +79,7 @@ def entropy_bits(values):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("file", help="an Alembic file")
-    parser.add_argument("--object", help="the points object (default: the first)")
-    parser.add_argument("--error", type=float, default=1e-4,
-                        help="the position bound as a fraction of the clip's bounds diagonal (default 1e-4, the cook's)")
+    clip_arguments(parser)
     parser.add_argument("--reach", type=float, default=0.03,
                         help="the farthest a pair may be, in scene units (default 0.03)")
     parser.add_argument("--radius", type=float, default=0.06,

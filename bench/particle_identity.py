@@ -70,6 +70,15 @@ def clip_grid(archive, name, error, samples=None):
     return lo, 2 * error * float(np.linalg.norm(hi - lo))
 
 
+def clip_arguments(parser):
+    """The arguments the scripts on a clip's positions share: the Alembic file, its points object
+    and the position bound (as the cook's --error)."""
+    parser.add_argument("file", help="an Alembic file")
+    parser.add_argument("--object", help="the points object (default: the first)")
+    parser.add_argument("--error", type=float, default=1e-4,
+                        help="the position bound as a fraction of the clip's bounds diagonal (default 1e-4, the cook's)")
+
+
 def set_bits(points, voxel, step):
     """Bits a particle for the frame as a set of points within voxels of side `voxel` (see above)."""
     _, counts = np.unique(np.floor(points / voxel).astype(np.int64), axis=0, return_counts=True)
@@ -80,11 +89,8 @@ def set_bits(points, voxel, step):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("file", help="an Alembic file")
-    parser.add_argument("--object", help="the points object (default: the first)")
+    clip_arguments(parser)
     parser.add_argument("--frames", default="", help="comma-separated frames (default: five spread over the clip)")
-    parser.add_argument("--error", type=float, default=1e-4,
-                        help="the position bound as a fraction of the clip's bounds diagonal (default 1e-4, the cook's)")
     parser.add_argument("--gravity", default="0,-9.81,0",
                         help="gravity in the clip's units a second squared, x,y,z (default 0,-9.81,0: "
                              "Alembic's y up, metres)")

@@ -42,7 +42,7 @@ import tempfile
 import numpy as np
 
 import particlestream as ps
-from particle_identity import clip_grid  # bench/, beside this script
+from particle_identity import clip_arguments, clip_grid  # bench/, beside this script
 
 AXIS_BITS = 21  # a key holds three axes of up to 21 bits
 
@@ -166,10 +166,7 @@ def codec_bytes(path, name, error, frames):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("file", help="an Alembic file")
-    parser.add_argument("--object", help="the points object (default: the first)")
-    parser.add_argument("--error", type=float, default=1e-4,
-                        help="the position bound as a fraction of the clip's bounds diagonal (default 1e-4, the cook's)")
+    clip_arguments(parser)
     parser.add_argument("--frames", type=int, default=0, help="use the first N frames (default: all)")
     parser.add_argument("--json", action="store_true", help="print JSON")
     args = parser.parse_args()
