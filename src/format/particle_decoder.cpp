@@ -309,8 +309,9 @@ template <unsigned Lanes>
   }
 }
 
-// Whether the frame's survivors come first, every new particle after them (a clip matched by
-// position: survivors in the previous frame's order, then the new ones), and if so `alive` marks
+// Whether the frame's survivors come first, every new particle after them (every frame of a clip
+// matched by position, whose new particles follow its survivors; a frame of a clip ordered by id
+// when its new ids are above its survivors'), and if so `alive` marks
 // the previous particles that survive, a bit each (the lowest first; read as bytes on x86-64,
 // little-endian), zero past prev_count.
 [[maybe_unused]] bool mark_survivors(const Body& b, std::uint64_t* alive) {
@@ -343,14 +344,14 @@ void predict_survivors_baseline(const Body& b, WordRuns* words, std::size_t coun
 }
 #if PSTREAM_DECODER_AVX2
 // The same compiled for AVX2: eight survivors a vector instead of two vectors of four. Given
-// `alive` (a frame past kWordWalkBytes, or any frame in the fuzzing build), a large
-// frame whose survivors come first (a clip without ids: the FLIP pour re-simulated at resolution
-// 120, up to 353,000 particles a frame, one in eight new) is predicted a word at a time in one
-// pass over the previous particles, eight at a time, those that survive moved into the lowest
-// lanes: no walk of the runs between deaths, which average 8 survivors there. 1.10-1.17x as fast
-// a decode of that clip, 1.05-1.14x at resolution 80 (docs/compression-experiments.md, "The
-// survivors compacted"); below kWordWalkBytes the walk stays, 10 % faster on the fixtures' small
-// frames.
+// `alive` (a frame past kWordWalkBytes, or any frame in the fuzzing build), a large frame whose
+// survivors come first (mark_survivors(); every frame of a clip without ids, such as the FLIP pour
+// re-simulated at resolution 120, up to 353,000 particles a frame, one in eight new) is predicted
+// a word at a time in one pass over the previous particles, eight at a time, those that survive
+// moved into the lowest lanes: no walk of the runs between deaths, which average 8 survivors
+// there. 1.10-1.17x as fast a decode of that clip, 1.05-1.14x at resolution 80
+// (docs/compression-experiments.md, "The survivors compacted"); below kWordWalkBytes the walk
+// stays, 10 % faster on the fixtures' small frames.
 [[gnu::target("avx2")]] void predict_survivors_avx2(const Body& b, WordRuns* words, std::size_t count,
                                                     [[maybe_unused]] std::uint64_t* alive) {
 #if PSTREAM_COMPACT_SURVIVORS
