@@ -211,7 +211,7 @@ CodecInfo plan_particle_codec(const std::vector<Attribute>& layout, const ClipSt
     if (is_float) component += at.components;
   }
   // Frames matched by position may pair particles moved on by their stored velocity, where that
-  // finds them again (particle_encoder.cpp, match_by_position()).
+  // finds them again (particle_matching.cpp).
   const Attribute* velocity = find_attribute(layout, "velocity");
   if (info.order == FrameOrder::Matched && velocity != nullptr && velocity->type == AttributeType::Float32 &&
       velocity->components == 3 && fps > 0.0 && std::isfinite(fps)) {

@@ -11,8 +11,10 @@
 #include <cstring>
 #include <limits>
 #include <numeric>
+#include <span>
 #include <tuple>
 #include <type_traits>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -79,6 +81,17 @@ inline float dequantize(std::uint32_t q, float step, float origin) {
 }
 
 inline float as_float(std::uint32_t bits) { return std::bit_cast<float>(bits); }
+
+// The least and the largest of values read as signed 32-bit numbers (grid values, residuals); `v`
+// is not empty. The encoder's: its blocks' medians, its bounds and the matching's box.
+inline std::pair<std::int32_t, std::int32_t> signed_extremes(std::span<const std::uint32_t> v) {
+  std::int32_t lo = static_cast<std::int32_t>(v[0]), hi = lo;
+  for (const std::uint32_t x : v) {
+    lo = std::min(lo, static_cast<std::int32_t>(x));
+    hi = std::max(hi, static_cast<std::int32_t>(x));
+  }
+  return {lo, hi};
+}
 
 struct Op {
   std::uint32_t keep = 0, drop = 0, insert = 0;
