@@ -180,6 +180,38 @@ TEST(Matching, ParticlesThatMoveFurtherThanTheirSpacingAreFoundAlongTheirVelocit
   EXPECT_LT(agreeing(plain, truth), current.size() / 2);
 }
 
+// A sparse frame on a fine grid (a few particles far apart, near both ends of the grid's range)
+// takes the search through coarser cells than a dense one's: each particle is still paired with
+// itself.
+TEST(Matching, ASparseFrameAcrossTheWholeGridIsPairedToo) {
+  std::mt19937 rng(16);
+  std::uniform_int_distribution<std::int64_t> place(-16'000'000, 16'000'000);
+  std::uniform_int_distribution<int> jitter(-50, 50);
+  Frame previous;
+  for (int i = 0; i < 400; ++i) previous.add(place(rng), place(rng), place(rng));
+  previous.add(16'777'000, -16'777'000, 16'777'000);  // beside the grid's limit, 2^24 - 1
+  std::vector<std::int64_t> truth;
+  const Frame current = next_frame(
+      previous, rng, [&](std::uint32_t, int) { return jitter(rng); }, truth);
+  PositionMatcher matcher;
+  const std::vector<std::int64_t> pairs = match(matcher, previous, current);
+  expect_one_to_one(pairs, previous.size());
+  EXPECT_EQ(agreeing(pairs, truth), std::size_t(current.size()));
+}
+
+// Particles that all share one place (a solver's bad frame, or an emitter's first) pair with one
+// another, one to one, and every one of them finds a partner.
+TEST(Matching, ParticlesThatShareOnePlaceArePairedOneToOne) {
+  Frame previous, current;
+  for (int i = 0; i < 3000; ++i) previous.add(-5, 7, 11);
+  for (int i = 0; i < 2500; ++i) current.add(-5, 7, 11);
+  current.add(-5, 7, 12);
+  PositionMatcher matcher;
+  const std::vector<std::int64_t> pairs = match(matcher, previous, current);
+  expect_one_to_one(pairs, previous.size());
+  EXPECT_EQ(std::count(pairs.begin(), pairs.end(), -1), 0);
+}
+
 // The matcher keeps its memory from frame to frame: a frame matched after larger and smaller ones
 // pairs as it does with a fresh matcher, and empty frames pair nothing.
 TEST(Matching, AReusedMatcherPairsAsAFreshOne) {

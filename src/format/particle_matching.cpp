@@ -101,24 +101,36 @@ struct CellRanges {
   }
   std::uint64_t slot(std::uint64_t key) const { return (key * 0x9E3779B97F4A7C15ull) >> shift; }
 };
-// This frame's particles by their exact quantised place, in an open-addressed table: the lowest
-// index at each place. `at` holds each particle's place in its first 3 of every 6 numbers.
+// This frame's particles by their exact quantised place, in an open-addressed table: at each place
+// the particles there, lowest index first, handed out one at a time by take(). `at` holds each
+// particle's place in its first 3 of every 6 numbers.
 struct ExactPlaces {
   static constexpr std::uint32_t kNone = ~std::uint32_t{0};
-  std::vector<std::uint32_t> slot;
+  std::vector<std::uint32_t> slot;     // the lowest index at each place
+  std::vector<std::uint32_t> untaken;  // per slot: the lowest index there not yet taken
+  std::vector<std::uint32_t> next;     // per particle: the next index at its place
   std::uint64_t mask = 0;
   const std::int64_t* at = nullptr;
   void build(std::uint32_t n, const std::int64_t* places) {
     const std::size_t size = std::bit_ceil(std::max<std::size_t>(16, 2 * std::size_t(n)));
     slot.assign(size, kNone);
+    next.resize(n);
     mask = size - 1;
     at = places;
-    for (std::uint32_t j = 0; j < n; ++j) {
+    for (std::uint32_t j = n; j-- > 0;) {  // from the last, so that each place lists its lowest first
       std::uint32_t& s = slot[probe(&at[std::size_t(j) * 6])];
-      if (s == kNone) s = j;  // else an earlier particle holds the place
+      next[j] = s;
+      s = j;
     }
+    untaken = slot;
   }
-  std::uint32_t find(const std::int64_t* q) const { return slot[probe(q)]; }
+  // The lowest index at q's place not taken before, now taken; kNone when there is none left.
+  std::uint32_t take(const std::int64_t* q) {
+    const std::uint64_t h = probe(q);
+    const std::uint32_t j = untaken[h];
+    if (j != kNone) untaken[h] = next[j];
+    return j;
+  }
   // The slot that holds q's place, or the empty one where it would go.
   std::uint64_t probe(const std::int64_t* q) const {
     const std::uint64_t k = (std::uint64_t(std::uint32_t(q[0])) * 0x9E3779B97F4A7C15ull) ^
@@ -140,7 +152,7 @@ struct ExactPlaces {
 struct PositionMatcher::Scratch {
   std::vector<std::int64_t> at, sorted;
   std::vector<Pair> slots, saved, pairs;
-  std::vector<std::uint8_t> kept, saved_kept, prev_taken, claimed;
+  std::vector<std::uint8_t> kept, saved_kept, prev_taken;
   std::vector<std::int32_t> steps, e;
   std::vector<std::uint32_t> start, order, fill, visit_start, visit, all, rest, sample, by_distance;
   ExactPlaces places;  // this frame's particles by their exact place
@@ -532,24 +544,24 @@ class Matching {
     // A previous particle with a current one at exactly its place (a FLIP inflow re-seeds its
     // particles where it seeded them: a fifth of the pour's, and more in its first frames) keeps
     // that one alone as its candidate, without a search: it is the nearest of the six a search
-    // would keep, and the pairing below takes it first. A second previous particle at the same
-    // place is searched, as the ones without are. The FLIP pour cooks to the same bytes, its
+    // would keep, and the pairing below takes it first. Where several previous particles share a
+    // place, each takes the next current one there, lowest index first, and those left without
+    // one are searched, as the ones without are. The FLIP pour cooks to the same bytes, its
     // `[x y z scale]` encode 1.07-1.13x as fast (docs/compression-experiments.md, "Particles that
-    // stay put, paired without a search"); a clip with none costs a table lookup a particle.
+    // stay put, paired without a search"); a clip with none costs a table lookup a particle. (A
+    // search keeps a particle's six nearest, ties by index: thousands of particles at one place
+    // would all keep the same six, and all but a few would be left unpaired.)
     std::vector<std::uint32_t>& rest = m.rest;
     rest.clear();
     ExactPlaces& places = m.places;
     places.build(n, at.data());
-    std::vector<std::uint8_t>& claimed = m.claimed;
-    claimed.assign(n, 0);
     for (std::uint32_t i = 0; i < previous_.count; ++i) {
       const std::int64_t q[3] = {from(i, 0), from(i, 1), from(i, 2)};  // where it was (moved is null)
-      const std::uint32_t j = places.find(q);
-      if (j == ExactPlaces::kNone || claimed[j]) {  // a later one at a shared place is searched
+      const std::uint32_t j = places.take(q);
+      if (j == ExactPlaces::kNone) {
         rest.push_back(i);
         continue;
       }
-      claimed[j] = 1;
       slots[std::size_t(i) * kCandidates] = Pair{0, i, j};
       kept[i] = 1;
     }
