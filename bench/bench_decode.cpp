@@ -4,10 +4,8 @@
 // what the stream's IO worker does. Arguments 2 and 3: the same fixtures as [x y z scale] records,
 // the records `pstream bench codec` measures the codec on against its peers.
 #include <benchmark/benchmark.h>
-#include <unistd.h>
 
 #include <cstring>
-#include <filesystem>
 #include <iterator>
 #include <optional>
 #include <string>
@@ -17,6 +15,7 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
+#include "temporary_cook.hpp"
 
 namespace {
 
@@ -38,14 +37,8 @@ struct CookedClip {
       o.keep_velocity = false;
     }
     o.input = PSTREAM_TEST_DATA "/sims/" + name + ".abc";
-    o.output = std::filesystem::temp_directory_path() /
-               ("pstream-bench-decode-" + std::to_string(::getpid()) + "-" + name + ".pstream");
-    struct Removed {
-      const std::filesystem::path& path;
-      ~Removed() { std::filesystem::remove(path); }
-    } removed{o.output};
-    cook::cook(o);
-    const format::Reader reader = format::Reader::open(o.output);
+    const bench::TemporaryCook cooked(o, "decode-" + name);
+    const format::Reader reader = format::Reader::open(cooked.path());
     meta = reader.metadata();
     std::vector<std::byte> scratch(meta.chunk_size * 2);
     for (std::uint64_t f = 0; f < meta.frames.size(); ++f) {

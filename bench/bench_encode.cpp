@@ -3,11 +3,9 @@
 // time, and the matching alone on the same frames in the same run: BM_MatchFlipPour's time over BM_EncodeFlipPour's is
 // the matching's share of the encode without ids (docs/compression.md, "Encode speed"). Both report particles a second.
 #include <benchmark/benchmark.h>
-#include <unistd.h>
 
 #include <cmath>
 #include <cstring>
-#include <filesystem>
 #include <string>
 #include <vector>
 
@@ -16,6 +14,7 @@
 #include "particlestream/codec.hpp"
 #include "particlestream/cook.hpp"
 #include "particlestream/format.hpp"
+#include "temporary_cook.hpp"
 
 namespace {
 
@@ -55,8 +54,6 @@ struct SourceClip {
     o.color_from = "none";
     o.keep_velocity = false;
     o.input = PSTREAM_TEST_DATA "/sims/blender_flip_pour_small.abc";
-    o.output =
-        std::filesystem::temp_directory_path() / ("pstream-bench-encode-" + std::to_string(::getpid()) + ".pstream");
     cook::read_frames(o, [&](const format::Metadata& m, const cook::CookedFrame& f) {
       records.emplace_back(f.records.begin(), f.records.end());
       record_size = m.record_size;
@@ -64,18 +61,14 @@ struct SourceClip {
       return true;
     });
     bytes = particles * record_size;
-    struct Removed {
-      const std::filesystem::path& path;
-      ~Removed() { std::filesystem::remove(path); }
-    } removed{o.output};
-    cook::cook(o);
-    const format::Reader reader = format::Reader::open(o.output);
+    const bench::TemporaryCook cooked(o, "encode");
+    const format::Reader reader = format::Reader::open(cooked.path());
     const format::Metadata& m = reader.metadata();
     if (m.record_size != record_size || m.frames.size() != records.size())
       throw Error("the FLIP fixture's cook is not its frames as [x y z scale]");
     codec = m.codec;
     codec.zstd_level = format::default_particle_zstd_level(codec.order, codec.lossless);  // not stored
-    std::vector<std::byte> out = format::frame_buffer(m, o.output.string());
+    std::vector<std::byte> out = format::frame_buffer(m, cooked.path().string());
     std::vector<std::uint32_t> grid[3];
     for (std::size_t f = 0; f < records.size(); ++f) {
       cooked_bytes += m.frames[f].packet_size;

@@ -80,6 +80,17 @@ std::size_t agreeing(const std::vector<std::int64_t>& pairs, const std::vector<s
   return same;
 }
 
+// Matches `current` against `previous` with a fresh matcher and checks the pairs: one to one, and
+// each the true one. Returns them.
+std::vector<std::int64_t> expect_true_pairs(const Frame& previous, const Frame& current,
+                                            const std::vector<std::int64_t>& truth) {
+  PositionMatcher matcher;
+  std::vector<std::int64_t> pairs = match(matcher, previous, current);
+  expect_one_to_one(pairs, previous.size());
+  EXPECT_EQ(agreeing(pairs, truth), std::size_t(current.size()));
+  return pairs;
+}
+
 // Particles that move less than a third of their spacing are each paired with themselves, whatever
 // order the frame lists them in, on both sides of the grid's zero.
 TEST(Matching, ShuffledParticlesThatMoveLessThanTheirSpacingArePairedWithThemselves) {
@@ -89,10 +100,7 @@ TEST(Matching, ShuffledParticlesThatMoveLessThanTheirSpacingArePairedWithThemsel
   std::vector<std::int64_t> truth;
   const Frame current = next_frame(
       previous, rng, [&](std::uint32_t, int) { return jitter(rng); }, truth);
-  PositionMatcher matcher;
-  const std::vector<std::int64_t> pairs = match(matcher, previous, current);
-  expect_one_to_one(pairs, previous.size());
-  EXPECT_EQ(agreeing(pairs, truth), std::size_t(current.size()));
+  expect_true_pairs(previous, current, truth);
 }
 
 // A particle at exactly a previous particle's place (an inflow that re-seeds where it seeded) is
@@ -105,15 +113,12 @@ TEST(Matching, ParticlesThatStayPutArePairedInPlace) {
   // place.
   const Frame current = next_frame(
       previous, rng, [](std::uint32_t i, int a) { return i % 2 == 1 && a == 2 ? 14 : 0; }, truth);
-  PositionMatcher matcher;
-  const std::vector<std::int64_t> pairs = match(matcher, previous, current);
-  expect_one_to_one(pairs, previous.size());
+  const std::vector<std::int64_t> pairs = expect_true_pairs(previous, current, truth);
   for (std::size_t j = 0; j < pairs.size(); ++j) {
     if (truth[j] % 2 == 0) {
       EXPECT_EQ(pairs[j], truth[j]) << "a particle that stayed put, current " << j;
     }
   }
-  EXPECT_EQ(agreeing(pairs, truth), std::size_t(current.size()));
 }
 
 // Births far from every previous particle stay unpaired, and the particles that died leave their
@@ -137,10 +142,7 @@ TEST(Matching, BirthsFarAwayStayNewAndDeathsLeaveTheirIndicesUnused) {
     current.add(4000 + 30 * (b % 10), 4000 + 30 * (b / 10 % 10), 4000 + 30 * (b / 100));
     truth.push_back(-1);
   }
-  PositionMatcher matcher;
-  const std::vector<std::int64_t> pairs = match(matcher, previous, current);
-  expect_one_to_one(pairs, previous.size());
-  EXPECT_EQ(agreeing(pairs, truth), std::size_t(current.size()));
+  const std::vector<std::int64_t> pairs = expect_true_pairs(previous, current, truth);
   EXPECT_EQ(std::count(pairs.begin(), pairs.end(), -1), 200);
 }
 
@@ -193,10 +195,7 @@ TEST(Matching, ASparseFrameAcrossTheWholeGridIsPairedToo) {
   std::vector<std::int64_t> truth;
   const Frame current = next_frame(
       previous, rng, [&](std::uint32_t, int) { return jitter(rng); }, truth);
-  PositionMatcher matcher;
-  const std::vector<std::int64_t> pairs = match(matcher, previous, current);
-  expect_one_to_one(pairs, previous.size());
-  EXPECT_EQ(agreeing(pairs, truth), std::size_t(current.size()));
+  expect_true_pairs(previous, current, truth);
 }
 
 // Particles that all share one place (a solver's bad frame, or an emitter's first) pair with one
