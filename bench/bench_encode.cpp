@@ -1,7 +1,8 @@
 // Encoding the FLIP fixture's [x y z scale] records at the default bounds (no ids: the particle
 // codec pairs each frame's particles with the frame before's by position), one core, thread CPU
-// time, and the matching alone on the same frames in the same run: BM_MatchFlipPour's time over BM_EncodeFlipPour's is
-// the matching's share of the encode without ids (docs/compression.md, "Encode speed"). Both report particles a second.
+// time, and the matching alone on the same frames in the same run: BM_MatchFlipPour's time over
+// BM_EncodeFlipPour's is the matching's share of the encode without ids (docs/compression.md,
+// "What it does", 2). Both report particles a second.
 #include <benchmark/benchmark.h>
 
 #include <cmath>
