@@ -211,6 +211,19 @@ TEST(Matching, ParticlesThatShareOnePlaceArePairedOneToOne) {
   EXPECT_EQ(std::count(pairs.begin(), pairs.end(), -1), 0);
 }
 
+// Such a crowd that moves as one (particles parked at an emitter that moves): none of the current
+// ones is at a previous one's place, so each is found by a search, and all of them are paired.
+TEST(Matching, ACrowdThatMovesTogetherIsPairedOneToOne) {
+  Frame previous, current;
+  for (int i = 0; i < 3000; ++i) previous.add(-5, 7, 11);
+  for (int i = 0; i < 2500; ++i) current.add(-4, 6, 13);
+  current.add(-4, 6, 12);
+  PositionMatcher matcher;
+  const std::vector<std::int64_t> pairs = match(matcher, previous, current);
+  expect_one_to_one(pairs, previous.size());
+  EXPECT_EQ(std::count(pairs.begin(), pairs.end(), -1), 0);
+}
+
 // The matcher keeps its memory from frame to frame: a frame matched after larger and smaller ones
 // pairs as it does with a fresh matcher, and empty frames pair nothing.
 TEST(Matching, AReusedMatcherPairsAsAFreshOne) {

@@ -61,9 +61,10 @@ struct Offset {  // a cell offset, and the least squared distance across it
   std::int64_t bound;
   int d[3];
 };
-// A current particle left over by the pairing: its cell's key, its position and index (kept
-// beside the key: read through `at` instead, with a binary search for each cell in place of
-// CellRanges, the pairing took 280-300 us a frame of the FLIP pour where it takes 225).
+// A place of current particles left over by the pairing: its cell's key, its position and its
+// first unpaired particle's index (kept beside the key: read through `at` instead, with a binary
+// search for each cell in place of CellRanges, the pairing took 280-300 us a frame of the FLIP
+// pour where it takes 225).
 struct Spare {
   std::uint64_t key;
   std::int64_t q[3];
@@ -131,6 +132,15 @@ struct ExactPlaces {
     if (j != kNone) untaken[h] = next[j];
     return j;
   }
+  // The lowest index at slot h's place that `match` leaves unpaired (kNone if none), once
+  // restart() has set each place's cursor to its lowest index: a particle once paired stays
+  // paired, so the cursor only moves on.
+  void restart() { untaken = slot; }
+  std::uint32_t first_unpaired(std::uint64_t h, const std::vector<std::int64_t>& match) {
+    std::uint32_t& j = untaken[h];
+    while (j != kNone && match[j] >= 0) j = next[j];
+    return j;
+  }
   // The slot that holds q's place, or the empty one where it would go.
   std::uint64_t probe(const std::int64_t* q) const {
     const std::uint64_t k = (std::uint64_t(std::uint32_t(q[0])) * 0x9E3779B97F4A7C15ull) ^
@@ -161,10 +171,11 @@ struct PositionMatcher::Scratch {
   std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_cells;
   std::vector<std::size_t> cell_of_particle;
   std::vector<std::uint64_t> nearest_prev, items, scratch;
-  std::vector<Spare> spare;         // Matching::pair_leftovers()'s current particles
-  std::vector<std::uint32_t> left;  // and its previous ones
-  CellRanges spare_cells;           // where `spare` holds each cell's
-  std::vector<std::uint8_t> known;  // and what it knows of each previous particle's candidates
+  std::vector<Spare> spare;             // Matching::pair_leftovers()'s places of current particles
+  std::vector<std::uint32_t> left;      // and its previous ones
+  CellRanges spare_cells;               // where `spare` holds each cell's
+  std::vector<std::uint8_t> known;      // and what it knows of each previous particle's candidates
+  std::vector<std::uint64_t> place_of;  // and each place's slot in `places`, by its first index
 };
 
 namespace {
@@ -348,24 +359,32 @@ class Matching {
         // so the pairs are the same; the FLIP pour's matching took 4-5 % less time (medians of five
         // alternating cooks: 87.0 against 91.1 ms).
         auto guess = static_cast<std::int32_t>(most);
+        // The kept candidates as distance << 32 | current index: one comparison orders them as
+        // (distance, index) does (distances within the reach are below 2^23).
+        std::uint64_t best[kCandidates];
+        int found = 0;
+        // Where the last search was from. Previous particles at one place (a crowd parked at an
+        // emitter) follow one another in the visit order and would each find the same candidates
+        // (unless a search stops at kMostRead reads): each after the first takes the last search's
+        // without one (3,000 of them read 2,501 candidates each a frame: "A crowd that moves as
+        // one" in the experiments).
+        std::int64_t last[3] = {0, 0, 0};
+        bool searched = false;
         for (const std::uint32_t u : visit) {
           const std::uint32_t i = previous[u];
           float p[3];
-          std::int64_t home[3], gap[3][3];  // gap[a][d + 1]: squared, to the cells d along axis a
+          std::int64_t q[3], home[3], gap[3][3];  // gap[a][d + 1]: squared, to the cells d along axis a
           for (int a = 0; a < 3; ++a) {
-            const std::int64_t q = static_cast<std::int32_t>(where[a][i]) +
-                                   (shift == nullptr ? 0 : shift[std::size_t(i) * 3 + std::size_t(a)]);
-            p[a] = static_cast<float>(q);
-            home[a] = floordiv(q, side) - c0[a];
-            const std::int64_t into = q - (home[a] + c0[a]) * side;  // 0..cell-1
+            q[a] = static_cast<std::int32_t>(where[a][i]) +
+                   (shift == nullptr ? 0 : shift[std::size_t(i) * 3 + std::size_t(a)]);
+            p[a] = static_cast<float>(q[a]);
+            home[a] = floordiv(q[a], side) - c0[a];
+            const std::int64_t into = q[a] - (home[a] + c0[a]) * side;  // 0..cell-1
             gap[a][0] = (into + 1) * (into + 1);
             gap[a][1] = 0;
             gap[a][2] = (side - into) * (side - into);
           }
-          // The kept candidates as distance << 32 | current index: one comparison orders them as
-          // (distance, index) does (distances within the reach are below 2^23).
-          std::uint64_t best[kCandidates];
-          int found = 0;
+          const bool again = searched && q[0] == last[0] && q[1] == last[1] && q[2] == last[2];
           std::int32_t within = 0;  // the scan's bound, then the worst distance kept
           const auto scan = [&](std::int32_t bound) {
             found = 0;
@@ -416,11 +435,15 @@ class Matching {
               }
             }
           };
-          scan(guess);
-          if (found < kCandidates && guess < most) scan(static_cast<std::int32_t>(most));
-          guess = found == kCandidates
-                      ? static_cast<std::int32_t>(std::min<std::int64_t>(most, 2 * std::int64_t(within) + 1))
-                      : static_cast<std::int32_t>(most);
+          if (!again) {
+            scan(guess);
+            if (found < kCandidates && guess < most) scan(static_cast<std::int32_t>(most));
+            guess = found == kCandidates
+                        ? static_cast<std::int32_t>(std::min<std::int64_t>(most, 2 * std::int64_t(within) + 1))
+                        : static_cast<std::int32_t>(most);
+            std::copy_n(q, 3, last);
+            searched = true;
+          }
           for (int b = 0; b < found; ++b) {
             pslots[std::size_t(i) * kCandidates + std::size_t(b)] =
                 Pair{std::int64_t(best[b] >> 32), i, static_cast<std::uint32_t>(best[b])};
@@ -646,7 +669,7 @@ class Matching {
         if (match[pair.cur] < 0) pairs.push_back(pair);
       }
     }
-    take_closest_first(pairs, reach, match);
+    take_closest_first(pairs, reach, match, [&](std::uint32_t j) { return match[j] < 0 ? j : ExactPlaces::kNone; });
     // Particles that persist (matched along their velocities) are born and die: what is left over
     // is not one particle in both frames, and paired it would jump from one to the other.
     if (moved == nullptr) pair_leftovers(n, cell, reach, from, match);
@@ -670,7 +693,11 @@ class Matching {
   // each particle's by (distance, current index), so a stable sort by distance is (distance,
   // previous, current) order. Every distance is within the reach, so the depth sorter's radix sort
   // does it (a comparison sort here was about 15 % of a FLIP cook).
-  void take_closest_first(const std::vector<Pair>& pairs, std::int64_t reach, std::vector<std::int64_t>& match) {
+  // `unpaired(cur)` is the current particle a pair with `cur` pairs (kNone once there is none):
+  // `cur` itself while it is unpaired, or in pair_leftovers() the next one at its place.
+  template <class Unpaired>
+  void take_closest_first(const std::vector<Pair>& pairs, std::int64_t reach, std::vector<std::int64_t>& match,
+                          const Unpaired& unpaired) {
     Scratch& m = scratch_;
     std::vector<std::uint32_t>& by_distance = m.by_distance;
     by_distance.resize(pairs.size());
@@ -688,9 +715,11 @@ class Matching {
     }
     for (const std::uint32_t t : by_distance) {
       const Pair& pair = pairs[t];
-      if (m.prev_taken[pair.prev] || match[pair.cur] >= 0) continue;
+      if (m.prev_taken[pair.prev]) continue;
+      const std::uint32_t cur = unpaired(pair.cur);
+      if (cur == ExactPlaces::kNone) continue;
       m.prev_taken[pair.prev] = 1;
-      match[pair.cur] = pair.prev;
+      match[cur] = pair.prev;
     }
   }
 
@@ -711,6 +740,12 @@ class Matching {
   // particle costs about what a survivor's larger residual does. Paired, the pour has 54 operations
   // a frame instead of 262, is 2.9 % smaller and decodes about 1.4x as fast (docs/compression-experiments.md,
   // "The leftovers paired").
+  //
+  // Current particles that share a place are one candidate here, which pairs the lowest of them
+  // still unpaired, so that a crowd at one place fills one of a search's kCandidates, not all of
+  // them. A crowd that moves as one (particles parked at an emitter that moves) was otherwise left
+  // unpaired but for a few a frame: every search kept the same kCandidates of it, ties by index
+  // ("A crowd that moves as one" in the experiments).
   static constexpr int kLeftoverRounds = 16;
   static constexpr std::uint32_t kLeftoverReads = 64;
   template <class From>
@@ -720,9 +755,18 @@ class Matching {
     const std::int64_t side = 2 * cell;
     std::vector<Spare>& spare = m.spare;
     spare.clear();
+    ExactPlaces& places = m.places;
+    places.restart();
+    std::vector<std::uint64_t>& place_of = m.place_of;  // a place's first unpaired index: its slot
+    place_of.resize(n);
+    // The current particle that a candidate `j` (a place's first unpaired particle) pairs now.
+    const auto unpaired = [&](std::uint32_t j) { return places.first_unpaired(place_of[j], match); };
     for (std::uint32_t j = 0; j < n; ++j) {
       if (match[j] >= 0) continue;
       const std::int64_t* q = &m.at[std::size_t(j) * 6];
+      const std::uint64_t h = places.probe(q);
+      if (places.first_unpaired(h, match) != j) continue;  // an earlier one stands for its place
+      place_of[j] = h;
       spare.push_back(
           Spare{cell_key(floordiv(q[0], side), floordiv(q[1], side), floordiv(q[2], side)), {q[0], q[1], q[2]}, j});
     }
@@ -754,7 +798,7 @@ class Matching {
         if (known[i] != 0) {
           for (int b = 0; b < known[i] - 1; ++b) {
             const Pair& pair = slots[std::size_t(i) * kCandidates + std::size_t(b)];
-            if (match[pair.cur] < 0) pairs.push_back(pair);
+            if (unpaired(pair.cur) != ExactPlaces::kNone) pairs.push_back(pair);
           }
           continue;
         }
@@ -786,9 +830,9 @@ class Matching {
         read += most - unread;
       }
       if (pairs.empty()) break;
-      take_closest_first(pairs, reach, match);
+      take_closest_first(pairs, reach, match, unpaired);
       std::erase_if(left, [&](std::uint32_t i) { return m.prev_taken[i] != 0 || known[i] == 1; });
-      std::erase_if(spare, [&](const Spare& c) { return match[c.j] >= 0; });
+      std::erase_if(spare, [&](const Spare& c) { return unpaired(c.j) == ExactPlaces::kNone; });
     }
   }
 
